@@ -1,0 +1,95 @@
+"""``harborsight.report/1``: the clearance of every hull section in one frame."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+REPORT_SCHEMA = "harborsight.report/1"
+
+STATUS_OK = "ok"
+STATUS_CLEAR = "clear"            # in view, no obstacle inside its band within the image
+STATUS_OUT_OF_VIEW = "out_of_view"
+
+
+def _round_list(values, digits: int) -> list[float] | None:
+    if values is None:
+        return None
+    return [round(float(v), digits) for v in values]
+
+
+@dataclass
+class SectionClearance:
+    """One section's result. Pixel coordinates are (u, v); ENU coordinates (e, n) metres."""
+
+    index: int
+    status: str
+    hull_px: list[list[float]]
+    visible_fraction: float
+    distance_m: float | None = None
+    distance_px: float | None = None
+    hull_point_px: list[float] | None = None
+    obstacle_point_px: list[float] | None = None
+    hull_point_enu: list[float] | None = None
+    obstacle_point_enu: list[float] | None = None
+    contact: bool = False
+    truncated: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "index": self.index,
+            "hull_px": [_round_list(p, 2) for p in self.hull_px],
+            "status": self.status,
+            "distance_m": None if self.distance_m is None else round(self.distance_m, 3),
+            "distance_px": None if self.distance_px is None else round(self.distance_px, 2),
+            "hull_point_px": _round_list(self.hull_point_px, 2),
+            "obstacle_point_px": _round_list(self.obstacle_point_px, 2),
+            "hull_point_enu": _round_list(self.hull_point_enu, 3),
+            "obstacle_point_enu": _round_list(self.obstacle_point_enu, 3),
+            "contact": self.contact,
+            "truncated": self.truncated,
+            "visible_fraction": round(self.visible_fraction, 3),
+        }
+
+
+@dataclass
+class ClearanceReport:
+    image: str
+    timestamp: str | None
+    altitude_m: float
+    gsd_m_per_px: float
+    method: str
+    sections: list[SectionClearance]
+    vessel: str = ""
+    enu_origin: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def closest_section(self) -> int | None:
+        ok = [s for s in self.sections if s.status == STATUS_OK]
+        return min(ok, key=lambda s: s.distance_m).index if ok else None
+
+    @property
+    def min_distance_m(self) -> float | None:
+        k = self.closest_section
+        return None if k is None else self.sections[k].distance_m
+
+    def to_dict(self) -> dict[str, Any]:
+        md = self.min_distance_m
+        return {
+            "schema": REPORT_SCHEMA,
+            "image": self.image,
+            "timestamp": self.timestamp,
+            "vessel": self.vessel,
+            "altitude_m": round(self.altitude_m, 3),
+            "gsd_m_per_px": round(self.gsd_m_per_px, 5),
+            "method": self.method,
+            "enu_origin": self.enu_origin,
+            "sections": [s.to_dict() for s in self.sections],
+            "min_distance_m": None if md is None else round(md, 3),
+            "closest_section": self.closest_section,
+        }
+
+    def write(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")

@@ -1,0 +1,266 @@
+"""``harborsight.frame/1`` metadata: parsing, validation and the posed frame geometry.
+
+The world frame of one frame is the local ENU plane whose origin is the vessel's GPS
+position at the water level: the vessel antenna sits at ``(0, 0)`` and the water plane is
+``z = 0``. Heights above water are ``alt_m - water_level_m``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.geometry.camera import Camera, CameraIntrinsics, load_camera_calibration
+from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
+from harborsight.geometry.rotations import enu_from_vessel_rotation, world_from_camera_rotation
+
+FRAME_SCHEMA = "harborsight.frame/1"
+
+
+@dataclass(frozen=True)
+class FrameMetadata:
+    """One frame's metadata (angles in degrees, as in the file)."""
+
+    image: str
+    camera: CameraIntrinsics
+    uav_lat_deg: float
+    uav_lon_deg: float
+    uav_alt_m: float
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    vessel_lat_deg: float
+    vessel_lon_deg: float
+    vessel_heading_deg: float
+    water_level_m: float = 0.0
+    timestamp: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    source: str | None = None
+
+    @property
+    def height_above_water_m(self) -> float:
+        return self.uav_alt_m - self.water_level_m
+
+    def to_dict(self) -> dict[str, Any]:
+        data: dict[str, Any] = {
+            "schema": FRAME_SCHEMA,
+            "image": self.image,
+            "camera": self.camera.to_dict(),
+            "uav": {"lat": self.uav_lat_deg, "lon": self.uav_lon_deg, "alt_m": self.uav_alt_m},
+            "camera_attitude": {
+                "yaw_deg": self.yaw_deg, "pitch_deg": self.pitch_deg, "roll_deg": self.roll_deg,
+            },
+            "vessel": {
+                "lat": self.vessel_lat_deg, "lon": self.vessel_lon_deg,
+                "heading_deg": self.vessel_heading_deg,
+            },
+            "water_level_m": self.water_level_m,
+        }
+        if self.timestamp is not None:
+            data["timestamp"] = self.timestamp
+        data.update(self.extra)
+        return data
+
+
+class _Reader:
+    """Typed field access that raises ``InputError(file, dotted.field, ...)``."""
+
+    def __init__(self, source: str | None) -> None:
+        self.source = source
+
+    def section(self, data: dict, key: str, prefix: str = "") -> dict:
+        name = f"{prefix}{key}"
+        if key not in data:
+            raise InputError(self.source, name, "missing")
+        value = data[key]
+        if not isinstance(value, dict):
+            raise InputError(self.source, name, f"expected an object, got {type(value).__name__}")
+        return value
+
+    def number(
+        self, data: dict, key: str, prefix: str = "", *, default: float | None = None,
+        low: float | None = None, high: float | None = None,
+    ) -> float:
+        name = f"{prefix}{key}"
+        if key not in data or data[key] is None:
+            if default is not None:
+                return default
+            raise InputError(self.source, name, "missing")
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(self.source, name, f"expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise InputError(self.source, name, f"must be finite, got {value}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise InputError(self.source, name, f"{value} is outside [{low}, {high}]")
+        return value
+
+
+def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIntrinsics:
+    src = reader.source
+    if "calibration" in cam:
+        calib = Path(cam["calibration"])
+        if base_dir is not None and not calib.is_absolute():
+            calib = base_dir / calib
+        return load_camera_calibration(calib)
+    for key in ("width", "height"):
+        value = cam.get(key)
+        if value is None:
+            raise InputError(src, f"camera.{key}", "missing")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+            raise InputError(src, f"camera.{key}", f"expected a whole number of pixels, got {value!r}")
+    width, height = int(cam["width"]), int(cam["height"])
+    distortion = cam.get("distortion") or []
+    if not isinstance(distortion, list) or not all(
+        isinstance(c, (int, float)) and not isinstance(c, bool) for c in distortion
+    ):
+        raise InputError(src, "camera.distortion", "expected a list of numbers (k1, k2, p1, p2[, k3])")
+    distortion = tuple(float(c) for c in distortion)
+    if "fx" in cam:
+        intr = CameraIntrinsics(
+            width=width, height=height,
+            fx=reader.number(cam, "fx", "camera.", low=1e-6),
+            fy=reader.number(cam, "fy", "camera.", low=1e-6),
+            cx=reader.number(cam, "cx", "camera.", default=(width - 1) / 2.0),
+            cy=reader.number(cam, "cy", "camera.", default=(height - 1) / 2.0),
+            distortion=distortion,
+        )
+    elif "focal_length_mm" in cam:
+        intr = CameraIntrinsics.from_sensor(
+            width, height,
+            reader.number(cam, "sensor_width_mm", "camera.", low=1e-6),
+            reader.number(cam, "sensor_height_mm", "camera.", low=1e-6),
+            reader.number(cam, "focal_length_mm", "camera.", low=1e-6),
+            distortion,
+        )
+    else:
+        raise InputError(src, "camera.fx", "missing (give fx/fy/cx/cy, focal_length_mm with "
+                         "sensor_width_mm/sensor_height_mm, or calibration)")
+    intr.validate(src)
+    return intr
+
+
+_KNOWN_KEYS = {"schema", "image", "timestamp", "camera", "uav", "camera_attitude", "vessel",
+               "water_level_m"}
+
+
+def parse_frame_metadata(
+    data: Any, source: str | Path | None = None, *, camera: CameraIntrinsics | None = None,
+    base_dir: Path | None = None,
+) -> FrameMetadata:
+    """Validate a ``harborsight.frame/1`` dict; ``camera`` overrides the file's intrinsics."""
+    src = str(source) if source is not None else None
+    reader = _Reader(src)
+    if not isinstance(data, dict):
+        raise InputError(src, None, "expected a JSON object")
+    schema = data.get("schema", FRAME_SCHEMA)
+    if schema != FRAME_SCHEMA:
+        raise InputError(src, "schema", f"expected {FRAME_SCHEMA!r}, got {schema!r}")
+    image = data.get("image")
+    if not isinstance(image, str) or not image:
+        raise InputError(src, "image", "missing (the image file name)")
+    intr = camera or _parse_camera(reader, reader.section(data, "camera"), base_dir)
+
+    uav = reader.section(data, "uav")
+    att = reader.section(data, "camera_attitude")
+    ves = reader.section(data, "vessel")
+    meta = FrameMetadata(
+        image=image,
+        camera=intr,
+        uav_lat_deg=reader.number(uav, "lat", "uav.", low=-90, high=90),
+        uav_lon_deg=reader.number(uav, "lon", "uav.", low=-180, high=180),
+        uav_alt_m=reader.number(uav, "alt_m", "uav."),
+        yaw_deg=reader.number(att, "yaw_deg", "camera_attitude.", low=-360, high=360),
+        pitch_deg=reader.number(att, "pitch_deg", "camera_attitude.", low=-180, high=180),
+        roll_deg=reader.number(att, "roll_deg", "camera_attitude.", default=0.0,
+                               low=-180, high=180),
+        vessel_lat_deg=reader.number(ves, "lat", "vessel.", low=-90, high=90),
+        vessel_lon_deg=reader.number(ves, "lon", "vessel.", low=-180, high=180),
+        vessel_heading_deg=reader.number(ves, "heading_deg", "vessel.", low=-360, high=360),
+        water_level_m=reader.number(data, "water_level_m", default=0.0),
+        timestamp=data.get("timestamp"),
+        extra={k: v for k, v in data.items() if k not in _KNOWN_KEYS},
+        source=src,
+    )
+    if meta.height_above_water_m <= 0:
+        raise InputError(
+            src, "uav.alt_m",
+            f"{meta.uav_alt_m} m is at or below water_level_m {meta.water_level_m} m",
+        )
+    return meta
+
+
+def load_frame_metadata(
+    path: str | Path, *, camera: CameraIntrinsics | None = None
+) -> FrameMetadata:
+    """Read and validate one frame JSON file."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise InputError(path, None, "frame metadata file not found") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, None, f"not valid JSON: {exc}") from exc
+    return parse_frame_metadata(data, path, camera=camera, base_dir=path.parent)
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """The posed scene of one frame in local ENU (origin: vessel GPS at the water level)."""
+
+    origin: GeoOrigin
+    camera: Camera
+    vessel_heading_rad: float
+    vessel_position_enu: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    source: str | None = None
+
+    @classmethod
+    def from_metadata(cls, meta: FrameMetadata) -> FrameGeometry:
+        origin = GeoOrigin(meta.vessel_lat_deg, meta.vessel_lon_deg, meta.water_level_m)
+        cam_enu = geodetic_to_enu(meta.uav_lat_deg, meta.uav_lon_deg, meta.uav_alt_m, origin)
+        rotation = world_from_camera_rotation(
+            math.radians(meta.yaw_deg), math.radians(meta.pitch_deg), math.radians(meta.roll_deg)
+        )
+        geometry = cls(
+            origin=origin,
+            camera=Camera(meta.camera, cam_enu, rotation),
+            vessel_heading_rad=math.radians(meta.vessel_heading_deg),
+            source=meta.source,
+        )
+        geometry.check_sees_water()
+        return geometry
+
+    def check_sees_water(self) -> None:
+        """Raise unless some of the image looks down onto the water plane."""
+        intr = self.camera.intrinsics
+        us = np.linspace(0, intr.width - 1, 9)
+        vs = np.linspace(0, intr.height - 1, 9)
+        grid = np.array([(u, v) for u in us for v in vs])
+        _, valid = self.camera.back_project_to_plane(grid)
+        if not valid.any():
+            raise InputError(
+                self.source, "camera_attitude.pitch_deg",
+                "the camera looks at or above the horizon: no pixel sees the water plane",
+            )
+
+    def vessel_to_enu(self, points_v: np.ndarray) -> np.ndarray:
+        """Vessel-frame points (x bow, y starboard[, z down]) to ENU ``(N, 3)``."""
+        points_v = np.atleast_2d(np.asarray(points_v, float))
+        if points_v.shape[1] == 2:
+            points_v = np.column_stack((points_v, np.zeros(len(points_v))))
+        enu = points_v @ enu_from_vessel_rotation(self.vessel_heading_rad).T
+        enu[:, :2] += self.vessel_position_enu
+        return enu
+
+    def enu_to_vessel_xy(self, points_enu: np.ndarray) -> np.ndarray:
+        """ENU points (on the water plane) to vessel-frame x (bow), y (starboard)."""
+        rel = np.atleast_2d(points_enu)[:, :2] - self.vessel_position_enu
+        s, c = math.sin(self.vessel_heading_rad), math.cos(self.vessel_heading_rad)
+        return np.column_stack((rel[:, 0] * s + rel[:, 1] * c, rel[:, 0] * c - rel[:, 1] * s))

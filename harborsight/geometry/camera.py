@@ -1,0 +1,268 @@
+"""Pinhole camera with OpenCV distortion: intrinsics, loaders, projection, back-projection.
+
+A world point ``X_W`` (ENU, metres) maps to pixels by
+
+    X_C = R_C<-W · (X_W - c_W)          (c_W: camera centre in W)
+    (u, v) = K · distort(X_C / z_C)     (OpenCV model, cv2.projectPoints)
+
+and a pixel back-projects to the ray ``c_W + t · R_W<-C · [x, y, 1]`` with ``(x, y)`` the
+undistorted normalised coordinates; the ray meets the plane ``z = z_p`` at
+``t = (z_p - c_z) / d_z`` when ``t > 0``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from harborsight.errors import InputError
+
+_VALID_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Image size (px), focal lengths and principal point (px), OpenCV distortion."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, ...] = ()
+
+    @classmethod
+    def from_sensor(
+        cls,
+        width: int,
+        height: int,
+        sensor_width_mm: float,
+        sensor_height_mm: float,
+        focal_length_mm: float,
+        distortion: tuple[float, ...] = (),
+    ) -> CameraIntrinsics:
+        """``fx = f·width/sensor_width``, ``cx = (width-1)/2``, likewise for y."""
+        return cls(
+            width=int(width),
+            height=int(height),
+            fx=focal_length_mm * width / sensor_width_mm,
+            fy=focal_length_mm * height / sensor_height_mm,
+            cx=(width - 1) / 2.0,
+            cy=(height - 1) / 2.0,
+            distortion=tuple(distortion),
+        )
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return any(abs(k) > 0.0 for k in self.distortion)
+
+    @property
+    def dist_coeffs(self) -> np.ndarray:
+        return np.asarray(self.distortion if self.distortion else (0.0,) * 5, dtype=float)
+
+    def to_dict(self) -> dict:
+        return {
+            "width": self.width, "height": self.height,
+            "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+            "distortion": list(self.distortion) if self.distortion else [0.0] * 5,
+        }
+
+    def validate(self, source: str | Path | None, prefix: str = "camera") -> None:
+        """Raise :class:`InputError` on non-finite or out-of-range values."""
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value > 0):
+                raise InputError(source, f"{prefix}.{name}", f"must be a positive integer, got {value!r}")
+        for name in ("fx", "fy"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(source, f"{prefix}.{name}", f"must be a positive number, got {value!r}")
+        for name in ("cx", "cy"):
+            value = getattr(self, name)
+            if not np.isfinite(value):
+                raise InputError(source, f"{prefix}.{name}", f"must be finite, got {value!r}")
+        if len(self.distortion) not in _VALID_DISTORTION_LENGTHS:
+            raise InputError(
+                source, f"{prefix}.distortion",
+                f"OpenCV takes 4, 5, 8, 12 or 14 coefficients, got {len(self.distortion)}",
+            )
+        if not all(np.isfinite(self.distortion)):
+            raise InputError(source, f"{prefix}.distortion", "coefficients must be finite")
+
+
+def _matrix_from_ros(node: dict, path: Path, key: str) -> np.ndarray:
+    try:
+        data = np.asarray(node["data"], dtype=float)
+        return data.reshape(int(node["rows"]), int(node["cols"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(path, key, f"expected {{rows, cols, data}}: {exc}") from exc
+
+
+def _load_ros_camera_info(doc: dict, path: Path) -> CameraIntrinsics:
+    """ROS ``camera_info`` YAML (camera_calibration_parsers): K in ``camera_matrix``."""
+    K = _matrix_from_ros(doc["camera_matrix"], path, "camera_matrix")
+    dist = doc.get("distortion_coefficients")
+    coeffs = _matrix_from_ros(dist, path, "distortion_coefficients").ravel() if dist else []
+    model = doc.get("distortion_model", "plumb_bob")
+    if model not in ("plumb_bob", "rational_polynomial"):
+        raise InputError(path, "distortion_model", f"{model!r} is not an OpenCV pinhole model")
+    return CameraIntrinsics(
+        width=int(doc["image_width"]), height=int(doc["image_height"]),
+        fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
+        distortion=tuple(float(c) for c in coeffs),
+    )
+
+
+def _load_opencv_filestorage(path: Path) -> CameraIntrinsics:
+    """cv2.FileStorage YAML/XML as written by OpenCV's calibration sample."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise InputError(path, None, "cannot open as an OpenCV FileStorage file")
+    try:
+        def first(*names: str):
+            for name in names:
+                node = fs.getNode(name)
+                if not node.empty():
+                    return name, node
+            return None, None
+
+        k_name, k_node = first("camera_matrix", "cameraMatrix", "K", "intrinsics")
+        if k_node is None:
+            raise InputError(path, "camera_matrix", "missing (also tried cameraMatrix, K)")
+        K = k_node.mat()
+        if K is None or K.shape != (3, 3):
+            raise InputError(path, k_name, "expected a 3x3 matrix")
+        _, d_node = first("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
+        dist = () if d_node is None else tuple(float(c) for c in d_node.mat().ravel())
+        _, w_node = first("image_width", "imageWidth")
+        _, h_node = first("image_height", "imageHeight")
+        if w_node is None or h_node is None:
+            _, size_node = first("image_size", "imageSize")
+            if size_node is None:
+                raise InputError(path, "image_width", "missing image_width/image_height")
+            size = size_node.mat().ravel() if size_node.isSeq() is False else [
+                size_node.at(i).real() for i in range(size_node.size())
+            ]
+            width, height = int(size[0]), int(size[1])
+        else:
+            width, height = int(w_node.real()), int(h_node.real())
+    finally:
+        fs.release()
+    return CameraIntrinsics(
+        width=width, height=height, fx=float(K[0, 0]), fy=float(K[1, 1]),
+        cx=float(K[0, 2]), cy=float(K[1, 2]), distortion=dist,
+    )
+
+
+def load_camera_calibration(path: str | Path) -> CameraIntrinsics:
+    """Load intrinsics from an OpenCV FileStorage (YAML/XML) or a ROS camera_info YAML."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, None, "calibration file not found")
+    text = path.read_text(errors="replace")
+    if path.suffix.lower() == ".xml" or text.lstrip().startswith("%YAML"):
+        intrinsics = _load_opencv_filestorage(path)
+    else:
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise InputError(path, None, f"not valid YAML: {exc}") from exc
+        if not isinstance(doc, dict) or "camera_matrix" not in doc:
+            raise InputError(path, "camera_matrix", "missing: not a ROS camera_info file")
+        intrinsics = _load_ros_camera_info(doc, path)
+    intrinsics.validate(path, prefix="calibration")
+    return intrinsics
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A posed camera: intrinsics plus centre ``position_enu`` and ``R_W<-C``."""
+
+    intrinsics: CameraIntrinsics
+    position_enu: np.ndarray
+    world_from_camera: np.ndarray = field(repr=False)
+
+    @property
+    def camera_from_world(self) -> np.ndarray:
+        return self.world_from_camera.T
+
+    def to_camera_frame(self, points_enu: np.ndarray) -> np.ndarray:
+        """``X_C = R_C<-W · (X_W - c_W)`` for points of shape ``(N, 3)``."""
+        return (np.asarray(points_enu, float) - self.position_enu) @ self.world_from_camera
+
+    def project(self, points_enu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project ENU points ``(N, 3)`` to pixels ``(N, 2)``.
+
+        Returns ``(uv, in_front)``; points at or behind the camera plane get NaN pixels.
+        """
+        pts_c = self.to_camera_frame(np.atleast_2d(points_enu))
+        in_front = pts_c[:, 2] > 1e-9
+        uv = np.full((len(pts_c), 2), np.nan)
+        if not np.any(in_front):
+            return uv, in_front
+        front = pts_c[in_front]
+        intr = self.intrinsics
+        if intr.has_distortion:
+            projected, _ = cv2.projectPoints(
+                front.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs
+            )
+            uv[in_front] = projected.reshape(-1, 2)
+        else:
+            uv[in_front, 0] = intr.fx * front[:, 0] / front[:, 2] + intr.cx
+            uv[in_front, 1] = intr.fy * front[:, 1] / front[:, 2] + intr.cy
+        return uv, in_front
+
+    def normalized_coordinates(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted normalised image coordinates ``(x, y)`` of pixels ``(N, 2)``."""
+        uv = np.atleast_2d(np.asarray(uv, float))
+        intr = self.intrinsics
+        if intr.has_distortion:
+            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+            xy = cv2.undistortPointsIter(
+                uv.reshape(-1, 1, 2), intr.K, intr.dist_coeffs, None, None, criteria
+            )
+            return xy.reshape(-1, 2)
+        return np.column_stack(((uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy))
+
+    def rays_world(self, uv: np.ndarray) -> np.ndarray:
+        """Unnormalised ray directions in W for pixels ``(N, 2)``."""
+        xy = self.normalized_coordinates(uv)
+        rays_c = np.column_stack((xy, np.ones(len(xy))))
+        return rays_c @ self.world_from_camera.T
+
+    def back_project_to_plane(
+        self, uv: np.ndarray, plane_z_m: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Intersect pixel rays with the horizontal plane ``z = plane_z_m``.
+
+        Returns ``(points_enu (N, 3), valid (N,))``; rays that point at or above the
+        horizon (no intersection in front of the camera) are invalid and NaN.
+        """
+        rays = self.rays_world(uv)
+        dz = rays[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (plane_z_m - self.position_enu[2]) / dz
+        valid = np.isfinite(t) & (t > 0)
+        points = np.full((len(rays), 3), np.nan)
+        points[valid] = self.position_enu + t[valid, None] * rays[valid]
+        return points, valid
+
+    def in_image(self, uv: np.ndarray) -> np.ndarray:
+        """True where a pixel lies inside the image (pixel centres at integers)."""
+        uv = np.atleast_2d(uv)
+        w, h = self.intrinsics.width, self.intrinsics.height
+        with np.errstate(invalid="ignore"):
+            return (
+                np.isfinite(uv).all(axis=1)
+                & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
+                & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
+            )

@@ -1,0 +1,163 @@
+"""Files in, reports and overlays out: one frame, or a folder where a bad frame is skipped.
+
+A batch folder is either the dataset layout of ``docs/design.md`` (``frames/*.json``,
+``images/``, ``labels/``) or a flat folder of frame JSONs next to their images, with masks
+in ``--masks DIR`` (or ``labels/`` / ``masks/`` beside them). A frame may name its vessel
+with a ``vessel_spec`` key (path relative to the dataset root); ``--vessel`` overrides it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.report import ClearanceReport
+from harborsight.errors import InputError
+from harborsight.frame import FrameMetadata, load_frame_metadata
+from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.vessel.spec import VesselSpec, load_vessel_spec
+from harborsight.viz.overlay import draw_overlay
+
+
+@dataclass(frozen=True)
+class FrameJob:
+    stem: str
+    meta_path: Path
+    image_path: Path | None = None
+    mask_path: Path | None = None
+
+
+@dataclass
+class FrameOutcome:
+    job: FrameJob
+    report: ClearanceReport | None = None
+    meta: FrameMetadata | None = None
+    error: str | None = None
+    report_path: Path | None = None
+    overlay_path: Path | None = None
+
+
+def read_image(path: Path) -> np.ndarray:
+    """BGR image; a clear error for a missing or unreadable file."""
+    if not path.is_file():
+        raise InputError(path, None, "image file not found")
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(path, None, "cannot decode image (corrupt or not an image)")
+    return image
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
+    if not path.is_file():
+        raise InputError(path, "mask", "mask file not found")
+    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if mask is None:
+        raise InputError(path, "mask", "cannot decode mask (corrupt or not an image)")
+    if mask.ndim == 3:
+        if mask.shape[2] >= 3 and np.array_equal(mask[..., 0], mask[..., 1]) and np.array_equal(
+            mask[..., 1], mask[..., 2]
+        ):
+            mask = mask[..., 0]
+        else:
+            raise InputError(path, "mask", f"expected one channel of class ids, got {mask.shape[2]}")
+    return mask
+
+
+def _find_vessel_spec(meta: FrameMetadata, meta_path: Path) -> Path:
+    ref = meta.extra.get("vessel_spec")
+    if not ref:
+        raise InputError(meta_path, "vessel_spec", "no --vessel given and the frame names none")
+    for base in (meta_path.parent, meta_path.parent.parent):
+        if (base / ref).is_file():
+            return base / ref
+    raise InputError(meta_path, "vessel_spec", f"file not found: {ref}")
+
+
+class VesselCache:
+    """Loads each vessel.yaml once per batch."""
+
+    def __init__(self, fixed: VesselSpec | None = None) -> None:
+        self.fixed = fixed
+        self._specs: dict[Path, VesselSpec] = {}
+
+    def for_frame(self, meta: FrameMetadata, meta_path: Path) -> VesselSpec:
+        if self.fixed is not None:
+            return self.fixed
+        path = _find_vessel_spec(meta, meta_path).resolve()
+        if path not in self._specs:
+            self._specs[path] = load_vessel_spec(path)
+        return self._specs[path]
+
+
+def measure_job(
+    job: FrameJob, vessels: VesselCache, settings: ClearanceSettings, out_dir: Path | None,
+    camera: CameraIntrinsics | None = None, overlay: bool = True,
+) -> FrameOutcome:
+    """Measure one frame from files; raises :class:`InputError` on bad input."""
+    meta = load_frame_metadata(job.meta_path, camera=camera)
+    image_path = job.image_path or job.meta_path.parent / meta.image
+    image = read_image(image_path)
+    if image.shape[:2] != (meta.camera.height, meta.camera.width):
+        raise InputError(
+            image_path, "camera.width",
+            f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
+            f"{meta.camera.width}x{meta.camera.height}",
+        )
+    if job.mask_path is None:
+        raise InputError(job.meta_path, "mask",
+                         "no mask given (segmentation models are not shipped yet: pass --mask)")
+    labels = read_mask(job.mask_path)
+    vessel = vessels.for_frame(meta, job.meta_path)
+    report = measure_frame(labels, meta, vessel, settings, mask_source=str(job.mask_path))
+    outcome = FrameOutcome(job, report, meta)
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        stem = Path(meta.image).stem
+        outcome.report_path = out_dir / f"{stem}.json"
+        report.write(outcome.report_path)
+        if overlay:
+            outcome.overlay_path = out_dir / f"{stem}.png"
+            cv2.imwrite(str(outcome.overlay_path), draw_overlay(image, report))
+    return outcome
+
+
+def discover_jobs(folder: Path, masks_dir: Path | None = None) -> list[FrameJob]:
+    """Frames of a batch folder, each with its image and mask paths (see module docstring)."""
+    frames_dir = folder / "frames" if (folder / "frames").is_dir() else folder
+    meta_paths = sorted(p for p in frames_dir.glob("*.json"))
+    if not meta_paths:
+        raise InputError(folder, None, "no frame JSON files found (expected frames/*.json or *.json)")
+    image_dirs = [folder / "images", frames_dir, folder]
+    mask_dirs = [masks_dir] if masks_dir else [folder / "labels", folder / "masks"]
+    jobs = []
+    for meta_path in meta_paths:
+        stem = meta_path.stem
+        image = next((d / f"{stem}{ext}" for d in image_dirs for ext in (".png", ".jpg", ".jpeg")
+                      if (d / f"{stem}{ext}").is_file()), None)
+        mask = next((d / f"{stem}.png" for d in mask_dirs if d and (d / f"{stem}.png").is_file()),
+                    mask_dirs[0] / f"{stem}.png" if mask_dirs[0] else None)
+        jobs.append(FrameJob(stem, meta_path, image, mask))
+    return jobs
+
+
+def run_batch(
+    jobs: Iterable[FrameJob], vessels: VesselCache, settings: ClearanceSettings, out_dir: Path,
+    camera: CameraIntrinsics | None = None, on_done: Callable[[FrameOutcome], None] | None = None,
+) -> list[FrameOutcome]:
+    """Measure every job; a bad frame is recorded with its reason and the rest go on."""
+    outcomes = []
+    for job in jobs:
+        try:
+            outcome = measure_job(job, vessels, settings, out_dir, camera)
+        except InputError as exc:
+            outcome = FrameOutcome(job, error=str(exc))
+        outcomes.append(outcome)
+        if on_done:
+            on_done(outcome)
+    return outcomes

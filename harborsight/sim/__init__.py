@@ -1,0 +1,1 @@
+"""Simulators: the schematic exact-geometry harbour (now) and the Blender renderer (later)."""

@@ -1,0 +1,70 @@
+"""Exact per-section ground truth on the water plane, with shapely.
+
+Independent of the measuring code's band assignment: each section's band is built here as
+an explicit polygon from rays (perpendicular to each edge, along the bisector where two
+sections meet at a corner) and intersected with the obstacle footprints.
+"""
+
+from __future__ import annotations
+
+from itertools import pairwise
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from harborsight.vessel.sections import SectionedOutline
+
+BAND_REACH_M = 5_000.0
+
+
+def _outward_normal(direction: np.ndarray, positive: bool) -> np.ndarray:
+    d = direction / np.linalg.norm(direction)
+    n = np.array([d[1], -d[0]])
+    return n if positive else -n
+
+
+def section_band_polygon(outline: SectionedOutline, k: int, reach: float = BAND_REACH_M) -> Polygon:
+    """Region outside the hull whose nearest hull point lies on section k (a polygon)."""
+    poly = outline.section_polyline(k)
+    ring = outline.vertices
+    x, y = ring[:, 0], ring[:, 1]
+    positive = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)) > 0
+    seg_normals = [_outward_normal(b - a, positive) for a, b in pairwise(poly)
+                   if np.linalg.norm(b - a) > 1e-12]
+    # normals of the outline just before the section's start and just after its end
+    eps = 1e-6 * outline.perimeter
+    pos_a = outline.break_position[k]
+    pos_b = outline.break_position[k + 1] if k + 1 < outline.n_sections else outline.perimeter
+    before = outline.points_at(np.array([pos_a - 2 * eps, pos_a - eps]))
+    after = outline.points_at(np.array([pos_b + eps, pos_b + 2 * eps]))
+    n_before = _outward_normal(before[1] - before[0], positive)
+    n_after = _outward_normal(after[1] - after[0], positive)
+    start_ray = n_before + seg_normals[0]
+    end_ray = seg_normals[-1] + n_after
+    outer = [poly[0] + reach * start_ray / np.linalg.norm(start_ray)]
+    for i in range(1, len(poly) - 1):
+        outer.append(poly[i] + reach * seg_normals[i - 1])
+        outer.append(poly[i] + reach * seg_normals[i])
+    outer.append(poly[-1] + reach * end_ray / np.linalg.norm(end_ray))
+    boundary = [poly[0], *outer, *poly[::-1][:-1]]
+    band = Polygon(boundary)
+    return band if band.is_valid else shapely.make_valid(band)
+
+
+def section_distances(
+    outline: SectionedOutline, obstacles: shapely.Geometry, visible: shapely.Geometry | None
+) -> list[dict[str, float | None]]:
+    """Per section: distance (m) to obstacles in its band, within ``visible`` and overall."""
+    results = []
+    for k in range(outline.n_sections):
+        band = section_band_polygon(outline, k)
+        line = LineString(outline.section_polyline(k))
+        in_band = shapely.intersection(band, obstacles)
+        d_all = None if in_band.is_empty else float(shapely.distance(line, in_band))
+        d_vis = None
+        if visible is not None and not in_band.is_empty:
+            seen = shapely.intersection(in_band, visible)
+            d_vis = None if seen.is_empty else float(shapely.distance(line, seen))
+        results.append({"index": k, "distance_m": d_vis, "distance_all_m": d_all})
+    return results

@@ -1,0 +1,148 @@
+"""``vessel.yaml``: the vessel of interest's hull (mesh or AIS dimensions) and sections."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+import yaml
+
+from harborsight.errors import InputError
+from harborsight.vessel.outline import (
+    mesh_in_vessel_frame,
+    outline_from_dimensions,
+    outline_from_mesh,
+)
+from harborsight.vessel.sections import SectionedOutline
+
+DEFAULT_SECTIONS = 16
+
+
+@dataclass(frozen=True)
+class VesselSpec:
+    """A vessel in its own frame V (x bow, y starboard, z down, origin at the antenna).
+
+    ``outline`` is the convex outline used for sections (clockwise from above, from the bow);
+    ``hull_points`` are V-frame points whose convex hull contains the whole vessel, used to
+    find the vessel's own pixels in an image.
+    """
+
+    name: str
+    outline: np.ndarray
+    hull_points: np.ndarray
+    n_sections: int | None = DEFAULT_SECTIONS
+    section_length_m: float | None = None
+    source: str | None = None
+
+    @property
+    def length_m(self) -> float:
+        return float(np.ptp(self.outline[:, 0]))
+
+    @property
+    def beam_m(self) -> float:
+        return float(np.ptp(self.outline[:, 1]))
+
+    def sections(
+        self, n_sections: int | None = None, section_length_m: float | None = None
+    ) -> SectionedOutline:
+        """Split the outline; arguments override the spec's own setting."""
+        if n_sections is None and section_length_m is None:
+            n_sections, section_length_m = self.n_sections, self.section_length_m
+        return SectionedOutline.split(self.outline, n_sections, section_length_m)
+
+
+def _positive(doc: dict, key: str, path: Path, prefix: str = "") -> float:
+    value = doc.get(key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(path, f"{prefix}{key}", f"expected a number of metres, got {value!r}")
+    if value < 0:
+        raise InputError(path, f"{prefix}{key}", f"must not be negative, got {value}")
+    return float(value)
+
+
+def _load_mesh(mesh_path: Path, spec_path: Path) -> trimesh.Trimesh:
+    if not mesh_path.is_file():
+        raise InputError(spec_path, "hull_mesh", f"file not found: {mesh_path}")
+    try:
+        mesh = trimesh.load(mesh_path, force="mesh")
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise InputError(spec_path, "hull_mesh", f"cannot load {mesh_path.name}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(spec_path, "hull_mesh", f"{mesh_path.name} holds no triangles")
+    return mesh
+
+
+def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
+    """Validate a parsed ``vessel.yaml`` (``path`` resolves ``hull_mesh`` and names errors)."""
+    if not isinstance(doc, dict):
+        raise InputError(path, None, "expected a YAML mapping")
+    name = str(doc.get("name") or path.parent.name or "vessel")
+    mode = doc.get("outline", "waterline")
+    if not (mode in ("waterline", "silhouette") or (
+        isinstance(mode, (int, float)) and not isinstance(mode, bool) and math.isfinite(mode)
+    )):
+        raise InputError(path, "outline", f"expected waterline, silhouette or a height, got {mode!r}")
+
+    if doc.get("hull_mesh"):
+        mesh = _load_mesh(path.parent / str(doc["hull_mesh"]), path)
+        axes = doc.get("mesh_axes", ["bow", "port", "up"])
+        antenna = doc.get("gps_antenna", [0.0, 0.0, 0.0])
+        if not (isinstance(antenna, list) and len(antenna) == 3
+                and all(isinstance(v, (int, float)) for v in antenna)):
+            raise InputError(path, "gps_antenna", f"expected [x, y, z] in metres, got {antenna!r}")
+        try:
+            mesh_v = mesh_in_vessel_frame(mesh, axes, np.asarray(antenna, float),
+                                          float(doc.get("waterline_m", 0.0)))
+        except ValueError as exc:
+            raise InputError(path, "mesh_axes", str(exc)) from exc
+        try:
+            outline = outline_from_mesh(mesh_v, mode)
+        except ValueError as exc:
+            raise InputError(path, "outline", str(exc)) from exc
+        hull_points = np.asarray(mesh_v.convex_hull.vertices)
+    elif doc.get("dimensions"):
+        dims = doc["dimensions"]
+        if not isinstance(dims, dict):
+            raise InputError(path, "dimensions", "expected {to_bow, to_stern, to_port, to_starboard}")
+        values = {k: _positive(dims, k, path, "dimensions.")
+                  for k in ("to_bow", "to_stern", "to_port", "to_starboard")}
+        if values["to_bow"] + values["to_stern"] <= 0 or values["to_port"] + values["to_starboard"] <= 0:
+            raise InputError(path, "dimensions", "length and beam must be positive")
+        outline = outline_from_dimensions(**values)
+        air_draft = _positive(doc, "air_draft_m", path) if "air_draft_m" in doc else 0.0
+        hull_points = np.vstack((
+            np.column_stack((outline, np.zeros(len(outline)))),
+            np.column_stack((outline, np.full(len(outline), -air_draft))),
+        ))
+    else:
+        raise InputError(path, "hull_mesh", "missing: give hull_mesh or dimensions")
+
+    n_sections: int | None = DEFAULT_SECTIONS
+    section_length: float | None = None
+    if "section_length_m" in doc:
+        section_length = _positive(doc, "section_length_m", path)
+        if section_length == 0:
+            raise InputError(path, "section_length_m", "must be positive")
+        n_sections = None
+    elif "sections" in doc:
+        n = doc["sections"]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise InputError(path, "sections", f"expected a positive whole number, got {n!r}")
+        n_sections = n
+    return VesselSpec(name, outline, hull_points, n_sections, section_length, str(path))
+
+
+def load_vessel_spec(path: str | Path) -> VesselSpec:
+    """Read and validate a ``vessel.yaml``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, None, "vessel spec not found")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(path, None, f"not valid YAML: {exc}") from exc
+    return parse_vessel_spec(doc, path)

@@ -1,0 +1,90 @@
+"""Overlay in the style of the paper's Fig. 1: sections, yellow distance lines, labels."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
+
+YELLOW = (0, 230, 255)
+GREEN = (80, 200, 60)
+ORANGE = (0, 150, 255)
+RED = (40, 40, 230)
+GREY = (170, 170, 170)
+WHITE = (255, 255, 255)
+BLACK = (0, 0, 0)
+_SHIFT = 4
+_SCALE = 1 << _SHIFT
+
+
+def _fixed(point) -> tuple[int, int]:
+    return round(point[0] * _SCALE), round(point[1] * _SCALE)
+
+
+def _label(image: np.ndarray, text: str, anchor: np.ndarray, colour, scale: float) -> None:
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    thickness = max(1, round(scale * 2))
+    (w, h), base = cv2.getTextSize(text, font, scale, thickness)
+    x = int(np.clip(anchor[0] - w / 2, 1, image.shape[1] - w - 2))
+    y = int(np.clip(anchor[1] + h / 2, h + 2, image.shape[0] - base - 2))
+    cv2.rectangle(image, (x - 2, y - h - 2), (x + w + 2, y + base), BLACK, -1)
+    cv2.putText(image, text, (x, y), font, scale, colour, thickness, cv2.LINE_AA)
+
+
+def section_colour(distance_m: float | None, warn_m: float, alarm_m: float):
+    if distance_m is None:
+        return GREY
+    if distance_m <= alarm_m:
+        return RED
+    if distance_m <= warn_m:
+        return ORANGE
+    return GREEN
+
+
+def draw_overlay(
+    image_bgr: np.ndarray, report: ClearanceReport, *, warn_m: float = 5.0, alarm_m: float = 2.0,
+) -> np.ndarray:
+    """Copy of the image with every in-view section drawn and labelled.
+
+    Sections are coloured by clearance (green > ``warn_m``, orange, red <= ``alarm_m``,
+    grey when clear); a yellow line joins each section to its closest obstacle point; the
+    distance in metres sits outside the section, ``??`` where the section is clear.
+    """
+    out = image_bgr.copy()
+    h, w = out.shape[:2]
+    scale = max(0.35, min(w, h) / 900.0)
+    thickness = max(2, round(min(w, h) / 220))
+    ends = [np.asarray(s.hull_px, float) for s in report.sections]
+    centre = np.nanmean(np.vstack(ends), axis=0)
+
+    for s, end in zip(report.sections, ends, strict=True):
+        if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
+            continue
+        colour = section_colour(s.distance_m, warn_m, alarm_m)
+        cv2.line(out, _fixed(end[0]), _fixed(end[1]), colour, thickness, cv2.LINE_AA, _SHIFT)
+        cv2.circle(out, _fixed(end[0]), 2 * _SCALE, BLACK, -1, cv2.LINE_AA, _SHIFT)
+
+    for s, end in zip(report.sections, ends, strict=True):
+        if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
+            continue
+        mid = end.mean(axis=0)
+        outward = mid - centre
+        outward /= max(np.linalg.norm(outward), 1e-9)
+        if s.status == STATUS_OK:
+            cv2.line(out, _fixed(s.hull_point_px), _fixed(s.obstacle_point_px), YELLOW,
+                     max(1, thickness - 1), cv2.LINE_AA, _SHIFT)
+            cv2.circle(out, _fixed(s.obstacle_point_px), 2 * _SCALE, YELLOW, -1, cv2.LINE_AA, _SHIFT)
+            text = f"{s.distance_m:.1f}m" + ("!" if s.contact else "")
+            colour = section_colour(s.distance_m, warn_m, alarm_m)
+        else:
+            text, colour = "??", WHITE
+        _label(out, text, mid + outward * 18 * scale / 0.5, colour, scale)
+
+    md = report.min_distance_m
+    header = (f"{report.vessel}  alt {report.altitude_m:.0f} m  GSD {report.gsd_m_per_px * 100:.1f} cm/px"
+              f"  {report.method}  min {'--' if md is None else f'{md:.1f} m'}")
+    cv2.rectangle(out, (0, 0), (w, int(22 * scale / 0.4)), BLACK, -1)
+    cv2.putText(out, header, (6, int(16 * scale / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, scale,
+                WHITE, 1, cv2.LINE_AA)
+    return out

@@ -1,0 +1,145 @@
+"""Camera model: projection against cv2.projectPoints with rotations built by scipy,
+back-projection by hand, GSD against a datasheet, calibration file loaders."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from harborsight.errors import InputError
+from harborsight.geometry.camera import Camera, CameraIntrinsics, load_camera_calibration
+from harborsight.geometry.gsd import nadir_gsd_from_sensor, nadir_gsd_m_per_px
+from harborsight.geometry.rotations import world_from_camera_rotation
+
+INTR = CameraIntrinsics(640, 360, 457.1, 455.0, 321.2, 178.4, (-0.12, 0.05, 0.001, -0.0005, 0.0))
+
+
+def scipy_world_from_camera(yaw, pitch, roll):
+    """Independent R_W<-C: scipy's intrinsic ZYX Euler for NED<-gimbal, explicit axis swaps."""
+    ned_from_gimbal = Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
+    enu_from_ned = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    # camera x (right) = gimbal y, camera y (down) = gimbal z, camera z (optical) = gimbal x
+    gimbal_from_camera = np.column_stack(([0, 1, 0], [0, 0, 1], [1, 0, 0]))
+    return enu_from_ned @ ned_from_gimbal @ gimbal_from_camera
+
+
+@pytest.mark.parametrize("yaw, pitch, roll", [(0, -90, 0), (30, -90, 0), (215, -75, 2.5),
+                                              (-40, -62, -4), (90, -85, 10)])
+def test_projection_matches_cv2_projectPoints(yaw, pitch, roll):
+    R_wc = world_from_camera_rotation(math.radians(yaw), math.radians(pitch), math.radians(roll))
+    assert np.allclose(R_wc, scipy_world_from_camera(yaw, pitch, roll), atol=1e-12)
+    centre = np.array([12.0, -7.0, 80.0])
+    cam = Camera(INTR, centre, R_wc)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack((rng.uniform(-40, 40, 50), rng.uniform(-25, 25, 50), np.zeros(50)))
+    pts[:, :2] += centre[:2] + 80 * np.tan(np.radians(pitch + 90)) * np.array(
+        [np.sin(np.radians(yaw)), np.cos(np.radians(yaw))])
+    ours, front = cam.project(pts)
+    R_cw = scipy_world_from_camera(yaw, pitch, roll).T
+    rvec, _ = cv2.Rodrigues(R_cw)
+    tvec = -R_cw @ centre
+    theirs, _ = cv2.projectPoints(pts.reshape(-1, 1, 3), rvec, tvec, INTR.K, INTR.dist_coeffs)
+    assert front.all()
+    assert np.allclose(ours, theirs.reshape(-1, 2), atol=1e-6)
+
+
+def test_nadir_image_top_points_to_yaw():
+    # yaw 90 deg (east): the image top looks east, the image right looks south
+    cam = Camera(CameraIntrinsics(640, 360, 500, 500, 319.5, 179.5), np.array([0, 0, 100.0]),
+                 world_from_camera_rotation(math.radians(90), math.radians(-90), 0.0))
+    uv, _ = cam.project(np.array([[10.0, 0, 0], [0, -10.0, 0]]))
+    assert np.allclose(uv[0], [319.5, 179.5 - 50.0])   # 10 m east -> 50 px up
+    assert np.allclose(uv[1], [319.5 + 50.0, 179.5])   # 10 m south -> 50 px right
+
+
+@pytest.mark.parametrize("pitch", [-90, -70])
+def test_back_projection_inverts_projection(pitch):
+    cam = Camera(INTR, np.array([3.0, 4.0, 60.0]),
+                 world_from_camera_rotation(math.radians(20), math.radians(pitch), 0.02))
+    uv = np.array([[10.0, 10.0], [320.0, 180.0], [630.0, 350.0], [100.0, 300.0]])
+    ground, valid = cam.back_project_to_plane(uv)
+    assert valid.all()
+    assert np.allclose(ground[:, 2], 0.0)
+    again, _ = cam.project(ground)
+    assert np.allclose(again, uv, atol=1e-6)
+
+
+def test_back_projection_hand_value():
+    # nadir, yaw 0: a pixel 100 px right of centre at 50 m is 50*100/500 = 10 m east
+    cam = Camera(CameraIntrinsics(640, 360, 500, 500, 319.5, 179.5), np.array([0, 0, 50.0]),
+                 world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    ground, valid = cam.back_project_to_plane(np.array([[419.5, 179.5]]))
+    assert valid.all() and np.allclose(ground[0], [10.0, 0.0, 0.0])
+
+
+def test_rays_above_horizon_are_invalid():
+    cam = Camera(INTR, np.array([0, 0, 50.0]), world_from_camera_rotation(0.0, math.radians(-5), 0))
+    _, valid = cam.back_project_to_plane(np.array([[320.0, 0.0], [320.0, 359.0]]))
+    assert not valid[0] and valid[1]
+
+
+def test_gsd_matches_phantom4_rtk_datasheet():
+    # DJI Phantom 4 RTK: 1" sensor 13.2 x 8.8 mm, 8.8 mm lens, 5472 x 3648 px;
+    # DJI's datasheet: GSD = H / 36.5 cm/px, i.e. 3.29 cm/px at 120 m
+    gsd = nadir_gsd_from_sensor(120.0, 13.2, 8.8, 8.8, 5472, 3648)
+    assert gsd * 100 == pytest.approx(120 / 36.5, rel=0.01)
+    intr = CameraIntrinsics.from_sensor(5472, 3648, 13.2, 8.8, 8.8)
+    assert nadir_gsd_m_per_px(120.0, intr.fx, intr.fy) == pytest.approx(gsd)
+
+
+def test_load_opencv_filestorage_yaml_and_xml(tmp_path):
+    K = np.array([[910.2, 0, 640.7], [0, 908.9, 362.1], [0, 0, 1]])
+    dist = np.array([[-0.11, 0.09, 0.0004, -0.0002, -0.02]])
+    for name in ("calib.yaml", "calib.xml"):
+        fs = cv2.FileStorage(str(tmp_path / name), cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", 1280)
+        fs.write("image_height", 720)
+        fs.write("camera_matrix", K)
+        fs.write("distortion_coefficients", dist)
+        fs.release()
+        intr = load_camera_calibration(tmp_path / name)
+        assert (intr.width, intr.height) == (1280, 720)
+        assert (intr.fx, intr.fy, intr.cx, intr.cy) == (910.2, 908.9, 640.7, 362.1)
+        assert np.allclose(intr.distortion, dist.ravel())
+
+
+ROS_CAMERA_INFO = """\
+image_width: 640
+image_height: 480
+camera_name: narrow_stereo
+camera_matrix:
+  rows: 3
+  cols: 3
+  data: [476.7030836014194, 0, 400.5, 0, 476.7030836014194, 400.5, 0, 0, 1]
+distortion_model: plumb_bob
+distortion_coefficients:
+  rows: 1
+  cols: 5
+  data: [0.01, -0.02, 0, 0, 0]
+rectification_matrix:
+  rows: 3
+  cols: 3
+  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]
+projection_matrix:
+  rows: 3
+  cols: 4
+  data: [476.7030836014194, 0, 400.5, 0, 0, 476.7030836014194, 400.5, 0, 0, 0, 1, 0]
+"""
+
+
+def test_load_ros_camera_info(tmp_path):
+    path = tmp_path / "camera_info.yaml"
+    path.write_text(ROS_CAMERA_INFO)
+    intr = load_camera_calibration(path)
+    assert (intr.width, intr.height, intr.cx) == (640, 480, 400.5)
+    assert intr.fx == pytest.approx(476.7030836014194)
+    assert intr.distortion == (0.01, -0.02, 0, 0, 0)
+
+
+def test_bad_calibration_names_file_and_field(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("image_width: 640\nimage_height: 480\n")
+    with pytest.raises(InputError, match=r"bad.yaml: camera_matrix"):
+        load_camera_calibration(path)
