@@ -32,7 +32,7 @@ app = typer.Typer(
     help="Per-section hull clearance of a vessel, measured from a companion drone's camera.",
 )
 console = Console()
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 
 class Method(StrEnum):

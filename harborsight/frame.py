@@ -259,6 +259,17 @@ class FrameGeometry:
         enu[:, :2] += self.vessel_position_enu
         return enu
 
+    def vessel_from_world_2d(self) -> np.ndarray:
+        """3x3 homogeneous map of water-plane ENU (e, n) to vessel (x bow, y starboard)."""
+        s, c = math.sin(self.vessel_heading_rad), math.cos(self.vessel_heading_rad)
+        rot = np.array([[s, c], [c, -s]])
+        return np.block([[rot, -(rot @ self.vessel_position_enu)[:, None]],
+                         [np.zeros((1, 2)), np.ones((1, 1))]])
+
+    def pixels_to_vessel_xy(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels back-projected onto the water plane, in the vessel frame: ``(xy, valid)``."""
+        return self.camera.pixels_to_plane_xy(uv, 0.0, post=self.vessel_from_world_2d())
+
     def enu_to_vessel_xy(self, points_enu: np.ndarray) -> np.ndarray:
         """ENU points (on the water plane) to vessel-frame x (bow), y (starboard)."""
         rel = np.atleast_2d(points_enu)[:, :2] - self.vessel_position_enu

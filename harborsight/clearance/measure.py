@@ -97,11 +97,9 @@ def measure_frame(
 def _section_visibility(sections_v: SectionedOutline, geometry: FrameGeometry) -> np.ndarray:
     """Share of each section's length that projects inside the image."""
     n = sections_v.n_sections
-    samples = n * _VISIBILITY_SAMPLES_PER_SECTION
-    positions = (np.arange(samples) + 0.5) * sections_v.perimeter / samples
-    uv, _ = geometry.camera.project(geometry.vessel_to_enu(sections_v.points_at(positions)))
+    points, section = sections_v.samples(_VISIBILITY_SAMPLES_PER_SECTION * n)
+    uv, _ = geometry.camera.project(geometry.vessel_to_enu(points))
     visible = geometry.camera.in_image(uv)
-    section = sections_v.section_of_position(positions)
     total = np.bincount(section, minlength=n)
     return np.bincount(section, weights=visible, minlength=n) / np.maximum(total, 1)
 
@@ -197,9 +195,7 @@ def measure_clearance(
 
     if settings.method == "ground_plane":
         outline = sections_v
-        enu, valid = camera.back_project_to_plane(points_px)
-        points = np.full_like(points_px, np.nan)
-        points[valid] = geometry.enu_to_vessel_xy(enu[valid])
+        points, valid = geometry.pixels_to_vessel_xy(points_px)
     else:
         outline = sections_v.transformed(vessel_to_px)
         if not np.isfinite(outline.vertices).all():
@@ -242,9 +238,9 @@ def measure_clearance(
         to_square_edge = _HALF_PIXEL / np.maximum(np.abs(unit).max(axis=1), _HALF_PIXEL * 2 ** 0.5)
         shift = np.minimum(to_square_edge, norm)
         moved_px = obstacle_px + unit * shift[:, None]
-        moved_enu, moved_ok = camera.back_project_to_plane(moved_px)
+        moved_enu, _ = camera.back_project_to_plane(moved_px)
         if outline is sections_v:
-            moved_v = geometry.enu_to_vessel_xy(np.where(moved_ok[:, None], moved_enu, 0.0))
+            moved_v = geometry.enu_to_vessel_xy(moved_enu)
             distance_m = np.hypot(*(moved_v - nearest).T)
             distance_m[norm <= shift] = 0.0
             hull_enu = geometry.vessel_to_enu(nearest)

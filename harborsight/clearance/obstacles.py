@@ -25,21 +25,42 @@ LABEL_VALUES = (WATER, SHIP, OBSTACLE, IGNORE)
 _SUBPIXEL_BITS = 4
 
 
+@dataclass(frozen=True)
+class OwnRegion:
+    """uint8 mask (255 = own vessel) and the slices of its bounding box (None if empty)."""
+
+    mask: np.ndarray
+    bbox: tuple[slice, slice] | None
+
+
 def own_vessel_region(
     hull_px: np.ndarray, shape: tuple[int, int], pose_margin_px: float
-) -> np.ndarray:
-    """uint8 mask (1 = own vessel) of the convex hull of projected vessel points."""
+) -> OwnRegion:
+    """The convex hull of projected vessel points, grown by ``pose_margin_px`` (elliptical
+    dilation)."""
     region = np.zeros(shape, np.uint8)
     pts = hull_px[np.isfinite(hull_px).all(axis=1)]
     if len(pts) < 3:
-        return region
+        return OwnRegion(region, None)
     hull = cv2.convexHull(np.round(pts * (1 << _SUBPIXEL_BITS)).astype(np.int32))
-    cv2.fillConvexPoly(region, hull, 1, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
+    cv2.fillConvexPoly(region, hull, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
     radius = int(np.ceil(pose_margin_px))
-    if radius > 0:
+    roi = _grown_bbox(hull.reshape(-1, 2) / (1 << _SUBPIXEL_BITS), radius + 1, shape)
+    if radius > 0 and roi is not None:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-        region = cv2.dilate(region, kernel)
-    return region
+        region[roi] = cv2.dilate(region[roi], kernel)
+    return OwnRegion(region, roi)
+
+
+def _grown_bbox(points: np.ndarray, grow: int, shape: tuple[int, int]):
+    """Slices of the bounding box of ``points`` grown by ``grow`` px, clipped to the image."""
+    x0, y0 = np.floor(points.min(axis=0)).astype(int) - grow
+    x1, y1 = np.ceil(points.max(axis=0)).astype(int) + grow + 1
+    h, w = shape
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if x0 >= x1 or y0 >= y1:
+        return None
+    return slice(y0, y1), slice(x0, x1)
 
 
 @dataclass(frozen=True)
@@ -58,7 +79,7 @@ class ObstacleContours:
     on_border: np.ndarray
 
 
-def obstacle_contours(labels: np.ndarray, own_region: np.ndarray) -> ObstacleContours:
+def obstacle_contours(labels: np.ndarray, own: OwnRegion) -> ObstacleContours:
     """Suzuki–Abe contours (``cv2.findContours``) of solid pixels outside ``own_region``.
 
     Solid is everything but water; ``ignore`` (255) counts as solid, the safe side. All
@@ -67,8 +88,8 @@ def obstacle_contours(labels: np.ndarray, own_region: np.ndarray) -> ObstacleCon
     never an obstacle: only solid pixels yield contour points, and those on the outermost
     rows/columns are flagged ``on_border``.
     """
-    solid = labels != WATER
-    obstacle = (solid & (own_region == 0)).astype(np.uint8)
+    obstacle = cv2.subtract(labels, own.mask)  # saturating: 0 wherever the own mask is 255
+    roi = own.bbox
     contours, _ = cv2.findContours(obstacle, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     if not contours:
         empty = np.zeros(0, bool)
@@ -82,7 +103,13 @@ def obstacle_contours(labels: np.ndarray, own_region: np.ndarray) -> ObstacleCon
     on_border = ((points[:, 0] == 0) | (points[:, 0] == w - 1)
                  | (points[:, 1] == 0) | (points[:, 1] == h - 1))
     # contact: the obstacle pixel touches solid pixels inside the own-vessel region
-    solid_inside = (solid & (own_region > 0)).astype(np.uint8)
-    touching = cv2.dilate(solid_inside, np.ones((3, 3), np.uint8))
-    contact = touching[points[:, 1], points[:, 0]] > 0
+    contact = np.zeros(len(points), bool)
+    if roi is not None:
+        roi = _grown_bbox(np.array([[roi[1].start, roi[0].start], [roi[1].stop, roi[0].stop]]),
+                          1, labels.shape)
+        solid_inside = cv2.bitwise_and(labels[roi], own.mask[roi])
+        touching = cv2.dilate(solid_inside, np.ones((3, 3), np.uint8))
+        u, v = points[:, 0] - roi[1].start, points[:, 1] - roi[0].start
+        near = (u >= 0) & (v >= 0) & (u < touching.shape[1]) & (v < touching.shape[0])
+        contact[near] = touching[v[near], u[near]] > 0
     return ObstacleContours(points, next_index, contact, on_border)

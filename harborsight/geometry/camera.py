@@ -239,6 +239,51 @@ class Camera:
         rays_c = np.column_stack((xy, np.ones(len(xy))))
         return rays_c @ self.world_from_camera.T
 
+    def plane_homography(self, plane_z_m: float = 0.0) -> np.ndarray:
+        """3x3 ``H`` mapping undistorted normalised coordinates ``m = (x, y, 1)`` to the
+        homogeneous point where the ray meets the plane ``z = z_p``.
+
+        With ``r_i`` the rows of ``R_W<-C`` and ``c`` the camera centre, the ray
+        ``c + t · R m`` meets the plane at ``t = (z_p - c_z) / (r_3 · m)``, so
+
+            (X, Y) = (c_x·(r_3·m) + (z_p - c_z)·(r_1·m),  c_y·(r_3·m) + (z_p - c_z)·(r_2·m)) / (r_3·m)
+
+        i.e. ``H = [c_x r_3 + (z_p - c_z) r_1; c_y r_3 + (z_p - c_z) r_2; r_3]``. The hit is
+        in front of the camera when ``(z_p - c_z) / (r_3 · m) > 0``.
+        """
+        R = self.world_from_camera
+        c = self.position_enu
+        dz = plane_z_m - c[2]
+        return np.vstack((c[0] * R[2] + dz * R[0], c[1] * R[2] + dz * R[1], R[2]))
+
+    def pixels_to_plane_xy(
+        self, uv: np.ndarray, plane_z_m: float = 0.0, post: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Plane coordinates ``(N, 2)`` of pixels, optionally mapped by a 3x3 ``post``
+        (e.g. world -> vessel frame); returns ``(xy, valid)``, NaN where invalid."""
+        uv = np.atleast_2d(np.asarray(uv, float))
+        H = self.plane_homography(plane_z_m)
+        intr = self.intrinsics
+        if intr.has_distortion:
+            m = self.normalized_coordinates(uv)
+        else:
+            m = uv
+            H = H @ np.linalg.inv(intr.K)
+        if post is not None:
+            H = post @ H
+        # the ray's downward component decides validity, before any post map
+        r3 = self.world_from_camera[2]
+        m3 = m if intr.has_distortion else (uv - (intr.cx, intr.cy)) / (intr.fx, intr.fy)
+        down = m3[:, 0] * r3[0] + m3[:, 1] * r3[1] + r3[2]
+        dz = plane_z_m - self.position_enu[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            valid = np.isfinite(down) & (dz / down > 0)
+            w = m[:, 0] * H[2, 0] + m[:, 1] * H[2, 1] + H[2, 2]
+            xy = np.column_stack((m[:, 0] * H[0, 0] + m[:, 1] * H[0, 1] + H[0, 2],
+                                  m[:, 0] * H[1, 0] + m[:, 1] * H[1, 1] + H[1, 2])) / w[:, None]
+        xy[~valid] = np.nan
+        return xy, valid
+
     def back_project_to_plane(
         self, uv: np.ndarray, plane_z_m: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -247,13 +292,9 @@ class Camera:
         Returns ``(points_enu (N, 3), valid (N,))``; rays that point at or above the
         horizon (no intersection in front of the camera) are invalid and NaN.
         """
-        rays = self.rays_world(uv)
-        dz = rays[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (plane_z_m - self.position_enu[2]) / dz
-        valid = np.isfinite(t) & (t > 0)
-        points = np.full((len(rays), 3), np.nan)
-        points[valid] = self.position_enu + t[valid, None] * rays[valid]
+        xy, valid = self.pixels_to_plane_xy(uv, plane_z_m)
+        points = np.column_stack((xy, np.full(len(xy), float(plane_z_m))))
+        points[~valid] = np.nan
         return points, valid
 
     def in_image(self, uv: np.ndarray) -> np.ndarray:

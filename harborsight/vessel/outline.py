@@ -50,6 +50,10 @@ def mesh_in_vessel_frame(
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
 
 
+#: Outline vertices closer than this to the simplified outline are dropped (metres).
+SIMPLIFY_TOLERANCE_M = 0.01
+
+
 def convex_outline(points_xy: np.ndarray) -> np.ndarray:
     """Convex hull of V-frame x-y points, clockwise from above, starting at the bow.
 
@@ -59,6 +63,9 @@ def convex_outline(points_xy: np.ndarray) -> np.ndarray:
     hull = MultiPoint(np.asarray(points_xy, float)).convex_hull
     if not isinstance(hull, Polygon) or hull.area <= 0:
         raise ValueError("the outline points do not enclose an area")
+    # drop vertices that move the outline by less than SIMPLIFY_TOLERANCE_M (a subset of a
+    # convex polygon's vertices is still convex); fewer edges make every frame cheaper
+    hull = hull.simplify(SIMPLIFY_TOLERANCE_M, preserve_topology=True)
     ring = np.asarray(orient(hull, sign=1.0).exterior.coords)[:-1]
     y_mid = 0.5 * (ring[:, 1].min() + ring[:, 1].max())
     x_front = ring[:, 0].max() + 1.0

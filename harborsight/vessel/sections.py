@@ -95,24 +95,18 @@ class SectionedOutline:
 
     def _build_lines(self) -> None:
         """Group runs of collinear edges into lines (a vertex may sit mid-line, e.g. the bow)."""
-        K = len(self.vertices)
-        first_of_run = np.ones(K, bool)
-        for e in range(K):
-            prev = (e - 1) % K
-            if float(self.edge_normal[e] @ self.edge_normal[prev]) > 1.0 - 1e-12:
-                first_of_run[e] = False
+        prev_normal = np.roll(self.edge_normal, 1, axis=0)
+        first_of_run = np.einsum("ij,ij->i", self.edge_normal, prev_normal) <= 1.0 - 1e-12
         if not first_of_run.any():
             raise ValueError("outline is degenerate (all edges collinear)")
         starts = np.flatnonzero(first_of_run)
-        run_len = []
-        for i, s0 in enumerate(starts):
-            s1 = starts[(i + 1) % len(starts)]
-            count = (s1 - s0) % K or K
-            run_len.append(sum(self.edge_length[(s0 + m) % K] for m in range(count)))
+        # rotate so the first run starts at index 0, then sum edge lengths per run
+        rolled = np.roll(self.edge_length, -starts[0])
+        run_len = np.add.reduceat(rolled, starts - starts[0])
         self.line_start = self.edge_start[starts]
         self.line_dir = self.edge_dir[starts]
         self.line_normal = self.edge_normal[starts]
-        self.line_length = np.asarray(run_len)
+        self.line_length = run_len
         self.line_offset = self.edge_offset[starts]
         self._line_c = np.einsum("ij,ij->i", self.line_normal, self.line_start)
 
@@ -174,6 +168,14 @@ class SectionedOutline:
         edge = self._edge_at(position)
         along = position - self.edge_offset[edge]
         return self.edge_start[edge] + along[:, None] * self.edge_dir[edge]
+
+    def samples(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """``count`` points evenly spaced along the outline and their sections (cached)."""
+        cache = self.__dict__.setdefault("_samples", {})
+        if count not in cache:
+            positions = (np.arange(count) + 0.5) * self.perimeter / count
+            cache[count] = (self.points_at(positions), self.section_of_position(positions))
+        return cache[count]
 
     def section_of_position(self, position: np.ndarray) -> np.ndarray:
         """Section index of arc-length positions along the outline (0 at the bow)."""

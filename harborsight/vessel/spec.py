@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,7 @@ class VesselSpec:
     n_sections: int | None = DEFAULT_SECTIONS
     section_length_m: float | None = None
     source: str | None = None
+    _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def length_m(self) -> float:
@@ -49,10 +50,13 @@ class VesselSpec:
     def sections(
         self, n_sections: int | None = None, section_length_m: float | None = None
     ) -> SectionedOutline:
-        """Split the outline; arguments override the spec's own setting."""
+        """Split the outline (cached); arguments override the spec's own setting."""
         if n_sections is None and section_length_m is None:
             n_sections, section_length_m = self.n_sections, self.section_length_m
-        return SectionedOutline.split(self.outline, n_sections, section_length_m)
+        key = (n_sections, section_length_m)
+        if key not in self._sections:
+            self._sections[key] = SectionedOutline.split(self.outline, n_sections, section_length_m)
+        return self._sections[key]
 
 
 def _positive(doc: dict, key: str, path: Path, prefix: str = "") -> float:

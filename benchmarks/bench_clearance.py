@@ -1,0 +1,62 @@
+"""Clearance step (label mask -> report) on 640x360 masks, one core.
+
+Target (issue #2): at most 2 ms per frame. Prints the median time per frame for each scene
+and method, and its ratio to the target, measured in one run.
+
+    .venv/bin/python benchmarks/bench_clearance.py [--repeats 300]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from harborsight.clearance import ClearanceSettings, measure_clearance  # noqa: E402
+from harborsight.sim.schematic import render, sample_scene  # noqa: E402
+from harborsight.vessel.spec import load_vessel_spec  # noqa: E402
+
+TARGET_MS = 2.0
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=300)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    vessel = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
+    print(f"clearance step, 640x360, one core, median of {args.repeats} runs; target {TARGET_MS} ms")
+    print(f"{'scene':<22}{'method':<14}{'contour px':>11}{'ms/frame':>10}{'target/actual':>15}")
+    for scenario, altitude, tilt in [("alongside", 40, 0), ("slip", 60, 10), ("touching", 45, 5),
+                                     ("open", 120, 0)]:
+        scene = sample_scene(vessel, np.random.default_rng(11), altitude_m=altitude, tilt_deg=tilt,
+                             scenario=scenario)
+        _, labels, _ = render(scene)
+        geometry = scene.geometry()
+        contour_px = sum(len(c) for c in cv2.findContours(
+            (labels != 0).astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)[0])
+        for method in ("ground_plane", "gsd"):
+            settings = ClearanceSettings(method=method)
+            for _ in range(10):
+                measure_clearance(labels, geometry, vessel, settings)
+            times = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                measure_clearance(labels, geometry, vessel, settings)
+                times.append(time.perf_counter() - t0)
+            ms = 1000 * float(np.median(times))
+            name = f"{scenario} {altitude} m {tilt} deg"
+            print(f"{name:<22}{method:<14}{contour_px:>11}{ms:>10.2f}{TARGET_MS / ms:>14.2f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,159 @@
+"""Bad input: one-line errors naming the file and the field; batches skip only bad frames."""
+
+import json
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.frame import load_frame_metadata
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+runner = CliRunner()
+
+
+@pytest.fixture
+def dataset(tmp_path) -> Path:
+    target = tmp_path / "flight"
+    shutil.copytree(SAMPLES, target)
+    return target
+
+
+def edit_frame(path: Path, edit) -> None:
+    data = json.loads(path.read_text())
+    edit(data)
+    path.write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize("edit, field, message", [
+    (lambda d: d["uav"].pop("alt_m"), "uav.alt_m", "missing"),
+    (lambda d: d["uav"].update(lat=91.0), "uav.lat", "outside"),
+    (lambda d: d["uav"].update(lon=float("nan")), "uav.lon", "must be finite"),
+    (lambda d: d["uav"].update(alt_m=-1.0), "uav.alt_m", "at or below water_level_m"),
+    (lambda d: d["camera_attitude"].update(pitch_deg=40.0), "camera_attitude.pitch_deg", "horizon"),
+    (lambda d: d["camera"].update(fx="wide"), "camera.fx", "expected a number"),
+    (lambda d: d["camera"].update(distortion=[0.1, 0.2, 0.3]), "camera.distortion", "4, 5, 8"),
+    (lambda d: d.pop("vessel"), "vessel", "missing"),
+    (lambda d: d.update(schema="other/1"), "schema", "expected"),
+])
+def test_bad_metadata_names_file_and_field(dataset, edit, field, message):
+    frame = dataset / "frames" / "000000.json"
+    edit_frame(frame, edit)
+    if field == "camera_attitude.pitch_deg":
+        from harborsight.frame import FrameGeometry
+        with pytest.raises(InputError, match=rf"000000.json: {field}: .*{message}"):
+            FrameGeometry.from_metadata(load_frame_metadata(frame))
+        return
+    with pytest.raises(InputError, match=rf"000000.json: {field}: .*{message}") as info:
+        load_frame_metadata(frame)
+    assert "\n" not in str(info.value)
+
+
+def test_unknown_keys_are_kept(dataset):
+    frame = dataset / "frames" / "000000.json"
+    edit_frame(frame, lambda d: d.update(pilot_note="slow ahead"))
+    meta = load_frame_metadata(frame)
+    assert meta.extra["pilot_note"] == "slow ahead"
+    assert meta.to_dict()["pilot_note"] == "slow ahead"
+
+
+def measure_args(dataset: Path, stem: str = "000000") -> list[str]:
+    return ["measure", str(dataset / "images" / f"{stem}.png"),
+            "--meta", str(dataset / "frames" / f"{stem}.json"),
+            "--vessel", str(dataset / "vessels" / "harbour-tug" / "vessel.yaml"),
+            "--mask", str(dataset / "labels" / f"{stem}.png"),
+            "--out", str(dataset / "out"), "--no-tables"]
+
+
+def test_single_frame_writes_report_and_overlay(dataset):
+    result = runner.invoke(app, measure_args(dataset))
+    assert result.exit_code == 0, result.output
+    report = json.loads((dataset / "out" / "000000.json").read_text())
+    assert report["schema"] == "harborsight.report/1"
+    assert report["method"] == "ground_plane"
+    assert {"index", "hull_px", "status", "distance_m", "distance_px", "hull_point_px",
+            "obstacle_point_px", "hull_point_enu", "obstacle_point_enu"} <= set(report["sections"][0])
+    ok = [s for s in report["sections"] if s["status"] == "ok"]
+    assert report["min_distance_m"] == min(s["distance_m"] for s in ok)
+    overlay = cv2.imread(str(dataset / "out" / "000000.png"))
+    assert overlay.shape == (360, 640, 3)
+
+
+def test_gsd_method_and_section_override(dataset):
+    result = runner.invoke(app, [*measure_args(dataset), "--method", "gsd", "--sections", "6"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((dataset / "out" / "000000.json").read_text())
+    assert report["method"] == "gsd" and len(report["sections"]) == 6
+
+
+@pytest.mark.parametrize("breakage, expected", [
+    (lambda d: (d / "images" / "000000.png").unlink(), "000000.png: image file not found"),
+    (lambda d: (d / "images" / "000000.png").write_bytes(b"\x89PNG broken"), "cannot decode image"),
+    (lambda d: cv2.imwrite(str(d / "labels" / "000000.png"), np.zeros((10, 10), np.uint8)),
+     "000000.png: mask: size 10x10 differs from camera 640x360"),
+    (lambda d: cv2.imwrite(str(d / "labels" / "000000.png"), np.full((360, 640), 7, np.uint8)),
+     "mask: unknown class values [7]"),
+    (lambda d: (d / "vessels" / "harbour-tug" / "hull.stl").write_bytes(b"garbage"),
+     "vessel.yaml: hull_mesh"),
+    (lambda d: edit_frame(d / "frames" / "000000.json",
+                          lambda f: f["vessel"].update(lat=f["vessel"]["lat"] + 0.01)),
+     "000000.json: vessel: no part of the hull outline is in the image"),
+])
+def test_single_frame_errors_exit_nonzero_with_one_line(dataset, breakage, expected):
+    breakage(dataset)
+    result = runner.invoke(app, measure_args(dataset))
+    assert result.exit_code == 2
+    assert expected in result.output.replace("\n", " ")
+    assert result.output.strip().count("\n") == 0 or "error:" in result.output
+
+
+def test_batch_skips_bad_frames_and_writes_the_rest(dataset):
+    edit_frame(dataset / "frames" / "000001.json", lambda d: d["uav"].update(alt_m=float("nan")))
+    cv2.imwrite(str(dataset / "labels" / "000003.png"), np.full((360, 640), 9, np.uint8))
+    (dataset / "images" / "000004.png").write_bytes(b"")
+    out = dataset / "out"
+    result = runner.invoke(app, ["measure", str(dataset), "--out", str(out), "--no-tables"])
+    assert result.exit_code == 0, result.output
+    written = sorted(p.name for p in out.glob("*.json"))
+    assert written == ["000000.json", "000002.json"]
+    assert (out / "000000.png").is_file() and (out / "000002.png").is_file()
+    text = result.output.replace("\n", " ")
+    assert "3 frame(s) skipped" in text
+    assert "uav.alt_m: must be finite" in text
+    assert "unknown class values [9]" in text
+    assert "000004.png: cannot decode image" in text
+
+
+def test_batch_of_only_bad_frames_fails(dataset):
+    for frame in (dataset / "frames").glob("*.json"):
+        edit_frame(frame, lambda d: d.pop("camera"))
+    result = runner.invoke(app, ["measure", str(dataset), "--out", str(dataset / "out")])
+    assert result.exit_code == 1
+    assert "camera: missing" in result.output
+
+
+def test_camera_calibration_override(dataset, tmp_path):
+    meta = json.loads((dataset / "frames" / "000000.json").read_text())["camera"]
+    fs = cv2.FileStorage(str(tmp_path / "calib.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 360)
+    fs.write("camera_matrix", np.array([[meta["fx"], 0, meta["cx"]], [0, meta["fy"], meta["cy"]],
+                                        [0, 0, 1.0]]))
+    fs.write("distortion_coefficients", np.zeros((1, 5)))
+    fs.release()
+    result = runner.invoke(app, [*measure_args(dataset), "--camera", str(tmp_path / "calib.yaml")])
+    assert result.exit_code == 0, result.output
+
+
+def test_help_documents_every_option():
+    result = runner.invoke(app, ["measure", "--help"], terminal_width=200)
+    assert result.exit_code == 0
+    for option in ("--meta", "--vessel", "--mask", "--masks", "--out", "--method", "--sections",
+                   "--section-length-m", "--camera", "--pose-margin-px", "--tables"):
+        assert option in result.output
