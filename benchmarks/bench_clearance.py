@@ -13,16 +13,16 @@ import os
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import time
+from pathlib import Path
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from harborsight.clearance import ClearanceSettings, measure_clearance  # noqa: E402
-from harborsight.sim.schematic import render, sample_scene  # noqa: E402
-from harborsight.vessel.spec import load_vessel_spec  # noqa: E402
+from harborsight.clearance import ClearanceSettings, measure_clearance
+from harborsight.sim.schematic import render, sample_scene
+from harborsight.vessel.spec import load_vessel_spec
 
 TARGET_MS = 2.0
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"

@@ -144,15 +144,16 @@ def render(scene: SchematicScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) -> Polygon:
-    """The part of the water plane the image shows (its border back-projected)."""
+    """The part of the water plane the image samples: the hull of its pixel centres,
+    back-projected (what a mask can show, so frame-cut obstacles compare like for like)."""
     intr = geometry.camera.intrinsics
-    w, h = intr.width - 0.5, intr.height - 0.5
+    w, h = intr.width - 1.0, intr.height - 1.0
     t = np.linspace(0.0, 1.0, samples_per_side, endpoint=False)
     border = np.vstack((
-        np.column_stack((-0.5 + t * (w + 0.5), np.full_like(t, -0.5))),
-        np.column_stack((np.full_like(t, w), -0.5 + t * (h + 0.5))),
-        np.column_stack((w - t * (w + 0.5), np.full_like(t, h))),
-        np.column_stack((np.full_like(t, -0.5), h - t * (h + 0.5))),
+        np.column_stack((t * w, np.zeros_like(t))),
+        np.column_stack((np.full_like(t, w), t * h)),
+        np.column_stack((w - t * w, np.full_like(t, h))),
+        np.column_stack((np.zeros_like(t), h - t * h)),
     ))
     ground, valid = geometry.camera.back_project_to_plane(border)
     return Polygon(ground[valid, :2]).buffer(0)
