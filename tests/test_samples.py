@@ -1,0 +1,63 @@
+"""The bundled samples are what `make-samples` writes, and the demo runs on them."""
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.sim.samples import DEFAULT_SEED, make_demo_samples
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+
+
+def test_make_samples_reproduces_the_bundled_frames(tmp_path):
+    stems = make_demo_samples(tmp_path / "samples", DEFAULT_SEED)
+    assert stems
+    for stem in stems:
+        for sub in ("labels", "instances"):
+            ours = cv2.imread(str(tmp_path / "samples" / sub / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+            bundled = cv2.imread(str(SAMPLES / sub / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+            assert np.array_equal(ours, bundled), (sub, stem)
+        ours = json.loads((tmp_path / "samples" / "frames" / f"{stem}.json").read_text())
+        bundled = json.loads((SAMPLES / "frames" / f"{stem}.json").read_text())
+        assert ours["uav"] == bundled["uav"] and ours["camera_attitude"] == bundled["camera_attitude"]
+        for a, b in zip(ours["ground_truth"]["sections"], bundled["ground_truth"]["sections"],
+                        strict=True):
+            for key in ("distance_m", "distance_all_m"):
+                assert (a[key] is None) == (b[key] is None)
+                if a[key] is not None:
+                    assert abs(a[key] - b[key]) < 1e-6
+
+
+def test_samples_follow_the_dataset_layout():
+    meta = json.loads((SAMPLES / "dataset.json").read_text())
+    assert meta["seed"] == DEFAULT_SEED and set(meta["classes"]) == {"0", "1", "2", "255"}
+    for stem in meta["split"]:
+        frame = json.loads((SAMPLES / "frames" / f"{stem}.json").read_text())
+        assert frame["schema"] == "harborsight.frame/1"
+        assert (SAMPLES / frame["vessel_spec"]).is_file()
+        labels = cv2.imread(str(SAMPLES / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        instances = cv2.imread(str(SAMPLES / "instances" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        assert labels.dtype == np.uint8 and instances.dtype == np.uint16
+        assert set(np.unique(labels)) <= {0, 1, 2, 255}
+        assert (labels[instances == 1] == 1).all()  # the vessel of interest is a ship
+
+
+def test_demo_measures_every_sample(tmp_path):
+    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path)], terminal_width=160)
+    assert result.exit_code == 0, result.output
+    assert "5 frame(s) measured" in result.output
+    reports = sorted(tmp_path.glob("*.json"))
+    assert len(reports) == 5
+    errors = []
+    for path in reports:
+        report = json.loads(path.read_text())
+        frame = json.loads((SAMPLES / "frames" / path.name).read_text())
+        for s, t in zip(report["sections"], frame["ground_truth"]["sections"], strict=True):
+            if s["status"] == "ok" and not s["contact"] and t["distance_m"] is not None:
+                errors.append(abs(s["distance_m"] - t["distance_m"]) / report["gsd_m_per_px"])
+    assert errors and max(errors) <= 1.0
