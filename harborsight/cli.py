@@ -188,6 +188,46 @@ def make_samples(
                   f"({json.loads((out / 'dataset.json').read_text())['generator']})")
 
 
+@app.command()
+def models(
+    num_classes: Annotated[int, typer.Option(min=1, help="Classes of the output layer.")] = 3,
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """List the segmentation networks with their parameter counts and input size rule."""
+    try:
+        from harborsight.perception.networks import (
+            NETWORKS,
+            create_network,
+            inference_parameter_count,
+            parameter_count,
+        )
+    except ImportError as exc:
+        err_console.print(f"error: the networks need torch (pip install -e '.[train]'): {exc}")
+        raise typer.Exit(2) from None
+    rows = []
+    for name in NETWORKS:
+        network = create_network(name, num_classes, aux_heads=True)
+        stride = int(network.output_stride)
+        rows.append({
+            "name": name,
+            "params": inference_parameter_count(network),
+            "params_with_aux_heads": parameter_count(network),
+            "output_stride": stride,
+            "input_size_rule": f"any size; padded inside the model to multiples of {stride}",
+        })
+    if as_json:
+        print(json.dumps(rows, indent=2))
+        return
+    table = Table(title=f"segmentation networks ({num_classes} classes)", title_justify="left")
+    for column in ("network", "params (inference)", "with aux heads", "output stride"):
+        table.add_column(column, justify="left" if column == "network" else "right")
+    for row in rows:
+        table.add_row(row["name"], f"{row['params']:,}", f"{row['params_with_aux_heads']:,}",
+                      str(row["output_stride"]))
+    console.print(table)
+    console.print("input: any frame size; padded inside the model to a multiple of the stride")
+
+
 def main() -> None:
     try:
         app()

@@ -1,0 +1,81 @@
+"""Shared checks over every network: shapes at odd sizes, backward, ONNX equivalence,
+and parameter counts equal to the reference implementations'."""
+
+import numpy as np
+import pytest
+import torch
+
+from harborsight.perception.export import export_onnx, onnx_max_abs_difference
+from harborsight.perception.model import SegmentationModel
+from harborsight.perception.networks import (
+    NETWORKS,
+    create_network,
+    inference_parameter_count,
+    parameter_count,
+)
+from harborsight.perception.onnx_segmenter import OnnxSegmenter
+
+#: Inference-graph parameters with 19 classes (Cityscapes), as the reference implementations
+#: count them (README, "Segmentation networks").
+REFERENCE_PARAMS_19 = {
+    "bisenetv2": 3_358_627,       # CoinCheung/BiSeNet lib/models/bisenetv2.py, aux_mode="eval"
+    "fchardnet70": 4_119_257,     # PingoLH/FCHarDNet ptsemseg/models/hardnet.py
+    "ddrnet23_slim": 5_695_987,   # ydhongHIT/DDRNet segmentation/DDRNet_23_slim.py, no aux head
+    "ddrnet23": 20_148_947,       # ydhongHIT/DDRNet segmentation/DDRNet_23.py, no aux head
+}
+
+
+@pytest.fixture(params=list(NETWORKS))
+def name(request) -> str:
+    return request.param
+
+
+def images(n: int, h: int, w: int, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, (n, h, w, 3), dtype=np.uint8)
+
+
+def test_eval_forward_at_odd_sizes(name):
+    torch.manual_seed(0)
+    model = SegmentationModel(create_network(name, 3)).eval()
+    with torch.no_grad():
+        for h, w in ((45, 70), (97, 33)):
+            logits = model(torch.from_numpy(images(1, h, w)))
+            assert logits.shape == (1, 3, h, w)
+            assert torch.isfinite(logits).all()
+
+
+def test_train_forward_backward(name):
+    torch.manual_seed(0)
+    model = SegmentationModel(create_network(name, 3)).train()
+    batch = torch.from_numpy(images(2, 70, 90))
+    target = torch.randint(0, 3, (2, 70, 90))
+    out = model(batch)
+    main, aux = out if isinstance(out, tuple) else (out, [])
+    assert main.shape == (2, 3, 70, 90) and all(a.shape == main.shape for a in aux)
+    loss = torch.nn.functional.cross_entropy(main, target) + sum(
+        torch.nn.functional.cross_entropy(a, target) for a in aux)
+    loss.backward()
+    network = model.network
+    aux_ids = {id(p) for p in network.aux_heads.parameters()} if network.aux_heads else set()
+    missing = [n for n, p in network.named_parameters() if p.grad is None and id(p) not in aux_ids]
+    assert not missing, missing[:5]
+
+
+def test_onnx_export_matches_torch(name, tmp_path):
+    torch.manual_seed(0)
+    model = SegmentationModel(create_network(name, 3, aux_heads=False)).eval()
+    path = export_onnx(model, tmp_path / f"{name}.onnx", 72, 100, {"network": name})
+    assert onnx_max_abs_difference(model, path, images(2, 72, 100)) <= 1e-3
+    segmenter = OnnxSegmenter(path)
+    assert segmenter.metadata["network"] == name
+    frame = images(1, 72, 100, seed=5)[0]
+    with torch.no_grad():
+        expected = model(torch.from_numpy(frame[None])).argmax(1)[0].numpy()
+    assert (segmenter.segment(frame) == expected).mean() > 0.999
+    assert segmenter.segment(images(1, 144, 200)[0]).shape == (144, 200)  # resized and back
+
+
+def test_parameter_counts_match_reference(name):
+    network = create_network(name, 19, aux_heads=True)
+    assert inference_parameter_count(network) == REFERENCE_PARAMS_19[name]
+    assert parameter_count(create_network(name, 19, aux_heads=False)) == REFERENCE_PARAMS_19[name]
