@@ -233,12 +233,6 @@ class Camera:
             return xy.reshape(-1, 2)
         return np.column_stack(((uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy))
 
-    def rays_world(self, uv: np.ndarray) -> np.ndarray:
-        """Unnormalised ray directions in W for pixels ``(N, 2)``."""
-        xy = self.normalized_coordinates(uv)
-        rays_c = np.column_stack((xy, np.ones(len(xy))))
-        return rays_c @ self.world_from_camera.T
-
     def plane_homography(self, plane_z_m: float = 0.0) -> np.ndarray:
         """3x3 ``H`` mapping undistorted normalised coordinates ``m = (x, y, 1)`` to the
         homogeneous point where the ray meets the plane ``z = z_p``.

@@ -206,21 +206,3 @@ class SectionedOutline:
         section = np.where(outside, section, -1)
         distance = np.where(outside, distance, 0.0)
         return SectionAssignment(section, distance, nearest)
-
-    def distance_to_section(self, points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Distance from points ``(P, 2)`` to section k's polyline, and the nearest points."""
-        return point_polyline_distance(points, self.section_polyline(k))
-
-
-def point_polyline_distance(points: np.ndarray, polyline: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Euclidean distance from each point ``(P, 2)`` to an open polyline ``(M, 2)``."""
-    points = np.atleast_2d(np.asarray(points, float))
-    a = polyline[:-1]
-    d = polyline[1:] - a
-    length2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
-    t = np.clip(np.einsum("pij,ij->pi", points[:, None, :] - a[None], d) / length2, 0.0, 1.0)
-    closest = a[None] + t[..., None] * d[None]
-    dist = np.linalg.norm(points[:, None, :] - closest, axis=2)
-    best = np.argmin(dist, axis=1)
-    idx = np.arange(len(points))
-    return dist[idx, best], closest[idx, best]
