@@ -1,0 +1,1 @@
+"""Training: losses, schedules and parameter groups (needs the ``train`` extra, torch)."""

@@ -1,0 +1,62 @@
+"""Bootstrapped cross-entropy against a hand computation; schedules; parameter groups."""
+
+import math
+
+import pytest
+import torch
+
+from harborsight.perception.networks import create_network
+from harborsight.training.losses import (
+    BootstrappedCrossEntropy,
+    bootstrap_keep_fraction,
+    bootstrapped_cross_entropy,
+)
+from harborsight.training.optim import parameter_groups, poly_learning_rate
+
+
+def test_bootstrapped_loss_by_hand():
+    # one image, 2 classes, 4 pixels; the last pixel is ignored
+    logits = torch.tensor([[[[2.0, 0.0], [0.0, 1.0]],      # class 0 scores
+                            [[0.0, 0.0], [3.0, 5.0]]]])    # class 1 scores
+    target = torch.tensor([[[0, 1], [1, 255]]])
+
+    def ce(z_true, z_other):
+        return -(z_true - math.log(math.exp(z_true) + math.exp(z_other)))
+
+    losses = sorted([ce(2.0, 0.0), ce(0.0, 0.0), ce(3.0, 0.0)], reverse=True)
+    assert bootstrapped_cross_entropy(logits, target, 1.0).item() == pytest.approx(sum(losses) / 3)
+    # keep 50 % of 3 valid pixels -> ceil(1.5) = 2 hardest
+    assert bootstrapped_cross_entropy(logits, target, 0.5).item() == pytest.approx(sum(losses[:2]) / 2)
+    assert bootstrapped_cross_entropy(logits, target, 0.1).item() == pytest.approx(losses[0])
+
+
+def test_loss_is_a_mean_over_images_and_handles_empty_images():
+    torch.manual_seed(0)
+    logits = torch.randn(2, 3, 4, 5, requires_grad=True)
+    target = torch.randint(0, 3, (2, 4, 5))
+    target[1] = 255
+    both = bootstrapped_cross_entropy(logits, target, 0.3)
+    first = bootstrapped_cross_entropy(logits[:1], target[:1], 0.3)
+    assert both.item() == pytest.approx(first.item() / 2)
+    both.backward()
+    assert logits.grad is not None and torch.all(logits.grad[1] == 0)
+
+
+def test_keep_fraction_schedule():
+    values = [bootstrap_keep_fraction(i) for i in (0, 1000, 5000, 9000, 20000)]
+    assert values == pytest.approx([1.0, 1.0, 0.6, 0.2, 0.2])
+    loss = BootstrappedCrossEntropy(start_iteration=0, end_iteration=10, end_fraction=0.5)
+    logits, target = torch.randn(1, 3, 8, 8), torch.randint(0, 3, (1, 8, 8))
+    assert loss(logits, target, 10).item() == pytest.approx(
+        bootstrapped_cross_entropy(logits, target, 0.5).item())
+
+
+def test_poly_schedule_and_parameter_groups():
+    assert poly_learning_rate(0.01, 0, 100) == pytest.approx(0.01)
+    assert poly_learning_rate(0.01, 50, 100) == pytest.approx(0.01 * 0.5**0.9)
+    assert poly_learning_rate(0.01, 100, 100) == 0.0
+    network = create_network("ddrnet23_slim", 3)
+    decay, no_decay = parameter_groups(network, 5e-4)
+    assert decay["weight_decay"] == 5e-4 and no_decay["weight_decay"] == 0.0
+    assert all(p.ndim >= 2 for p in decay["params"]) and all(p.ndim == 1 for p in no_decay["params"])
+    assert len(decay["params"]) + len(no_decay["params"]) == len(list(network.parameters()))
