@@ -272,6 +272,5 @@ class FrameGeometry:
 
     def enu_to_vessel_xy(self, points_enu: np.ndarray) -> np.ndarray:
         """ENU points (on the water plane) to vessel-frame x (bow), y (starboard)."""
-        rel = np.atleast_2d(points_enu)[:, :2] - self.vessel_position_enu
-        s, c = math.sin(self.vessel_heading_rad), math.cos(self.vessel_heading_rad)
-        return np.column_stack((rel[:, 0] * s + rel[:, 1] * c, rel[:, 0] * c - rel[:, 1] * s))
+        T = self.vessel_from_world_2d()
+        return np.atleast_2d(points_enu)[:, :2] @ T[:2, :2].T + T[:2, 2]

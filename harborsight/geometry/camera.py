@@ -255,20 +255,12 @@ class Camera:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Plane coordinates ``(N, 2)`` of pixels, optionally mapped by a 3x3 ``post``
         (e.g. world -> vessel frame); returns ``(xy, valid)``, NaN where invalid."""
-        uv = np.atleast_2d(np.asarray(uv, float))
+        m = self.normalized_coordinates(uv)
         H = self.plane_homography(plane_z_m)
-        intr = self.intrinsics
-        if intr.has_distortion:
-            m = self.normalized_coordinates(uv)
-        else:
-            m = uv
-            H = H @ np.linalg.inv(intr.K)
+        # the unmapped homography's last row is the ray's vertical component r_3 · m
+        down = m[:, 0] * H[2, 0] + m[:, 1] * H[2, 1] + H[2, 2]
         if post is not None:
             H = post @ H
-        # the ray's downward component decides validity, before any post map
-        r3 = self.world_from_camera[2]
-        m3 = m if intr.has_distortion else (uv - (intr.cx, intr.cy)) / (intr.fx, intr.fy)
-        down = m3[:, 0] * r3[0] + m3[:, 1] * r3[1] + r3[2]
         dz = plane_z_m - self.position_enu[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             valid = np.isfinite(down) & (dz / down > 0)
