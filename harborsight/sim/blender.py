@@ -21,7 +21,10 @@ The ray-cast check in :mod:`harborsight.sim.raycast` verifies all of this indepe
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -68,6 +71,21 @@ def decode_id_image(rgba: np.ndarray) -> np.ndarray:
     ids = (r | (g << 8)).astype(np.uint32)
     ids[(a < 128) | (b < 128)] = NO_HIT
     return ids.astype(np.uint16)
+
+
+@contextlib.contextmanager
+def _silenced_stdout():
+    """Blender prints a line per render step on the C-level stdout: send it to /dev/null."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
 
 
 def _id_colour(instance_id: int) -> tuple[float, float, float, float]:
@@ -235,7 +253,7 @@ class BlenderRenderer:
         sky.turbidity = env.sky_turbidity
         sky.ground_albedo = 0.3
         background = nodes["Background"]
-        background.inputs["Strength"].default_value = 0.08
+        background.inputs["Strength"].default_value = 0.12 if env.sun_strength > 2.5 else 0.3
         links.new(sky.outputs["Color"], background.inputs["Color"])
         self.scene.world = world
         self.sky_world = world
@@ -300,7 +318,8 @@ class BlenderRenderer:
 
     def _render_to(self, path: Path) -> np.ndarray:
         self.scene.render.filepath = str(path)
-        self.bpy.ops.render.render(write_still=True)
+        with _silenced_stdout():
+            self.bpy.ops.render.render(write_still=True)
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise RuntimeError(f"Blender wrote no image to {path}")

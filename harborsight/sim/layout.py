@@ -568,7 +568,7 @@ def sample_environment(rng: np.random.Generator) -> Environment:
     return Environment(
         sun_elevation_deg=float(rng.uniform(12.0, 75.0)),
         sun_azimuth_deg=float(rng.uniform(0.0, 360.0)),
-        sun_strength=float(rng.uniform(0.5, 1.5) if overcast else rng.uniform(2.5, 5.0)),
+        sun_strength=float(rng.uniform(1.0, 2.0) if overcast else rng.uniform(3.0, 6.0)),
         sky_turbidity=float(rng.uniform(5.0, 10.0) if overcast else rng.uniform(2.0, 5.0)),
         water_rgb=_jitter(_WATER_RGB[rng.integers(len(_WATER_RGB))], rng, 0.35),
         water_roughness=float(rng.uniform(0.02, 0.25)),
@@ -578,8 +578,8 @@ def sample_environment(rng: np.random.Generator) -> Environment:
         foam_coverage=float(rng.uniform(0.0, 0.5)),
         ripple_strength=float(rng.uniform(0.1, 0.6)),
         ocean_seed=int(rng.integers(0, 2**16)),
-        haze=float(rng.uniform(0.0, 0.35)),
+        haze=float(rng.uniform(0.0, 0.15) if not overcast else rng.uniform(0.05, 0.25)),
         haze_rgb=_jitter((0.75, 0.78, 0.82), rng, 0.1),
-        exposure_ev=float(rng.uniform(-0.7, 0.5)),
+        exposure_ev=float(rng.uniform(-0.3, 0.7)),
         noise_sigma=float(rng.uniform(0.5, 4.0)),
     )
