@@ -169,7 +169,7 @@ def demo(
     """Measure the bundled sample frames and compare with their exact ground truth."""
     samples = _bundled_samples()
     console.print(f"[bold]harborsight demo[/]: {samples}\n"
-                  "Samples are schematic harbour frames drawn from exact geometry "
+                  "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
     settings = _settings(method, None, None, 2.0)
     code = _run_folder(samples, None, VesselCache(), settings, out, None, True)
@@ -181,7 +181,8 @@ def make_samples(
     out: Annotated[Path, typer.Option(help="Dataset folder to (re)write.")] = Path("out/samples"),
     seed: Annotated[int, typer.Option(help="Random seed of the layouts.")] = 20260501,
 ) -> None:
-    """Regenerate the demo samples (schematic harbour frames with exact labels and truth)."""
+    """Regenerate the demo samples (Blender-rendered harbour frames with exact labels and
+    ground truth; needs the sim extra)."""
     from harborsight.sim.samples import make_demo_samples
 
     stems = make_demo_samples(out, seed)
@@ -256,7 +257,8 @@ def simulate(
         "procedural vessels).")] = None,
     vessel_pool: Annotated[int, typer.Option(min=1, help="Procedural vessels in the pool.")] = 6,
     scenario: Annotated[str | None, typer.Option(
-        help="Only this scenario: alongside, slip, pass, touching or open.")] = None,
+        help="Only this scenario (alongside, slip, pass, touching, open), or a comma list "
+        "cycled by frame index.")] = None,
     split: Annotated[str | None, typer.Option(
         help="Put every frame in this split (e.g. test); default 90 % train, 10 % val.")] = None,
     scheduler: Annotated[str | None, typer.Option(

@@ -131,10 +131,12 @@ def test_ground_truth_against_shapely(dataset):
         expected_min = float(outline.distance(union))
         got = [s["distance_all_m"] for s in truth if s["distance_all_m"] is not None]
         assert min(got) == pytest.approx(expected_min, abs=1e-6)
-        # footprints are the vertical projections of the meshes
+        # footprints are the vertical projections of the meshes above the water
         for obj in scene.objects[1:]:
-            verts = np.vstack([p.mesh.vertices[:, :2] for p in obj.parts])
-            assert obj.footprint().buffer(1e-6).contains(MultiPoint(verts))
+            verts = np.vstack([p.mesh.vertices for p in obj.parts])
+            above = verts[verts[:, 2] >= 0, :2]
+            assert obj.footprint().buffer(1e-6).contains(MultiPoint(above))
+            assert obj.footprint().area <= MultiPoint(verts[:, :2]).convex_hull.area + 1e-6
         # per section, by brute force (independent of the band polygons), near obstacles
         near = shapely.intersection(union, outline.buffer(15.0))
         brute = _brute_force_sections(scene.vessel.outline, near, len(truth),

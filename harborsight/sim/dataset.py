@@ -47,7 +47,7 @@ class SimulationConfig:
     max_tilt_deg: float = 15.0
     vessel_spec: str | None = None        # a user's vessel.yaml (with hull_mesh)
     vessel_pool: int = 6                  # procedural vessels when no spec is given
-    scenario: str | None = None           # one scenario for every frame
+    scenario: str | None = None           # a scenario, or a comma list cycled by frame index
     split: str | None = None              # put every frame in this split (e.g. test)
     val_fraction: float = 0.1
     origin_lat_lon: tuple[float, float] = (56.1517, 10.2283)
@@ -63,9 +63,10 @@ class SimulationConfig:
                              f"choose from {', '.join(CAMERA_PRESETS)}")
         if not self.altitudes_m or min(self.altitudes_m) <= 0:
             raise InputError(None, "--altitudes", "need at least one positive altitude")
-        if self.scenario is not None and self.scenario not in SCENARIOS:
-            raise InputError(None, "--scenario", f"unknown scenario {self.scenario!r}; "
-                             f"choose from {', '.join(SCENARIOS)}")
+        for name in (self.scenario or "").split(","):
+            if name and name not in SCENARIOS:
+                raise InputError(None, "--scenario", f"unknown scenario {name!r}; "
+                                 f"choose from {', '.join(SCENARIOS)}")
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -117,6 +118,8 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
     vessels_dir = out_dir / "vessels"
     if config.vessel_spec:
         src = Path(config.vessel_spec)
+        if not src.is_absolute():  # relative to the dataset (a vessel shipped inside it)
+            src = out_dir / src
         spec = load_vessel_spec(src)
         if spec.mesh is None:
             raise InputError(src, "hull_mesh", "the simulator renders the vessel's mesh: give one")
@@ -136,6 +139,14 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
     return paths
 
 
+def scenario_of(config: SimulationConfig, index: int) -> str | None:
+    """The forced scenario of frame ``index`` (a comma list cycles), or None (drawn)."""
+    if not config.scenario:
+        return None
+    names = config.scenario.split(",")
+    return names[index % len(names)]
+
+
 def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSpec]
                ) -> HarbourScene:
     """The scene of frame ``index``: a pure function of the seed, the index and the config."""
@@ -145,7 +156,7 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
     altitude = config.altitudes_m[index % len(config.altitudes_m)]
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
-        max_tilt_deg=config.max_tilt_deg, scenario=config.scenario, name=stem_of(index))
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, index), name=stem_of(index))
     from harborsight.geometry.geodesy import GeoOrigin
 
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)

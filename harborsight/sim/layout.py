@@ -60,9 +60,25 @@ class SceneObject:
     parts: list[Part]
 
     def footprint(self) -> Polygon:
-        """Vertical projection onto the water plane: union of each part's convex hull."""
-        polys = [MultiPoint(p.mesh.vertices[:, :2]).convex_hull for p in self.parts]
-        return shapely.union_all([p for p in polys if isinstance(p, Polygon)])
+        """Vertical projection of the object above the water plane (z >= 0).
+
+        Each part is convex, so its projection is the convex hull of its vertices above
+        the water and of its cut by the plane z = 0; the object's is their union. What lies
+        under water (the toe of a rubble mound) is neither seen by the camera nor counted.
+        """
+        polys = []
+        for part in self.parts:
+            vertices = np.asarray(part.mesh.vertices)
+            points = [vertices[vertices[:, 2] >= 0.0, :2]]
+            if vertices[:, 2].min() < 0.0 < vertices[:, 2].max():
+                cut = trimesh.intersections.mesh_plane(part.mesh, (0, 0, 1), (0, 0, 0))
+                points.append(np.asarray(cut).reshape(-1, 3)[:, :2])
+            points = np.vstack(points)
+            if len(points) >= 3:
+                hull = MultiPoint(points).convex_hull
+                if isinstance(hull, Polygon):
+                    polys.append(hull)
+        return shapely.union_all(polys)
 
 
 @dataclass(frozen=True)
