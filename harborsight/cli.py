@@ -313,7 +313,8 @@ def train(
     ] = None,
     device: Annotated[str | None, typer.Option(help="auto, cpu or cuda[:N] [auto].")] = None,
     amp: Annotated[bool | None, typer.Option(help="fp16 autocast on CUDA [on].")] = None,
-    workers: Annotated[int | None, typer.Option(help="DataLoader worker processes [2].")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="DataLoader worker processes [CPU: 0, CUDA: min(8, cores - 1)].")] = None,
     progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
 ) -> None:
     """Train a segmentation network on simulator-layout datasets (needs torch)."""

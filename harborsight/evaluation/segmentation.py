@@ -159,9 +159,9 @@ def load_segmenter(path: str | Path, device: str = "cpu", threads: int | None = 
     if not path.is_file():
         raise InputError(path, None, "model file not found")
     if path.suffix.lower() == ".onnx":
-        from harborsight.perception.onnx_segmenter import OnnxSegmenter
+        from harborsight.perception.default_model import load_onnx_segmenter
 
-        onnx_model = OnnxSegmenter(path, threads=threads)
+        onnx_model = load_onnx_segmenter(path, threads)
         meta = onnx_model.metadata
         params = meta.get("params")
         return LoadedSegmenter(

@@ -21,11 +21,11 @@ def default_model_path() -> Path:
     return Path(str(resources.files("harborsight") / "data" / "models" / "default.onnx"))
 
 
-def load_segmenter(path: str | Path) -> OnnxSegmenter:
+def load_onnx_segmenter(path: str | Path, threads: int | None = None) -> OnnxSegmenter:
     """An :class:`OnnxSegmenter` with its sidecar (``model.json`` beside ``model.onnx``, if any)
     as ``.sidecar``; refuses a model whose classes are not harborsight's."""
     path = Path(path)
-    segmenter = OnnxSegmenter(path)
+    segmenter = OnnxSegmenter(path, threads=threads)
     sidecar_file = path.with_suffix(".json")
     segmenter.sidecar = {}
     if sidecar_file.is_file():
@@ -49,4 +49,4 @@ def load_default_segmenter(path: str | Path | None = None) -> OnnxSegmenter:
         raise InputError(path, None, "no segmentation model here: harborsight ships none yet. "
                          "Pass label masks (--mask / --masks), or train one (harborsight train), "
                          "export it (harborsight export) and pass --model MODEL.onnx")
-    return load_segmenter(path)
+    return load_onnx_segmenter(path)

@@ -12,7 +12,9 @@ Samples are a pure function of ``(seed, sample number)``: training sample ``n = 
 frame ``perm_e[n mod N]`` of the permutation ``perm_e`` seeded by ``(seed, e)``, ``e = n div N``,
 augmented with a generator seeded by ``(seed, n)``. Together with the model, optimiser and
 torch RNG state saved in ``last.pt``, a resumed run repeats an uninterrupted one exactly
-(same device, same thread count).
+(same device, same thread count), with or without DataLoader workers. Workers are spawned,
+not forked (OpenCV's thread pool deadlocks in a forked child), so a script that trains with
+workers needs the usual ``if __name__ == "__main__":`` guard.
 
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
@@ -24,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import shlex
 import time
 from dataclasses import dataclass, field
@@ -91,7 +94,7 @@ class TrainConfig:
     seed: int = 0
     device: str = "auto"                               # auto: cuda if available, else cpu
     amp: bool = True                                   # fp16 autocast, CUDA only
-    num_workers: int = 2
+    num_workers: int | None = None                     # None: 0 on CPU, min(8, cores-1) on CUDA
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -118,7 +121,7 @@ class TrainConfig:
             if getattr(self, name) < 1:
                 raise bad(name, f"must be at least 1, got {getattr(self, name)}")
         for name in ("val_every", "num_workers", "warmup_iterations"):
-            if getattr(self, name) < 0:
+            if (getattr(self, name) or 0) < 0:
                 raise bad(name, f"must be >= 0, got {getattr(self, name)}")
         if not 0.0 < self.warmup_ratio <= 1.0:
             raise bad("warmup_ratio", f"must be in (0, 1], got {self.warmup_ratio}")
@@ -230,6 +233,14 @@ def learning_rate(config: TrainConfig, iteration: int) -> float:
         r = config.warmup_ratio
         lr *= r + (1.0 - r) * iteration / config.warmup_iterations
     return lr
+
+
+def data_workers(requested: int | None, device: torch.device) -> int:
+    """DataLoader processes: as requested, else none on the CPU (the training step already
+    uses every core, and workers would compete with it) and ``min(8, cores - 1)`` with CUDA."""
+    if requested is not None:
+        return requested
+    return 0 if device.type == "cpu" else max(0, min(8, (os.cpu_count() or 1) - 1))
 
 
 def _worker_init(_: int) -> None:
@@ -346,6 +357,11 @@ def train(
         best_miou, val_miou = checkpoint.get("best_val_miou"), checkpoint.get("val_miou")
         _truncate_log(log_path, start)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if checkpoint is None:  # a fresh run: nothing of an earlier, unfinished one may survive
+        log_path.unlink(missing_ok=True)
+        best_path.unlink(missing_ok=True)
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
     frame_hw = list(train_frames.common_size_hw())
 
     def payload(iteration: int, full: bool) -> dict:
@@ -369,12 +385,14 @@ def train(
                     else AugmentConfig.geometric_only(config.crop_hw))
     samples = TrainingSamples(train_frames, config.seed, augmentation)
     batch = config.batch_size
+    workers = data_workers(config.num_workers, device)
     loader = torch.utils.data.DataLoader(
         samples, batch_size=batch, sampler=range(start * batch, stop * batch),
-        num_workers=config.num_workers, pin_memory=device.type == "cuda",
-        worker_init_fn=_worker_init if config.num_workers else None,
+        num_workers=workers, pin_memory=device.type == "cuda",
+        # spawned, not forked: OpenCV and OpenMP thread pools do not survive a fork
+        multiprocessing_context="spawn" if workers else None,
+        worker_init_fn=_worker_init if workers else None,
         generator=torch.Generator().manual_seed(config.seed),   # keeps the global RNG untouched
-        persistent_workers=False,
     )
     weights = config.effective_aux_weights
     result = TrainResult(out_dir, start, val_miou=val_miou, best_val_miou=best_miou)
