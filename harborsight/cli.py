@@ -85,14 +85,27 @@ def _settings(method: Method, sections: int | None, section_length_m: float | No
                              n_sections=sections, section_length_m=section_length_m)
 
 
+def _segmenter(model: Path | None):
+    """The ONNX model at ``model``, or the packaged default model (clear error if absent)."""
+    from harborsight.perception.default_model import load_default_segmenter
+
+    segmenter = load_default_segmenter(model)
+    console.print(f"segmenting with {segmenter.path}"
+                  + (f" ({segmenter.metadata['network']})" if "network" in segmenter.metadata
+                     else ""))
+    return segmenter
+
+
 def _run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
-                settings: ClearanceSettings, out: Path, camera, show_tables: bool) -> int:
-    jobs = discover_jobs(folder, masks)
+                settings: ClearanceSettings, out: Path, camera, show_tables: bool,
+                model: Path | None = None) -> int:
+    jobs = discover_jobs(folder, masks, segment=model is not None)
+    segmenter = _segmenter(model) if any(job.mask_path is None for job in jobs) else None
     with Progress(TextColumn("[bold]measuring"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True) as progress:
         task = progress.add_task("frames", total=len(jobs))
         outcomes = run_batch(jobs, vessels, settings, out, camera,
-                             on_done=lambda _: progress.advance(task))
+                             on_done=lambda _: progress.advance(task), segmenter=segmenter)
     good = [o for o in outcomes if o.error is None]
     bad = [o for o in outcomes if o.error is not None]
     if show_tables:
@@ -120,6 +133,9 @@ def measure(
         help="Label mask of a single image (PNG: 0 water, 1 ship, 2 obstacle, 255 ignore).")] = None,
     masks: Annotated[Path | None, typer.Option(
         help="Folder of masks named like the frames (folders only; default labels/ or masks/).")] = None,
+    model: Annotated[Path | None, typer.Option(
+        help="ONNX segmentation model (harborsight export) that labels the frames instead of "
+        "masks. Frames without any mask use the packaged default model.")] = None,
     out: Annotated[Path, typer.Option(help="Where reports (JSON) and overlays (PNG) go.")] = Path(
         "out/measure"),
     method: Annotated[Method, typer.Option(
@@ -139,15 +155,18 @@ def measure(
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
     try:
+        if model is not None and (mask is not None or masks is not None):
+            raise InputError(model, "model", "give either --model or --mask/--masks, not both")
         settings = _settings(method, sections, section_length_m, pose_margin_px)
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         if input_path.is_dir():
             raise typer.Exit(_run_folder(input_path, masks, vessels, settings, out, intrinsics,
-                                         tables))
+                                         tables, model))
         meta_path = meta or input_path.with_suffix(".json")
         job = FrameJob(input_path.stem, meta_path, input_path, mask)
-        outcome = measure_job(job, vessels, settings, out, intrinsics)
+        segmenter = _segmenter(model) if mask is None else None
+        outcome = measure_job(job, vessels, settings, out, intrinsics, segmenter=segmenter)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
@@ -321,6 +340,210 @@ def contact_sheet_command(
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), sheet)
     console.print(f"wrote {out} ({len(stems)} frames, {sheet.shape[1]}x{sheet.shape[0]} px)")
+
+
+def _need_torch() -> None:
+    try:
+        import torch  # noqa: F401
+    except ImportError as exc:
+        err_console.print(f"error: training needs torch (pip install -e '.[train]'): {exc}")
+        raise typer.Exit(2) from None
+
+
+def _parse_crop(text: str) -> tuple[int, int]:
+    """``HxW`` (rows x columns) or ``N`` for a square crop."""
+    try:
+        parts = [int(p) for p in text.lower().split("x")]
+    except ValueError:
+        parts = []
+    if len(parts) == 1:
+        parts *= 2
+    if len(parts) != 2 or min(parts) < 1:
+        raise InputError(None, "crop", f"expected HEIGHTxWIDTH or N, got {text!r}")
+    return parts[0], parts[1]
+
+
+@app.command()
+def train(
+    out: Annotated[Path, typer.Option(help="Run folder: last.pt, best.pt, train_log.jsonl.")],
+    model: Annotated[str | None, typer.Option(
+        help="Network: bisenetv2, fchardnet70, ddrnet23_slim, ddrnet23 (see harborsight models).")
+    ] = None,
+    data: Annotated[list[Path] | None, typer.Option(
+        help="Dataset folder (dataset.json, images/, labels/); repeat for several.")] = None,
+    resume: Annotated[bool, typer.Option(
+        help="Continue the run in --out from last.pt exactly (other options may only change "
+        "--iterations, --val-every, --checkpoint-every, --workers, --device).")] = False,
+    iterations: Annotated[int | None, typer.Option(min=1, help="Optimiser steps [10000].")] = None,
+    batch_size: Annotated[int | None, typer.Option(help="Images per step, at least 2 [8].")] = None,
+    crop: Annotated[str | None, typer.Option(
+        help="Training crop HEIGHTxWIDTH in pixels, or N for NxN [360x360].")] = None,
+    lr: Annotated[float | None, typer.Option(help="Initial learning rate [0.01].")] = None,
+    momentum: Annotated[float | None, typer.Option(help="SGD momentum [0.9].")] = None,
+    weight_decay: Annotated[float | None, typer.Option(
+        help="Weight decay on conv/linear weights [5e-4].")] = None,
+    poly_power: Annotated[float | None, typer.Option(help="Poly LR exponent [0.9].")] = None,
+    warmup: Annotated[int | None, typer.Option(help="Linear LR warm-up iterations [0].")] = None,
+    warmup_ratio: Annotated[float | None, typer.Option(
+        help="LR factor at the start of the warm-up [0.1].")] = None,
+    aux_weight: Annotated[list[float] | None, typer.Option(
+        help="Weight of each auxiliary head's loss, repeated per head [bisenetv2 1 1 1 1, "
+        "ddrnet 0.4].")] = None,
+    bootstrap_start: Annotated[int | None, typer.Option(
+        help="Iteration where the bootstrapped CE starts dropping easy pixels [1000].")] = None,
+    bootstrap_end: Annotated[int | None, typer.Option(
+        help="Iteration where it reaches --bootstrap-fraction [9000].")] = None,
+    bootstrap_fraction: Annotated[float | None, typer.Option(
+        help="Share of the hardest pixels kept at the end [0.2].")] = None,
+    augment: Annotated[bool | None, typer.Option(
+        help="Mirror/flip/scale/colour/blur/noise/JPEG augmentation; off: random crop only.")
+    ] = None,
+    train_split: Annotated[str | None, typer.Option(help="Split to train on [train].")] = None,
+    val_split: Annotated[str | None, typer.Option(help="Split to validate on [val].")] = None,
+    val_every: Annotated[int | None, typer.Option(
+        help="Validate (mIoU, best.pt) every N iterations; 0: never [1000].")] = None,
+    checkpoint_every: Annotated[int | None, typer.Option(
+        help="Write last.pt every N iterations [500].")] = None,
+    seed: Annotated[int | None, typer.Option(help="Seed of weights, sampling and augmentation [0].")
+    ] = None,
+    device: Annotated[str | None, typer.Option(help="auto, cpu or cuda[:N] [auto].")] = None,
+    amp: Annotated[bool | None, typer.Option(help="fp16 autocast on CUDA [on].")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="DataLoader worker processes [CPU: 0, CUDA: min(8, cores - 1)].")] = None,
+    progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
+) -> None:
+    """Train a segmentation network on simulator-layout datasets (needs torch)."""
+    _need_torch()
+    from harborsight.training.checkpoint import load_checkpoint
+    from harborsight.training.loop import LAST, TrainConfig
+    from harborsight.training.loop import train as run_training
+
+    try:
+        given = {"iterations": iterations, "batch_size": batch_size, "lr": lr,
+                 "momentum": momentum, "weight_decay": weight_decay, "poly_power": poly_power,
+                 "warmup_iterations": warmup, "warmup_ratio": warmup_ratio,
+                 "crop_hw": _parse_crop(crop) if crop else None,
+                 "aux_weights": tuple(aux_weight) if aux_weight else None,
+                 "bootstrap_start_iteration": bootstrap_start,
+                 "bootstrap_end_iteration": bootstrap_end,
+                 "bootstrap_end_fraction": bootstrap_fraction, "augment": augment,
+                 "train_split": train_split, "val_split": val_split, "val_every": val_every,
+                 "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
+                 "amp": amp, "num_workers": workers, "model": model,
+                 "data_dirs": [str(d) for d in data] if data else None}
+        given = {k: v for k, v in given.items() if v is not None}
+        if resume:
+            stored = load_checkpoint(out / LAST)["config"]
+            config = TrainConfig.from_dict({**stored, **given, "out_dir": str(out)})
+        else:
+            if model is None or not data:
+                raise InputError(None, "model" if model is None else "data",
+                                 "a new run needs --model and --data (or --resume)")
+            config = TrainConfig(out_dir=str(out), **given)
+        result = run_training(config, resume=resume, console=err_console, show_progress=progress)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    best = "—" if result.best_val_miou is None else f"{result.best_val_miou:.4f}"
+    console.print(f"trained {config.model} to iteration {result.iteration}; "
+                  f"last: {result.last_checkpoint}; best val mIoU {best}"
+                  + (f" ({result.best_checkpoint})" if result.best_checkpoint else ""))
+
+
+evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate models against labelled data.")
+app.add_typer(evaluate_app, name="evaluate")
+
+
+@evaluate_app.callback()
+def evaluate_callback() -> None:
+    """Evaluate models against labelled data (segmentation; distance to come)."""
+
+
+@evaluate_app.command("segmentation")
+def evaluate_segmentation_command(
+    model: Annotated[Path, typer.Option(help="A torch checkpoint (.pt) or an ONNX model (.onnx).")],
+    data: Annotated[list[Path], typer.Option(
+        help="Dataset folder (dataset.json, images/, labels/); repeat for several.")],
+    split: Annotated[list[str] | None, typer.Option(
+        help="Split(s) to score, one table row each [test].")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the metrics as JSON.")
+                        ] = None,
+    markdown: Annotated[Path | None, typer.Option(help="Write the table as Markdown.")] = None,
+    fps_seconds: Annotated[float, typer.Option(
+        help="Seconds of timing for the FPS column; 0 skips it.")] = 2.0,
+    device: Annotated[str, typer.Option(help="Device of a torch checkpoint: cpu or cuda.")] = "cpu",
+    threads: Annotated[int | None, typer.Option(help="CPU threads (default: all).")] = None,
+) -> None:
+    """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
+    from harborsight.evaluation.segmentation import TABLE_IOU_COLUMNS, evaluate_segmentation
+
+    try:
+        result = evaluate_segmentation(model, data, split or ["test"], fps_seconds, device,
+                                       threads)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    table = Table(title=f"{result.model.network} ({result.model.kind}): {model}",
+                  title_justify="left")
+    for header in ("split", "frames", "mean acc %", *(f"IoU {n.lower()} %" for n, _ in
+                                                    TABLE_IOU_COLUMNS), "mIoU %"):
+        table.add_column(header, justify="left" if header == "split" else "right")
+    for row in result.rows:
+        sc = row.scores
+        table.add_row(row.split, str(row.frames), _fmt(100 * sc.mean_accuracy, 1),
+                      *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
+                      _fmt(100 * sc.miou, 1))
+    console.print(table)
+    w, h = result.resolution_wh
+    console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
+                  f"{result.model.params or 0:,} parameters")
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        console.print(f"JSON: {json_out}")
+    if markdown:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(result.markdown())
+        console.print(f"Markdown: {markdown}")
+
+
+@app.command("export")
+def export_command(
+    checkpoint: Annotated[Path, typer.Option(help="Checkpoint from harborsight train (best.pt).")],
+    out: Annotated[Path, typer.Option(help="ONNX file to write; the sidecar goes beside it (.json).")],
+    height: Annotated[int | None, typer.Option(
+        min=1, help="Input rows (default: the training frames' height).")] = None,
+    width: Annotated[int | None, typer.Option(
+        min=1, help="Input columns (default: the training frames' width).")] = None,
+    int8: Annotated[bool, typer.Option(
+        help="Also write a statically quantised int8 model (<out>.int8.onnx).")] = False,
+    calibration_data: Annotated[list[Path] | None, typer.Option(
+        help="Dataset folder(s) for int8 calibration, the fp32/int8 mIoU check and the "
+        "ONNX-vs-torch check images.")] = None,
+    calibration_split: Annotated[list[str] | None, typer.Option(
+        help="Split(s) of the calibration data to use [all].")] = None,
+    calibration_frames: Annotated[int, typer.Option(
+        min=1, help="Frames used to calibrate the int8 ranges.")] = 16,
+) -> None:
+    """Export a checkpoint to ONNX (uint8 BGR in, logits and labels out) with a JSON sidecar."""
+    _need_torch()
+    from harborsight.training.export import export_checkpoint
+
+    try:
+        result = export_checkpoint(checkpoint, out, height, width, int8, calibration_data,
+                                   calibration_split, calibration_frames)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    console.print(f"ONNX: {result.onnx_path}\nsidecar: {result.sidecar_path}")
+    relative = result.max_abs_difference / max(result.max_abs_logit, 1e-12)
+    console.print(f"ONNX Runtime vs torch: max |logit difference| {result.max_abs_difference:.2e} "
+                  f"(logits up to {result.max_abs_logit:.2e}; relative {relative:.1e})")
+    if result.int8_path:
+        int8_info = result.sidecar["int8"]
+        console.print(f"int8: {result.int8_path}; mIoU fp32 {_fmt(result.miou_fp32, 4)}, "
+                      f"int8 {_fmt(result.miou_int8, 4)} on {int8_info['evaluation_frames']} "
+                      f"frame(s); labels agree on {100 * result.int8_label_agreement:.2f}% of pixels")
 
 
 def main() -> None:

@@ -2,8 +2,11 @@
 
 A batch folder is either the dataset layout of ``docs/design.md`` (``frames/*.json``,
 ``images/``, ``labels/``) or a flat folder of frame JSONs next to their images, with masks
-in ``--masks DIR`` (or ``labels/`` / ``masks/`` beside them). A frame may name its vessel
-with a ``vessel_spec`` key (path relative to the dataset root); ``--vessel`` overrides it.
+in ``--masks DIR`` (or ``labels/`` / ``masks/`` beside them). A frame without a mask (no mask
+folder, or a segmentation model asked for) is segmented by a model: anything with
+``segment(image_bgr) -> labels``, e.g. :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter`.
+A frame may name its vessel with a ``vessel_spec`` key (path relative to the dataset root);
+``--vessel`` overrides it.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -24,12 +28,18 @@ from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
 
 
+class Segmenter(Protocol):
+    path: Path
+
+    def segment(self, image_bgr: np.ndarray) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class FrameJob:
     stem: str
     meta_path: Path
     image_path: Path | None = None
-    mask_path: Path | None = None
+    mask_path: Path | None = None          # None: segment the image with a model
 
 
 @dataclass
@@ -98,8 +108,10 @@ class VesselCache:
 def measure_job(
     job: FrameJob, vessels: VesselCache, settings: ClearanceSettings, out_dir: Path | None,
     camera: CameraIntrinsics | None = None, overlay: bool = True,
+    segmenter: Segmenter | None = None,
 ) -> FrameOutcome:
-    """Measure one frame from files; raises :class:`InputError` on bad input."""
+    """Measure one frame from files, its labels from its mask or, without one, from
+    ``segmenter``; raises :class:`InputError` on bad input."""
     meta = load_frame_metadata(job.meta_path, camera=camera)
     image_path = job.image_path or job.meta_path.parent / meta.image
     image = read_image(image_path)
@@ -109,12 +121,14 @@ def measure_job(
             f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
             f"{meta.camera.width}x{meta.camera.height}",
         )
-    if job.mask_path is None:
-        raise InputError(job.meta_path, "mask",
-                         "no mask given (segmentation models are not shipped yet: pass --mask)")
-    labels = read_mask(job.mask_path)
+    if job.mask_path is not None:
+        labels, mask_source = read_mask(job.mask_path), str(job.mask_path)
+    elif segmenter is not None:
+        labels, mask_source = segmenter.segment(image), str(segmenter.path)
+    else:
+        raise InputError(job.meta_path, "mask", "no mask given and no segmentation model")
     vessel = vessels.for_frame(meta, job.meta_path)
-    report = measure_frame(labels, meta, vessel, settings, mask_source=str(job.mask_path))
+    report = measure_frame(labels, meta, vessel, settings, mask_source=mask_source)
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -127,21 +141,27 @@ def measure_job(
     return outcome
 
 
-def discover_jobs(folder: Path, masks_dir: Path | None = None) -> list[FrameJob]:
-    """Frames of a batch folder, each with its image and mask paths (see module docstring)."""
+def discover_jobs(folder: Path, masks_dir: Path | None = None, segment: bool = False
+                  ) -> list[FrameJob]:
+    """Frames of a batch folder, each with its image and mask paths (module docstring). The
+    mask path is ``None`` (segment with a model) for every frame when ``segment``, and when
+    there is neither ``masks_dir`` nor a ``labels/`` or ``masks/`` folder."""
     frames_dir = folder / "frames" if (folder / "frames").is_dir() else folder
     meta_paths = sorted(p for p in frames_dir.glob("*.json"))
     if not meta_paths:
         raise InputError(folder, None, "no frame JSON files found (expected frames/*.json or *.json)")
     image_dirs = [folder / "images", frames_dir, folder]
-    mask_dirs = [masks_dir] if masks_dir else [folder / "labels", folder / "masks"]
+    mask_dirs = [masks_dir] if masks_dir else [d for d in (folder / "labels", folder / "masks")
+                                               if d.is_dir()]
+    if segment:
+        mask_dirs = []
     jobs = []
     for meta_path in meta_paths:
         stem = meta_path.stem
         image = next((d / f"{stem}{ext}" for d in image_dirs for ext in (".png", ".jpg", ".jpeg")
                       if (d / f"{stem}{ext}").is_file()), None)
-        mask = next((d / f"{stem}.png" for d in mask_dirs if d and (d / f"{stem}.png").is_file()),
-                    mask_dirs[0] / f"{stem}.png" if mask_dirs[0] else None)
+        mask = next((d / f"{stem}.png" for d in mask_dirs if (d / f"{stem}.png").is_file()),
+                    mask_dirs[0] / f"{stem}.png" if mask_dirs else None)
         jobs.append(FrameJob(stem, meta_path, image, mask))
     return jobs
 
@@ -149,12 +169,13 @@ def discover_jobs(folder: Path, masks_dir: Path | None = None) -> list[FrameJob]
 def run_batch(
     jobs: Iterable[FrameJob], vessels: VesselCache, settings: ClearanceSettings, out_dir: Path,
     camera: CameraIntrinsics | None = None, on_done: Callable[[FrameOutcome], None] | None = None,
+    segmenter: Segmenter | None = None,
 ) -> list[FrameOutcome]:
     """Measure every job; a bad frame is recorded with its reason and the rest go on."""
     outcomes = []
     for job in jobs:
         try:
-            outcome = measure_job(job, vessels, settings, out_dir, camera)
+            outcome = measure_job(job, vessels, settings, out_dir, camera, segmenter=segmenter)
         except InputError as exc:
             outcome = FrameOutcome(job, error=str(exc))
         outcomes.append(outcome)

@@ -13,3 +13,33 @@ def flat_box_vessel(n_sections: int = 16) -> VesselSpec:
     outline = outline_from_dimensions(30.0, 10.0, 5.0, 5.0)
     hull_points = np.column_stack((outline, np.zeros(len(outline))))
     return VesselSpec("test-boat", outline, hull_points, n_sections)
+
+
+def write_schematic_dataset(out_dir, splits: list[str], width: int = 128, height: int = 72,
+                            seed: int = 0) -> list[str]:
+    """A tiny dataset in the simulator layout: one schematic frame per entry of ``splits``
+    (its split name), a nadir camera with a 90 degree horizontal field of view, 40-80 m up."""
+    import json
+    from pathlib import Path
+
+    from harborsight.geometry.camera import CameraIntrinsics
+    from harborsight.sim.schematic import sample_scene, write_frame
+
+    out_dir = Path(out_dir)
+    focal_px = width / 2.0  # tan(45 deg) = 1
+    intrinsics = CameraIntrinsics(width, height, focal_px, focal_px, (width - 1) / 2,
+                                  (height - 1) / 2)
+    rng = np.random.default_rng(seed)
+    vessel = flat_box_vessel()
+    split_map = {}
+    for i, split in enumerate(splits):
+        stem = f"{i:06d}"
+        scene = sample_scene(vessel, rng, altitude_m=float(rng.uniform(40.0, 80.0)),
+                             intrinsics=intrinsics, name=stem)
+        write_frame(scene, out_dir, stem)
+        split_map[stem] = split
+    (out_dir / "dataset.json").write_text(json.dumps({
+        "generator": "tests.helpers.write_schematic_dataset", "seed": seed,
+        "classes": {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"},
+        "split": split_map}, indent=2))
+    return list(split_map)

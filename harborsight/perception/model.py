@@ -59,3 +59,27 @@ class _ExportGraph(nn.Module):
     def forward(self, images_bgr: torch.Tensor):
         logits = self.model(images_bgr)
         return logits, logits.argmax(dim=1).to(torch.uint8)
+
+
+class TorchSegmenter:
+    """``segment(image_bgr) -> labels`` for a :class:`SegmentationModel`, like
+    :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter` but at the frame's own size
+    (the model pads and crops inside). The caller chooses train/eval mode; fp16 autocast when
+    ``amp`` and the device is CUDA."""
+
+    def __init__(self, model: SegmentationModel, device: str | torch.device = "cpu",
+                 amp: bool = False) -> None:
+        self.model = model
+        self.device = torch.device(device)
+        self.amp = amp and self.device.type == "cuda"
+
+    def logits(self, image_bgr) -> torch.Tensor:
+        """Float logits (C, H, W) on the model's device."""
+        batch = torch.from_numpy(image_bgr[None]).to(self.device)
+        with torch.inference_mode(), torch.autocast(self.device.type, torch.float16,
+                                                    enabled=self.amp):
+            return self.model(batch)[0].float()
+
+    def segment(self, image_bgr):
+        """uint8 class labels (H, W) as a numpy array."""
+        return self.logits(image_bgr).argmax(0).to(torch.uint8).cpu().numpy()

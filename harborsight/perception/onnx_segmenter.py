@@ -34,6 +34,7 @@ class OnnxSegmenter:
             raise InputError(self.path, None, f"not a loadable ONNX model: {exc}") from exc
         meta = self.session.get_modelmeta().custom_metadata_map.get("harborsight")
         self.metadata = json.loads(meta) if meta else {}
+        self.sidecar: dict = {}  # the export sidecar, filled by perception.default_model
         shape = self.session.get_inputs()[0].shape
         self.input_height, self.input_width = int(shape[1]), int(shape[2])
 

@@ -1,0 +1,1 @@
+"""Evaluation: segmentation metrics and speed (numpy; torch only for checkpoints)."""

@@ -1,0 +1,273 @@
+"""Segmentation accuracy and speed, in the shape of the paper's Table II.
+
+From the confusion matrix ``M[t, p]`` (pixels of true class ``t`` predicted as ``p``; pixels
+labelled 255 are left out), per class ``c``:
+
+    accuracy_c = M[c, c] / Σ_p M[c, p]                      (recall of class c)
+    IoU_c      = M[c, c] / (Σ_p M[c, p] + Σ_t M[t, c] - M[c, c])
+
+*Mean accuracy* is the average of ``accuracy_c`` over the classes present in the labels (the
+"mean class accuracy" of FCN, Long et al. 2015; we read the paper's Table II "Mean accuracy"
+as this). *Pixel accuracy* ``trace(M) / ΣM`` is reported beside it in the JSON. *mIoU* is the
+average of ``IoU_c`` over classes that occur in the labels or the predictions. Speed is
+end-to-end ``segment()`` calls per second on one frame at the dataset's resolution, batch 1,
+after a warm-up, including any resize to a fixed-size ONNX model's input.
+
+The paper's "Unknown" class is harborsight's ``obstacle``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.perception.classes import CLASS_NAMES, IGNORE, NUM_CLASSES, OBSTACLE, SHIP, WATER
+
+#: Table II's IoU columns: (header, class id), in the paper's order.
+TABLE_IOU_COLUMNS = (("Obstacle", OBSTACLE), ("Water", WATER), ("Ship", SHIP))
+
+
+def confusion_matrix(labels: np.ndarray, predictions: np.ndarray, num_classes: int = NUM_CLASSES,
+                     ignore_index: int = IGNORE) -> np.ndarray:
+    """int64 ``(C, C)`` matrix ``M[t, p]``; pixels labelled ``ignore_index`` are skipped."""
+    if labels.shape != predictions.shape:
+        raise ValueError(f"labels {labels.shape} and predictions {predictions.shape} differ in shape")
+    valid = labels != ignore_index
+    truth = labels[valid].astype(np.int64)
+    guess = predictions[valid].astype(np.int64)
+    if truth.size and (truth.max() >= num_classes or truth.min() < 0):
+        raise ValueError(f"label values outside 0..{num_classes - 1} (and {ignore_index})")
+    if guess.size and (guess.max() >= num_classes or guess.min() < 0):
+        raise ValueError(f"predicted class outside 0..{num_classes - 1}")
+    counts = np.bincount(truth * num_classes + guess, minlength=num_classes * num_classes)
+    return counts.reshape(num_classes, num_classes)
+
+
+@dataclass(frozen=True)
+class SegmentationScores:
+    """Metrics of a confusion matrix (module docstring); NaN where a class is undefined."""
+
+    confusion: np.ndarray
+    class_names: tuple[str, ...] = CLASS_NAMES
+
+    @property
+    def pixels(self) -> int:
+        return int(self.confusion.sum())
+
+    @property
+    def pixel_accuracy(self) -> float:
+        return float(np.trace(self.confusion) / self.pixels) if self.pixels else float("nan")
+
+    @property
+    def class_accuracy(self) -> np.ndarray:
+        truth = self.confusion.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(truth > 0, np.diag(self.confusion) / truth, np.nan)
+
+    @property
+    def mean_accuracy(self) -> float:
+        acc = self.class_accuracy
+        return float(np.nanmean(acc)) if np.isfinite(acc).any() else float("nan")
+
+    @property
+    def iou(self) -> np.ndarray:
+        tp = np.diag(self.confusion)
+        union = self.confusion.sum(axis=1) + self.confusion.sum(axis=0) - tp
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(union > 0, tp / union, np.nan)
+
+    @property
+    def miou(self) -> float:
+        iou = self.iou
+        return float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
+
+    def to_dict(self) -> dict:
+        """JSON-ready: fractions in [0, 1], ``None`` for undefined values."""
+        def num(x: float) -> float | None:
+            return None if not np.isfinite(x) else float(x)
+
+        return {
+            "pixels": self.pixels,
+            "pixel_accuracy": num(self.pixel_accuracy),
+            "mean_accuracy": num(self.mean_accuracy),
+            "class_accuracy": {n: num(a) for n, a in zip(self.class_names, self.class_accuracy,
+                                                         strict=True)},
+            "iou": {n: num(v) for n, v in zip(self.class_names, self.iou, strict=True)},
+            "miou": num(self.miou),
+            "confusion": self.confusion.tolist(),
+        }
+
+
+def score_frames(segment: Callable[[np.ndarray], np.ndarray], frames: Sequence,
+                 on_frame: Callable[[int], None] | None = None) -> SegmentationScores:
+    """Accumulate the confusion matrix of ``segment(image) -> labels`` over ``(image, labels)``
+    pairs."""
+    confusion = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
+    for i, (image, labels) in enumerate(frames):
+        predicted = segment(image)
+        if predicted.shape != labels.shape:
+            raise ValueError(f"frame {i}: prediction {predicted.shape} vs labels {labels.shape}")
+        confusion += confusion_matrix(labels, predicted)
+        if on_frame:
+            on_frame(i)
+    return SegmentationScores(confusion)
+
+
+def frames_per_second(segment: Callable[[np.ndarray], np.ndarray], image: np.ndarray,
+                      warmup: int = 3, min_seconds: float = 2.0, min_runs: int = 5) -> float:
+    """Calls per second of ``segment(image)`` after ``warmup`` untimed calls, timed over at
+    least ``min_seconds`` and ``min_runs`` calls."""
+    for _ in range(warmup):
+        segment(image)
+    runs, start = 0, time.perf_counter()
+    while runs < min_runs or time.perf_counter() - start < min_seconds:
+        segment(image)
+        runs += 1
+    return runs / (time.perf_counter() - start)
+
+
+@dataclass
+class LoadedSegmenter:
+    """A model file ready to segment: a torch checkpoint (.pt) or an ONNX model (.onnx)."""
+
+    path: Path
+    kind: str                                  # "torch" | "onnx"
+    network: str
+    segment: Callable[[np.ndarray], np.ndarray]
+    params: int | None
+    input_hw: tuple[int, int] | None           # fixed input size (ONNX), else None
+    metadata: dict = field(default_factory=dict)
+
+
+def _onnx_parameter_count(path: Path) -> int:
+    """Elements of the graph's initialisers (weights after export-time folding)."""
+    import onnx
+
+    graph = onnx.load(str(path), load_external_data=False).graph
+    return int(sum(np.prod(t.dims, dtype=np.int64) for t in graph.initializer))
+
+
+def load_segmenter(path: str | Path, device: str = "cpu", threads: int | None = None
+                   ) -> LoadedSegmenter:
+    """Open ``.onnx`` with ONNX Runtime (no torch needed) or a ``.pt`` checkpoint with torch."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, None, "model file not found")
+    if path.suffix.lower() == ".onnx":
+        from harborsight.perception.default_model import load_onnx_segmenter
+
+        onnx_model = load_onnx_segmenter(path, threads)
+        meta = onnx_model.metadata
+        params = meta.get("params")
+        return LoadedSegmenter(
+            path, "onnx", str(meta.get("network", path.stem)), onnx_model.segment,
+            int(params) if params is not None else _onnx_parameter_count(path),
+            (onnx_model.input_height, onnx_model.input_width), meta)
+    if path.suffix.lower() in (".pt", ".pth"):
+        try:
+            import torch
+
+            from harborsight.perception.model import TorchSegmenter
+            from harborsight.perception.networks import inference_parameter_count
+            from harborsight.training.checkpoint import load_checkpoint, model_from_checkpoint
+        except ImportError as exc:
+            raise InputError(path, None, f"torch checkpoints need the train extra: {exc}") from None
+        if threads:
+            torch.set_num_threads(threads)
+        payload = load_checkpoint(path)
+        model = model_from_checkpoint(payload).to(device)
+        runner = TorchSegmenter(model, device, amp=False)
+        meta = {k: payload.get(k) for k in ("iteration", "val_miou", "best_val_miou", "command")}
+        return LoadedSegmenter(path, "torch", payload["network"], runner.segment,
+                               inference_parameter_count(model.network), None, meta)
+    raise InputError(path, None, "expected a .onnx model or a .pt checkpoint")
+
+
+@dataclass
+class SplitEvaluation:
+    """One Table II row: a model on one split."""
+
+    split: str
+    frames: int
+    scores: SegmentationScores
+
+
+@dataclass
+class SegmentationEvaluation:
+    model: LoadedSegmenter
+    data_dirs: list[Path]
+    rows: list[SplitEvaluation]
+    fps: float | None
+    resolution_wh: tuple[int, int]
+
+    def to_dict(self) -> dict:
+        return {
+            "schema": "harborsight.segmentation-evaluation/1",
+            "model": str(self.model.path), "kind": self.model.kind, "network": self.model.network,
+            "params": self.model.params, "data": [str(d) for d in self.data_dirs],
+            "fps": self.fps, "resolution_wh": list(self.resolution_wh),
+            "mean_accuracy_definition": "mean over classes of per-class pixel accuracy (recall)",
+            "splits": {r.split: {"frames": r.frames, **r.scores.to_dict()} for r in self.rows},
+        }
+
+    def markdown(self) -> str:
+        return markdown_table([self])
+
+
+def evaluate_segmentation(
+    model_path: str | Path, data_dirs: Sequence[str | Path], splits: Sequence[str] = ("test",),
+    fps_seconds: float = 2.0, device: str = "cpu", threads: int | None = None,
+    on_frame: Callable[[int], None] | None = None,
+) -> SegmentationEvaluation:
+    """Score a model on each split of the datasets and time it (``fps_seconds <= 0``: no
+    timing). The resolution is the network's input: the ONNX model's fixed size, or the
+    frames' most common size for a checkpoint."""
+    from harborsight.training.dataset import SegmentationFrames
+
+    loaded = load_segmenter(model_path, device, threads)
+    rows, sizes = [], []
+    for split in splits:
+        frames = SegmentationFrames(data_dirs, [split])
+        sizes.append(frames.common_size_hw())
+        rows.append(SplitEvaluation(split, len(frames), score_frames(loaded.segment, frames,
+                                                                     on_frame)))
+    frame_hw = max(set(sizes), key=sizes.count)
+    fps = None
+    if fps_seconds > 0:
+        image = np.random.default_rng(0).integers(0, 256, (*frame_hw, 3), dtype=np.uint8)
+        fps = frames_per_second(loaded.segment, image, min_seconds=fps_seconds)
+    net_hw = loaded.input_hw or frame_hw
+    return SegmentationEvaluation(loaded, [Path(d) for d in data_dirs], rows, fps,
+                                  (net_hw[1], net_hw[0]))
+
+
+def _percent(x: float) -> str:
+    return "—" if not np.isfinite(x) else f"{100.0 * x:.1f}"
+
+
+def _millions(n: int | None) -> str:
+    return "—" if n is None else f"{n / 1e6:.1f}M"
+
+
+def markdown_table(evaluations: Sequence[SegmentationEvaluation]) -> str:
+    """Table II: model, split, mean accuracy, IoU (obstacle, water, ship, mean) in percent,
+    FPS, network resolution (w, h) and parameter count."""
+    lines = [
+        "| Model | Dataset | Mean accuracy | IoU Obstacle | IoU Water | IoU Ship | IoU Mean "
+        "| Speed (FPS) | Resolution (w,h) | Params |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for ev in evaluations:
+        for row in ev.rows:
+            iou = row.scores.iou
+            cells = [ev.model.network, row.split.capitalize(), _percent(row.scores.mean_accuracy),
+                     *(_percent(iou[c]) for _, c in TABLE_IOU_COLUMNS), _percent(row.scores.miou),
+                     "—" if ev.fps is None else f"{ev.fps:.2f}",
+                     f"{ev.resolution_wh[0]}x{ev.resolution_wh[1]}", _millions(ev.model.params)]
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

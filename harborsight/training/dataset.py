@@ -1,0 +1,146 @@
+"""Reader of the simulator dataset layout (``docs/design.md``) for training and evaluation.
+
+A dataset folder holds ``dataset.json`` whose ``"split"`` map names the split of every frame
+stem (``train``, ``val``, ``test``, ...), ``images/<stem>.png`` (BGR as OpenCV reads it) and
+``labels/<stem>.png`` (uint8 class ids: 0 water, 1 ship, 2 obstacle, 255 ignore). Several
+folders can be read as one dataset. Pure numpy + OpenCV: no torch, so evaluating an ONNX
+model does not need the ``train`` extra.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.perception.classes import IGNORE, NUM_CLASSES
+from harborsight.pipeline import read_image, read_mask
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+VALID_LABELS = frozenset([*range(NUM_CLASSES), IGNORE])
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One labelled frame: where its image and label live and which split it is in."""
+
+    dataset_dir: Path
+    stem: str
+    split: str
+    image_path: Path
+    label_path: Path
+
+
+def read_split_map(dataset_dir: Path) -> dict[str, str]:
+    """The ``stem -> split`` map of ``dataset.json``, checked against ``images/``.
+
+    Every image must have a split entry and every entry an image; otherwise an
+    :class:`InputError` names the offending file.
+    """
+    dataset_dir = Path(dataset_dir)
+    if not dataset_dir.is_dir():
+        raise InputError(dataset_dir, None, "dataset folder not found")
+    meta_path = dataset_dir / "dataset.json"
+    if not meta_path.is_file():
+        raise InputError(meta_path, None, "dataset.json not found (is this a dataset folder?)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(meta_path, None, f"invalid JSON: {exc}") from None
+    split = meta.get("split") if isinstance(meta, dict) else None
+    if not isinstance(split, dict) or not split:
+        raise InputError(meta_path, "split", "missing or empty: expected a map of frame stem -> split")
+    bad = [stem for stem, name in split.items() if not isinstance(name, str) or not name]
+    if bad:
+        raise InputError(meta_path, f"split.{bad[0]}", "expected a split name (train, val, test)")
+    images_dir = dataset_dir / "images"
+    if not images_dir.is_dir():
+        raise InputError(images_dir, None, "images folder not found")
+    for path in sorted(images_dir.iterdir()):
+        if path.suffix.lower() in IMAGE_SUFFIXES and path.stem not in split:
+            raise InputError(path, None, f"no split entry for {path.stem!r} in {meta_path}")
+    return {str(stem): name for stem, name in split.items()}
+
+
+def _image_path(dataset_dir: Path, stem: str) -> Path:
+    for suffix in IMAGE_SUFFIXES:
+        candidate = dataset_dir / "images" / f"{stem}{suffix}"
+        if candidate.is_file():
+            return candidate
+    raise InputError(dataset_dir / "images" / f"{stem}.png", None,
+                     f"image file not found (frame {stem!r} is listed in dataset.json)")
+
+
+def list_frames(data_dirs: Iterable[str | Path], splits: Sequence[str] | None = None
+                ) -> list[FrameRecord]:
+    """Frames of the given splits (``None``: every frame) over several dataset folders,
+    sorted by folder then stem. Raises :class:`InputError` if nothing is selected."""
+    data_dirs = [Path(d) for d in data_dirs]
+    if not data_dirs:
+        raise InputError(None, "data", "no dataset folder given")
+    records = []
+    found: Counter[str] = Counter()
+    for dataset_dir in data_dirs:
+        split_map = read_split_map(dataset_dir)
+        found.update(split_map.values())
+        for stem in sorted(split_map):
+            if splits is not None and split_map[stem] not in splits:
+                continue
+            records.append(FrameRecord(dataset_dir, stem, split_map[stem],
+                                       _image_path(dataset_dir, stem),
+                                       dataset_dir / "labels" / f"{stem}.png"))
+    if not records:
+        have = ", ".join(f"{name} ({n})" for name, n in sorted(found.items())) or "none"
+        where = ", ".join(str(d) for d in data_dirs)
+        raise InputError(where, "split", f"no frames in split(s) {list(splits or [])}; "
+                         f"the dataset has: {have}")
+    return records
+
+
+def read_labelled_frame(record: FrameRecord) -> tuple[np.ndarray, np.ndarray]:
+    """uint8 BGR image (H, W, 3) and uint8 labels (H, W) of one frame, validated."""
+    image = read_image(record.image_path)
+    labels = read_mask(record.label_path)
+    if labels.dtype != np.uint8:
+        raise InputError(record.label_path, "mask", f"expected uint8 class ids, got {labels.dtype}")
+    if labels.shape != image.shape[:2]:
+        raise InputError(record.label_path, "mask",
+                         f"size {labels.shape[1]}x{labels.shape[0]} differs from the image's "
+                         f"{image.shape[1]}x{image.shape[0]} ({record.image_path.name})")
+    unknown = sorted(set(np.unique(labels).tolist()) - VALID_LABELS)
+    if unknown:
+        raise InputError(record.label_path, "mask", f"unknown class values {unknown[:8]}")
+    return image, labels
+
+
+class SegmentationFrames(Sequence):
+    """Labelled frames of some splits of one or more datasets; ``frames[i] -> (image, labels)``."""
+
+    def __init__(self, data_dirs: Iterable[str | Path], splits: Sequence[str] | None = None) -> None:
+        self.data_dirs = [Path(d) for d in data_dirs]
+        self.splits = None if splits is None else tuple(splits)
+        self.records = list_frames(self.data_dirs, self.splits)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def __getitem__(self, index):  # Sequence protocol; slices are not needed
+        return read_labelled_frame(self.records[index])
+
+    def common_size_hw(self) -> tuple[int, int]:
+        """The most frequent (height, width) among the images (reads headers only for PNG)."""
+        sizes = Counter(_image_size_hw(r.image_path) for r in self.records)
+        return sizes.most_common(1)[0][0]
+
+
+def _image_size_hw(path: Path) -> tuple[int, int]:
+    with path.open("rb") as handle:
+        head = handle.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")
+    return read_image(path).shape[:2]

@@ -1,0 +1,451 @@
+"""The training loop: the paper's recipe (SGD, poly LR, per-image bootstrapped CE) with
+deep-supervision heads, validation mIoU, atomic checkpoints and an exact resume.
+
+Per iteration ``i`` (0-based) with ``T`` iterations in all:
+
+    lr_i   = lr · (1 - i/T)^power · w_i                    (poly; no decay on 1-D params)
+    w_i    = r + (1 - r)·i/W for i < W, else 1             (optional linear warm-up, W iters)
+    k_i    = bootstrap keep fraction (100 % -> 20 % between iterations 1000 and 9000)
+    loss_i = BCE_k(main) + Σ_h w_h · BCE_k(aux_h)          (w: per-network aux weights)
+
+Samples are a pure function of ``(seed, sample number)``: training sample ``n = i·B + j`` is
+frame ``perm_e[n mod N]`` of the permutation ``perm_e`` seeded by ``(seed, e)``, ``e = n div N``,
+augmented with a generator seeded by ``(seed, n)``. Together with the model, optimiser and
+torch RNG state saved in ``last.pt``, a resumed run repeats an uninterrupted one exactly
+(same device, same thread count), with or without DataLoader workers. Workers are spawned,
+not forked (OpenCV's thread pool deadlocks in a forked child), so a script that trains with
+workers needs the usual ``if __name__ == "__main__":`` guard.
+
+Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
+``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
+and per validation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import shlex
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from harborsight.errors import InputError
+from harborsight.evaluation.segmentation import SegmentationScores, score_frames
+from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
+from harborsight.perception.model import SegmentationModel, TorchSegmenter
+from harborsight.perception.networks import NETWORKS, create_network
+from harborsight.training.augment import AugmentConfig, augment
+from harborsight.training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
+from harborsight.training.dataset import SegmentationFrames
+from harborsight.training.losses import bootstrap_keep_fraction, bootstrapped_cross_entropy
+from harborsight.training.optim import parameter_groups, poly_learning_rate
+
+#: Weights of the auxiliary (deep-supervision) losses per network, as their references train:
+#: BiSeNetV2 1.0 on each of its 4 heads (CoinCheung/BiSeNet), DDRNet 0.4 on its one head
+#: (ydhongHIT/DDRNet), FC-HarDNet none.
+DEFAULT_AUX_WEIGHTS: dict[str, tuple[float, ...]] = {
+    "bisenetv2": (1.0, 1.0, 1.0, 1.0),
+    "ddrnet23_slim": (0.4,),
+    "ddrnet23": (0.4,),
+    "fchardnet70": (),
+}
+
+#: Config fields a resumed run may change; any other difference is refused.
+RESUMABLE_CHANGES = frozenset({"out_dir", "iterations", "val_every", "checkpoint_every",
+                               "num_workers", "device"})
+
+LAST, BEST, LOG = "last.pt", "best.pt", "train_log.jsonl"
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run (saved in every checkpoint)."""
+
+    model: str
+    data_dirs: list[str]
+    out_dir: str
+    iterations: int = 10000
+    batch_size: int = 8
+    lr: float = 0.01
+    momentum: float = 0.9
+    weight_decay: float = 5e-4
+    poly_power: float = 0.9
+    warmup_iterations: int = 0                         # W: linear LR warm-up (0: none)
+    warmup_ratio: float = 0.1                          # r: LR factor at iteration 0
+    crop_hw: tuple[int, int] = (360, 360)
+    aux_weights: tuple[float, ...] | None = None      # None: DEFAULT_AUX_WEIGHTS[model]
+    bootstrap_start_iteration: int = 1000
+    bootstrap_end_iteration: int = 9000
+    bootstrap_end_fraction: float = 0.2
+    augment: bool = True                               # False: random crop only
+    train_split: str = "train"
+    val_split: str = "val"
+    val_every: int = 1000                              # 0: no validation (and no best.pt)
+    checkpoint_every: int = 500
+    seed: int = 0
+    device: str = "auto"                               # auto: cuda if available, else cpu
+    amp: bool = True                                   # fp16 autocast, CUDA only
+    num_workers: int | None = None                     # None: 0 on CPU, min(8, cores-1) on CUDA
+
+    def __post_init__(self) -> None:
+        self.data_dirs = [str(d) for d in self.data_dirs]
+        self.out_dir = str(self.out_dir)
+        self.crop_hw = (int(self.crop_hw[0]), int(self.crop_hw[1]))
+        if self.aux_weights is not None:
+            self.aux_weights = tuple(float(w) for w in self.aux_weights)
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise :class:`InputError` naming the field for settings that cannot train."""
+        def bad(name: str, message: str) -> InputError:
+            return InputError(None, name, message)
+
+        if self.model not in NETWORKS:
+            raise bad("model", f"unknown network {self.model!r}; choose from {sorted(NETWORKS)}")
+        if not self.data_dirs:
+            raise bad("data_dirs", "give at least one dataset folder")
+        if self.batch_size < 2:
+            raise bad("batch_size", f"must be at least 2, got {self.batch_size}: the networks' "
+                      "BatchNorm layers after global pooling (1x1 maps) cannot normalise over a "
+                      "single image in training mode")
+        for name in ("iterations", "checkpoint_every"):
+            if getattr(self, name) < 1:
+                raise bad(name, f"must be at least 1, got {getattr(self, name)}")
+        for name in ("val_every", "num_workers", "warmup_iterations"):
+            if (getattr(self, name) or 0) < 0:
+                raise bad(name, f"must be >= 0, got {getattr(self, name)}")
+        if not 0.0 < self.warmup_ratio <= 1.0:
+            raise bad("warmup_ratio", f"must be in (0, 1], got {self.warmup_ratio}")
+        if min(self.crop_hw) < 1:
+            raise bad("crop_hw", f"must be positive, got {self.crop_hw}")
+        if self.lr <= 0:
+            raise bad("lr", f"must be positive, got {self.lr}")
+        if not 0.0 < self.bootstrap_end_fraction <= 1.0:
+            raise bad("bootstrap_end_fraction", "must be in (0, 1]")
+        expected = len(DEFAULT_AUX_WEIGHTS[self.model])
+        if self.aux_weights is not None and len(self.aux_weights) != expected:
+            raise bad("aux_weights", f"{self.model} has {expected} auxiliary head(s), got "
+                      f"{len(self.aux_weights)} weight(s)")
+        if self.device not in ("auto", "cpu") and not self.device.startswith("cuda"):
+            raise bad("device", f"expected auto, cpu or cuda[:N], got {self.device!r}")
+
+    @property
+    def effective_aux_weights(self) -> tuple[float, ...]:
+        return self.aux_weights if self.aux_weights is not None else DEFAULT_AUX_WEIGHTS[self.model]
+
+    def to_dict(self) -> dict:
+        data = dataclasses.asdict(self)
+        data["crop_hw"] = list(self.crop_hw)
+        data["aux_weights"] = None if self.aux_weights is None else list(self.aux_weights)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TrainConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+    def command_line(self) -> str:
+        """An equivalent ``harborsight train`` command (options that differ from defaults)."""
+        parts = ["harborsight", "train", "--model", self.model]
+        for d in self.data_dirs:
+            parts += ["--data", d]
+        parts += ["--out", self.out_dir]
+        defaults = TrainConfig.__dataclass_fields__
+        for name, option in _CLI_OPTIONS.items():
+            value = getattr(self, name)
+            if value == defaults[name].default:
+                continue
+            if isinstance(value, bool):
+                parts.append(f"--{option}" if value else f"--no-{option}")
+            elif name == "crop_hw":
+                parts += ["--crop", f"{value[0]}x{value[1]}"]
+            elif name == "aux_weights":
+                for w in value:
+                    parts += ["--aux-weight", f"{w:g}"]
+            else:
+                parts += [f"--{option}", str(value)]
+        return shlex.join(parts)
+
+
+#: TrainConfig field -> CLI option name (harborsight.cli.train).
+_CLI_OPTIONS = {
+    "iterations": "iterations", "batch_size": "batch-size", "lr": "lr", "momentum": "momentum",
+    "weight_decay": "weight-decay", "poly_power": "poly-power",
+    "warmup_iterations": "warmup", "warmup_ratio": "warmup-ratio", "crop_hw": "crop",
+    "aux_weights": "aux-weight", "bootstrap_start_iteration": "bootstrap-start",
+    "bootstrap_end_iteration": "bootstrap-end", "bootstrap_end_fraction": "bootstrap-fraction",
+    "augment": "augment", "train_split": "train-split", "val_split": "val-split",
+    "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
+    "device": "device", "amp": "amp", "num_workers": "workers",
+}
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` -> ``cuda`` when available, else ``cpu``; a named CUDA device must exist."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError(None, "device", f"{name} requested but CUDA is not available")
+    return torch.device(name)
+
+
+class TrainingSamples(torch.utils.data.Dataset):
+    """Item ``n`` is the run's ``n``-th augmented sample (module docstring), whatever the
+    worker or the order of the requests."""
+
+    def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig) -> None:
+        self.frames = frames
+        self.seed = seed
+        self.augmentation = augmentation
+        self._perm_epoch = -1
+        self._perm = np.arange(0)
+
+    def frame_index(self, n: int) -> int:
+        size = len(self.frames)
+        epoch = n // size
+        if epoch != self._perm_epoch:
+            self._perm = np.random.default_rng([self.seed, epoch]).permutation(size)
+            self._perm_epoch = epoch
+        return int(self._perm[n % size])
+
+    def __len__(self) -> int:  # the stream is unbounded; the sampler decides what is drawn
+        return 2**62
+
+    def __getitem__(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        image, labels = self.frames[self.frame_index(n)]
+        rng = np.random.default_rng([self.seed, 1, n])
+        return augment(image, labels, rng, self.augmentation)
+
+
+def learning_rate(config: TrainConfig, iteration: int) -> float:
+    """Poly schedule times the linear warm-up factor (module docstring)."""
+    lr = poly_learning_rate(config.lr, iteration, config.iterations, config.poly_power)
+    if iteration < config.warmup_iterations:
+        r = config.warmup_ratio
+        lr *= r + (1.0 - r) * iteration / config.warmup_iterations
+    return lr
+
+
+def data_workers(requested: int | None, device: torch.device) -> int:
+    """DataLoader processes: as requested, else none on the CPU (the training step already
+    uses every core, and workers would compete with it) and ``min(8, cores - 1)`` with CUDA."""
+    if requested is not None:
+        return requested
+    return 0 if device.type == "cpu" else max(0, min(8, (os.cpu_count() or 1) - 1))
+
+
+def _worker_init(_: int) -> None:
+    cv2.setNumThreads(1)
+
+
+@dataclass
+class TrainResult:
+    out_dir: Path
+    iteration: int
+    losses: list[float] = field(default_factory=list)   # of the iterations run in this call
+    val_miou: float | None = None
+    best_val_miou: float | None = None
+
+    @property
+    def last_checkpoint(self) -> Path:
+        return self.out_dir / LAST
+
+    @property
+    def best_checkpoint(self) -> Path | None:
+        path = self.out_dir / BEST
+        return path if path.is_file() else None
+
+
+def _aux_losses(output, target: torch.Tensor, keep: float, weights: tuple[float, ...]
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+    main, aux = output if isinstance(output, tuple) else (output, [])
+    if len(aux) != len(weights):
+        raise RuntimeError(f"network returned {len(aux)} auxiliary outputs for {len(weights)} weights")
+    main_loss = bootstrapped_cross_entropy(main.float(), target, keep)
+    total = main_loss
+    for weight, logits in zip(weights, aux, strict=True):
+        if weight:
+            total = total + weight * bootstrapped_cross_entropy(logits.float(), target, keep)
+    return total, main_loss
+
+
+def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch.device,
+             amp: bool = False) -> SegmentationScores:
+    """Confusion-matrix scores of the model in eval mode on whole frames (batch 1)."""
+    was_training = model.training
+    model.eval()
+    try:
+        return score_frames(TorchSegmenter(model, device, amp).segment, frames)
+    finally:
+        model.train(was_training)
+
+
+def _truncate_log(path: Path, iteration: int) -> None:
+    """Drop log lines written after ``iteration`` (by a run that was then interrupted)."""
+    if not path.is_file():
+        return
+    kept = [line for line in path.read_text().splitlines()
+            if line.strip() and json.loads(line)["iteration"] <= iteration]
+    path.write_text("".join(f"{line}\n" for line in kept))
+
+
+def _check_resume(stored: TrainConfig, given: TrainConfig, path: Path) -> None:
+    a, b = stored.to_dict(), given.to_dict()
+    a["data_dirs"] = [str(Path(d).resolve()) for d in a["data_dirs"]]
+    b["data_dirs"] = [str(Path(d).resolve()) for d in b["data_dirs"]]
+    changed = [k for k in a if k not in RESUMABLE_CHANGES and a[k] != b.get(k)]
+    if changed:
+        details = ", ".join(f"{k}: {a[k]!r} -> {b.get(k)!r}" for k in changed)
+        raise InputError(path, "config", f"resume must keep the run's settings; changed {details}")
+
+
+def train(
+    config: TrainConfig, resume: bool = False, until_iteration: int | None = None,
+    console: Console | None = None, show_progress: bool = True,
+) -> TrainResult:
+    """Train (or resume) per ``config``; stops after ``until_iteration`` iterations if given
+    (writing ``last.pt`` there), otherwise after ``config.iterations``."""
+    out_dir = Path(config.out_dir)
+    last_path, best_path, log_path = out_dir / LAST, out_dir / BEST, out_dir / LOG
+    device = resolve_device(config.device)
+    use_amp = config.amp and device.type == "cuda"
+    stop = min(config.iterations, until_iteration or config.iterations)
+    console = console or Console(stderr=True)
+
+    checkpoint = None
+    if resume:
+        checkpoint = load_checkpoint(last_path)
+        _check_resume(TrainConfig.from_dict(checkpoint["config"]), config, last_path)
+    elif last_path.exists():
+        raise InputError(last_path, None, "a run already lives here: resume it (--resume) or "
+                         "choose another --out")
+
+    train_frames = SegmentationFrames(config.data_dirs, [config.train_split])
+    val_frames = None
+    if config.val_every:
+        try:
+            val_frames = SegmentationFrames(config.data_dirs, [config.val_split])
+        except InputError as exc:
+            raise InputError(exc.source, exc.field, f"{exc.message} (train without validation "
+                             "with --val-every 0)") from None
+
+    torch.manual_seed(config.seed)
+    model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True)).to(device)
+    model.train()
+    optimizer = torch.optim.SGD(parameter_groups(model, config.weight_decay), lr=config.lr,
+                                momentum=config.momentum)
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    start, best_miou, val_miou = 0, None, None
+    if checkpoint is not None:
+        model.load_state_dict(checkpoint["model"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        if checkpoint.get("scaler"):
+            scaler.load_state_dict(checkpoint["scaler"])
+        torch.set_rng_state(checkpoint["rng"]["torch"])
+        if device.type == "cuda" and checkpoint["rng"].get("cuda"):
+            torch.cuda.set_rng_state_all(checkpoint["rng"]["cuda"])
+        start = int(checkpoint["iteration"])
+        best_miou, val_miou = checkpoint.get("best_val_miou"), checkpoint.get("val_miou")
+        _truncate_log(log_path, start)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if checkpoint is None:  # a fresh run: nothing of an earlier, unfinished one may survive
+        log_path.unlink(missing_ok=True)
+        best_path.unlink(missing_ok=True)
+    if device.type == "cuda":
+        torch.backends.cudnn.benchmark = True
+    frame_hw = list(train_frames.common_size_hw())
+
+    def payload(iteration: int, full: bool) -> dict:
+        """A checkpoint; ``full`` adds what an exact resume needs (optimiser, scaler, RNG)."""
+        data = {
+            "format": CHECKPOINT_FORMAT, "network": config.model,
+            "num_classes": NUM_CLASSES, "class_names": list(CLASS_NAMES),
+            "iteration": iteration, "model": model.state_dict(),
+            "optimizer": None, "scaler": None, "rng": None,
+            "config": config.to_dict(), "command": config.command_line(), "frame_hw": frame_hw,
+            "val_miou": val_miou, "best_val_miou": best_miou,
+        }
+        if full:
+            data["optimizer"] = optimizer.state_dict()
+            data["scaler"] = scaler.state_dict() if use_amp else None
+            data["rng"] = {"torch": torch.get_rng_state(),
+                           "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None}
+        return data
+
+    augmentation = (AugmentConfig(crop_hw=config.crop_hw) if config.augment
+                    else AugmentConfig.geometric_only(config.crop_hw))
+    samples = TrainingSamples(train_frames, config.seed, augmentation)
+    batch = config.batch_size
+    workers = data_workers(config.num_workers, device)
+    loader = torch.utils.data.DataLoader(
+        samples, batch_size=batch, sampler=range(start * batch, stop * batch),
+        num_workers=workers, pin_memory=device.type == "cuda",
+        # spawned, not forked: OpenCV and OpenMP thread pools do not survive a fork
+        multiprocessing_context="spawn" if workers else None,
+        worker_init_fn=_worker_init if workers else None,
+        generator=torch.Generator().manual_seed(config.seed),   # keeps the global RNG untouched
+    )
+    weights = config.effective_aux_weights
+    result = TrainResult(out_dir, start, val_miou=val_miou, best_val_miou=best_miou)
+    columns = [TextColumn("[bold]training {task.fields[net]}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("loss {task.fields[loss]:.4f}  lr {task.fields[lr]:.2e}  "
+                          "keep {task.fields[keep]:.0%}  val mIoU {task.fields[miou]}"),
+               TimeRemainingColumn()]
+    t0 = time.perf_counter()
+    with log_path.open("a") as log, Progress(*columns, console=console, disable=not show_progress,
+                                             transient=False) as progress:
+        task = progress.add_task("train", total=config.iterations, completed=start, net=config.model,
+                                 loss=math.nan, lr=config.lr, keep=1.0,
+                                 miou="—" if val_miou is None else f"{val_miou:.3f}")
+        iteration = start
+        for images, labels in loader:
+            lr = learning_rate(config, iteration)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            keep = bootstrap_keep_fraction(iteration, config.bootstrap_start_iteration,
+                                           config.bootstrap_end_iteration, 1.0,
+                                           config.bootstrap_end_fraction)
+            images = images.to(device, non_blocking=True)
+            target = labels.to(device, non_blocking=True).long()
+            with torch.autocast(device.type, torch.float16, enabled=use_amp):
+                output = model(images)
+            loss, main_loss = _aux_losses(output, target, keep, weights)
+            optimizer.zero_grad(set_to_none=True)
+            scaler.scale(loss).backward()
+            scaler.step(optimizer)
+            scaler.update()
+            iteration += 1
+            loss_value = float(loss.detach())
+            if not math.isfinite(loss_value):
+                raise FloatingPointError(f"loss became {loss_value} at iteration {iteration}")
+            result.losses.append(loss_value)
+            log.write(json.dumps({"iteration": iteration, "kind": "train", "loss": loss_value,
+                                  "loss_main": float(main_loss.detach()), "lr": lr,
+                                  "keep_fraction": keep,
+                                  "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
+            if val_frames is not None and (iteration % config.val_every == 0
+                                           or iteration == config.iterations):
+                scores = validate(model, val_frames, device, use_amp)
+                val_miou = scores.miou
+                log.write(json.dumps({"iteration": iteration, "kind": "val",
+                                      **{k: v for k, v in scores.to_dict().items()
+                                         if k != "confusion"}}) + "\n")
+                if math.isfinite(val_miou) and (best_miou is None or val_miou > best_miou):
+                    best_miou = val_miou
+                    save_checkpoint(best_path, payload(iteration, full=False))
+                progress.update(task, miou=f"{val_miou:.3f}")
+            if iteration % config.checkpoint_every == 0 or iteration == stop:
+                log.flush()
+                save_checkpoint(last_path, payload(iteration, full=True))
+            progress.update(task, advance=1, loss=loss_value, lr=lr, keep=keep)
+    result.iteration, result.val_miou, result.best_val_miou = iteration, val_miou, best_miou
+    return result

@@ -1,0 +1,32 @@
+"""Session-wide fixtures: a tiny schematic dataset and a briefly trained run on it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import write_schematic_dataset
+
+#: 128x72 frames: 4 train, 2 val, 2 test.
+TINY_SPLITS = ["train", "train", "val", "test", "train", "train", "val", "test"]
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory) -> Path:
+    """Read-only: copy it before breaking anything."""
+    root = tmp_path_factory.mktemp("tiny") / "dataset"
+    write_schematic_dataset(root, TINY_SPLITS)
+    return root
+
+
+@pytest.fixture(scope="session")
+def trained_run(tmp_path_factory, tiny_dataset) -> Path:
+    """A run folder (last.pt, best.pt, train_log.jsonl) after 4 iterations of DDRNet-23-slim."""
+    from harborsight.training.loop import TrainConfig, train
+
+    out = tmp_path_factory.mktemp("run") / "run"
+    train(TrainConfig(model="ddrnet23_slim", data_dirs=[str(tiny_dataset)], out_dir=str(out),
+                      iterations=4, batch_size=2, crop_hw=(64, 64), val_every=2,
+                      checkpoint_every=2, num_workers=0), show_progress=False)
+    return out

@@ -1,0 +1,187 @@
+"""Segmentation metrics by hand; evaluate and export commands; the default-model path of
+``measure``."""
+
+import json
+import math
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.evaluation.segmentation import (
+    LoadedSegmenter,
+    SegmentationEvaluation,
+    SegmentationScores,
+    SplitEvaluation,
+    confusion_matrix,
+    markdown_table,
+)
+from harborsight.perception import default_model
+from harborsight.perception.export import export_onnx
+from harborsight.perception.model import SegmentationModel
+from harborsight.perception.networks import create_network
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+runner = CliRunner()
+
+
+def test_confusion_matrix_and_scores_by_hand():
+    labels = np.array([[0, 0, 1], [2, 255, 1]], np.uint8)
+    predicted = np.array([[0, 1, 1], [2, 0, 0]], np.uint8)
+    # (true, predicted): (0,0) (0,1) (1,1) (2,2) (1,0); the 255 pixel is skipped
+    expected = np.array([[1, 1, 0], [1, 1, 0], [0, 0, 1]])
+    m = confusion_matrix(labels, predicted)
+    assert np.array_equal(m, expected)
+    scores = SegmentationScores(m)
+    assert scores.pixels == 5 and scores.pixel_accuracy == pytest.approx(3 / 5)
+    assert scores.class_accuracy == pytest.approx([1 / 2, 1 / 2, 1.0])
+    assert scores.mean_accuracy == pytest.approx(2 / 3)
+    # IoU = TP / (row + column - TP): water 1/(2+2-1), ship 1/(2+2-1), obstacle 1/1
+    assert scores.iou == pytest.approx([1 / 3, 1 / 3, 1.0])
+    assert scores.miou == pytest.approx(5 / 9)
+    d = scores.to_dict()
+    assert d["iou"] == pytest.approx({"water": 1 / 3, "ship": 1 / 3, "obstacle": 1.0})
+    assert d["confusion"] == expected.tolist()
+
+
+def test_absent_classes_are_left_out_of_the_means():
+    labels = np.zeros((4, 4), np.uint8)
+    labels[0] = 1
+    predicted = labels.copy()
+    predicted[1, :2] = 1      # two water pixels called ship
+    scores = SegmentationScores(confusion_matrix(labels, predicted))
+    assert math.isnan(scores.iou[2]) and math.isnan(scores.class_accuracy[2])
+    assert scores.mean_accuracy == pytest.approx((10 / 12 + 1.0) / 2)
+    assert scores.miou == pytest.approx((10 / 12 + 4 / 6) / 2)
+    assert scores.to_dict()["iou"]["obstacle"] is None
+    with pytest.raises(ValueError, match="predicted class"):
+        confusion_matrix(labels, np.full((4, 4), 3, np.uint8))
+
+
+def test_markdown_has_the_shape_of_table_ii():
+    scores = SegmentationScores(np.array([[90, 10, 0], [0, 50, 0], [5, 0, 45]]))
+    model = LoadedSegmenter(Path("m.onnx"), "onnx", "fchardnet70", lambda x: x, 4_118_473,
+                            (360, 640))
+    table = markdown_table([SegmentationEvaluation(model, [], [SplitEvaluation("val", 3, scores)],
+                                                   91.754, (640, 360))])
+    header, _, row = table.strip().splitlines()
+    assert header.split("|")[1:-1] == [
+        " Model ", " Dataset ", " Mean accuracy ", " IoU Obstacle ", " IoU Water ", " IoU Ship ",
+        " IoU Mean ", " Speed (FPS) ", " Resolution (w,h) ", " Params "]
+    # accuracy: water 0.9, ship 1.0, obstacle 0.9; IoU: water 90/105, ship 50/60, obstacle 45/50
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    assert cells == ["fchardnet70", "Val", "93.3", "90.0", "85.7", "83.3", "86.3", "91.75",
+                     "640x360", "4.1M"]
+
+
+def test_cli_evaluates_a_checkpoint(trained_run, tiny_dataset, tmp_path):
+    result = runner.invoke(app, [
+        "evaluate", "segmentation", "--model", str(trained_run / "best.pt"),
+        "--data", str(tiny_dataset), "--split", "val", "--split", "test",
+        "--json", str(tmp_path / "m.json"), "--markdown", str(tmp_path / "m.md"),
+        "--fps-seconds", "0.2"], terminal_width=160)
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "m.json").read_text())
+    assert report["network"] == "ddrnet23_slim" and report["kind"] == "torch"
+    assert set(report["splits"]) == {"val", "test"} and report["splits"]["val"]["frames"] == 2
+    assert report["resolution_wh"] == [128, 72] and report["fps"] > 0
+    val = report["splits"]["val"]
+    assert val["pixels"] == np.sum(val["confusion"]) and 0 <= val["miou"] <= 1
+    best = torch.load(trained_run / "best.pt", weights_only=True)
+    assert val["miou"] == pytest.approx(best["val_miou"])  # same frames, same model
+    assert len((tmp_path / "m.md").read_text().strip().splitlines()) == 4
+
+
+def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_path):
+    out = tmp_path / "model.onnx"
+    result = runner.invoke(app, [
+        "export", "--checkpoint", str(trained_run / "best.pt"), "--out", str(out), "--int8",
+        "--calibration-data", str(tiny_dataset), "--calibration-split", "train",
+        "--calibration-frames", "2"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "max |logit difference|" in result.output and "int8:" in result.output
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert sidecar["schema"] == "harborsight.model/1" and sidecar["network"] == "ddrnet23_slim"
+    assert sidecar["classes"] == {"0": "water", "1": "ship", "2": "obstacle"}
+    assert sidecar["input"]["height"] == 72 and sidecar["input"]["width"] == 128
+    assert sidecar["training"]["seed"] == 0 and "harborsight train" in sidecar["training"]["command"]
+    assert sidecar["onnx_max_abs_difference"] <= 1e-4 * max(sidecar["torch_max_abs_logit"], 1.0)
+    int8 = sidecar["int8"]
+    assert int8["calibration_frames"] == 2 and int8["evaluation_frames"] == 4
+    assert 0 <= int8["miou_int8"] <= 1 and 0.5 < int8["label_agreement"] <= 1
+    result = runner.invoke(app, [
+        "evaluate", "segmentation", "--model", str(out.with_name("model.int8.onnx")),
+        "--data", str(tiny_dataset), "--split", "train", "--json", str(tmp_path / "e.json"),
+        "--fps-seconds", "0"])
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert report["kind"] == "onnx" and report["network"] == "ddrnet23_slim"
+    assert report["splits"]["train"]["miou"] == pytest.approx(int8["miou_int8"])
+    result = runner.invoke(app, ["export", "--checkpoint", str(trained_run / "best.pt"),
+                                 "--out", str(tmp_path / "x.onnx"), "--int8"])
+    assert result.exit_code == 2 and "--calibration-data" in result.output
+
+
+@pytest.fixture(scope="module")
+def untrained_model(tmp_path_factory) -> Path:
+    """An untrained DDRNet-23-slim exported at 72x128 with a sidecar."""
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("model") / "default.onnx"
+    model = SegmentationModel(create_network("ddrnet23_slim", 3, aux_heads=False)).eval()
+    export_onnx(model, path, 72, 128, {"network": "ddrnet23_slim"})
+    path.with_suffix(".json").write_text(json.dumps({
+        "schema": "harborsight.model/1", "classes": {"0": "water", "1": "ship", "2": "obstacle"}}))
+    return path
+
+
+def measure_args(out: Path) -> list[str]:
+    return ["measure", str(SAMPLES / "images" / "000000.png"),
+            "--meta", str(SAMPLES / "frames" / "000000.json"),
+            "--vessel", str(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"),
+            "--out", str(out), "--no-tables"]
+
+
+def test_measure_without_mask_uses_the_default_model(untrained_model, tmp_path, monkeypatch):
+    result = runner.invoke(app, measure_args(tmp_path / "none"))
+    assert result.exit_code == 2
+    assert "no segmentation model here" in result.output and "--mask" in result.output
+    monkeypatch.setattr(default_model, "default_model_path", lambda: untrained_model)
+    result = runner.invoke(app, measure_args(tmp_path / "default"), terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert f"segmenting with {untrained_model}" in result.output
+    assert json.loads((tmp_path / "default" / "000000.json").read_text())["schema"] == (
+        "harborsight.report/1")
+    # an explicit mask still wins and needs no model
+    monkeypatch.setattr(default_model, "default_model_path", lambda: tmp_path / "absent.onnx")
+    result = runner.invoke(app, [*measure_args(tmp_path / "mask"),
+                                 "--mask", str(SAMPLES / "labels" / "000000.png")])
+    assert result.exit_code == 0, result.output
+    assert "segmenting" not in result.output
+
+
+def test_measure_folder_with_an_explicit_model(untrained_model, tmp_path):
+    result = runner.invoke(app, ["measure", str(SAMPLES), "--model", str(untrained_model),
+                                 "--out", str(tmp_path), "--no-tables"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "segmenting with" in result.output and "5 frame(s) measured" in result.output
+    result = runner.invoke(app, ["measure", str(SAMPLES), "--model", str(untrained_model),
+                                 "--masks", str(SAMPLES / "labels"), "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "either --model or --mask" in result.output
+
+
+def test_default_segmenter_checks_the_sidecar(untrained_model, tmp_path):
+    segmenter = default_model.load_default_segmenter(untrained_model)
+    assert segmenter.sidecar["schema"] == "harborsight.model/1"
+    assert segmenter.segment(np.zeros((36, 64, 3), np.uint8)).shape == (36, 64)
+    other = tmp_path / "other.onnx"
+    other.write_bytes(untrained_model.read_bytes())
+    other.with_suffix(".json").write_text(json.dumps({"classes": {"0": "sea", "1": "boat"}}))
+    with pytest.raises(InputError, match=r"other.json: classes: model classes \['sea', 'boat'\]"):
+        default_model.load_default_segmenter(other)
+    with pytest.raises(InputError, match="no segmentation model here"):
+        default_model.load_default_segmenter(tmp_path / "missing.onnx")

@@ -1,0 +1,142 @@
+"""The training loop learns, validates, checkpoints, resumes exactly, and refuses bad runs."""
+
+import json
+import shlex
+import shutil
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.training.checkpoint import load_checkpoint, model_from_checkpoint
+from harborsight.training.loop import TrainConfig, learning_rate, train
+
+runner = CliRunner()
+
+
+def read_log(run_dir, kind="train"):
+    lines = [json.loads(line) for line in (run_dir / "train_log.jsonl").read_text().splitlines()]
+    return [line for line in lines if line["kind"] == kind]
+
+
+@pytest.fixture
+def two_frame_dataset(tiny_dataset, tmp_path):
+    """The tiny dataset with only two training frames: batch 2 sees both every step."""
+    root = tmp_path / "two"
+    shutil.copytree(tiny_dataset, root)
+    meta = json.loads((root / "dataset.json").read_text())
+    train_stems = [s for s, split in meta["split"].items() if split == "train"]
+    for stem in train_stems[2:]:
+        meta["split"][stem] = "unused"
+    (root / "dataset.json").write_text(json.dumps(meta))
+    return root
+
+
+def test_overfits_one_batch_and_validates(two_frame_dataset, tmp_path):
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[two_frame_dataset], out_dir=tmp_path / "run",
+                         iterations=25, batch_size=2, crop_hw=(72, 128), augment=False,
+                         val_every=25, checkpoint_every=10, num_workers=0, seed=3)
+    result = train(config, show_progress=False)
+    losses = result.losses
+    assert len(losses) == 25 and result.iteration == 25
+    assert sum(losses[-5:]) / 5 < 0.5 * sum(losses[:5]) / 5, losses
+    log = read_log(tmp_path / "run")
+    assert [line["iteration"] for line in log] == list(range(1, 26))
+    assert [line["loss"] for line in log] == losses
+    assert log[0]["lr"] == pytest.approx(0.01) and log[-1]["lr"] < 0.01
+    assert all(line["keep_fraction"] == 1.0 for line in log)  # before iteration 1000
+    (val,) = read_log(tmp_path / "run", "val")
+    assert val["iteration"] == 25 and 0.0 <= val["miou"] <= 1.0
+    last, best = load_checkpoint(result.last_checkpoint), load_checkpoint(result.best_checkpoint)
+    assert last["iteration"] == best["iteration"] == 25
+    assert best["val_miou"] == pytest.approx(val["miou"]) and best["optimizer"] is None
+    assert last["frame_hw"] == [72, 128] and last["config"]["crop_hw"] == [72, 128]
+    model = model_from_checkpoint(best)
+    assert model.network.aux_heads is None and not model.training
+
+
+def test_resume_repeats_an_uninterrupted_run(tiny_dataset, tmp_path):
+    # BiSeNetV2's dropout makes the result depend on the restored torch RNG as well
+    def config(out):
+        return TrainConfig(model="bisenetv2", data_dirs=[tiny_dataset], out_dir=out, iterations=6,
+                           batch_size=2, crop_hw=(64, 64), val_every=0, checkpoint_every=100,
+                           num_workers=0, seed=11)
+
+    whole = train(config(tmp_path / "whole"), show_progress=False)
+    first = train(config(tmp_path / "split"), until_iteration=3, show_progress=False)
+    assert first.iteration == 3 and load_checkpoint(first.last_checkpoint)["iteration"] == 3
+    with (tmp_path / "split" / "train_log.jsonl").open("a") as log:  # a crash after the checkpoint
+        log.write(json.dumps({"iteration": 4, "kind": "train", "loss": -1.0}) + "\n")
+    with pytest.raises(InputError, match="resume it"):
+        train(config(tmp_path / "split"), show_progress=False)
+    second = train(config(tmp_path / "split"), resume=True, show_progress=False)
+    assert first.losses + second.losses == whole.losses
+    assert [line["loss"] for line in read_log(tmp_path / "split")] == whole.losses
+    a = load_checkpoint(tmp_path / "whole" / "last.pt")["model"]
+    b = load_checkpoint(tmp_path / "split" / "last.pt")["model"]
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    changed = config(tmp_path / "split")
+    changed.lr = 0.02
+    with pytest.raises(InputError, match=r"changed lr: 0.01 -> 0.02"):
+        train(changed, resume=True, show_progress=False)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"batch_size": 1}, r"batch_size: must be at least 2.*BatchNorm"),
+    ({"model": "resnet"}, r"model: unknown network 'resnet'"),
+    ({"aux_weights": (1.0, 1.0)}, r"aux_weights: ddrnet23_slim has 1 auxiliary head"),
+    ({"device": "tpu"}, r"device: expected auto, cpu or cuda"),
+])
+def test_bad_configs_are_refused(tmp_path, changes, message):
+    base = {"model": "ddrnet23_slim", "data_dirs": ["x"], "out_dir": str(tmp_path)}
+    with pytest.raises(InputError, match=message):
+        TrainConfig(**{**base, **changes})
+
+
+def test_missing_validation_split_suggests_val_every_0(two_frame_dataset, tmp_path):
+    meta = json.loads((two_frame_dataset / "dataset.json").read_text())
+    meta["split"] = {s: ("train" if v == "train" else "test") for s, v in meta["split"].items()}
+    (two_frame_dataset / "dataset.json").write_text(json.dumps(meta))
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[two_frame_dataset], out_dir=tmp_path,
+                         iterations=1, batch_size=2, num_workers=0)
+    with pytest.raises(InputError, match=r"no frames in split\(s\) \['val'\].*--val-every 0"):
+        train(config, show_progress=False)
+
+
+def test_learning_rate_warmup_then_poly():
+    config = TrainConfig(model="bisenetv2", data_dirs=["x"], out_dir="y", iterations=100,
+                         warmup_iterations=10, warmup_ratio=0.1)
+    assert learning_rate(config, 0) == pytest.approx(0.001)
+    assert learning_rate(config, 5) == pytest.approx(0.01 * (1 - 0.05) ** 0.9 * 0.55)
+    assert learning_rate(config, 10) == pytest.approx(0.01 * 0.9 ** 0.9)
+
+
+def test_cli_train_records_a_command_that_reproduces_the_run(tiny_dataset, tmp_path):
+    args = ["train", "--model", "ddrnet23_slim", "--data", str(tiny_dataset),
+            "--out", str(tmp_path / "a"), "--iterations", "3", "--batch-size", "2", "--crop", "48x64",
+            "--aux-weight", "0.5", "--val-every", "0", "--seed", "5", "--workers", "0",
+            "--no-augment", "--no-progress"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "trained ddrnet23_slim to iteration 3" in result.output
+    command = load_checkpoint(tmp_path / "a" / "last.pt")["command"]
+    again = shlex.split(command.replace(str(tmp_path / "a"), str(tmp_path / "b")))
+    assert again[:2] == ["harborsight", "train"] and "--no-augment" in again
+    result = runner.invoke(app, [*again[1:], "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert read_log(tmp_path / "a") == [
+        {**line, "elapsed_s": read_log(tmp_path / "a")[i]["elapsed_s"]}
+        for i, line in enumerate(read_log(tmp_path / "b"))]
+    result = runner.invoke(app, ["train", "--out", str(tmp_path / "a"), "--resume",
+                                 "--iterations", "4", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert len(read_log(tmp_path / "a")) == 4
+
+
+def test_cli_train_errors_are_one_line(tmp_path):
+    result = runner.invoke(app, ["train", "--out", str(tmp_path), "--model", "bisenetv2"])
+    assert result.exit_code == 2 and "needs --model and --data" in result.output
+    result = runner.invoke(app, ["train", "--out", str(tmp_path), "--resume"])
+    assert result.exit_code == 2 and "last.pt: checkpoint file not found" in result.output
