@@ -6,7 +6,7 @@ import json
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import cv2
 import typer
@@ -14,19 +14,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from harborsight.clearance.measure import ClearanceSettings
-from harborsight.clearance.report import STATUS_OK
 from harborsight.errors import HarborsightError, InputError
-from harborsight.geometry.camera import load_camera_calibration
-from harborsight.pipeline import (
-    FrameJob,
-    FrameOutcome,
-    VesselCache,
-    discover_jobs,
-    measure_job,
-    run_batch,
-)
-from harborsight.vessel.spec import load_vessel_spec
+
+if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
+    from harborsight.clearance.measure import ClearanceSettings
+    from harborsight.pipeline import FrameOutcome, VesselCache
 
 app = typer.Typer(
     add_completion=False, no_args_is_help=True,
@@ -47,6 +39,8 @@ def _fmt(value: float | None, digits: int) -> str:
 
 def print_report_table(outcome: FrameOutcome) -> None:
     """Per-section table; adds the ground truth column when the frame carries one."""
+    from harborsight.clearance.report import STATUS_OK
+
     report = outcome.report
     truth = {}
     gt = outcome.meta.extra.get("ground_truth") if outcome.meta else None
@@ -81,6 +75,8 @@ def print_report_table(outcome: FrameOutcome) -> None:
 
 def _settings(method: Method, sections: int | None, section_length_m: float | None,
               pose_margin_px: float) -> ClearanceSettings:
+    from harborsight.clearance.measure import ClearanceSettings
+
     return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
                              n_sections=sections, section_length_m=section_length_m)
 
@@ -99,6 +95,8 @@ def _segmenter(model: Path | None):
 def _run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
                 model: Path | None = None) -> int:
+    from harborsight.pipeline import discover_jobs, run_batch
+
     jobs = discover_jobs(folder, masks, segment=model is not None)
     segmenter = _segmenter(model) if any(job.mask_path is None for job in jobs) else None
     with Progress(TextColumn("[bold]measuring"), BarColumn(), MofNCompleteColumn(),
@@ -154,6 +152,10 @@ def measure(
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
+    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.pipeline import FrameJob, VesselCache, measure_job
+    from harborsight.vessel.spec import load_vessel_spec
+
     try:
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
@@ -186,6 +188,8 @@ def demo(
     method: Annotated[Method, typer.Option(help="Distance method.")] = Method.ground_plane,
 ) -> None:
     """Measure the bundled sample frames and compare with their exact ground truth."""
+    from harborsight.pipeline import VesselCache
+
     samples = _bundled_samples()
     console.print(f"[bold]harborsight demo[/]: {samples}\n"
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
@@ -456,7 +460,7 @@ app.add_typer(evaluate_app, name="evaluate")
 
 @evaluate_app.callback()
 def evaluate_callback() -> None:
-    """Evaluate models against labelled data (segmentation; distance to come)."""
+    """Evaluate models against labelled data: segmentation (Table II) and distance."""
 
 
 @evaluate_app.command("segmentation")
@@ -505,6 +509,77 @@ def evaluate_segmentation_command(
         markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(result.markdown())
         console.print(f"Markdown: {markdown}")
+
+
+@evaluate_app.command("distance")
+def evaluate_distance_command(
+    data: Annotated[Path, typer.Option(help="Simulator dataset with ground truth (frames/*.json).")],
+    out: Annotated[Path, typer.Option(help="Folder for sections.csv, summary.md/json and plots.")
+                   ] = Path("out/evaluate-distance"),
+    oracle: Annotated[bool, typer.Option(
+        help="Measure on the simulator's exact labels (separates segmentation errors).")] = True,
+    model: Annotated[Path | None, typer.Option(
+        help="Also measure on masks from this ONNX model; 'default' for the shipped one.")] = None,
+    methods: Annotated[str, typer.Option(help="Comma list of gsd, ground_plane.")
+                       ] = "gsd,ground_plane",
+    split: Annotated[str | None, typer.Option(help="Only frames of this split.")] = None,
+    limit: Annotated[int | None, typer.Option(min=1, help="At most this many frames.")] = None,
+) -> None:
+    """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
+    bar plots, side by side for each mask source and conversion method."""
+    from harborsight.evaluation.distance import (
+        evaluate_frames,
+        load_frames,
+        markdown_table,
+        model_masks,
+        oracle_masks,
+        write_outputs,
+    )
+
+    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    bad = [m for m in chosen if m not in {m.value for m in Method}]
+    if bad or not chosen:
+        err_console.print(f"error: --methods: unknown {bad}; use gsd and/or ground_plane")
+        raise typer.Exit(2)
+    sources = []
+    if oracle:
+        sources.append(("oracle", oracle_masks))
+    try:
+        if model is not None:
+            from harborsight.perception.default_model import load_default_segmenter
+
+            segmenter = load_default_segmenter(None if str(model) == "default" else model)
+            name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
+            sources.append((f"model:{name}", model_masks(segmenter.segment)))
+        if not sources:
+            raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle or "
+                             "give --model")
+        frames = load_frames(data, split)[:limit]
+        if not frames:
+            raise InputError(data / "frames", None, "no frames" + (f" in split {split}" if split else ""))
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False)
+        raise typer.Exit(2) from None
+    results, skipped = [], []
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True) as progress:
+        for masks_name, source in sources:
+            for method in chosen:
+                task = progress.add_task(f"{masks_name} {method}", total=len(frames))
+
+                def done(stem: str, error: str | None, task=task) -> None:
+                    progress.advance(task)
+                    if error:
+                        skipped.append((stem, error))
+
+                results += evaluate_frames(data, frames, masks_name, source, method, done)
+    written = write_outputs(results, out)
+    print(markdown_table(written["rows"]))
+    for stem, error in skipped:
+        err_console.print(f"[red]skipped[/] {stem}: {error}", highlight=False)
+    console.print(f"{len(frames)} frame(s), {len(results)} section results; "
+                  f"written to {out}/ (sections.csv, summary.md, summary.json, "
+                  + ", ".join(p.name for p in written["plots"]) + ")")
 
 
 @app.command("export")
