@@ -11,6 +11,22 @@ if ! "$PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
     exit 1
 fi
 
+# Blender (bpy) links against a few X11/GL libraries that a bare Debian/Ubuntu lacks
+BPY_DEBS="libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libxext6 libsm6 libice6 libgl1 libglx0 libglvnd0"
+missing=""
+if command -v dpkg-query >/dev/null 2>&1; then
+    for deb in $BPY_DEBS; do
+        dpkg-query -W -f='${Status}' "$deb" 2>/dev/null | grep -q "ok installed" || missing="$missing $deb"
+    done
+fi
+if [ -n "$missing" ]; then
+    echo "installing system libraries for Blender:$missing"
+    SUDO=""
+    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends $missing
+fi
+
 stamp=.venv/.installed
 if [ ! -x .venv/bin/python ]; then
     "$PYTHON" -m venv .venv
@@ -18,6 +34,6 @@ fi
 # reinstall when the project's requirements changed since the last install
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -e ".[dev,train]"
+    .venv/bin/python -m pip install --quiet -e ".[dev,train,sim]"
     touch "$stamp"
 fi

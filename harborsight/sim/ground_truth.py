@@ -9,11 +9,14 @@ from __future__ import annotations
 
 from itertools import pairwise
 
+import cv2
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from harborsight.frame import FrameGeometry
 from harborsight.vessel.sections import SectionedOutline
+from harborsight.vessel.spec import VesselSpec
 
 BAND_REACH_M = 5_000.0
 
@@ -68,3 +71,50 @@ def section_distances(
             d_vis = None if seen.is_empty else float(shapely.distance(line, seen))
         results.append({"index": k, "distance_m": d_vis, "distance_all_m": d_all})
     return results
+
+
+def vessel_silhouette_px(vessel: VesselSpec, geometry: FrameGeometry) -> np.ndarray:
+    """Convex hull (pixels) of the whole vessel's projected hull points."""
+    uv, front = geometry.camera.project(geometry.vessel_to_enu(vessel.hull_points))
+    hull = cv2.convexHull(uv[front].astype(np.float32))
+    return hull.reshape(-1, 2).astype(float)
+
+
+def image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) -> Polygon:
+    """The part of the water plane the image samples: the hull of its pixel centres,
+    back-projected (what a mask can show, so frame-cut obstacles compare like for like)."""
+    intr = geometry.camera.intrinsics
+    w, h = intr.width - 1.0, intr.height - 1.0
+    t = np.linspace(0.0, 1.0, samples_per_side, endpoint=False)
+    border = np.vstack((
+        np.column_stack((t * w, np.zeros_like(t))),
+        np.column_stack((np.full_like(t, w), t * h)),
+        np.column_stack((w - t * w, np.full_like(t, h))),
+        np.column_stack((np.zeros_like(t), h - t * h)),
+    ))
+    ground, valid = geometry.camera.back_project_to_plane(border)
+    return Polygon(ground[valid, :2]).buffer(0)
+
+
+def frame_ground_truth(
+    geometry: FrameGeometry, vessel: VesselSpec, footprints_enu: list[Polygon],
+    n_sections: int | None = None,
+) -> list[dict[str, float | None]]:
+    """design.md ``ground_truth`` sections for obstacle footprints (ENU water-plane polygons).
+
+    ``distance_m`` counts only the parts of footprints that the image shows on the water
+    plane (inside the back-projected frame, outside the vessel's own silhouette);
+    ``distance_all_m`` counts every obstacle.
+    """
+    sections = vessel.sections(n_sections)
+    to_vessel = geometry.enu_to_vessel_xy
+
+    def in_vessel_frame(poly: Polygon) -> Polygon:
+        return shapely.transform(poly, lambda xy: to_vessel(xy))
+
+    obstacles = shapely.union_all([in_vessel_frame(p) for p in footprints_enu])
+    seen = image_ground_polygon(geometry)
+    hidden_ground, ok = geometry.camera.back_project_to_plane(vessel_silhouette_px(vessel, geometry))
+    if ok.all():
+        seen = seen.difference(Polygon(hidden_ground[:, :2]).buffer(0))
+    return section_distances(sections, obstacles, in_vessel_frame(seen))

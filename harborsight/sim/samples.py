@@ -1,4 +1,4 @@
-"""The bundled demo samples: two example vessels in schematic harbour scenes.
+"""The bundled demo samples: a harbour tug in five Blender-rendered harbour scenes.
 
 ``harborsight make-samples`` regenerates them from a seed; the committed copy lives in
 ``harborsight/data/samples`` (dataset layout of ``docs/design.md``).
@@ -6,36 +6,26 @@
 
 from __future__ import annotations
 
-import json
 import shutil
 from pathlib import Path
 
-import numpy as np
 import yaml
 
-from harborsight import __version__
-from harborsight.sim.schematic import DEFAULT_INTRINSICS, sample_scene, write_frame
+from harborsight.sim.dataset import SimulationConfig, simulate
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
-from harborsight.vessel.spec import load_vessel_spec
 
 DEFAULT_SEED = 20260501
 
-#: (stem, vessel, scenario, altitude m, tilt deg, gap m)
-DEMO_FRAMES = [
-    ("000000", "harbour-tug", "alongside", 60.0, 0.0, 4.0),
-    ("000001", "coastal-ferry", "slip", 90.0, 12.0, 6.0),
-    ("000002", "harbour-tug", "touching", 45.0, 5.0, None),
-    ("000003", "coastal-ferry", "open", 120.0, 0.0, None),
-    ("000004", "harbour-tug", "slip", 30.0, 15.0, 2.5),
-]
+#: the demo's frames: scenario and drone height above water (m), frame i of the dataset
+DEMO_SCENARIOS = ("alongside", "slip", "touching", "pass", "open")
+DEMO_ALTITUDES_M = (40.0, 60.0, 50.0, 80.0, 110.0)
 
 
-def write_example_vessels(vessels_dir: Path) -> dict[str, Path]:
-    """A mesh-based tug (procedural hull, STL) and an AIS-dimensions ferry."""
+def write_example_vessel(vessels_dir: Path) -> Path:
+    """The demo's vessel: a 32 m harbour tug (procedural hull mesh, STL)."""
     tug = vessels_dir / "harbour-tug"
     tug.mkdir(parents=True, exist_ok=True)
-    params = HullParameters()
-    generate_hull_mesh(params).export(tug / "hull.stl")
+    generate_hull_mesh(HullParameters()).export(tug / "hull.stl")
     (tug / "vessel.yaml").write_text(
         "# A 32 m harbour tug. hull.stl is procedural (harborsight.vessel.hullgen), in metres,\n"
         "# naval CAD axes; origin on the centreline at the transom, z = 0 at the waterline.\n"
@@ -49,44 +39,24 @@ def write_example_vessels(vessels_dir: Path) -> dict[str, Path]:
             "sections": 16,
         }, sort_keys=False)
     )
-    ferry = vessels_dir / "coastal-ferry"
-    ferry.mkdir(parents=True, exist_ok=True)
-    (ferry / "vessel.yaml").write_text(
-        "# A 60 m coastal ferry described as its AIS static data would (distances from the\n"
-        "# GPS antenna, metres); air_draft_m bounds its superstructure for the own-vessel mask.\n"
-        + yaml.safe_dump({
-            "name": "coastal-ferry",
-            "dimensions": {"to_bow": 42.0, "to_stern": 18.0, "to_port": 7.0, "to_starboard": 7.0},
-            "air_draft_m": 12.0,
-            "outline": "waterline",
-            "section_length_m": 10.0,
-        }, sort_keys=False)
-    )
-    return {"harbour-tug": tug / "vessel.yaml", "coastal-ferry": ferry / "vessel.yaml"}
+    return tug / "vessel.yaml"
 
 
-def make_demo_samples(out_dir: Path, seed: int = DEFAULT_SEED) -> list[str]:
-    """Write the demo dataset to ``out_dir`` (replacing it); returns the frame stems."""
+def demo_config(seed: int = DEFAULT_SEED) -> SimulationConfig:
+    return SimulationConfig(
+        seed=seed, preset="default", altitudes_m=DEMO_ALTITUDES_M,
+        vessel_spec="vessels/harbour-tug/vessel.yaml", scenario=",".join(DEMO_SCENARIOS),
+        split="demo")
+
+
+def make_demo_samples(out_dir: Path, seed: int = DEFAULT_SEED, n_frames: int | None = None
+                      ) -> list[str]:
+    """Render the demo dataset into ``out_dir`` (replacing it) with the Blender simulator;
+    returns the frame stems. ``n_frames`` renders only the first frames (tests)."""
     if out_dir.exists():
         shutil.rmtree(out_dir)
-    out_dir.mkdir(parents=True)
-    specs = {name: load_vessel_spec(path)
-             for name, path in write_example_vessels(out_dir / "vessels").items()}
-    rng = np.random.default_rng(seed)
-    split = {}
-    for i, (stem, vessel_name, scenario, altitude, tilt, gap) in enumerate(DEMO_FRAMES):
-        scene = sample_scene(
-            specs[vessel_name], rng, altitude_m=altitude, tilt_deg=tilt, scenario=scenario,
-            gap_m=gap, name=stem, timestamp=f"2026-05-01T12:00:{i * 2:02d}.000Z",
-        )
-        write_frame(scene, out_dir, stem, vessel_dir_name=vessel_name)
-        split[stem] = "demo"
-    (out_dir / "dataset.json").write_text(json.dumps({
-        "generator": f"harborsight.sim.schematic {__version__}",
-        "seed": seed,
-        "parameters": {"frames": [list(f) for f in DEMO_FRAMES],
-                       "camera": DEFAULT_INTRINSICS.to_dict()},
-        "classes": {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"},
-        "split": split,
-    }, indent=2) + "\n")
-    return list(split)
+    write_example_vessel(out_dir / "vessels")
+    summary = simulate(out_dir, n_frames or len(DEMO_SCENARIOS), demo_config(seed))
+    if summary.failed:
+        raise RuntimeError("; ".join(f.error or "" for f in summary.failed))
+    return sorted(p.stem for p in (out_dir / "frames").glob("*.json"))

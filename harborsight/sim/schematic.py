@@ -28,7 +28,7 @@ from shapely.geometry import MultiPoint, Polygon, box
 from harborsight.frame import FrameGeometry, FrameMetadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
-from harborsight.sim.ground_truth import section_distances
+from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette_px
 from harborsight.vessel.spec import VesselSpec
 
 SHIP, OBSTACLE = 1, 2
@@ -86,12 +86,6 @@ class SchematicScene:
         return FrameGeometry.from_metadata(self.metadata("frame.png"))
 
 
-def _vessel_silhouette_px(scene: SchematicScene, geometry: FrameGeometry) -> np.ndarray:
-    uv, front = geometry.camera.project(geometry.vessel_to_enu(scene.vessel.hull_points))
-    hull = cv2.convexHull(uv[front].astype(np.float32))
-    return hull.reshape(-1, 2).astype(float)
-
-
 def _pixel_grid(intr: CameraIntrinsics) -> np.ndarray:
     u, v = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
     return np.column_stack((u.ravel(), v.ravel()))
@@ -126,7 +120,7 @@ def render(scene: SchematicScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             colour[on_deck] = fp.deck_colour_bgr
 
     # the vessel of interest: the image of its whole hull
-    silhouette = Polygon(_vessel_silhouette_px(scene, geometry))
+    silhouette = Polygon(vessel_silhouette_px(scene.vessel, geometry))
     own = shapely.contains_xy(silhouette, grid[:, 0], grid[:, 1])
     labels[own] = SHIP
     instances[own] = VESSEL_INSTANCE
@@ -143,45 +137,17 @@ def render(scene: SchematicScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             instances.reshape(intr.height, intr.width))
 
 
-def _image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) -> Polygon:
-    """The part of the water plane the image samples: the hull of its pixel centres,
-    back-projected (what a mask can show, so frame-cut obstacles compare like for like)."""
-    intr = geometry.camera.intrinsics
-    w, h = intr.width - 1.0, intr.height - 1.0
-    t = np.linspace(0.0, 1.0, samples_per_side, endpoint=False)
-    border = np.vstack((
-        np.column_stack((t * w, np.zeros_like(t))),
-        np.column_stack((np.full_like(t, w), t * h)),
-        np.column_stack((w - t * w, np.full_like(t, h))),
-        np.column_stack((np.zeros_like(t), h - t * h)),
-    ))
-    ground, valid = geometry.camera.back_project_to_plane(border)
-    return Polygon(ground[valid, :2]).buffer(0)
-
-
 def ground_truth(scene: SchematicScene, n_sections: int | None = None) -> dict:
     """Per-section exact distances (design.md ``ground_truth``) and the true poses."""
     geometry = scene.geometry()
-    sections = scene.vessel.sections(n_sections)
-    to_vessel = geometry.enu_to_vessel_xy
-
-    def in_vessel_frame(poly: Polygon) -> Polygon:
-        return shapely.transform(poly, lambda xy: to_vessel(xy))
-
-    obstacles = shapely.union_all([in_vessel_frame(fp.polygon) for fp in scene.footprints])
-    seen = _image_ground_polygon(geometry)
-    hidden_px = _vessel_silhouette_px(scene, geometry)
-    hidden_ground, ok = geometry.camera.back_project_to_plane(hidden_px)
-    if ok.all():
-        seen = seen.difference(Polygon(hidden_ground[:, :2]).buffer(0))
-    visible = in_vessel_frame(seen)
-    per_section = section_distances(sections, obstacles, visible)
+    per_section = frame_ground_truth(geometry, scene.vessel,
+                                     [fp.polygon for fp in scene.footprints], n_sections)
     return {
         "sections": per_section,
         "vessel_pose": {"lat": scene.origin.lat_deg, "lon": scene.origin.lon_deg,
                         "heading_deg": scene.vessel_heading_deg},
         "uav_enu_m": [float(v) for v in scene.uav_enu],
-        "n_sections": sections.n_sections,
+        "n_sections": len(per_section),
     }
 
 

@@ -37,6 +37,8 @@ class VesselSpec:
     n_sections: int | None = DEFAULT_SECTIONS
     section_length_m: float | None = None
     source: str | None = None
+    #: the whole vessel as a mesh in V (metres), when the spec gives one
+    mesh: trimesh.Trimesh | None = field(default=None, repr=False, compare=False)
     _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
@@ -91,6 +93,7 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
     )):
         raise InputError(path, "outline", f"expected waterline, silhouette or a height, got {mode!r}")
 
+    mesh_v = None
     if doc.get("hull_mesh"):
         mesh = _load_mesh(path.parent / str(doc["hull_mesh"]), path)
         axes = doc.get("mesh_axes", ["bow", "port", "up"])
@@ -137,7 +140,7 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise InputError(path, "sections", f"expected a positive whole number, got {n!r}")
         n_sections = n
-    return VesselSpec(name, outline, hull_points, n_sections, section_length, str(path))
+    return VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
 
 
 def load_vessel_spec(path: str | Path) -> VesselSpec:

@@ -1,0 +1,77 @@
+"""Seconds per frame of ``harborsight simulate`` at each preset, on this machine.
+
+* cold: a fresh ``harborsight simulate --n 1`` process, wall clock, start-up included
+  (Python, bpy import, Blender factory reset, vessel generation);
+* warm: frames after the first in one process (what a long run costs per frame), from
+  the in-process timings of each frame (render, ray-cast check, effects, PNG encoding).
+
+Targets (issue 3): default (640x360) at most 4 s per frame on 2 cores; tiny at most 2 s
+including start-up.
+
+    .venv/bin/python benchmarks/bench_simulator.py [--frames 6] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from harborsight.sim.dataset import SimulationConfig, simulate
+
+TARGETS_S = {"tiny": 2.0, "default": 4.0}
+
+
+def cold_start_seconds(preset: str, seed: int) -> float:
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "harborsight.cli", "simulate", "--n", "1", "--out",
+               str(Path(tmp) / "ds"), "--seed", str(seed), "--preset", preset]
+        start = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True)
+        return time.perf_counter() - start
+
+
+def warm_seconds(preset: str, n_frames: int, seed: int) -> list[float]:
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = simulate(Path(tmp) / "ds", n_frames, SimulationConfig(seed=seed, preset=preset))
+        return [r.seconds for r in sorted(summary.rendered, key=lambda r: r.index)]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=6)
+    parser.add_argument("--presets", default="tiny,default,high")
+    parser.add_argument("--seed", type=int, default=404)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    rows = []
+    for preset in args.presets.split(","):
+        n = args.frames if preset != "high" else max(2, args.frames // 3)
+        cold = cold_start_seconds(preset, args.seed)
+        warm = warm_seconds(preset, n, args.seed)[1:]  # the first frame is the cold one
+        mean = sum(warm) / len(warm)
+        target = TARGETS_S.get(preset)
+        measured = cold if preset == "tiny" else mean
+        rows.append({"preset": preset, "cold_start_1_frame_s": round(cold, 2),
+                     "warm_mean_s_per_frame": round(mean, 2),
+                     "warm_min_s": round(min(warm), 2), "warm_max_s": round(max(warm), 2),
+                     "frames": len(warm), "target_s": target,
+                     "target_met": None if target is None else measured <= target})
+        print(f"{preset:8s} cold (1 frame, start-up incl.) {cold:6.2f} s   warm {mean:6.2f} s/frame "
+              f"(min {min(warm):.2f}, max {max(warm):.2f}, {len(warm)} frames)"
+              + ("" if target is None else f"   target {target:.0f} s: "
+                 f"{'met' if measured <= target else f'missed by {measured / target - 1:.0%}'}"))
+    result = {"machine": f"{platform.machine()}, {os.cpu_count()} cores", "rows": rows,
+              "load_average_at_end": os.getloadavg()}
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,276 @@
+"""Distance error against the simulator's ground truth, per altitude (the paper's Sec. IV).
+
+Each configuration (masks: ``oracle`` = the simulator's labels or a segmentation model; method:
+``gsd`` or ``ground_plane``) is run on every frame of a dataset; every section is classed as
+
+* an **estimate** (report ``ok``, truth has a visible obstacle): absolute error in metres and in
+  GSD pixels;
+* a **missed obstacle** (truth has one in view, the report says ``clear``);
+* a **false obstacle** (the report says ``ok``, the truth has nothing in view in that band).
+
+Sections out of view are not counted. Summaries are per altitude (drone height above water,
+rounded to whole metres): n, MAE, median, p95, share off by more than 1 m, missed, false.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK
+from harborsight.errors import HarborsightError
+from harborsight.frame import parse_frame_metadata
+from harborsight.vessel.spec import VesselSpec, load_vessel_spec
+
+#: a mask provider: (dataset dir, frame document) -> class labels (H, W) uint8
+MaskSource = Callable[[Path, dict], np.ndarray]
+
+
+def oracle_masks(dataset: Path, frame: dict) -> np.ndarray:
+    """The simulator's exact labels."""
+    stem = Path(frame["image"]).stem
+    labels = cv2.imread(str(dataset / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        raise HarborsightError(f"{dataset / 'labels' / (stem + '.png')}: missing label mask")
+    return labels
+
+
+def model_masks(segment: Callable[[np.ndarray], np.ndarray]) -> MaskSource:
+    """Masks from a segmenter (BGR uint8 image -> class labels)."""
+    def source(dataset: Path, frame: dict) -> np.ndarray:
+        path = dataset / "images" / frame["image"]
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise HarborsightError(f"{path}: cannot read the image")
+        return segment(image)
+    return source
+
+
+@dataclass
+class SectionResult:
+    frame: str
+    altitude_m: float
+    masks: str
+    method: str
+    section: int
+    status: str
+    estimate_m: float | None
+    truth_m: float | None
+    gsd_m_per_px: float
+    contact: bool
+    truncated: bool
+
+    @property
+    def kind(self) -> str:
+        if self.status == STATUS_OK and self.truth_m is not None:
+            return "estimate"
+        if self.status == STATUS_CLEAR and self.truth_m is not None:
+            return "missed"
+        if self.status == STATUS_OK and self.truth_m is None:
+            return "false"
+        return "none"
+
+    @property
+    def abs_error_m(self) -> float | None:
+        if self.kind != "estimate":
+            return None
+        return abs(self.estimate_m - self.truth_m)
+
+
+def evaluate_frames(
+    dataset: Path, frames: Iterable[dict], masks_name: str, masks: MaskSource, method: str,
+    on_frame: Callable[[str, str | None], None] | None = None,
+) -> list[SectionResult]:
+    """Measure every frame with ``masks`` and ``method``; a bad frame is reported and skipped."""
+    settings = ClearanceSettings(method=method)
+    vessels: dict[str, VesselSpec] = {}
+    results: list[SectionResult] = []
+    for frame in frames:
+        stem = Path(frame["image"]).stem
+        try:
+            meta = parse_frame_metadata(frame, dataset / "frames" / f"{stem}.json",
+                                        base_dir=dataset / "frames")
+            spec_path = frame["vessel_spec"]
+            if spec_path not in vessels:
+                vessels[spec_path] = load_vessel_spec(dataset / spec_path)
+            truth = frame["ground_truth"]["sections"]
+            report = measure_frame(masks(dataset, frame), meta, vessels[spec_path], settings)
+            if len(report.sections) != len(truth):
+                raise HarborsightError(f"{stem}: {len(report.sections)} sections measured, "
+                                       f"{len(truth)} in the ground truth")
+        except (HarborsightError, KeyError) as exc:
+            if on_frame:
+                on_frame(stem, f"{type(exc).__name__}: {exc}")
+            continue
+        altitude = round(meta.height_above_water_m)
+        for s, t in zip(report.sections, truth, strict=True):
+            if s.status not in (STATUS_OK, STATUS_CLEAR):
+                continue
+            results.append(SectionResult(
+                stem, altitude, masks_name, method, s.index, s.status, s.distance_m,
+                t["distance_m"], report.gsd_m_per_px, bool(s.contact), bool(s.truncated)))
+        if on_frame:
+            on_frame(stem, None)
+    return results
+
+
+@dataclass
+class AltitudeSummary:
+    altitude_m: float
+    masks: str
+    method: str
+    n: int
+    mae_m: float | None
+    std_m: float | None
+    median_m: float | None
+    p95_m: float | None
+    over_1m_share: float | None
+    median_px: float | None
+    missed: int
+    false: int
+
+
+def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
+    """Per (masks, method, altitude): error statistics and miss / false counts."""
+    keys = sorted({(r.masks, r.method, r.altitude_m) for r in results})
+    rows = []
+    for masks, method, altitude in keys:
+        group = [r for r in results if (r.masks, r.method, r.altitude_m) == (masks, method, altitude)]
+        errors = np.array([r.abs_error_m for r in group if r.kind == "estimate"])
+        px = np.array([r.abs_error_m / r.gsd_m_per_px for r in group if r.kind == "estimate"])
+        some = len(errors) > 0
+        rows.append(AltitudeSummary(
+            altitude, masks, method, len(errors),
+            float(errors.mean()) if some else None, float(errors.std()) if some else None,
+            float(np.median(errors)) if some else None,
+            float(np.percentile(errors, 95)) if some else None,
+            float(np.mean(errors > 1.0)) if some else None,
+            float(np.median(px)) if some else None,
+            sum(r.kind == "missed" for r in group), sum(r.kind == "false" for r in group)))
+    return rows
+
+
+def write_csv(results: list[SectionResult], path: Path) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["frame", "altitude_m", "masks", "method", "section", "status", "kind",
+                         "estimate_m", "truth_m", "abs_error_m", "gsd_m_per_px", "contact",
+                         "truncated"])
+        for r in results:
+            err = r.abs_error_m
+            writer.writerow([r.frame, r.altitude_m, r.masks, r.method, r.section, r.status, r.kind,
+                             "" if r.estimate_m is None else f"{r.estimate_m:.4f}",
+                             "" if r.truth_m is None else f"{r.truth_m:.4f}",
+                             "" if err is None else f"{err:.4f}", f"{r.gsd_m_per_px:.5f}",
+                             int(r.contact), int(r.truncated)])
+
+
+def _fmt(value: float | None, digits: int = 2) -> str:
+    return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def markdown_table(rows: list[AltitudeSummary]) -> str:
+    lines = ["| masks | method | altitude m | n | MAE m (± std) | median m | median px | p95 m "
+             "| > 1 m | missed | false |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        share = "—" if r.over_1m_share is None else f"{100 * r.over_1m_share:.1f} %"
+        mae = "—" if r.mae_m is None else f"{r.mae_m:.2f} ± {r.std_m:.2f}"
+        lines.append(f"| {r.masks} | {r.method} | {r.altitude_m:.0f} | {r.n} | {mae} | "
+                     f"{_fmt(r.median_m)} | {_fmt(r.median_px)} | {_fmt(r.p95_m)} | {share} | "
+                     f"{r.missed} | {r.false} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_dir: Path) -> list[Path]:
+    """The paper's two figures: box plot of |error| per altitude, bar plot of MAE ± std;
+    one box / bar per configuration at each altitude."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    configs = sorted({(r.masks, r.method) for r in results})
+    altitudes = sorted({r.altitude_m for r in results})
+    width = 0.8 / max(1, len(configs))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    paths = []
+
+    fig, ax = plt.subplots(figsize=(max(8, 1.1 * len(altitudes) * max(1, len(configs)) ** 0.5), 4.5))
+    for c, (masks, method) in enumerate(configs):
+        data = [[r.abs_error_m for r in results if r.kind == "estimate" and r.masks == masks
+                 and r.method == method and r.altitude_m == a] for a in altitudes]
+        positions = np.arange(len(altitudes)) + (c - (len(configs) - 1) / 2) * width
+        keep = [i for i, d in enumerate(data) if d]
+        if not keep:
+            continue
+        bp = ax.boxplot([data[i] for i in keep], positions=positions[keep], widths=width * 0.85,
+                        showfliers=True, patch_artist=True, flierprops={"markersize": 2})
+        for patch in bp["boxes"]:
+            patch.set_facecolor(colours[c % len(colours)])
+            patch.set_alpha(0.6)
+        ax.plot([], [], color=colours[c % len(colours)], lw=6, alpha=0.6, label=f"{masks}, {method}")
+    ax.set_xticks(np.arange(len(altitudes)), [f"{a:.0f}" for a in altitudes])
+    ax.set_xlabel("drone height above water (m)")
+    ax.set_ylabel("absolute distance error (m)")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Absolute distance error per section")
+    fig.tight_layout()
+    paths.append(out_dir / "distance_error_box.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(max(8, 1.1 * len(altitudes) * max(1, len(configs)) ** 0.5), 4.5))
+    for c, (masks, method) in enumerate(configs):
+        sel = {r.altitude_m: r for r in rows if r.masks == masks and r.method == method}
+        mae = [sel[a].mae_m if a in sel and sel[a].mae_m is not None else np.nan for a in altitudes]
+        std = [sel[a].std_m if a in sel and sel[a].std_m is not None else np.nan for a in altitudes]
+        positions = np.arange(len(altitudes)) + (c - (len(configs) - 1) / 2) * width
+        ax.bar(positions, mae, width * 0.9, yerr=std, capsize=2, label=f"{masks}, {method}",
+               color=colours[c % len(colours)], alpha=0.8)
+    ax.set_xticks(np.arange(len(altitudes)), [f"{a:.0f}" for a in altitudes])
+    ax.set_xlabel("drone height above water (m)")
+    ax.set_ylabel("mean absolute error (m), ± std")
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Mean absolute distance error")
+    fig.tight_layout()
+    paths.append(out_dir / "distance_mae_bar.png")
+    fig.savefig(paths[-1], dpi=120)
+    plt.close(fig)
+    return paths
+
+
+def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
+    """Frame documents of a dataset (optionally one split of dataset.json), sorted."""
+    wanted = None
+    if split:
+        doc = json.loads((dataset / "dataset.json").read_text())
+        wanted = {stem for stem, s in doc.get("split", {}).items() if s == split}
+    frames = []
+    for path in sorted((dataset / "frames").glob("*.json")):
+        if wanted is not None and path.stem not in wanted:
+            continue
+        frames.append(json.loads(path.read_text()))
+    return frames
+
+
+def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
+    """CSV of every estimate, summary JSON and Markdown, and the two plots."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = summarise(results)
+    write_csv(results, out_dir / "sections.csv")
+    (out_dir / "summary.json").write_text(json.dumps([asdict(r) for r in rows], indent=1) + "\n")
+    (out_dir / "summary.md").write_text(markdown_table(rows))
+    plots = plot_errors(results, rows, out_dir) if results else []
+    return {"rows": rows, "plots": plots}

@@ -1,0 +1,458 @@
+"""``harborsight simulate``: render a dataset (design.md layout) with Blender, resumably.
+
+Frame ``i`` of a dataset with seed ``S`` is a pure function of ``(S, i)`` and the parameters:
+its scene comes from ``numpy.random.default_rng([S, i])``. A re-run skips frames whose
+``frames/NNNNNN.json`` exists (written last, atomically), so an interrupted run resumes and a
+larger ``--n`` extends a dataset. Workers are separate processes, each holding one Blender
+session; ``--scheduler`` sends chunks of frames to a Dask cluster instead, whose tasks render
+in a child process and return the files as bytes (no shared disk needed).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from harborsight import __version__
+from harborsight.errors import HarborsightError, InputError
+from harborsight.sim.cameras import CAMERA_PRESETS
+from harborsight.sim.layout import SCENARIOS, HarbourScene, generate_vessel, sample_harbour_scene
+from harborsight.vessel.spec import VesselSpec, load_vessel_spec
+
+CLASSES = {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"}
+SUBDIRS = ("images", "labels", "instances", "frames")
+#: vessels of the pool are drawn from this stream of the dataset seed
+VESSEL_STREAM = 2**31 - 1
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Everything a frame depends on besides its index (stored in ``dataset.json``)."""
+
+    seed: int
+    preset: str = "default"
+    altitudes_m: tuple[float, ...] = tuple(float(a) for a in range(30, 151, 10))
+    camera: str = "dji-mavic3"
+    max_tilt_deg: float = 15.0
+    vessel_spec: str | None = None        # a user's vessel.yaml (with hull_mesh)
+    vessel_pool: int = 6                  # procedural vessels when no spec is given
+    scenario: str | None = None           # a scenario, or a comma list cycled by frame index
+    split: str | None = None              # put every frame in this split (e.g. test)
+    val_fraction: float = 0.1
+    origin_lat_lon: tuple[float, float] = (56.1517, 10.2283)
+
+    def validate(self) -> None:
+        from harborsight.sim.blender import PRESETS
+
+        if self.preset not in PRESETS:
+            raise InputError(None, "--preset", f"unknown preset {self.preset!r}; "
+                             f"choose from {', '.join(PRESETS)}")
+        if self.camera not in CAMERA_PRESETS:
+            raise InputError(None, "--camera", f"unknown camera {self.camera!r}; "
+                             f"choose from {', '.join(CAMERA_PRESETS)}")
+        if not self.altitudes_m or min(self.altitudes_m) <= 0:
+            raise InputError(None, "--altitudes", "need at least one positive altitude")
+        for name in (self.scenario or "").split(","):
+            if name and name not in SCENARIOS:
+                raise InputError(None, "--scenario", f"unknown scenario {name!r}; "
+                                 f"choose from {', '.join(SCENARIOS)}")
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> SimulationConfig:
+        doc = dict(doc)
+        for key in ("altitudes_m", "origin_lat_lon"):
+            if key in doc:
+                doc[key] = tuple(doc[key])
+        return cls(**doc)
+
+    def intrinsics(self):
+        from harborsight.sim.blender import PRESETS
+
+        preset = PRESETS[self.preset]
+        return CAMERA_PRESETS[self.camera].intrinsics(preset.width, preset.height)
+
+
+def parse_altitudes(text: str) -> tuple[float, ...]:
+    """``30:150:10`` (start:stop:step, stop included), ``40,80,120`` or ``60``."""
+    try:
+        if ":" in text:
+            start, stop, step = (float(v) for v in text.split(":"))
+            if step <= 0 or stop < start:
+                raise ValueError
+            return tuple(float(a) for a in np.arange(start, stop + step / 2, step))
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(None, "--altitudes", f"expected start:stop:step or a list, got {text!r}") from None
+
+
+def stem_of(index: int) -> str:
+    return f"{index:06d}"
+
+
+def split_of(config: SimulationConfig, index: int) -> str:
+    """``train`` or ``val`` by a low-discrepancy sequence (golden ratio), or the forced split."""
+    if config.split:
+        return config.split
+    return "val" if (index * 0.6180339887498949) % 1.0 < config.val_fraction else "train"
+
+
+# ---------------------------------------------------------------------------- vessels
+
+
+def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
+    """Write the vessel(s) under ``vessels/`` (idempotent); returns name -> vessel.yaml."""
+    vessels_dir = out_dir / "vessels"
+    if config.vessel_spec:
+        src = Path(config.vessel_spec)
+        if not src.is_absolute():  # relative to the dataset (a vessel shipped inside it)
+            src = out_dir / src
+        spec = load_vessel_spec(src)
+        if spec.mesh is None:
+            raise InputError(src, "hull_mesh", "the simulator renders the vessel's mesh: give one")
+        dst = vessels_dir / spec.name
+        if not (dst / "vessel.yaml").is_file():
+            shutil.copytree(src.parent, dst, dirs_exist_ok=True)
+            if src.name != "vessel.yaml":
+                shutil.copy(src, dst / "vessel.yaml")
+        return {spec.name: dst / "vessel.yaml"}
+    paths = {}
+    for k in range(config.vessel_pool):
+        name = f"sim-vessel-{k:02d}"
+        target = vessels_dir / name
+        if not (target / "vessel.yaml").is_file():
+            generate_vessel(np.random.default_rng([config.seed, VESSEL_STREAM, k]), name, target)
+        paths[name] = target / "vessel.yaml"
+    return paths
+
+
+def scenario_of(config: SimulationConfig, index: int) -> str | None:
+    """The forced scenario of frame ``index`` (a comma list cycles), or None (drawn)."""
+    if not config.scenario:
+        return None
+    names = config.scenario.split(",")
+    return names[index % len(names)]
+
+
+def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSpec]
+               ) -> HarbourScene:
+    """The scene of frame ``index``: a pure function of the seed, the index and the config."""
+    rng = np.random.default_rng([config.seed, index])
+    names = sorted(vessels)
+    name = names[int(rng.integers(len(names)))]
+    altitude = config.altitudes_m[index % len(config.altitudes_m)]
+    scene = sample_harbour_scene(
+        vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, index), name=stem_of(index))
+    from harborsight.geometry.geodesy import GeoOrigin
+
+    scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
+    return scene
+
+
+# ---------------------------------------------------------------------------- one frame
+
+
+def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: HarbourScene,
+                         rng: np.random.Generator) -> np.ndarray:
+    """Airlight haze by range and sensor noise.
+
+    Haze: ``I' = I·t + A·(1 − t)`` with transmission ``t = (1 − haze)^(range / 100 m)``
+    (Koschmieder), ``A`` the haze colour; noise: Gaussian, ``noise_sigma`` grey levels.
+    """
+    env = scene.environment
+    t = np.power(1.0 - env.haze, np.minimum(range_m, 2_000.0) / 100.0)[..., None]
+    airlight = 255.0 * np.array(env.haze_rgb[::-1])
+    out = image_bgr.astype(np.float32) * t + airlight * (1.0 - t)
+    out += rng.normal(0.0, env.noise_sigma, out.shape)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def class_mask(instances: np.ndarray, class_of_instance: dict[int, int]) -> np.ndarray:
+    """Class labels (design.md) from instance ids; unknown ids and the sky are ``255``."""
+    lookup = np.full(65536, 255, np.uint8)
+    lookup[0] = 0
+    for instance, cls in class_of_instance.items():
+        lookup[instance] = cls
+    return lookup[instances]
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _encode_png(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+@dataclass
+class FrameResult:
+    index: int
+    seconds: float
+    label_agreement: float | None = None
+    scenario: str | None = None
+    error: str | None = None
+    files: dict[str, bytes] = field(default_factory=dict, repr=False)
+
+
+class FrameRenderer:
+    """Renders frames of one dataset in this process (one Blender session)."""
+
+    def __init__(self, out_dir: Path, config: SimulationConfig, threads: int | None = None) -> None:
+        from harborsight.sim.blender import PRESETS, BlenderRenderer
+
+        self.out_dir = out_dir
+        self.config = config
+        # the vessels were written by simulate() (or shipped with a Dask task)
+        paths = sorted((out_dir / "vessels").glob("*/vessel.yaml"))
+        if not paths:
+            raise InputError(out_dir / "vessels", None, "no vessel.yaml found")
+        self.vessels = {p.parent.name: load_vessel_spec(p) for p in paths}
+        self.renderer = BlenderRenderer(PRESETS[config.preset], threads)
+
+    def render_files(self, index: int) -> FrameResult:
+        """Render frame ``index`` and return its files (relative path -> bytes)."""
+        from harborsight.sim.raycast import check_labels, ray_cast_ids, scene_triangles
+
+        start = time.perf_counter()
+        stem = stem_of(index)
+        scene = plan_frame(self.config, index, self.vessels)
+        rendered = self.renderer.render(scene)
+        geometry = scene.geometry()
+        triangles, ids = scene_triangles(scene, rendered.ocean_triangles)
+        cast = ray_cast_ids(geometry, triangles, ids)
+        agreement = check_labels(rendered.instances, cast, f"frame {stem}")
+        rng = np.random.default_rng([self.config.seed, index, 1])
+        image = apply_camera_effects(rendered.image_bgr, cast.range_m, scene, rng)
+        labels = class_mask(rendered.instances, scene.class_of_instance)
+        instances = rendered.instances.copy()
+        instances[instances == 65535] = 0  # design.md: 0 = water/no object; sky is labels 255
+        meta = scene.metadata(f"{stem}.png").to_dict()
+        meta["vessel_spec"] = f"vessels/{scene.vessel_dir_name}/vessel.yaml"
+        meta["ground_truth"] = scene.ground_truth()
+        meta["simulation"] = {
+            "generator": f"harborsight.sim {__version__}", "seed": self.config.seed,
+            "index": index, "preset": self.config.preset, "camera": self.config.camera,
+            "label_agreement": round(agreement, 6), "environment": asdict(scene.environment),
+            "split": split_of(self.config, index),
+        }
+        files = {
+            f"images/{stem}.png": _encode_png(image),
+            f"labels/{stem}.png": _encode_png(labels),
+            f"instances/{stem}.png": _encode_png(instances),
+            f"frames/{stem}.json": (json.dumps(meta, indent=1) + "\n").encode(),
+        }
+        return FrameResult(index, time.perf_counter() - start, agreement, scene.scenario,
+                           files=files)
+
+    def render_to_disk(self, index: int) -> FrameResult:
+        try:
+            result = self.render_files(index)
+        except HarborsightError as exc:
+            return FrameResult(index, 0.0, error=str(exc))
+        write_frame_files(self.out_dir, result.files)
+        result.files = {}
+        return result
+
+
+def write_frame_files(out_dir: Path, files: dict[str, bytes]) -> None:
+    """Write a frame's files; the frame JSON goes last so it marks a finished frame."""
+    for rel in sorted(files, key=lambda r: r.startswith("frames/")):
+        path = out_dir / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _atomic_write_bytes(path, files[rel])
+
+
+# ---------------------------------------------------------------------------- workers
+
+_worker: FrameRenderer | None = None
+
+
+def _init_worker(out_dir: str, config_doc: dict, threads: int) -> None:
+    global _worker
+    _worker = FrameRenderer(Path(out_dir), SimulationConfig.from_dict(config_doc), threads)
+
+
+def _worker_render(index: int) -> FrameResult:
+    assert _worker is not None
+    return _worker.render_to_disk(index)
+
+
+def render_chunk_files(config_doc: dict, indices: list[int], vessel_files: dict[str, bytes]
+                       ) -> list[FrameResult]:
+    """A Dask task: render frames in a fresh child process (Blender wants its main thread)
+    inside a scratch dataset, and return their files as bytes."""
+    with tempfile.TemporaryDirectory(prefix="harborsight-sim-") as tmp:
+        root = Path(tmp)
+        write_frame_files(root, vessel_files)
+        cmd = [sys.executable, "-m", "harborsight.sim.dataset", str(root),
+               json.dumps(config_doc), ",".join(str(i) for i in indices)]
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if proc.returncode != 0:
+            tail = proc.stderr.strip().splitlines()[-5:]
+            return [FrameResult(i, 0.0, error="render process failed: " + " | ".join(tail))
+                    for i in indices]
+        summaries = json.loads((root / "chunk.json").read_text())
+        results = []
+        for doc in summaries:
+            result = FrameResult(**doc)
+            if result.error is None:
+                stem = stem_of(result.index)
+                result.files = {f"{sub}/{stem}.{'json' if sub == 'frames' else 'png'}":
+                                (root / sub / f"{stem}.{'json' if sub == 'frames' else 'png'}").read_bytes()
+                                for sub in SUBDIRS}
+            results.append(result)
+        return results
+
+
+def _chunk_main(argv: list[str]) -> None:
+    """Child process of :func:`render_chunk_files`: ``ROOT CONFIG_JSON 1,2,3``."""
+    root, config_doc, indices = Path(argv[0]), json.loads(argv[1]), argv[2]
+    renderer = FrameRenderer(root, SimulationConfig.from_dict(config_doc))
+    summaries = []
+    for index in (int(i) for i in indices.split(",")):
+        r = renderer.render_to_disk(index)
+        summaries.append({"index": r.index, "seconds": r.seconds,
+                          "label_agreement": r.label_agreement, "scenario": r.scenario,
+                          "error": r.error})
+    (root / "chunk.json").write_text(json.dumps(summaries))
+
+
+# ---------------------------------------------------------------------------- the run
+
+
+@dataclass
+class SimulationSummary:
+    rendered: list[FrameResult]
+    skipped: int
+    failed: list[FrameResult]
+    seconds: float
+
+
+def _check_or_write_dataset_json(out_dir: Path, config: SimulationConfig) -> None:
+    path = out_dir / "dataset.json"
+    if path.is_file():
+        doc = json.loads(path.read_text())
+        old = doc.get("parameters", {})
+        new = config.to_dict()
+        diff = sorted(k for k in new if old.get(k) != new[k])
+        if diff:
+            raise InputError(path, "parameters", "the dataset was made with other parameters ("
+                             + ", ".join(f"{k}: {old.get(k)!r} vs {new[k]!r}" for k in diff)
+                             + "); use another --out or the same parameters")
+
+
+def _blender_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("bpy")
+    except Exception:  # metadata missing: report what we know
+        return "unknown"
+
+
+def _dataset_doc(out_dir: Path, config: SimulationConfig) -> dict:
+    stems = sorted(p.stem for p in (out_dir / "frames").glob("*.json"))
+    return {
+        "generator": f"harborsight.sim {__version__} (Blender {_blender_version()}, Cycles CPU)",
+        "seed": config.seed,
+        "parameters": config.to_dict(),
+        "camera": config.intrinsics().to_dict(),
+        "camera_source": CAMERA_PRESETS[config.camera].source,
+        "classes": CLASSES,
+        "vessels": sorted(p.parent.name for p in (out_dir / "vessels").glob("*/vessel.yaml")),
+        "split": {stem: split_of(config, int(stem)) for stem in stems},
+    }
+
+
+def _save_dataset_json(out_dir: Path, config: SimulationConfig) -> None:
+    _atomic_write_bytes(out_dir / "dataset.json",
+                        (json.dumps(_dataset_doc(out_dir, config), indent=1) + "\n").encode())
+
+
+def simulate(
+    out_dir: Path, n_frames: int, config: SimulationConfig, *, workers: int = 1,
+    scheduler: str | None = None, chunk_size: int = 4,
+    on_frame: Callable[[FrameResult], None] | None = None,
+) -> SimulationSummary:
+    """Render frames ``0 .. n_frames-1`` of the dataset into ``out_dir`` (resuming)."""
+    config.validate()
+    start = time.perf_counter()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _check_or_write_dataset_json(out_dir, config)
+    prepare_vessels(out_dir, config)
+    _save_dataset_json(out_dir, config)
+    pending = [i for i in range(n_frames)
+               if not (out_dir / "frames" / f"{stem_of(i)}.json").is_file()]
+    skipped = n_frames - len(pending)
+    rendered: list[FrameResult] = []
+    failed: list[FrameResult] = []
+
+    def record(result: FrameResult) -> None:
+        (failed if result.error else rendered).append(result)
+        if on_frame:
+            on_frame(result)
+
+    try:
+        if not pending:
+            pass
+        elif scheduler:
+            for result in _run_dask(out_dir, config, pending, scheduler, chunk_size):
+                record(result)
+        elif workers <= 1:
+            renderer = FrameRenderer(out_dir, config)
+            for index in pending:
+                record(renderer.render_to_disk(index))
+        else:
+            import multiprocessing as mp
+
+            threads = max(1, (os.cpu_count() or 1) // workers)
+            ctx = mp.get_context("spawn")
+            with ctx.Pool(workers, initializer=_init_worker,
+                          initargs=(str(out_dir), config.to_dict(), threads)) as pool:
+                for result in pool.imap_unordered(_worker_render, pending):
+                    record(result)
+    finally:
+        _save_dataset_json(out_dir, config)
+    return SimulationSummary(rendered, skipped, failed, time.perf_counter() - start)
+
+
+def _run_dask(out_dir: Path, config: SimulationConfig, pending: list[int], scheduler: str,
+              chunk_size: int) -> Iterator[FrameResult]:
+    from distributed import Client, as_completed
+
+    vessel_files = {str(p.relative_to(out_dir)): p.read_bytes()
+                    for p in (out_dir / "vessels").rglob("*") if p.is_file()}
+    chunks = [pending[i:i + chunk_size] for i in range(0, len(pending), chunk_size)]
+    with Client(scheduler) as client:
+        shared = client.scatter(vessel_files, broadcast=True)
+        futures = [client.submit(render_chunk_files, config.to_dict(), chunk, shared,
+                                 pure=False) for chunk in chunks]
+        for future in as_completed(futures):
+            for result in future.result():
+                if result.error is None:
+                    write_frame_files(out_dir, result.files)
+                    result.files = {}
+                yield result
+
+
+if __name__ == "__main__":
+    _chunk_main(sys.argv[1:])

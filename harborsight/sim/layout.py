@@ -1,0 +1,601 @@
+"""Seeded 3-D harbour scenes for the Blender simulator (no bpy here).
+
+A :class:`HarbourScene` is plain data: triangle meshes in the world frame W (ENU metres, origin
+at the vessel's GPS antenna on the water plane, z up), one material key per part, an instance
+id and class per object, the camera pose, and the environment (sun, sky, water, waves, haze).
+:mod:`harborsight.sim.blender` turns it into pictures; the same meshes give the ground truth
+(vertical footprints, :func:`HarbourScene.ground_truth`) and the ray-cast label check
+(:mod:`harborsight.sim.raycast`).
+
+Objects are built in a local right-handed frame (x forward, y left, z up) and placed at a
+vessel-frame position ``(x_bow, y_starboard)`` with a heading relative to the vessel's bow
+(clockwise), which maps local x to the ENU bearing ``heading + relative heading``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+import trimesh
+from shapely.geometry import MultiPoint, Polygon
+
+from harborsight.frame import FrameGeometry, FrameMetadata
+from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+from harborsight.geometry.rotations import enu_from_vessel_rotation, rot_z
+from harborsight.sim.ground_truth import frame_ground_truth
+from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
+from harborsight.vessel.spec import VesselSpec
+
+WATER, SHIP, OBSTACLE = 0, 1, 2
+VESSEL_INSTANCE = 1
+
+
+@dataclass(frozen=True)
+class Material:
+    """A Principled-BSDF material: linear RGB, roughness, and procedural texture strength."""
+
+    rgb: tuple[float, float, float]
+    roughness: float = 0.6
+    metallic: float = 0.0
+    texture: float = 0.15        # amplitude of the noise that varies the colour
+    texture_scale: float = 0.5   # noise frequency, per metre
+
+
+@dataclass
+class Part:
+    mesh: trimesh.Trimesh        # world frame W, metres
+    material: str
+
+
+@dataclass
+class SceneObject:
+    name: str
+    kind: str
+    class_id: int
+    instance_id: int
+    parts: list[Part]
+
+    def footprint(self) -> Polygon:
+        """Vertical projection of the object above the water plane (z >= 0).
+
+        Each part is convex, so its projection is the convex hull of its vertices above
+        the water and of its cut by the plane z = 0; the object's is their union. What lies
+        under water (the toe of a rubble mound) is neither seen by the camera nor counted.
+        """
+        polys = []
+        for part in self.parts:
+            vertices = np.asarray(part.mesh.vertices)
+            points = [vertices[vertices[:, 2] >= 0.0, :2]]
+            if vertices[:, 2].min() < 0.0 < vertices[:, 2].max():
+                cut = trimesh.intersections.mesh_plane(part.mesh, (0, 0, 1), (0, 0, 0))
+                points.append(np.asarray(cut).reshape(-1, 3)[:, :2])
+            points = np.vstack(points)
+            if len(points) >= 3:
+                hull = MultiPoint(points).convex_hull
+                if isinstance(hull, Polygon):
+                    polys.append(hull)
+        return shapely.union_all(polys)
+
+
+@dataclass(frozen=True)
+class Environment:
+    """The domain-randomised look of a frame."""
+
+    sun_elevation_deg: float = 45.0
+    sun_azimuth_deg: float = 180.0      # clockwise from north
+    sun_strength: float = 3.0
+    sky_turbidity: float = 3.0
+    water_rgb: tuple[float, float, float] = (0.02, 0.06, 0.07)
+    water_roughness: float = 0.08
+    wave_scale: float = 0.5             # Ocean modifier amplitude multiplier
+    wind_mps: float = 6.0
+    choppiness: float = 1.0
+    foam_coverage: float = 0.3
+    ripple_strength: float = 0.3        # bump of the small ripples
+    ocean_seed: int = 0
+    haze: float = 0.1                   # share of the airlight veil at 100 m
+    haze_rgb: tuple[float, float, float] = (0.75, 0.78, 0.82)
+    exposure_ev: float = 0.0
+    noise_sigma: float = 2.0            # sensor noise, 8-bit grey levels
+
+
+@dataclass
+class HarbourScene:
+    """Everything one frame needs: geometry, materials, camera, environment."""
+
+    name: str
+    vessel: VesselSpec
+    vessel_dir_name: str
+    vessel_heading_deg: float
+    objects: list[SceneObject]          # the vessel of interest is ``objects[0]``
+    materials: dict[str, Material]
+    intrinsics: CameraIntrinsics
+    uav_enu: np.ndarray
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    environment: Environment
+    scenario: str
+    gap_m: float | None
+    origin: GeoOrigin = field(default_factory=lambda: GeoOrigin(56.1517, 10.2283, 0.0))
+    timestamp: str | None = None
+
+    def metadata(self, image: str) -> FrameMetadata:
+        lat, lon, alt = enu_to_geodetic(np.asarray(self.uav_enu, float), self.origin)
+        return FrameMetadata(
+            image=image, camera=self.intrinsics,
+            uav_lat_deg=float(lat), uav_lon_deg=float(lon), uav_alt_m=float(alt),
+            yaw_deg=self.yaw_deg, pitch_deg=self.pitch_deg, roll_deg=self.roll_deg,
+            vessel_lat_deg=self.origin.lat_deg, vessel_lon_deg=self.origin.lon_deg,
+            vessel_heading_deg=self.vessel_heading_deg, water_level_m=self.origin.alt_m,
+            timestamp=self.timestamp,
+        )
+
+    def geometry(self) -> FrameGeometry:
+        return FrameGeometry.from_metadata(self.metadata("frame.png"))
+
+    @property
+    def class_of_instance(self) -> dict[int, int]:
+        return {obj.instance_id: obj.class_id for obj in self.objects}
+
+    def obstacle_footprints(self) -> list[Polygon]:
+        return [obj.footprint() for obj in self.objects if obj.instance_id != VESSEL_INSTANCE]
+
+    def ground_truth(self) -> dict:
+        """design.md ``ground_truth``: per-section exact distances and the true poses."""
+        per_section = frame_ground_truth(self.geometry(), self.vessel, self.obstacle_footprints())
+        return {
+            "sections": per_section,
+            "n_sections": len(per_section),
+            "vessel_pose": {"lat": self.origin.lat_deg, "lon": self.origin.lon_deg,
+                            "heading_deg": self.vessel_heading_deg},
+            "uav_enu_m": [float(v) for v in self.uav_enu],
+            "scenario": self.scenario,
+            "gap_m": self.gap_m,
+        }
+
+
+# ------------------------------------------------------------------------ primitives
+
+
+def _box(lx: float, ly: float, lz: float, x: float = 0.0, y: float = 0.0,
+         z_bottom: float = 0.0) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(extents=(lx, ly, lz))
+    mesh.apply_translation((x, y, z_bottom + lz / 2))
+    return mesh
+
+
+def _cylinder(radius: float, height: float, x: float = 0.0, y: float = 0.0,
+              z_bottom: float = 0.0, sections: int = 12) -> trimesh.Trimesh:
+    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
+    mesh.apply_translation((x, y, z_bottom + height / 2))
+    return mesh
+
+
+class _Builder:
+    """Collects objects and materials; places local meshes in the world."""
+
+    def __init__(self, rng: np.random.Generator, heading_deg: float) -> None:
+        self.rng = rng
+        self.heading_deg = heading_deg
+        self.r_enu_v = enu_from_vessel_rotation(math.radians(heading_deg))
+        self.objects: list[SceneObject] = []
+        self.materials: dict[str, Material] = {}
+        self.next_instance = VESSEL_INSTANCE + 1
+
+    def material(self, name: str, mat: Material) -> str:
+        self.materials[name] = mat
+        return name
+
+    def place(self, mesh: trimesh.Trimesh, x_v: float, y_v: float, rel_heading_deg: float = 0.0
+              ) -> trimesh.Trimesh:
+        """Local (x fwd, y left, z up) -> W: rotate to bearing heading+rel, move to (x_v, y_v)."""
+        bearing = math.radians(self.heading_deg + rel_heading_deg)
+        transform = np.eye(4)
+        transform[:3, :3] = rot_z(math.pi / 2 - bearing)
+        transform[:3, 3] = self.r_enu_v @ np.array([x_v, y_v, 0.0])
+        out = mesh.copy()
+        out.apply_transform(transform)
+        return out
+
+    def add(self, name: str, kind: str, class_id: int, parts: list[tuple[trimesh.Trimesh, str]],
+            x_v: float, y_v: float, rel_heading_deg: float = 0.0) -> SceneObject:
+        obj = SceneObject(name, kind, class_id, self.next_instance, [
+            Part(self.place(mesh, x_v, y_v, rel_heading_deg), mat) for mesh, mat in parts])
+        self.next_instance += 1
+        self.objects.append(obj)
+        return obj
+
+
+# ------------------------------------------------------------------------ palettes
+
+_HULL_RGB = [(0.35, 0.02, 0.02), (0.02, 0.05, 0.25), (0.01, 0.12, 0.03), (0.02, 0.02, 0.02),
+             (0.7, 0.7, 0.68), (0.6, 0.25, 0.01), (0.15, 0.04, 0.2), (0.03, 0.2, 0.35),
+             (0.55, 0.45, 0.02)]
+_DECK_RGB = [(0.25, 0.06, 0.04), (0.12, 0.16, 0.1), (0.3, 0.3, 0.28), (0.18, 0.12, 0.06)]
+_CONTAINER_RGB = [(0.5, 0.05, 0.02), (0.02, 0.12, 0.4), (0.05, 0.25, 0.06), (0.6, 0.3, 0.02),
+                  (0.6, 0.6, 0.6), (0.3, 0.02, 0.02), (0.02, 0.3, 0.3), (0.45, 0.45, 0.05)]
+_WATER_RGB = [(0.015, 0.05, 0.06), (0.02, 0.07, 0.05), (0.03, 0.05, 0.04), (0.01, 0.03, 0.06),
+              (0.04, 0.06, 0.04), (0.02, 0.04, 0.045)]
+
+
+def _jitter(rgb: tuple[float, float, float], rng: np.random.Generator, amount: float = 0.15
+            ) -> tuple[float, float, float]:
+    scale = rng.uniform(1 - amount, 1 + amount, 3)
+    return tuple(float(np.clip(c * s, 0.0, 1.0)) for c, s in zip(rgb, scale, strict=True))
+
+
+def _grey(rgb: tuple[float, float, float], rng: np.random.Generator, amount: float
+          ) -> tuple[float, float, float]:
+    """Brightness jitter with a faint tint only (concrete, rock, steel stay grey)."""
+    scale = rng.uniform(1 - amount, 1 + amount) * rng.uniform(0.96, 1.04, 3)
+    return tuple(float(np.clip(c * s, 0.0, 1.0)) for c, s in zip(rgb, scale, strict=True))
+
+
+def random_hull_parameters(rng: np.random.Generator, length_m: float) -> HullParameters:
+    """A plausible hull of the given length (beam, draft, freeboard, deckhouse drawn)."""
+    beam = length_m * rng.uniform(0.17, 0.3)
+    start = rng.uniform(0.1, 0.55)
+    return HullParameters(
+        length_m=length_m, beam_m=beam, draft_m=max(0.5, 0.09 * length_m),
+        freeboard_m=float(np.clip(length_m * rng.uniform(0.04, 0.08), 0.5, 6.0)),
+        bow_fraction=rng.uniform(0.18, 0.4), flare=rng.uniform(0.0, 0.18),
+        deckhouse=(start, min(start + rng.uniform(0.15, 0.35), 0.8), rng.uniform(0.45, 0.8),
+                   float(np.clip(length_m * rng.uniform(0.06, 0.15), 1.5, 12.0))),
+    )
+
+
+# ------------------------------------------------------------------------ objects
+
+
+def _ship_parts(b: _Builder, params: HullParameters, tag: str) -> list[tuple[trimesh.Trimesh, str]]:
+    """A moored ship in local axes, centred on its midship: hull, deck, deckhouse, mast."""
+    rng = b.rng
+    mesh = generate_hull_mesh(params)
+    # generate_hull_mesh returns hull + deckhouse concatenated; split them for materials
+    pieces = mesh.split(only_watertight=False)
+    pieces = sorted(pieces, key=lambda m: -m.extents[0])
+    hull, rest = pieces[0], pieces[1:]
+    hull_mat = b.material(f"{tag}-hull", Material(_jitter(_HULL_RGB[rng.integers(len(_HULL_RGB))],
+                                                          rng), rng.uniform(0.35, 0.7), 0.1, 0.12))
+    house_mat = b.material(f"{tag}-house", Material(
+        _jitter((0.75, 0.74, 0.7), rng, 0.1) if rng.random() < 0.75
+        else _jitter(_HULL_RGB[rng.integers(len(_HULL_RGB))], rng), rng.uniform(0.3, 0.6), 0.0, 0.06))
+    deck_mat = b.material(f"{tag}-deck", Material(_jitter(_DECK_RGB[rng.integers(len(_DECK_RGB))],
+                                                          rng), 0.8, 0.0, 0.25, 1.5))
+    shift = np.array([-params.length_m / 2, 0.0, 0.0])
+    parts = [(hull, hull_mat)] + [(m, house_mat) for m in rest]
+    # deck plate: the hull's top cut shrunk a little, a few cm proud of the hull
+    top = hull.vertices[hull.vertices[:, 2] >= hull.vertices[:, 2].max() - 1e-6]
+    deck_poly = MultiPoint(top[:, :2]).convex_hull.buffer(-0.06 * params.beam_m)
+    if isinstance(deck_poly, Polygon) and not deck_poly.is_empty:
+        ring = np.asarray(deck_poly.exterior.coords)[:-1]
+        deck = trimesh.convex.convex_hull(np.vstack((
+            np.column_stack((ring, np.full(len(ring), params.freeboard_m))),
+            np.column_stack((ring, np.full(len(ring), params.freeboard_m + 0.05))))))
+        parts.append((deck, deck_mat))
+    if params.length_m > 15 and rng.random() < 0.7:
+        start, end = params.deckhouse[:2]
+        x_mast = 0.5 * (start + end) * params.length_m
+        parts.append((_cylinder(0.12 + 0.004 * params.length_m, params.deckhouse[3] * 0.8,
+                                x_mast, 0.0, params.freeboard_m + params.deckhouse[3]), house_mat))
+    for mesh, _ in parts:
+        mesh.apply_translation(shift)
+    return parts
+
+
+def add_ship(b: _Builder, x_v: float, y_v: float, params: HullParameters,
+             rel_heading_deg: float, kind: str = "ship") -> SceneObject:
+    tag = f"{kind}{b.next_instance}"
+    return b.add(tag, kind, SHIP, _ship_parts(b, params, tag), x_v, y_v, rel_heading_deg)
+
+
+def max_half_beam(params: HullParameters) -> float:
+    """Half beam at the deck (flare included), metres."""
+    return 0.5 * params.beam_m * (1.0 + params.flare)
+
+
+def add_quay(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float, tag: str,
+             fender_radius_m: float, depth_m: float = 60.0, length_m: float = 500.0
+             ) -> list[SceneObject]:
+    """A quay whose water-side face runs through vessel-frame (x_v, y_v) along the bearing
+    ``rel_heading_deg`` from the bow, land on the right of that direction, water on the left;
+    fenders on its face, bollards, container stacks, a shed and a crane on it."""
+    rng = b.rng
+    rel = rel_heading_deg
+    height = rng.uniform(1.2, 3.0)
+    concrete = b.material(f"{tag}-concrete", Material(_grey((0.32, 0.31, 0.29), rng, 0.35),
+                                                      0.85, 0.0, 0.3, 0.3))
+    # local frame: x along the face, y (left) toward the water
+    slab = _box(length_m, depth_m, height + 4.0, 0.0, -depth_m / 2, -4.0)
+    objects = [b.add(tag, "quay", OBSTACLE, [(slab, concrete)], x_v, y_v, rel)]
+
+    def at(x_local: float, y_local: float) -> tuple[float, float]:
+        """Local quay coordinates to the vessel frame: local x is (cos a, sin a) in
+        (bow, starboard), local y (its left) is (sin a, -cos a)."""
+        a = math.radians(rel)
+        return (x_v + x_local * math.cos(a) + y_local * math.sin(a),
+                y_v + x_local * math.sin(a) - y_local * math.cos(a))
+
+    rubber = b.material(f"{tag}-rubber", Material((0.015, 0.015, 0.015), 0.9, 0.0, 0.05))
+    spacing = rng.uniform(8.0, 16.0)
+    radius = fender_radius_m
+    offset = rng.uniform(0, spacing)
+    for x in np.arange(-120.0 + offset, 120.0, spacing):
+        fender = _cylinder(radius, height + 0.8, 0.0, 0.0, -0.8)
+        xv, yv = at(float(x), radius)
+        objects.append(b.add(f"{tag}-fender{len(objects)}", "fender", OBSTACLE,
+                             [(fender, rubber)], xv, yv, rel))
+    iron = b.material(f"{tag}-iron", Material(_jitter((0.05, 0.05, 0.06), rng), 0.5, 0.6, 0.1))
+    for x in np.arange(-120.0 + rng.uniform(0, 20), 120.0, rng.uniform(12.0, 25.0)):
+        xv, yv = at(float(x), -1.2)
+        bollard = _cylinder(0.3, 0.6, 0.0, 0.0, height, 10)
+        objects.append(b.add(f"{tag}-bollard{len(objects)}", "bollard", OBSTACLE,
+                             [(bollard, iron)], xv, yv, rel))
+    # containers in stacks, sheds and a crane, set back from the edge
+    for _ in range(int(rng.integers(2, 10))):
+        x = rng.uniform(-110, 110)
+        y = -rng.uniform(8.0, depth_m - 8.0)
+        n_high = int(rng.integers(1, 4))
+        colour = _CONTAINER_RGB[rng.integers(len(_CONTAINER_RGB))]
+        mat = b.material(f"{tag}-cont{len(objects)}", Material(_jitter(colour, rng), 0.5, 0.3,
+                                                               0.2, 1.2))
+        length = 12.19 if rng.random() < 0.6 else 6.06
+        stack = [_box(length, 2.44, 2.59, 0.0, 0.0, height + 2.59 * k) for k in range(n_high)]
+        xv, yv = at(x, y)
+        objects.append(b.add(f"{tag}-containers{len(objects)}", "containers", OBSTACLE,
+                             [(m, mat) for m in stack], xv, yv, rel + rng.choice([0.0, 90.0])))
+    if rng.random() < 0.6:
+        shed_mat = b.material(f"{tag}-shed", Material(_grey((0.4, 0.42, 0.45), rng, 0.3), 0.5,
+                                                      0.4, 0.1, 0.8))
+        lx, ly, lz = rng.uniform(20, 60), rng.uniform(12, 25), rng.uniform(6, 12)
+        xv, yv = at(rng.uniform(-90, 90), -(10 + ly / 2 + rng.uniform(0, 15)))
+        objects.append(b.add(f"{tag}-shed", "shed", OBSTACLE,
+                             [(_box(lx, ly, lz, 0, 0, height), shed_mat)], xv, yv, rel))
+    if rng.random() < 0.5:
+        crane_mat = b.material(f"{tag}-crane", Material(_jitter(
+            [(0.6, 0.35, 0.01), (0.5, 0.02, 0.02), (0.05, 0.15, 0.35)][rng.integers(3)], rng),
+            0.5, 0.5, 0.05))
+        gauge, span, tall = rng.uniform(10, 18), rng.uniform(12, 20), rng.uniform(20, 35)
+        legs = [_box(1.2, 1.2, tall, sx * span / 2, -4.0 - sy * gauge, height)
+                for sx in (-1, 1) for sy in (0, 1)]
+        beams = [_box(span + 1.2, 1.5, 1.5, 0, -4.0 - sy * gauge, height + tall) for sy in (0, 1)]
+        boom = _box(2.0, gauge + 22.0, 2.0, 0, -13.0 - gauge / 2, height + tall + 1.5)
+        xv, yv = at(rng.uniform(-80, 80), 0.0)
+        objects.append(b.add(f"{tag}-crane", "crane", OBSTACLE,
+                             [(m, crane_mat) for m in [*legs, *beams, boom]], xv, yv, rel))
+    return objects
+
+
+def add_buoy(b: _Builder, x_v: float, y_v: float) -> SceneObject:
+    rng = b.rng
+    colour = [(0.6, 0.01, 0.01), (0.01, 0.35, 0.03), (0.7, 0.5, 0.0), (0.02, 0.02, 0.02)][
+        rng.integers(4)]
+    mat = b.material(f"buoy{b.next_instance}", Material(_jitter(colour, rng), 0.4, 0.0, 0.05))
+    radius = rng.uniform(0.6, 1.4)
+    parts = [(_cylinder(radius, 1.2 + radius, 0, 0, -0.8, 16), mat)]
+    if rng.random() < 0.6:
+        cone = trimesh.creation.cone(radius * 0.7, 1.6 * radius, sections=12)
+        cone.apply_translation((0, 0, 0.4 + radius))
+        parts.append((cone, mat))
+    return b.add(f"buoy{b.next_instance}", "buoy", OBSTACLE, parts, x_v, y_v)
+
+
+def add_pier(b: _Builder, x_v: float, y_v: float, length_m: float, rel_heading_deg: float
+             ) -> SceneObject:
+    rng = b.rng
+    wood = b.material(f"pier{b.next_instance}", Material(_jitter((0.22, 0.15, 0.09), rng, 0.3),
+                                                         0.9, 0.0, 0.35, 2.0))
+    width = rng.uniform(2.5, 6.0)
+    deck = _box(length_m, width, 0.4, length_m / 2, 0, rng.uniform(0.8, 1.8))
+    piles = [_cylinder(0.25, 2.5, x, s * (width / 2 - 0.3), -1.0, 8)
+             for x in np.arange(1.0, length_m, 6.0) for s in (-1, 1)]
+    return b.add(f"pier{b.next_instance}", "pier", OBSTACLE,
+                 [(deck, wood), *((p, wood) for p in piles)], x_v, y_v, rel_heading_deg)
+
+
+def add_breakwater(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) -> SceneObject:
+    """A rubble-mound breakwater: a long trapezoid prism of rock."""
+    rng = b.rng
+    rock = b.material(f"rock{b.next_instance}", Material(_grey((0.2, 0.19, 0.17), rng, 0.3),
+                                                         0.95, 0.0, 0.5, 1.0))
+    top_w, slope, height, length = rng.uniform(4, 10), rng.uniform(1.2, 2.0), rng.uniform(2, 5), 300.0
+    half_base = top_w / 2 + slope * (height + 3.0)
+    section = [(-half_base, -3.0), (half_base, -3.0), (top_w / 2, height), (-top_w / 2, height)]
+    prism = trimesh.convex.convex_hull(np.array([(x, y, z) for x in (0.0, length)
+                                                 for y, z in section]))
+    return b.add(f"breakwater{b.next_instance}", "breakwater", OBSTACLE, [(prism, rock)],
+                 x_v, y_v, rel_heading_deg)
+
+
+# ------------------------------------------------------------------------ the vessel
+
+
+def generate_vessel(rng: np.random.Generator, name: str, out_dir) -> HullParameters:
+    """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) to ``out_dir``."""
+    import yaml  # local: only the dataset writer needs it
+
+    length = float(rng.uniform(18.0, 70.0))
+    params = random_hull_parameters(rng, length)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    generate_hull_mesh(params).export(out_dir / "hull.stl")
+    start, end, _, house_h = params.deckhouse
+    antenna = [round(0.5 * (start + end) * length, 3), 0.0,
+               round(params.freeboard_m + house_h, 3)]
+    (out_dir / "vessel.yaml").write_text(
+        f"# Procedural vessel from harborsight.sim (hullgen), {length:.1f} m. Mesh in naval CAD\n"
+        "# axes: origin at the transom on the centreline, z = 0 at the waterline.\n"
+        + yaml.safe_dump({"name": name, "hull_mesh": "hull.stl", "mesh_axes": ["bow", "port", "up"],
+                          "gps_antenna": antenna, "waterline_m": 0.0, "outline": "waterline",
+                          "sections": 16}, sort_keys=False))
+    return params
+
+
+def _vessel_object(b: _Builder, vessel: VesselSpec) -> SceneObject:
+    """The vessel of interest from its spec's mesh (V frame -> W), one material per piece."""
+    if vessel.mesh is None:
+        raise ValueError(f"{vessel.source}: the simulator needs a vessel spec with hull_mesh")
+    rng = b.rng
+    pieces = sorted(vessel.mesh.split(only_watertight=False), key=lambda m: -m.area)
+    hull_mat = b.material("vessel-hull", Material(
+        _jitter(_HULL_RGB[rng.integers(len(_HULL_RGB))], rng), rng.uniform(0.3, 0.7), 0.1, 0.12))
+    house_mat = b.material("vessel-house", Material(_jitter((0.78, 0.77, 0.74), rng, 0.1), 0.4,
+                                                    0.0, 0.05))
+    parts = []
+    for i, piece in enumerate(pieces or [vessel.mesh]):
+        world = piece.copy()
+        world.vertices = world.vertices @ b.r_enu_v.T   # antenna at the W origin
+        parts.append(Part(world, hull_mat if i == 0 else house_mat))
+    obj = SceneObject("vessel", "vessel", SHIP, VESSEL_INSTANCE, parts)
+    b.objects.insert(0, obj)
+    return obj
+
+
+# ------------------------------------------------------------------------ sampling
+
+SCENARIOS = {"alongside": 0.3, "slip": 0.25, "pass": 0.15, "touching": 0.1, "open": 0.2}
+
+
+def _overlaps(candidate: SceneObject, others: list[SceneObject], margin_m: float) -> bool:
+    fp = candidate.footprint().buffer(margin_m)
+    return any(fp.intersects(o.footprint()) for o in others)
+
+
+def _try_add(b: _Builder, make, margin_m: float = 0.5) -> SceneObject | None:
+    """Add an object unless its footprint overlaps one already placed (then drop it)."""
+    obj = make()
+    others = [o for o in b.objects if o is not obj]
+    if _overlaps(obj, others, margin_m):
+        b.objects.remove(obj)
+        return None
+    return obj
+
+
+def sample_harbour_scene(
+    vessel: VesselSpec, vessel_dir_name: str, rng: np.random.Generator, *, altitude_m: float,
+    intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
+    name: str = "scene", timestamp: str | None = None,
+) -> HarbourScene:
+    """A seeded harbour around ``vessel`` and a drone camera above it.
+
+    Scenarios: ``alongside`` a quay, ``slip`` between moored ships, ``pass`` a pier head
+    close by, ``touching`` a moored neighbour, ``open`` water with buoys and a breakwater.
+    Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn.
+    """
+    scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose from {sorted(SCENARIOS)}")
+    heading = float(rng.uniform(0.0, 360.0))
+    b = _Builder(rng, heading)
+    _vessel_object(b, vessel)
+    hull_xy = vessel.hull_points[:, :2]
+    x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
+    side = int(rng.choice([-1, 1]))
+    gap = float(rng.uniform(0.0, 5.0) if rng.random() < 0.4 else rng.uniform(5.0, 20.0))
+
+    def half_beam(s: int) -> float:
+        return float(hull_xy[:, 1].max() if s > 0 else -hull_xy[:, 1].min())
+
+    def quay_alongside(s: int, clearance: float, skew_deg: float, tag: str) -> None:
+        fender = float(rng.uniform(0.3, 0.6))
+        tan = math.tan(math.radians(skew_deg))
+        # face y(x) = E + x tan(skew); every hull point at least `clearance` + fender from it
+        need = max(s * y - s * x * tan for x, y in hull_xy)
+        edge = s * (clearance + 2 * fender + need)
+        add_quay(b, 0.0, edge, (0.0 if s > 0 else 180.0) + skew_deg, tag, fender)
+        # moored ships ahead and astern along the face, clear of the fenders
+        for direction in (1, -1):
+            if rng.random() < 0.25:
+                continue
+            params = random_hull_parameters(rng, float(rng.uniform(12, 60)))
+            end = x_max if direction > 0 else x_min
+            cx = end + direction * (rng.uniform(3, 25) + params.length_m / 2)
+            cy = edge + cx * tan - s * (2 * fender + 0.3 + max_half_beam(params))
+            _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
+                b, x, y, p, skew_deg + float(rng.choice([0.0, 180.0]))), 0.0)
+
+    if scenario in ("alongside", "touching"):
+        clearance = gap
+        if scenario == "touching":
+            gap = 0.0
+            params = random_hull_parameters(rng, float(rng.uniform(15, 50)))
+            cy = side * (half_beam(side) + max_half_beam(params))
+            add_ship(b, float(rng.uniform(-5, 5)), cy, params, float(rng.choice([0.0, 180.0])))
+            clearance = 2 * max_half_beam(params) + rng.uniform(0.0, 1.5)
+        quay_alongside(side, clearance, float(rng.uniform(-2, 2)), "quay")
+    elif scenario == "slip":
+        for s in (-1, 1):
+            g = gap if s == side else float(rng.uniform(3, 15))
+            params = random_hull_parameters(rng, float(rng.uniform(25, 70)))
+            cy = s * (half_beam(s) + g + max_half_beam(params))
+            add_ship(b, float(rng.uniform(-10, 10)), cy, params, float(rng.choice([0.0, 180.0])))
+        add_quay(b, x_max + rng.uniform(30, 70), 0.0, -90.0 + rng.uniform(-5, 5), "quay",
+                 float(rng.uniform(0.3, 0.6)))
+    elif scenario == "pass":
+        length = float(rng.uniform(15, 40))
+        x0 = float(rng.uniform(x_min, x_max))
+        y0 = side * (half_beam(side) + gap)
+        add_pier(b, x0, y0, length, 90.0 if side > 0 else -90.0)
+        add_quay(b, x0, side * (half_beam(side) + gap + length), (0.0 if side > 0 else 180.0)
+                 + rng.uniform(-3, 3), "quay", float(rng.uniform(0.3, 0.6)))
+    else:  # open water
+        corner_x = x_max + rng.uniform(20, 60)
+        add_breakwater(b, corner_x, side * rng.uniform(15, 40), float(rng.uniform(-30, 30)))
+
+    # clutter: buoys and small boats in the water around, never on top of anything
+    hull = Polygon(vessel.outline)
+    n_buoys = int(rng.integers(0, 3)) + (4 if scenario == "open" else 0)
+    for _ in range(n_buoys):
+        ring = hull.buffer(rng.uniform(2.0, 35.0), quad_segs=8).exterior
+        p = ring.interpolate(rng.uniform(0, 1), normalized=True)
+        _try_add(b, lambda x=p.x, y=p.y: add_buoy(b, x, y), 1.0)
+    for _ in range(int(rng.integers(0, 4))):
+        ring = hull.buffer(rng.uniform(5.0, 60.0), quad_segs=8).exterior
+        p = ring.interpolate(rng.uniform(0, 1), normalized=True)
+        params = random_hull_parameters(rng, float(rng.uniform(5, 12)))
+        _try_add(b, lambda x=p.x, y=p.y, pr=params: add_ship(
+            b, x, y, pr, float(rng.uniform(0, 360)), kind="boat"), 1.0)
+
+    env = sample_environment(rng)
+    # camera: above the vessel with a horizontal offset and a random yaw; the tilt off nadir
+    # is a gimbal pitch toward the yaw direction; a small roll turns the image
+    tilt = float(rng.uniform(0.0, max_tilt_deg))
+    yaw = float(rng.uniform(0.0, 360.0))
+    roll = float(rng.uniform(-3.0, 3.0))
+    offset = rng.uniform(-0.1, 0.1, 2) * altitude_m
+    look = np.array([math.sin(math.radians(yaw)), math.cos(math.radians(yaw))])
+    ahead = altitude_m * math.tan(math.radians(tilt)) * look
+    uav = np.array([offset[0] - ahead[0], offset[1] - ahead[1], altitude_m])
+    return HarbourScene(
+        name=name, vessel=vessel, vessel_dir_name=vessel_dir_name, vessel_heading_deg=heading,
+        objects=b.objects, materials=b.materials, intrinsics=intrinsics, uav_enu=uav,
+        yaw_deg=yaw, pitch_deg=-90.0 + tilt, roll_deg=roll, environment=env,
+        scenario=scenario, gap_m=gap if scenario != "open" else None, timestamp=timestamp,
+    )
+
+
+def sample_environment(rng: np.random.Generator) -> Environment:
+    """Time of day, weather and water: the paper's domain randomisation."""
+    overcast = rng.random() < 0.3
+    return Environment(
+        sun_elevation_deg=float(rng.uniform(12.0, 75.0)),
+        sun_azimuth_deg=float(rng.uniform(0.0, 360.0)),
+        sun_strength=float(rng.uniform(1.0, 2.0) if overcast else rng.uniform(3.0, 6.0)),
+        sky_turbidity=float(rng.uniform(5.0, 10.0) if overcast else rng.uniform(2.0, 5.0)),
+        water_rgb=_jitter(_WATER_RGB[rng.integers(len(_WATER_RGB))], rng, 0.35),
+        water_roughness=float(rng.uniform(0.02, 0.25)),
+        wave_scale=float(rng.uniform(0.05, 0.6)),
+        wind_mps=float(rng.uniform(2.0, 14.0)),
+        choppiness=float(rng.uniform(0.5, 1.5)),
+        foam_coverage=float(rng.uniform(0.0, 0.5)),
+        ripple_strength=float(rng.uniform(0.1, 0.6)),
+        ocean_seed=int(rng.integers(0, 2**16)),
+        haze=float(rng.uniform(0.0, 0.15) if not overcast else rng.uniform(0.05, 0.25)),
+        haze_rgb=_jitter((0.75, 0.78, 0.82), rng, 0.1),
+        exposure_ev=float(rng.uniform(-0.3, 0.7)),
+        noise_sigma=float(rng.uniform(0.5, 4.0)),
+    )
