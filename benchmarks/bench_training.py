@@ -86,10 +86,13 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=5)
-    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--workers", type=int, default=0, help="DataLoader workers (0: in-process)")
+    parser.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
     parser.add_argument("--data", type=Path, help="dataset folder (default: 16 schematic frames)")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or write_dataset(Path(tmp) / "data", 16)
@@ -106,10 +109,10 @@ def main() -> None:
                 print(json.dumps(row), flush=True)
                 rows.append(row)
     print()
-    print("| network | batch | crop | loop it/s | bare step it/s | hours / 10k it |")
-    print("|---|---:|---|---:|---:|---:|")
+    print("| network | batch | crop | threads | loop it/s | bare step it/s | hours / 10k it |")
+    print("|---|---:|---|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['network']} | {r['batch']} | {r['crop']} | {r['loop_it_per_s']:.3f} "
+        print(f"| {r['network']} | {r['batch']} | {r['crop']} | {r['threads']} | {r['loop_it_per_s']:.3f} "
               f"| {r['bare_step_it_per_s']:.3f} | {r['hours_per_10k_iterations']:.1f} |")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")

@@ -377,7 +377,8 @@ def train(
         help="Dataset folder (dataset.json, images/, labels/); repeat for several.")] = None,
     resume: Annotated[bool, typer.Option(
         help="Continue the run in --out from last.pt exactly (other options may only change "
-        "--iterations, --val-every, --checkpoint-every, --workers, --device).")] = False,
+        "--iterations, --val-every, --checkpoint-every, --workers, --threads, --device).")
+    ] = False,
     iterations: Annotated[int | None, typer.Option(min=1, help="Optimiser steps [10000].")] = None,
     batch_size: Annotated[int | None, typer.Option(help="Images per step, at least 2 [8].")] = None,
     crop: Annotated[str | None, typer.Option(
@@ -414,6 +415,9 @@ def train(
     amp: Annotated[bool | None, typer.Option(help="fp16 autocast on CUDA [on].")] = None,
     workers: Annotated[int | None, typer.Option(
         help="DataLoader worker processes [CPU: 0, CUDA: min(8, cores - 1)].")] = None,
+    threads: Annotated[int | None, typer.Option(
+        help="torch CPU threads; on a shared machine fewer threads than cores can be much "
+        "faster [torch's default].")] = None,
     progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
 ) -> None:
     """Train a segmentation network on simulator-layout datasets (needs torch)."""
@@ -433,7 +437,7 @@ def train(
                  "bootstrap_end_fraction": bootstrap_fraction, "augment": augment,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
-                 "amp": amp, "num_workers": workers, "model": model,
+                 "amp": amp, "num_workers": workers, "threads": threads, "model": model,
                  "data_dirs": [str(d) for d in data] if data else None}
         given = {k: v for k, v in given.items() if v is not None}
         if resume:

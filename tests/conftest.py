@@ -28,5 +28,5 @@ def trained_run(tmp_path_factory, tiny_dataset) -> Path:
     out = tmp_path_factory.mktemp("run") / "run"
     train(TrainConfig(model="ddrnet23_slim", data_dirs=[str(tiny_dataset)], out_dir=str(out),
                       iterations=4, batch_size=2, crop_hw=(64, 64), val_every=2,
-                      checkpoint_every=2, num_workers=0), show_progress=False)
+                      checkpoint_every=2, num_workers=0, threads=1), show_progress=False)
     return out

@@ -37,7 +37,7 @@ def two_frame_dataset(tiny_dataset, tmp_path):
 def test_overfits_one_batch_and_validates(two_frame_dataset, tmp_path):
     config = TrainConfig(model="ddrnet23_slim", data_dirs=[two_frame_dataset], out_dir=tmp_path / "run",
                          iterations=25, batch_size=2, crop_hw=(72, 128), augment=False,
-                         val_every=25, checkpoint_every=10, num_workers=0, seed=3)
+                         val_every=25, checkpoint_every=10, num_workers=0, seed=3, threads=1)
     result = train(config, show_progress=False)
     losses = result.losses
     assert len(losses) == 25 and result.iteration == 25
@@ -62,9 +62,11 @@ def test_resume_repeats_an_uninterrupted_run(tiny_dataset, tmp_path):
     def config(out):
         return TrainConfig(model="bisenetv2", data_dirs=[tiny_dataset], out_dir=out, iterations=6,
                            batch_size=2, crop_hw=(64, 64), val_every=0, checkpoint_every=100,
-                           num_workers=0, seed=11)
+                           num_workers=0, seed=11, threads=1)
 
+    threads = torch.get_num_threads()
     whole = train(config(tmp_path / "whole"), show_progress=False)
+    assert torch.get_num_threads() == threads  # restored after the call
     first = train(config(tmp_path / "split"), until_iteration=3, show_progress=False)
     assert first.iteration == 3 and load_checkpoint(first.last_checkpoint)["iteration"] == 3
     with (tmp_path / "split" / "train_log.jsonl").open("a") as log:  # a crash after the checkpoint
@@ -117,7 +119,7 @@ def test_cli_train_records_a_command_that_reproduces_the_run(tiny_dataset, tmp_p
     args = ["train", "--model", "ddrnet23_slim", "--data", str(tiny_dataset),
             "--out", str(tmp_path / "a"), "--iterations", "3", "--batch-size", "2", "--crop", "48x64",
             "--aux-weight", "0.5", "--val-every", "0", "--seed", "5", "--workers", "0",
-            "--no-augment", "--no-progress"]
+            "--no-augment", "--threads", "1", "--no-progress"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "trained ddrnet23_slim to iteration 3" in result.output

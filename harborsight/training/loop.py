@@ -38,7 +38,7 @@ import torch
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from harborsight.errors import InputError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.evaluation.segmentation import SegmentationScores, score_frames
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.model import SegmentationModel, TorchSegmenter
@@ -61,9 +61,13 @@ DEFAULT_AUX_WEIGHTS: dict[str, tuple[float, ...]] = {
 
 #: Config fields a resumed run may change; any other difference is refused.
 RESUMABLE_CHANGES = frozenset({"out_dir", "iterations", "val_every", "checkpoint_every",
-                               "num_workers", "device"})
+                               "num_workers", "threads", "device"})
 
 LAST, BEST, LOG = "last.pt", "best.pt", "train_log.jsonl"
+
+
+class TrainingDivergedError(HarborsightError):
+    """The loss stopped being finite."""
 
 
 @dataclass
@@ -95,6 +99,7 @@ class TrainConfig:
     device: str = "auto"                               # auto: cuda if available, else cpu
     amp: bool = True                                   # fp16 autocast, CUDA only
     num_workers: int | None = None                     # None: 0 on CPU, min(8, cores-1) on CUDA
+    threads: int | None = None                         # torch CPU threads (None: torch's default)
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -123,6 +128,8 @@ class TrainConfig:
         for name in ("val_every", "num_workers", "warmup_iterations"):
             if (getattr(self, name) or 0) < 0:
                 raise bad(name, f"must be >= 0, got {getattr(self, name)}")
+        if self.threads is not None and self.threads < 1:
+            raise bad("threads", f"must be at least 1, got {self.threads}")
         if not 0.0 < self.warmup_ratio <= 1.0:
             raise bad("warmup_ratio", f"must be in (0, 1], got {self.warmup_ratio}")
         if min(self.crop_hw) < 1:
@@ -185,7 +192,7 @@ _CLI_OPTIONS = {
     "bootstrap_end_iteration": "bootstrap-end", "bootstrap_end_fraction": "bootstrap-fraction",
     "augment": "augment", "train_split": "train-split", "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
-    "device": "device", "amp": "amp", "num_workers": "workers",
+    "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
 }
 
 
@@ -313,13 +320,25 @@ def train(
     console: Console | None = None, show_progress: bool = True,
 ) -> TrainResult:
     """Train (or resume) per ``config``; stops after ``until_iteration`` iterations if given
-    (writing ``last.pt`` there), otherwise after ``config.iterations``."""
+    (writing ``last.pt`` there), otherwise after ``config.iterations``. ``config.threads``
+    applies for the duration of the call only."""
+    previous_threads = torch.get_num_threads()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    try:
+        return _train(config, resume, until_iteration, console or Console(stderr=True),
+                      show_progress)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _train(config: TrainConfig, resume: bool, until_iteration: int | None, console: Console,
+           show_progress: bool) -> TrainResult:
     out_dir = Path(config.out_dir)
     last_path, best_path, log_path = out_dir / LAST, out_dir / BEST, out_dir / LOG
     device = resolve_device(config.device)
     use_amp = config.amp and device.type == "cuda"
     stop = min(config.iterations, until_iteration or config.iterations)
-    console = console or Console(stderr=True)
 
     checkpoint = None
     if resume:
@@ -426,7 +445,9 @@ def train(
             iteration += 1
             loss_value = float(loss.detach())
             if not math.isfinite(loss_value):
-                raise FloatingPointError(f"loss became {loss_value} at iteration {iteration}")
+                raise TrainingDivergedError(
+                    f"loss became {loss_value} at iteration {iteration}; lower --lr or add a "
+                    f"--warmup ({last_path} keeps the last checkpointed state)")
             result.losses.append(loss_value)
             log.write(json.dumps({"iteration": iteration, "kind": "train", "loss": loss_value,
                                   "loss_main": float(main_loss.detach()), "lr": lr,
