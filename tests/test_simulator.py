@@ -212,3 +212,14 @@ def test_cli_simulate_and_contact_sheet(tmp_path):
     result = runner.invoke(app, ["simulate", "--n", "1", "--out", str(tmp_path / "x"),
                                  "--preset", "tiny", "--camera", "nikon"])
     assert result.exit_code == 2 and "--camera" in result.output
+
+
+def test_worker_processes_render_the_same_frames(dataset, tmp_path):
+    out = tmp_path / "workers"
+    summary = simulate(out, 2, TINY, workers=2)
+    assert not summary.failed and sorted(r.index for r in summary.rendered) == [0, 1]
+    for i in range(2):
+        a = cv2.imread(str(dataset / "labels" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
+        b = cv2.imread(str(out / "labels" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(a, b)
+        assert _frame(dataset, i)["ground_truth"] == _frame(out, i)["ground_truth"]

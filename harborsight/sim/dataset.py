@@ -284,15 +284,26 @@ def write_frame_files(out_dir: Path, files: dict[str, bytes]) -> None:
 # ---------------------------------------------------------------------------- workers
 
 _worker: FrameRenderer | None = None
+_worker_error: str | None = None
 
 
 def _init_worker(out_dir: str, config_doc: dict, threads: int) -> None:
-    global _worker
-    _worker = FrameRenderer(Path(out_dir), SimulationConfig.from_dict(config_doc), threads)
+    # an initializer that raises makes multiprocessing.Pool restart the worker forever:
+    # keep the error and report it for every frame instead
+    global _worker, _worker_error
+    # a parent that imported bpy passes on sys.path entries of Blender's own scripts, whose
+    # pure-Python `bpy` would shadow the compiled module here: drop them before importing
+    sys.path[:] = [p for p in sys.path
+                   if not (f"{os.sep}bpy{os.sep}" in p and f"{os.sep}scripts" in p)]
+    try:
+        _worker = FrameRenderer(Path(out_dir), SimulationConfig.from_dict(config_doc), threads)
+    except Exception as exc:
+        _worker_error = f"render worker failed to start: {type(exc).__name__}: {exc}"
 
 
 def _worker_render(index: int) -> FrameResult:
-    assert _worker is not None
+    if _worker is None:
+        return FrameResult(index, 0.0, error=_worker_error or "render worker not started")
     return _worker.render_to_disk(index)
 
 
