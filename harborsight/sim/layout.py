@@ -22,11 +22,11 @@ import shapely
 import trimesh
 from shapely.geometry import MultiPoint, Polygon
 
-from harborsight.frame import FrameGeometry, FrameMetadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.geometry.rotations import enu_from_vessel_rotation, rot_z
 from harborsight.sim.ground_truth import frame_ground_truth
+from harborsight.sim.pose import PosedScene
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 from harborsight.vessel.spec import VesselSpec
 
@@ -104,7 +104,7 @@ class Environment:
 
 
 @dataclass
-class HarbourScene:
+class HarbourScene(PosedScene):
     """Everything one frame needs: geometry, materials, camera, environment."""
 
     name: str
@@ -123,20 +123,6 @@ class HarbourScene:
     gap_m: float | None
     origin: GeoOrigin = field(default_factory=lambda: GeoOrigin(56.1517, 10.2283, 0.0))
     timestamp: str | None = None
-
-    def metadata(self, image: str) -> FrameMetadata:
-        lat, lon, alt = enu_to_geodetic(np.asarray(self.uav_enu, float), self.origin)
-        return FrameMetadata(
-            image=image, camera=self.intrinsics,
-            uav_lat_deg=float(lat), uav_lon_deg=float(lon), uav_alt_m=float(alt),
-            yaw_deg=self.yaw_deg, pitch_deg=self.pitch_deg, roll_deg=self.roll_deg,
-            vessel_lat_deg=self.origin.lat_deg, vessel_lon_deg=self.origin.lon_deg,
-            vessel_heading_deg=self.vessel_heading_deg, water_level_m=self.origin.alt_m,
-            timestamp=self.timestamp,
-        )
-
-    def geometry(self) -> FrameGeometry:
-        return FrameGeometry.from_metadata(self.metadata("frame.png"))
 
     @property
     def class_of_instance(self) -> dict[int, int]:

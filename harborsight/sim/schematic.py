@@ -25,10 +25,10 @@ import shapely
 from shapely import affinity
 from shapely.geometry import MultiPoint, Polygon, box
 
-from harborsight.frame import FrameGeometry, FrameMetadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette_px
+from harborsight.sim.pose import PosedScene
 from harborsight.vessel.spec import VesselSpec
 
 SHIP, OBSTACLE = 1, 2
@@ -55,7 +55,7 @@ class Footprint:
 
 
 @dataclass
-class SchematicScene:
+class SchematicScene(PosedScene):
     """Everything needed to render one frame and its ground truth."""
 
     name: str
@@ -70,20 +70,6 @@ class SchematicScene:
     origin: GeoOrigin = field(default_factory=lambda: GeoOrigin(56.1517, 10.2283, 0.0))
     timestamp: str | None = None
     seed: int = 0                        # texture noise
-
-    def metadata(self, image: str) -> FrameMetadata:
-        lat, lon, alt = enu_to_geodetic(np.asarray(self.uav_enu, float), self.origin)
-        return FrameMetadata(
-            image=image, camera=self.intrinsics,
-            uav_lat_deg=float(lat), uav_lon_deg=float(lon), uav_alt_m=float(alt),
-            yaw_deg=self.yaw_deg, pitch_deg=self.pitch_deg, roll_deg=self.roll_deg,
-            vessel_lat_deg=self.origin.lat_deg, vessel_lon_deg=self.origin.lon_deg,
-            vessel_heading_deg=self.vessel_heading_deg, water_level_m=self.origin.alt_m,
-            timestamp=self.timestamp,
-        )
-
-    def geometry(self) -> FrameGeometry:
-        return FrameGeometry.from_metadata(self.metadata("frame.png"))
 
 
 def _pixel_grid(intr: CameraIntrinsics) -> np.ndarray:
