@@ -140,10 +140,11 @@ class AltitudeSummary:
 
 def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
     """Per (masks, method, altitude): error statistics and miss / false counts."""
-    keys = sorted({(r.masks, r.method, r.altitude_m) for r in results})
+    groups: dict[tuple, list[SectionResult]] = {}
+    for r in results:
+        groups.setdefault((r.masks, r.method, r.altitude_m), []).append(r)
     rows = []
-    for masks, method, altitude in keys:
-        group = [r for r in results if (r.masks, r.method, r.altitude_m) == (masks, method, altitude)]
+    for (masks, method, altitude), group in sorted(groups.items(), key=lambda kv: kv[0]):
         errors = np.array([r.abs_error_m for r in group if r.kind == "estimate"])
         px = np.array([r.abs_error_m / r.gsd_m_per_px for r in group if r.kind == "estimate"])
         some = len(errors) > 0
@@ -190,6 +191,22 @@ def markdown_table(rows: list[AltitudeSummary]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _finish(fig, ax, altitudes: list[float], ylabel: str, title: str, path: Path) -> Path:
+    """Altitude ticks, labels, grid and legend; save the figure to ``path`` and close it."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xticks(np.arange(len(altitudes)), [f"{a:.0f}" for a in altitudes])
+    ax.set_xlabel("drone height above water (m)")
+    ax.set_ylabel(ylabel)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_dir: Path) -> list[Path]:
     """The paper's two figures: box plot of |error| per altitude, bar plot of MAE ± std;
     one box / bar per configuration at each altitude."""
@@ -218,17 +235,9 @@ def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_d
             patch.set_facecolor(colours[c % len(colours)])
             patch.set_alpha(0.6)
         ax.plot([], [], color=colours[c % len(colours)], lw=6, alpha=0.6, label=f"{masks}, {method}")
-    ax.set_xticks(np.arange(len(altitudes)), [f"{a:.0f}" for a in altitudes])
-    ax.set_xlabel("drone height above water (m)")
-    ax.set_ylabel("absolute distance error (m)")
     ax.set_yscale("symlog", linthresh=0.1)
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Absolute distance error per section")
-    fig.tight_layout()
-    paths.append(out_dir / "distance_error_box.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(_finish(fig, ax, altitudes, "absolute distance error (m)",
+                         "Absolute distance error per section", out_dir / "distance_error_box.png"))
 
     fig, ax = plt.subplots(figsize=(max(8, 1.1 * len(altitudes) * max(1, len(configs)) ** 0.5), 4.5))
     for c, (masks, method) in enumerate(configs):
@@ -238,16 +247,8 @@ def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_d
         positions = np.arange(len(altitudes)) + (c - (len(configs) - 1) / 2) * width
         ax.bar(positions, mae, width * 0.9, yerr=std, capsize=2, label=f"{masks}, {method}",
                color=colours[c % len(colours)], alpha=0.8)
-    ax.set_xticks(np.arange(len(altitudes)), [f"{a:.0f}" for a in altitudes])
-    ax.set_xlabel("drone height above water (m)")
-    ax.set_ylabel("mean absolute error (m), ± std")
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Mean absolute distance error")
-    fig.tight_layout()
-    paths.append(out_dir / "distance_mae_bar.png")
-    fig.savefig(paths[-1], dpi=120)
-    plt.close(fig)
+    paths.append(_finish(fig, ax, altitudes, "mean absolute error (m), ± std",
+                         "Mean absolute distance error", out_dir / "distance_mae_bar.png"))
     return paths
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from harborsight import __version__
 from harborsight.errors import HarborsightError, InputError
+from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
 from harborsight.sim.layout import SCENARIOS, HarbourScene, generate_vessel, sample_harbour_scene
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
@@ -157,8 +158,6 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
         max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, index), name=stem_of(index))
-    from harborsight.geometry.geodesy import GeoOrigin
-
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     return scene
 

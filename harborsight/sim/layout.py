@@ -58,6 +58,7 @@ class SceneObject:
     class_id: int
     instance_id: int
     parts: list[Part]
+    _footprint: Polygon | None = field(default=None, init=False, repr=False, compare=False)
 
     def footprint(self) -> Polygon:
         """Vertical projection of the object above the water plane (z >= 0).
@@ -66,6 +67,8 @@ class SceneObject:
         the water and of its cut by the plane z = 0; the object's is their union. What lies
         under water (the toe of a rubble mound) is neither seen by the camera nor counted.
         """
+        if self._footprint is not None:  # parts do not move once placed
+            return self._footprint
         polys = []
         for part in self.parts:
             vertices = np.asarray(part.mesh.vertices)
@@ -78,7 +81,8 @@ class SceneObject:
                 hull = MultiPoint(points).convex_hull
                 if isinstance(hull, Polygon):
                     polys.append(hull)
-        return shapely.union_all(polys)
+        self._footprint = shapely.union_all(polys)
+        return self._footprint
 
 
 @dataclass(frozen=True)
