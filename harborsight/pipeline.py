@@ -105,6 +105,26 @@ class VesselCache:
         return self._specs[path]
 
 
+def check_image_size(image: np.ndarray, meta: FrameMetadata, source: str | Path) -> None:
+    """The image must have the size the frame's camera says."""
+    if image.shape[:2] != (meta.camera.height, meta.camera.width):
+        raise InputError(
+            source, "camera.width",
+            f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
+            f"{meta.camera.width}x{meta.camera.height}",
+        )
+
+
+def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
+                 source: str | Path) -> tuple[np.ndarray, str]:
+    """The frame's class mask and where it came from: the mask file, else the model."""
+    if mask_path is not None:
+        return read_mask(mask_path), str(mask_path)
+    if segmenter is not None:
+        return segmenter.segment(image), str(segmenter.path)
+    raise InputError(source, "mask", "no mask given and no segmentation model")
+
+
 def measure_job(
     job: FrameJob, vessels: VesselCache, settings: ClearanceSettings, out_dir: Path | None,
     camera: CameraIntrinsics | None = None, overlay: bool = True,
@@ -115,18 +135,8 @@ def measure_job(
     meta = load_frame_metadata(job.meta_path, camera=camera)
     image_path = job.image_path or job.meta_path.parent / meta.image
     image = read_image(image_path)
-    if image.shape[:2] != (meta.camera.height, meta.camera.width):
-        raise InputError(
-            image_path, "camera.width",
-            f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
-            f"{meta.camera.width}x{meta.camera.height}",
-        )
-    if job.mask_path is not None:
-        labels, mask_source = read_mask(job.mask_path), str(job.mask_path)
-    elif segmenter is not None:
-        labels, mask_source = segmenter.segment(image), str(segmenter.path)
-    else:
-        raise InputError(job.meta_path, "mask", "no mask given and no segmentation model")
+    check_image_size(image, meta, image_path)
+    labels, mask_source = frame_labels(image, job.mask_path, segmenter, job.meta_path)
     vessel = vessels.for_frame(meta, job.meta_path)
     report = measure_frame(labels, meta, vessel, settings, mask_source=mask_source)
     outcome = FrameOutcome(job, report, meta)

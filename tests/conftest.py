@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -30,3 +31,21 @@ def trained_run(tmp_path_factory, tiny_dataset) -> Path:
                       iterations=4, batch_size=2, crop_hw=(64, 64), val_every=2,
                       checkpoint_every=2, num_workers=0, threads=1), show_progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def untrained_model(tmp_path_factory) -> Path:
+    """An untrained DDRNet-23-slim exported at 72x128 with a sidecar."""
+    import torch
+
+    from harborsight.perception.export import export_onnx
+    from harborsight.perception.model import SegmentationModel
+    from harborsight.perception.networks import create_network
+
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("model") / "default.onnx"
+    model = SegmentationModel(create_network("ddrnet23_slim", 3, aux_heads=False)).eval()
+    export_onnx(model, path, 72, 128, {"network": "ddrnet23_slim"})
+    path.with_suffix(".json").write_text(json.dumps({
+        "schema": "harborsight.model/1", "classes": {"0": "water", "1": "ship", "2": "obstacle"}}))
+    return path

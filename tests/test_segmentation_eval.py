@@ -22,9 +22,6 @@ from harborsight.evaluation.segmentation import (
     markdown_table,
 )
 from harborsight.perception import default_model
-from harborsight.perception.export import export_onnx
-from harborsight.perception.model import SegmentationModel
-from harborsight.perception.networks import create_network
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 runner = CliRunner()
@@ -125,18 +122,6 @@ def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_
     result = runner.invoke(app, ["export", "--checkpoint", str(trained_run / "best.pt"),
                                  "--out", str(tmp_path / "x.onnx"), "--int8"])
     assert result.exit_code == 2 and "--calibration-data" in result.output
-
-
-@pytest.fixture(scope="module")
-def untrained_model(tmp_path_factory) -> Path:
-    """An untrained DDRNet-23-slim exported at 72x128 with a sidecar."""
-    torch.manual_seed(0)
-    path = tmp_path_factory.mktemp("model") / "default.onnx"
-    model = SegmentationModel(create_network("ddrnet23_slim", 3, aux_heads=False)).eval()
-    export_onnx(model, path, 72, 128, {"network": "ddrnet23_slim"})
-    path.with_suffix(".json").write_text(json.dumps({
-        "schema": "harborsight.model/1", "classes": {"0": "water", "1": "ship", "2": "obstacle"}}))
-    return path
 
 
 def measure_args(out: Path) -> list[str]:

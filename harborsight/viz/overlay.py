@@ -44,12 +44,14 @@ def section_colour(distance_m: float | None, warn_m: float, alarm_m: float):
 
 def draw_overlay(
     image_bgr: np.ndarray, report: ClearanceReport, *, warn_m: float = 5.0, alarm_m: float = 2.0,
+    footer: str | None = None,
 ) -> np.ndarray:
     """Copy of the image with every in-view section drawn and labelled.
 
     Sections are coloured by clearance (green > ``warn_m``, orange, red <= ``alarm_m``,
     grey when clear); a yellow line joins each section to its closest obstacle point; the
     distance in metres sits outside the section, ``??`` where the section is clear.
+    ``footer`` is a line of text on a band at the bottom (e.g. the closing speed).
     """
     out = image_bgr.copy()
     h, w = out.shape[:2]
@@ -84,7 +86,18 @@ def draw_overlay(
     md = report.min_distance_m
     header = (f"{report.vessel}  alt {report.altitude_m:.0f} m  GSD {report.gsd_m_per_px * 100:.1f} cm/px"
               f"  {report.method}  min {'--' if md is None else f'{md:.1f} m'}")
-    cv2.rectangle(out, (0, 0), (w, int(22 * scale / 0.4)), BLACK, -1)
-    cv2.putText(out, header, (6, int(16 * scale / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, scale,
-                WHITE, 1, cv2.LINE_AA)
+    draw_banner(out, header)
+    if footer:
+        draw_banner(out, footer, WHITE, bottom=True)
     return out
+
+
+def draw_banner(image_bgr: np.ndarray, text: str, colour=WHITE, bottom: bool = False) -> None:
+    """A black band with one line of text across the top (or bottom) of the image, in place."""
+    h, w = image_bgr.shape[:2]
+    scale = max(0.35, min(w, h) / 900.0)
+    band = int(22 * scale / 0.4)
+    top = h - band if bottom else 0
+    cv2.rectangle(image_bgr, (0, top), (w, top + band), BLACK, -1)
+    cv2.putText(image_bgr, text, (6, top + int(16 * scale / 0.4)), cv2.FONT_HERSHEY_SIMPLEX,
+                scale, colour, 1, cv2.LINE_AA)

@@ -1,0 +1,215 @@
+"""A whole flight: segment, measure and annotate every frame; write the run's outputs.
+
+Outputs in ``out_dir``:
+
+* ``reports/<stem>.json``: ``harborsight.report/1`` per measured frame;
+* ``overlays/<stem>.png``: the annotated frame (optional);
+* ``annotated.mp4``: every frame in flight order, measured ones annotated, skipped ones
+  with a red band naming the reason (optional);
+* ``sections.csv``: one row per section per measured frame, with closing speed and time to
+  contact (:mod:`harborsight.flight.timeline`), written as the run goes;
+* ``timeline.png``: clearance of every section over time;
+* ``run.json``: inputs, settings, counts, timing and every skipped frame with its reason.
+
+Time of a frame: its ``timestamp`` relative to the first timestamped frame, else its
+position in the video, else unknown (then no closing speeds).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.errors import HarborsightError
+from harborsight.flight.sources import NO_METADATA, FlightFrame
+from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels
+from harborsight.viz.overlay import GREY, RED, draw_banner, draw_overlay
+
+RUN_SCHEMA = "harborsight.run/1"
+DEFAULT_VIDEO_FPS = 5.0
+
+
+@dataclass
+class RunOptions:
+    settings: ClearanceSettings = field(default_factory=ClearanceSettings)
+    overlays: bool = True
+    video: bool = True
+    video_fps: float | None = None       # None: the source video's, else from timestamps
+    window_s: float = 2.0                # closing-speed fit window
+    warn_m: float = 5.0
+    alarm_m: float = 2.0
+
+
+@dataclass
+class RunSummary:
+    frames: int = 0
+    measured: int = 0
+    without_metadata: int = 0
+    skipped: list[dict] = field(default_factory=list)     # {"frame", "source", "error"}
+    min_distance_m: float | None = None
+    min_distance_frame: int | None = None
+    seconds: float = 0.0
+    outputs: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "frames": self.frames, "measured": self.measured,
+            "skipped": len(self.skipped), "without_metadata": self.without_metadata,
+            "min_distance_m": self.min_distance_m, "min_distance_frame": self.min_distance_frame,
+            "seconds": round(self.seconds, 2),
+            "frames_per_second": round(self.frames / self.seconds, 2) if self.seconds else None,
+            "outputs": self.outputs, "skipped_frames": self.skipped,
+        }
+
+
+class _VideoWriter:
+    """mp4 (MPEG-4 part 2, which every OpenCV build writes) opened at the first frame; later
+    frames of another size are resized to the first one's."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self.path, self.fps = path, fps
+        self.writer: cv2.VideoWriter | None = None
+        self.size: tuple[int, int] | None = None
+        self.frames = 0
+
+    def write(self, image: np.ndarray) -> None:
+        if self.writer is None:
+            self.size = (image.shape[1], image.shape[0])
+            self.writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"),
+                                          self.fps, self.size)
+            if not self.writer.isOpened():
+                raise HarborsightError(f"{self.path}: OpenCV cannot write mp4 video here")
+        if (image.shape[1], image.shape[0]) != self.size:
+            image = cv2.resize(image, self.size, interpolation=cv2.INTER_AREA)
+        self.writer.write(image)
+        self.frames += 1
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+
+
+def trend_footer(trends: dict[int, SectionTrend], has_time: bool) -> str:
+    """One line on the closing section nearest to contact (or why there is none)."""
+    if not has_time:
+        return "closing speed: frames need timestamps"
+    closing = [(t.time_to_contact_s, k, t.closing_speed_mps) for k, t in trends.items()
+               if t.time_to_contact_s is not None]
+    if closing:
+        ttc, k, speed = min(closing)
+        return f"section {k} closing at {speed:.2f} m/s, contact in {ttc:.0f} s"
+    speeds = [t.closing_speed_mps for t in trends.values() if t.closing_speed_mps is not None]
+    return "no section closing" if speeds else "closing speed: collecting frames"
+
+
+def run_flight(
+    frames: Iterable[FlightFrame], out_dir: Path, vessels: VesselCache,
+    segmenter: Segmenter | None, options: RunOptions | None = None, *,
+    source_fps: float | None = None, inputs: dict | None = None,
+    on_frame: Callable[[FlightFrame], None] | None = None,
+) -> RunSummary:
+    """Measure every frame of a flight (module docstring). A frame with bad input, or one
+    the measurement refuses, is recorded in the summary and skipped; the run goes on."""
+    options = options or RunOptions()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reports_dir, overlays_dir = out_dir / "reports", out_dir / "overlays"
+    reports_dir.mkdir(exist_ok=True)
+    if options.overlays:
+        overlays_dir.mkdir(exist_ok=True)
+    summary = RunSummary()
+    timeline = ClearanceTimeline(window_s=options.window_s)
+    fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
+    video = _VideoWriter(out_dir / "annotated.mp4", fps) if options.video else None
+    t0: float | None = None
+    started = time.perf_counter()
+    csv_path = out_dir / "sections.csv"
+    with csv_path.open("w", newline="") as csv_handle:
+        csv_out = ClearanceTimeline.csv_writer(csv_handle)
+        for frame in frames:
+            summary.frames += frame.index >= 0       # index -1: a metadata line, no frame
+            annotated = None
+            if frame.error is None:
+                try:
+                    stamp = timestamp_seconds(frame.meta)
+                    if stamp is not None and t0 is None:
+                        t0 = stamp
+                    time_s = stamp - t0 if stamp is not None else frame.video_time_s
+                    timeline.check_time(time_s, frame.source)
+                    labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
+                                                       frame.source)
+                    vessel = vessels.for_frame(frame.meta, frame.meta_path)
+                    report = measure_frame(labels, frame.meta, vessel, options.settings,
+                                           mask_source=mask_source)
+                    trends, rows = timeline.add(frame.index, time_s, report)
+                except HarborsightError as exc:
+                    frame.error = str(exc)
+                else:
+                    write_rows(csv_out, rows)
+                    csv_handle.flush()
+                    report.write(reports_dir / f"{frame.stem}.json")
+                    annotated = draw_overlay(
+                        frame.image, report, warn_m=options.warn_m, alarm_m=options.alarm_m,
+                        footer=trend_footer(trends, time_s is not None))
+                    if options.overlays:
+                        cv2.imwrite(str(overlays_dir / f"{frame.stem}.png"), annotated)
+                    summary.measured += 1
+                    md = report.min_distance_m
+                    if md is not None and (summary.min_distance_m is None
+                                           or md < summary.min_distance_m):
+                        summary.min_distance_m, summary.min_distance_frame = md, frame.index
+            if frame.error is not None:
+                if frame.error == NO_METADATA:
+                    summary.without_metadata += 1
+                else:
+                    summary.skipped.append({"frame": frame.index, "source": frame.source,
+                                            "error": frame.error})
+                if frame.image is not None:
+                    annotated = frame.image.copy()
+                    if frame.error == NO_METADATA:
+                        draw_banner(annotated, "not measured: no metadata for this frame", GREY)
+                    else:
+                        draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
+            if video is not None and annotated is not None:
+                video.write(annotated)
+            if on_frame is not None:
+                on_frame(frame)
+    if video is not None:
+        video.close()
+    summary.seconds = time.perf_counter() - started
+    summary.outputs = {"reports": str(reports_dir), "sections_csv": str(csv_path)}
+    if options.overlays:
+        summary.outputs["overlays"] = str(overlays_dir)
+    if video is not None and video.frames:
+        summary.outputs["video"] = str(video.path)
+    if timeline.plot(out_dir / "timeline.png", alarm_m=options.alarm_m, warn_m=options.warn_m):
+        summary.outputs["timeline"] = str(out_dir / "timeline.png")
+    record = {"schema": RUN_SCHEMA, "inputs": inputs or {},
+              "settings": {"method": options.settings.method,
+                           "pose_margin_px": options.settings.pose_margin_px,
+                           "n_sections": options.settings.n_sections,
+                           "section_length_m": options.settings.section_length_m,
+                           "closing_window_s": options.window_s,
+                           "video_fps": fps if video is not None else None,
+                           "model": str(segmenter.path) if segmenter is not None else None},
+              **summary.to_dict()}
+    (out_dir / "run.json").write_text(json.dumps(record, indent=2, default=_json_default) + "\n")
+    return summary
+
+
+def _short(text: str, limit: int = 90) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _json_default(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value)

@@ -1,0 +1,198 @@
+"""Where a flight's frames come from: a folder of frames, or a video with JSON-lines metadata.
+
+Both sources yield :class:`FlightFrame` objects in flight order. A frame whose inputs are bad
+carries the reason in ``error`` instead of raising, so that the run reports it, skips its
+measurement and goes on; its picture (when it could be read) still goes into the annotated
+video, so the video keeps the flight's timing.
+
+Video metadata (``--metadata flight.jsonl``): one ``harborsight.frame/1`` object per line.
+A line's ``frame_index`` key (0-based) names its video frame; without that key, the n-th
+non-blank line belongs to the n-th frame. ``image`` may be omitted (it names the outputs;
+the default is ``<video stem>-<index>.png``). Video frames without a metadata line are
+written to the annotated video unmeasured and counted, not reported as errors: telemetry is
+often slower than the camera.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import statistics
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.flight.timeline import iso_seconds
+from harborsight.frame import FrameMetadata, load_frame_metadata, parse_frame_metadata
+from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.pipeline import check_image_size, discover_jobs, read_image
+
+NO_METADATA = "no metadata"
+
+
+@dataclass
+class FlightFrame:
+    """One frame of a flight: its inputs, or why they are unusable."""
+
+    index: int                         # position in the flight (video frame index)
+    source: str                        # names the frame in messages: a path, or video + index
+    meta: FrameMetadata | None = None
+    image: np.ndarray | None = None    # BGR
+    mask_path: Path | None = None      # None: segment with the model
+    meta_path: Path | None = None      # the file vessel_spec paths are relative to
+    video_time_s: float | None = None  # position in the video, when the source is one
+    error: str | None = None
+
+    @property
+    def stem(self) -> str:
+        return Path(self.meta.image).stem if self.meta is not None else f"{self.index:06d}"
+
+
+class FolderSource:
+    """Frames of a folder (the layouts of :func:`harborsight.pipeline.discover_jobs`), in the
+    order of their file names. With ``use_masks`` a frame's mask (``labels/``, ``masks/`` or
+    ``masks_dir``) is used; otherwise every frame is segmented."""
+
+    def __init__(self, folder: Path, masks_dir: Path | None = None, use_masks: bool = True,
+                 camera: CameraIntrinsics | None = None) -> None:
+        if not folder.is_dir():
+            raise InputError(folder, None, "folder not found")
+        self.folder, self.camera = folder, camera
+        self.jobs = discover_jobs(folder, masks_dir if use_masks else None,
+                                  segment=not use_masks)
+        self.frame_count = len(self.jobs)
+        self.fps = fps_from_timestamps(_raw_timestamp_s(job.meta_path) for job in self.jobs)
+
+    def frames(self) -> Iterator[FlightFrame]:
+        for index, job in enumerate(self.jobs):
+            frame = FlightFrame(index, str(job.meta_path), mask_path=job.mask_path,
+                                meta_path=job.meta_path)
+            try:
+                frame.meta = load_frame_metadata(job.meta_path, camera=self.camera)
+                image_path = job.image_path or job.meta_path.parent / frame.meta.image
+                frame.image = read_image(image_path)
+                check_image_size(frame.image, frame.meta, image_path)
+            except InputError as exc:
+                frame.error = str(exc)
+                if frame.image is None and job.image_path is not None:
+                    frame.image = cv2.imread(str(job.image_path), cv2.IMREAD_COLOR)  # for the video
+            yield frame
+
+
+def _raw_timestamp_s(meta_path: Path) -> float | None:
+    """The frame file's timestamp in seconds, or None if it has none or cannot be read (the
+    frame's own reading reports that)."""
+    try:
+        return iso_seconds(json.loads(meta_path.read_text()).get("timestamp"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def fps_from_timestamps(times_s: Iterable[float | None]) -> float | None:
+    """1 / median spacing of the known times (None with fewer than two distinct ones)."""
+    known = sorted(t for t in times_s if t is not None)
+    steps = [b - a for a, b in itertools.pairwise(known) if b > a]
+    if not steps:
+        return None
+    return min(max(1.0 / statistics.median(steps), 0.1), 120.0)
+
+
+def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | None = None
+                        ) -> tuple[dict[int, FrameMetadata | str], list[str]]:
+    """Parse a JSON-lines metadata file: ``{video frame index: metadata or error}``, plus the
+    errors of lines that name no frame (a broken line when indices are explicit)."""
+    if not path.is_file():
+        raise InputError(path, None, "metadata file not found")
+    lines = [(n, line) for n, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
+    if not lines:
+        raise InputError(path, None, "no metadata lines")
+    explicit = any('"frame_index"' in line for _, line in lines)
+    by_frame: dict[int, FrameMetadata | str] = {}
+    orphans: list[str] = []
+    for order, (line_no, line) in enumerate(lines):
+        where = f"{path}:{line_no}"
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            message = str(InputError(where, None, f"not valid JSON: {exc}"))
+            if explicit:
+                orphans.append(message)
+            else:
+                by_frame[order] = message
+            continue
+        index = order
+        if explicit:
+            index = record.get("frame_index") if isinstance(record, dict) else None
+            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
+                orphans.append(str(InputError(where, "frame_index",
+                                              f"expected a frame number >= 0, got {index!r}")))
+                continue
+        if index in by_frame:
+            orphans.append(str(InputError(where, "frame_index",
+                                          f"frame {index} already has a metadata line")))
+            continue
+        try:
+            if isinstance(record, dict):
+                record.setdefault("image", f"{video_stem}-{index:06d}.png")
+            by_frame[index] = parse_frame_metadata(record, where, camera=camera,
+                                                   base_dir=path.parent)
+        except InputError as exc:
+            by_frame[index] = str(exc)
+    return by_frame, orphans
+
+
+class VideoSource:
+    """A video file and its per-frame metadata (module docstring)."""
+
+    def __init__(self, video: Path, metadata: Path, camera: CameraIntrinsics | None = None):
+        self.video = video
+        self.metadata = metadata
+        if not video.is_file():
+            raise InputError(video, None, "video file not found")
+        capture = cv2.VideoCapture(str(video))
+        if not capture.isOpened():
+            raise InputError(video, None, "cannot open the video (unknown format or corrupt)")
+        self.fps = capture.get(cv2.CAP_PROP_FPS) or 0.0
+        self.frame_count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        capture.release()
+        self.by_frame, self.orphans = read_metadata_lines(metadata, video.stem, camera)
+
+    def frames(self) -> Iterator[FlightFrame]:
+        """Metadata lines that name no frame first (index -1, reported), then every video
+        frame, then the metadata of frames past the video's end."""
+        for message in self.orphans:
+            yield FlightFrame(-1, str(self.metadata), meta_path=self.metadata, error=message)
+        capture = cv2.VideoCapture(str(self.video))
+        index = -1
+        try:
+            while True:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                index += 1
+                video_time_s = index / self.fps if self.fps > 0 else None
+                entry = self.by_frame.get(index)
+                frame = FlightFrame(index, f"{self.video} frame {index}", image=image,
+                                    meta_path=self.metadata, video_time_s=video_time_s)
+                if entry is None:
+                    frame.error = NO_METADATA
+                elif isinstance(entry, str):
+                    frame.error = entry
+                else:
+                    frame.meta = entry
+                    try:
+                        check_image_size(image, entry, frame.source)
+                    except InputError as exc:
+                        frame.error = str(exc)
+                yield frame
+        finally:
+            capture.release()
+        for missing in sorted(i for i in self.by_frame if i > index):
+            yield FlightFrame(missing, f"{self.metadata} frame_index {missing}",
+                              meta_path=self.metadata,
+                              error=f"{self.metadata}: frame_index: frame {missing} is past the "
+                                    f"video's end ({index + 1} frames)")

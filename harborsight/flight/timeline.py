@@ -1,0 +1,187 @@
+"""Per-section clearance over time: closing speed, time to contact, the CSV and the plot.
+
+Closing speed of section k at time t is minus the least-squares slope of its distance over
+the samples of the last ``window_s`` seconds (at least ``min_samples`` of them):
+
+    v_k(t) = -Σ (t_i - t̄)(d_i - d̄) / Σ (t_i - t̄)²,   t - window_s <= t_i <= t
+
+so a positive speed means the gap is shrinking. A fit over a window rather than a
+difference of two frames keeps the pixel quantisation (one GSD per frame) from dominating:
+over n samples spread over T seconds its effect on the slope falls roughly as
+GSD / (T·√n). Time to contact is d / v while v exceeds ``min_closing_mps``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+from harborsight.clearance.report import STATUS_OK, ClearanceReport
+from harborsight.errors import InputError
+from harborsight.frame import FrameMetadata
+
+CSV_COLUMNS = [
+    "frame", "image", "timestamp", "time_s", "altitude_m", "gsd_m_per_px", "method", "section",
+    "status", "distance_m", "distance_px", "contact", "truncated", "closing_speed_mps",
+    "time_to_contact_s",
+]
+
+
+def iso_seconds(text: str) -> float:
+    """POSIX seconds of an ISO 8601 time (UTC when it names no zone); ValueError if bad."""
+    if not isinstance(text, str):
+        raise ValueError(f"expected an ISO 8601 string, got {text!r}")
+    stamp = datetime.fromisoformat(text)
+    return (stamp if stamp.tzinfo else stamp.replace(tzinfo=UTC)).timestamp()
+
+
+def timestamp_seconds(meta: FrameMetadata) -> float | None:
+    """POSIX seconds of the frame's ``timestamp`` (None without one)."""
+    if meta.timestamp is None:
+        return None
+    try:
+        return iso_seconds(meta.timestamp)
+    except ValueError:
+        raise InputError(meta.source, "timestamp",
+                         f"not an ISO 8601 time: {meta.timestamp!r}") from None
+
+
+def least_squares_slope(times_s: list[float], values: list[float]) -> float:
+    """Slope of the least-squares line through ``(times_s, values)``."""
+    n = len(times_s)
+    t_mean = sum(times_s) / n
+    v_mean = sum(values) / n
+    spread = sum((t - t_mean) ** 2 for t in times_s)
+    if spread <= 0:
+        return math.nan
+    return sum((t - t_mean) * (v - v_mean) for t, v in zip(times_s, values, strict=True)) / spread
+
+
+@dataclass
+class SectionTrend:
+    closing_speed_mps: float | None
+    time_to_contact_s: float | None
+
+
+@dataclass
+class ClearanceTimeline:
+    """Collects every measured frame; estimates each section's closing speed as it goes."""
+
+    window_s: float = 2.0
+    min_samples: int = 3
+    min_closing_mps: float = 0.05
+    rows: list[dict] = field(default_factory=list)
+    _history: dict[int, deque] = field(default_factory=lambda: defaultdict(deque))
+    _last_time_s: float | None = None
+
+    def check_time(self, time_s: float | None, source: str) -> None:
+        """Frames must come in time order (checked before the frame is measured)."""
+        if time_s is not None and self._last_time_s is not None and time_s <= self._last_time_s:
+            raise InputError(source, "timestamp",
+                             f"{time_s:.3f} s after the start does not advance past the "
+                             f"previous frame's {self._last_time_s:.3f} s")
+
+    def add(self, frame_index: int, time_s: float | None, report: ClearanceReport
+            ) -> tuple[dict[int, SectionTrend], list[dict]]:
+        """Record one frame's report (``time_s``: seconds since the flight's start, or None
+        when unknown); returns every section's trend and the frame's CSV rows."""
+        self.check_time(time_s, report.image)
+        trends, rows = {}, []
+        for section in report.sections:
+            trend = SectionTrend(None, None)
+            if time_s is not None:
+                history = self._history[section.index]
+                if section.status == STATUS_OK:
+                    history.append((time_s, section.distance_m))
+                while history and history[0][0] < time_s - self.window_s:
+                    history.popleft()
+                if section.status == STATUS_OK and len(history) >= self.min_samples:
+                    times, distances = zip(*history, strict=True)
+                    slope = least_squares_slope(list(times), list(distances))
+                    if math.isfinite(slope):
+                        trend.closing_speed_mps = -slope
+                        if -slope > self.min_closing_mps:
+                            trend.time_to_contact_s = section.distance_m / -slope
+            trends[section.index] = trend
+            rows.append({
+                "frame": frame_index, "image": report.image, "timestamp": report.timestamp or "",
+                "time_s": _round(time_s, 3), "altitude_m": round(report.altitude_m, 2),
+                "gsd_m_per_px": round(report.gsd_m_per_px, 5), "method": report.method,
+                "section": section.index, "status": section.status,
+                "distance_m": _round(section.distance_m, 3),
+                "distance_px": _round(section.distance_px, 2),
+                "contact": int(section.contact), "truncated": int(section.truncated),
+                "closing_speed_mps": _round(trend.closing_speed_mps, 3),
+                "time_to_contact_s": _round(trend.time_to_contact_s, 1),
+            })
+        if time_s is not None:
+            self._last_time_s = time_s
+        self.rows.extend(rows)
+        return trends, rows
+
+    @staticmethod
+    def csv_writer(handle) -> csv.DictWriter:
+        """A writer of :data:`CSV_COLUMNS` rows (header written); write rows as they come
+        with :func:`write_rows`, so an interrupted run keeps what it measured."""
+        writer = csv.DictWriter(handle, CSV_COLUMNS)
+        writer.writeheader()
+        return writer
+
+    def plot(self, path: Path, alarm_m: float = 2.0, warn_m: float = 5.0) -> bool:
+        """Distance of every section over time, and the closing speed of the closest one.
+        Returns False (and writes nothing) when no section was ever measured."""
+        measured = [r for r in self.rows if r["distance_m"] is not None]
+        if not measured:
+            return False
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        use_time = all(r["time_s"] is not None for r in measured)
+        x_key, x_label = ("time_s", "time (s)") if use_time else ("frame", "frame")
+        sections = sorted({r["section"] for r in measured})
+        colours = plt.get_cmap("viridis")(
+            [i / max(len(sections) - 1, 1) for i in range(len(sections))])
+        fig, (ax_d, ax_v) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True,
+                                         height_ratios=[2, 1], constrained_layout=True)
+        for colour, k in zip(colours, sections, strict=True):
+            rows = [r for r in measured if r["section"] == k]
+            ax_d.plot([r[x_key] for r in rows], [r["distance_m"] for r in rows], ".-", ms=3,
+                      lw=1, color=colour, label=f"section {k}")
+        ax_d.axhspan(0, alarm_m, color="tab:red", alpha=0.12, lw=0)
+        ax_d.axhspan(alarm_m, warn_m, color="tab:orange", alpha=0.10, lw=0)
+        ax_d.set_ylim(bottom=0)
+        ax_d.set_ylabel("clearance (m)")
+        ax_d.legend(ncol=min(len(sections), 6), fontsize=7, loc="upper right")
+        ax_d.grid(alpha=0.3)
+        closest = {}
+        for r in measured:
+            best = closest.get(r["frame"])
+            if best is None or r["distance_m"] < best["distance_m"]:
+                closest[r["frame"]] = r
+        rows = [closest[f] for f in sorted(closest) if closest[f]["closing_speed_mps"] is not None]
+        ax_v.plot([r[x_key] for r in rows], [r["closing_speed_mps"] for r in rows], "k.-", ms=3,
+                  lw=1)
+        ax_v.axhline(0, color="grey", lw=0.8)
+        ax_v.set_ylabel("closing speed of the\nclosest section (m/s)")
+        ax_v.set_xlabel(x_label)
+        ax_v.grid(alpha=0.3)
+        if not rows:
+            ax_v.text(0.5, 0.5, "no closing speed: frames need timestamps", ha="center",
+                      va="center", transform=ax_v.transAxes, color="grey")
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        return True
+
+
+def write_rows(writer: csv.DictWriter, rows: list[dict]) -> None:
+    writer.writerows({k: "" if v is None else v for k, v in row.items()} for row in rows)
+
+
+def _round(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(float(value), digits)

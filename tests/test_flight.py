@@ -1,0 +1,184 @@
+"""`harborsight run`: folders and videos, closing speeds, bad frames skipped."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.clearance.report import ClearanceReport, SectionClearance
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.flight.sources import read_metadata_lines
+from harborsight.flight.timeline import ClearanceTimeline, least_squares_slope
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+runner = CliRunner()
+
+
+def _report(distances: list[float | None], image: str = "x.png") -> ClearanceReport:
+    sections = [SectionClearance(i, "ok" if d is not None else "clear", [[0, 0], [1, 1]], 1.0,
+                                 distance_m=d, distance_px=None if d is None else d * 10)
+                for i, d in enumerate(distances)]
+    return ClearanceReport(image, None, 50.0, 0.1, "ground_plane", sections)
+
+
+def test_least_squares_slope_by_hand():
+    # points (0, 1), (1, 3), (2, 2): t̄ = 1, v̄ = 2, slope = (−1·−1 + 0 + 1·0) / 2 = 0.5
+    assert least_squares_slope([0.0, 1.0, 2.0], [1.0, 3.0, 2.0]) == pytest.approx(0.5)
+
+
+def test_closing_speed_and_time_to_contact_of_a_steady_approach():
+    timeline = ClearanceTimeline(window_s=2.0, min_samples=3)
+    speed = 0.4                      # section 0 closes at 0.4 m/s, section 1 opens at 0.1 m/s
+    trends = {}
+    for k in range(9):               # 2 Hz
+        t = 0.5 * k
+        trends, rows = timeline.add(k, t, _report([10.0 - speed * t, 5.0 + 0.1 * t, None]))
+        assert len(rows) == 3
+        if k < 2:
+            assert trends[0].closing_speed_mps is None
+    assert trends[0].closing_speed_mps == pytest.approx(speed)
+    assert trends[0].time_to_contact_s == pytest.approx((10.0 - speed * 4.0) / speed)
+    assert trends[1].closing_speed_mps == pytest.approx(-0.1)
+    assert trends[1].time_to_contact_s is None          # opening: no contact
+    assert trends[2].closing_speed_mps is None          # never measured
+    # the fit only spans the window: a speed change shows within window_s
+    for k in range(9, 20):
+        t = 0.5 * k
+        trends, _ = timeline.add(k, t, _report([6.8 - 1.0 * (t - 4.0), 5.0, None]))
+    assert trends[0].closing_speed_mps == pytest.approx(1.0)
+    with pytest.raises(InputError, match="does not advance"):
+        timeline.add(99, 1.0, _report([1.0, 1.0, 1.0]))
+
+
+def test_without_times_there_are_no_speeds():
+    timeline = ClearanceTimeline()
+    for k in range(5):
+        trends, rows = timeline.add(k, None, _report([3.0 - k * 0.1]))
+    assert trends[0].closing_speed_mps is None and rows[0]["time_s"] is None
+
+
+def _timed_copy_of_samples(root: Path, interval_s: float = 0.5) -> Path:
+    data = root / "flight"
+    shutil.copytree(SAMPLES, data)
+    for k, path in enumerate(sorted((data / "frames").glob("*.json"))):
+        meta = json.loads(path.read_text())
+        meta["timestamp"] = f"2026-05-01T12:00:{k * interval_s:06.3f}Z"
+        path.write_text(json.dumps(meta))
+    return data
+
+
+def _video_frame_count(path: Path) -> int:
+    capture = cv2.VideoCapture(str(path))
+    count = 0
+    while capture.read()[0]:
+        count += 1
+    capture.release()
+    return count
+
+
+def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
+    data = _timed_copy_of_samples(tmp_path)
+    (data / "images" / "000001.png").write_bytes(b"not a png")        # unreadable image
+    bad = json.loads((data / "frames" / "000003.json").read_text())
+    bad["uav"]["alt_m"] = "high"                                      # bad field
+    (data / "frames" / "000003.json").write_text(json.dumps(bad))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "3 of 5 frame(s) measured" in result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["schema"] == "harborsight.run/1" and record["measured"] == 3
+    errors = {item["frame"]: item["error"] for item in record["skipped_frames"]}
+    assert set(errors) == {1, 3}
+    assert "000001.png" in errors[1] and "cannot decode" in errors[1]
+    assert "000003.json" in errors[3] and "uav.alt_m" in errors[3]
+    assert sorted(p.name for p in (out / "reports").iterdir()) == [
+        "000000.json", "000002.json", "000004.json"]
+    assert len(list((out / "overlays").glob("*.png"))) == 3
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    n_sections = len(json.loads((out / "reports" / "000000.json").read_text())["sections"])
+    assert len(rows) == 3 * n_sections
+    # the CSV says what the reports say
+    report = json.loads((out / "reports" / "000002.json").read_text())
+    for row in (r for r in rows if r["image"] == "000002.png"):
+        section = report["sections"][int(row["section"])]
+        assert row["status"] == section["status"]
+        if section["distance_m"] is not None:
+            assert float(row["distance_m"]) == pytest.approx(section["distance_m"], abs=1e-3)
+    assert {r["time_s"] for r in rows} == {"0.0", "1.0", "2.0"}
+    # the video keeps every frame whose picture could be read, in flight order
+    assert _video_frame_count(out / "annotated.mp4") == 4
+    assert (out / "timeline.png").stat().st_size > 10_000
+
+
+def _write_video(path: Path, images: list[Path], fps: float) -> None:
+    first = cv2.imread(str(images[0]))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                             (first.shape[1], first.shape[0]))
+    for image in images:
+        writer.write(cv2.imread(str(image)))
+    writer.release()
+
+
+def test_run_on_a_video_with_json_lines(tmp_path, untrained_model):
+    frames = sorted((SAMPLES / "frames").glob("*.json"))
+    video = tmp_path / "flight.mp4"
+    _write_video(video, [SAMPLES / "images" / f"{p.stem}.png" for p in frames], fps=2.0)
+    vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+    lines = []
+    for path in frames:
+        meta = json.loads(path.read_text())
+        for key in ("image", "ground_truth", "simulation", "vessel_spec"):
+            meta.pop(key, None)
+        lines.append(json.dumps(meta))
+    lines[2] = lines[2][:40]                          # a broken line: frame 2 is skipped
+    metadata = tmp_path / "flight.jsonl"
+    metadata.write_text("\n".join(lines[:4]) + "\n")  # no line for frame 4
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(video), "--metadata", str(metadata), "--model",
+                                 str(untrained_model), "--vessel", str(vessel), "--out",
+                                 str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert (record["frames"], record["measured"], record["without_metadata"]) == (5, 3, 1)
+    assert [item["frame"] for item in record["skipped_frames"]] == [2]
+    assert f"{metadata}:3" in record["skipped_frames"][0]["error"]
+    assert sorted(p.name for p in (out / "reports").iterdir()) == [
+        "flight-000000.json", "flight-000001.json", "flight-000003.json"]
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    assert {r["time_s"] for r in rows} == {"0.0", "0.5", "1.5"}   # video time at 2 fps
+    assert _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_explicit_frame_indices(tmp_path):
+    meta = json.loads((SAMPLES / "frames" / "000000.json").read_text())
+    path = tmp_path / "m.jsonl"
+    path.write_text("\n".join([
+        json.dumps({**meta, "frame_index": 3}),
+        json.dumps({**meta, "frame_index": 3}),          # duplicate
+        json.dumps({**meta, "frame_index": -1}),         # not a frame
+        "{broken",
+        json.dumps({**meta, "frame_index": 7, "uav": {"lat": 56.0}}),   # bad record
+    ]))
+    by_frame, orphans = read_metadata_lines(path, "v")
+    assert set(by_frame) == {3, 7}
+    assert by_frame[3].image == "000000.png"
+    assert "uav.lon" in by_frame[7] or "uav.alt_m" in by_frame[7]
+    assert len(orphans) == 3
+    assert any("already has" in o for o in orphans) and any(":4" in o for o in orphans)
+
+
+def test_run_refuses_unclear_inputs(tmp_path):
+    result = runner.invoke(app, ["run", str(tmp_path / "clip.mp4")])
+    assert result.exit_code == 2 and "--metadata" in result.output
+    result = runner.invoke(app, ["run", str(SAMPLES), "--metadata", str(tmp_path / "x.jsonl")])
+    assert result.exit_code == 2 and "for videos" in result.output
