@@ -289,7 +289,10 @@ def demo(
         "out/demo"),
     method: Annotated[Method, typer.Option(help="Distance method.")] = Method.ground_plane,
 ) -> None:
-    """Measure the bundled sample frames and compare with their exact ground truth."""
+    """Measure the bundled sample frames against their exact ground truth, then run the
+    bundled 24 s berthing flight (annotated video, distances and closing speeds over time)."""
+    from harborsight.evaluation.closing import compare_closing_speeds
+    from harborsight.flight import FolderSource, RunOptions, run_flight
     from harborsight.pipeline import VesselCache
 
     samples = _bundled_samples()
@@ -297,21 +300,54 @@ def demo(
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
     settings = _settings(method, None, None, 2.0)
-    code = _run_folder(samples, None, VesselCache(), settings, out, None, True)
-    raise typer.Exit(code)
+    code = _run_folder(samples, None, VesselCache(), settings, out / "frames", None, True)
+    flight = samples / "flight"
+    console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
+                  f"{_flight_speed(flight)} m/s, 0.5 s between frames)")
+    source = FolderSource(flight, flight / "labels", use_masks=True)
+    with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True) as progress:
+        task = progress.add_task("frames", total=source.frame_count)
+        summary = run_flight(source.frames(), out / "flight", VesselCache(), None,
+                             RunOptions(settings=settings), source_fps=source.fps,
+                             inputs={"input": str(flight), "masks": str(flight / "labels")},
+                             on_frame=lambda _: progress.advance(task))
+    md = summary.min_distance_m
+    console.print(f"{summary.measured} of {summary.frames} frames measured; closest approach "
+                  + (f"{md:.2f} m" if md is not None else "--"))
+    comparison = compare_closing_speeds(flight, out / "flight" / "sections.csv")
+    if comparison is not None:
+        console.print(
+            f"closing speed of the closest section while berthing: measured "
+            f"{comparison.measured_mps:.3f} m/s, true {comparison.true_mps:.3f} m/s "
+            f"(median over {comparison.samples} frames; true from the ground-truth distances)")
+    for name, path in summary.outputs.items():
+        console.print(f"  {name}: {path}")
+    raise typer.Exit(code or (1 if summary.skipped else 0))
+
+
+def _flight_speed(flight: Path) -> str:
+    try:
+        return str(json.loads((flight / "dataset.json").read_text())["parameters"][
+            "approach_speed_mps"])
+    except (OSError, KeyError, json.JSONDecodeError):
+        return "?"
 
 
 @app.command("make-samples")
 def make_samples(
     out: Annotated[Path, typer.Option(help="Dataset folder to (re)write.")] = Path("out/samples"),
     seed: Annotated[int, typer.Option(help="Random seed of the layouts.")] = 20260501,
+    flight_seed: Annotated[int, typer.Option(help="Random seed of the flight's scene.")] = 8,
 ) -> None:
     """Regenerate the demo samples (Blender-rendered harbour frames with exact labels and
-    ground truth; needs the sim extra)."""
-    from harborsight.sim.samples import make_demo_samples
+    ground truth, and the berthing flight; needs the sim extra)."""
+    from harborsight.sim.samples import make_demo_flight, make_demo_samples
 
     stems = make_demo_samples(out, seed)
-    console.print(f"wrote {len(stems)} frames to {out}/ "
+    flight = make_demo_flight(out, flight_seed)
+    console.print(f"wrote {len(stems)} frames to {out}/ and a flight of "
+                  f"{len(list((flight / 'frames').glob('*.json')))} frames to {flight}/ "
                   f"({json.loads((out / 'dataset.json').read_text())['generator']})")
 
 
@@ -388,6 +424,13 @@ def simulate(
         help="Put every frame in this split (e.g. test); default 90 % train, 10 % val.")] = None,
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (tcp://host:8786): render on that cluster.")] = None,
+    sequence_frames: Annotated[int, typer.Option(
+        min=0, help="Flights: this many frames per harbour scene, the vessel berthing toward "
+        "its nearest obstacle (0: every frame a new scene).")] = 0,
+    frame_interval_s: Annotated[float, typer.Option(
+        min=0.01, help="Flights: seconds between frames.")] = 0.5,
+    approach_speed_mps: Annotated[float, typer.Option(
+        min=0.0, help="Flights: the vessel's closing speed, m/s (it stops 0.5 m short).")] = 0.5,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -398,7 +441,9 @@ def simulate(
         config = SimulationConfig(
             seed=seed, preset=preset.value, altitudes_m=parse_altitudes(altitudes), camera=camera,
             max_tilt_deg=max_tilt_deg, vessel_spec=str(vessel.resolve()) if vessel else None,
-            vessel_pool=vessel_pool, scenario=scenario, split=split)
+            vessel_pool=vessel_pool, scenario=scenario, split=split,
+            sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
+            approach_speed_mps=approach_speed_mps)
         config.validate()
         with Progress(TextColumn("[bold]rendering"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), TextColumn("{task.fields[status]}"),

@@ -201,6 +201,14 @@ class BlenderRenderer:
         ocean.foam_layer_name = "foam"
         ocean.foam_coverage = env.foam_coverage
         # generated tiles span [-tile/2, (repeat - 1/2) tile]: centre them on the view
+        if scene.water_anchor_xy is not None:
+            # a sequence: whole tiles from the harbour's anchor, so the waves stay with the
+            # harbour as the vessel moves, and the ocean's time runs
+            anchor = np.asarray(scene.water_anchor_xy, float)
+            repeat += 1
+            centre_xy = anchor + tile * np.round((np.asarray(centre_xy) - anchor) / tile)
+            ocean.time = 1.0 + scene.water_time_s
+            ocean.repeat_x = ocean.repeat_y = repeat
         obj.location = (centre_xy[0] - (repeat - 1) * tile / 2, centre_xy[1] - (repeat - 1) * tile / 2, 0)
         obj.color = _id_colour(0)
 

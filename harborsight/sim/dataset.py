@@ -52,6 +52,11 @@ class SimulationConfig:
     split: str | None = None              # put every frame in this split (e.g. test)
     val_fraction: float = 0.1
     origin_lat_lon: tuple[float, float] = (56.1517, 10.2283)
+    # flights (harborsight.sim.sequence): frames per scene (0: every frame its own scene),
+    # seconds between frames, the vessel's closing speed toward its nearest obstacle
+    sequence_frames: int = 0
+    frame_interval_s: float = 0.5
+    approach_speed_mps: float = 0.5
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -64,6 +69,9 @@ class SimulationConfig:
                              f"choose from {', '.join(CAMERA_PRESETS)}")
         if not self.altitudes_m or min(self.altitudes_m) <= 0:
             raise InputError(None, "--altitudes", "need at least one positive altitude")
+        if self.sequence_frames < 0 or self.frame_interval_s <= 0 or self.approach_speed_mps < 0:
+            raise InputError(None, "--sequence-frames", "need sequence_frames >= 0, "
+                             "frame_interval_s > 0 and approach_speed_mps >= 0")
         for name in (self.scenario or "").split(","):
             if name and name not in SCENARIOS:
                 raise InputError(None, "--scenario", f"unknown scenario {name!r}; "
@@ -108,6 +116,8 @@ def split_of(config: SimulationConfig, index: int) -> str:
     """``train`` or ``val`` by a low-discrepancy sequence (golden ratio), or the forced split."""
     if config.split:
         return config.split
+    if config.sequence_frames:   # a flight's frames stay together
+        index //= config.sequence_frames
     return "val" if (index * 0.6180339887498949) % 1.0 < config.val_fraction else "train"
 
 
@@ -150,15 +160,27 @@ def scenario_of(config: SimulationConfig, index: int) -> str | None:
 
 def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSpec]
                ) -> HarbourScene:
-    """The scene of frame ``index``: a pure function of the seed, the index and the config."""
-    rng = np.random.default_rng([config.seed, index])
+    """The scene of frame ``index``: a pure function of the seed, the index and the config.
+    In a flight (``sequence_frames`` > 0) frames ``i·n .. i·n + n - 1`` share scene ``i``
+    and follow its vessel's berthing (:mod:`harborsight.sim.sequence`)."""
+    scene_index, step = index, 0
+    if config.sequence_frames:
+        scene_index, step = divmod(index, config.sequence_frames)
+    rng = np.random.default_rng([config.seed, scene_index])
     names = sorted(vessels)
     name = names[int(rng.integers(len(names)))]
-    altitude = config.altitudes_m[index % len(config.altitudes_m)]
+    altitude = config.altitudes_m[scene_index % len(config.altitudes_m)]
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
-        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, index), name=stem_of(index))
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, scene_index),
+        name=stem_of(index))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
+    if config.sequence_frames:
+        from harborsight.sim.sequence import sequence_frame
+
+        scene = sequence_frame(scene, scene_index, step, config.frame_interval_s,
+                               config.approach_speed_mps,
+                               np.random.default_rng([config.seed, scene_index, step, 3]))
     return scene
 
 
@@ -361,7 +383,8 @@ def _check_or_write_dataset_json(out_dir: Path, config: SimulationConfig) -> Non
     path = out_dir / "dataset.json"
     if path.is_file():
         doc = json.loads(path.read_text())
-        old = doc.get("parameters", {})
+        defaults = SimulationConfig(seed=config.seed).to_dict()  # keys added since
+        old = {**defaults, **doc.get("parameters", {})}
         new = config.to_dict()
         diff = sorted(k for k in new if old.get(k) != new[k])
         if diff:

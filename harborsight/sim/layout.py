@@ -127,6 +127,11 @@ class HarbourScene(PosedScene):
     gap_m: float | None
     origin: GeoOrigin = field(default_factory=lambda: GeoOrigin(56.1517, 10.2283, 0.0))
     timestamp: str | None = None
+    # sequences (harborsight.sim.sequence): where the harbour's water pattern is anchored in
+    # W (None: on the view), the ocean's time, and the motion that made this frame
+    water_anchor_xy: tuple[float, float] | None = None
+    water_time_s: float = 0.0
+    sequence: dict | None = None
 
     @property
     def class_of_instance(self) -> dict[int, int]:
@@ -146,6 +151,7 @@ class HarbourScene(PosedScene):
             "uav_enu_m": [float(v) for v in self.uav_enu],
             "scenario": self.scenario,
             "gap_m": self.gap_m,
+            **({"sequence": self.sequence} if self.sequence else {}),
         }
 
 

@@ -1,14 +1,19 @@
-"""The bundled demo samples: a harbour tug in five Blender-rendered harbour scenes.
+"""The bundled demo samples: a harbour tug in five Blender-rendered harbour scenes, and a
+24 s flight of the tug berthing at a quay.
 
-``harborsight make-samples`` regenerates them from a seed; the committed copy lives in
-``harborsight/data/samples`` (dataset layout of ``docs/design.md``).
+``harborsight make-samples`` regenerates them from their seeds; the committed copy lives in
+``harborsight/data/samples`` (dataset layout of ``docs/design.md``) with the flight in its
+``flight/`` folder (JPEG images to keep the repository small; labels and metadata exact).
 """
 
 from __future__ import annotations
 
+import json
 import shutil
+import tempfile
 from pathlib import Path
 
+import cv2
 import yaml
 
 from harborsight.sim.dataset import SimulationConfig, simulate
@@ -60,3 +65,49 @@ def make_demo_samples(out_dir: Path, seed: int = DEFAULT_SEED, n_frames: int | N
     if summary.failed:
         raise RuntimeError("; ".join(f.error or "" for f in summary.failed))
     return sorted(p.stem for p in (out_dir / "frames").glob("*.json"))
+
+
+#: the flight: scene seed (an alongside berth 8.7 m off the quay), frames, interval, speed
+FLIGHT_SEED = 8
+FLIGHT_FRAMES = 48
+FLIGHT_INTERVAL_S = 0.5
+FLIGHT_SPEED_MPS = 0.4
+FLIGHT_ALTITUDE_M = 60.0
+FLIGHT_JPEG_QUALITY = 90
+
+
+def flight_config(seed: int = FLIGHT_SEED) -> SimulationConfig:
+    return SimulationConfig(
+        seed=seed, preset="default", altitudes_m=(FLIGHT_ALTITUDE_M,),
+        vessel_spec="vessels/harbour-tug/vessel.yaml", scenario="alongside", split="demo",
+        sequence_frames=FLIGHT_FRAMES, frame_interval_s=FLIGHT_INTERVAL_S,
+        approach_speed_mps=FLIGHT_SPEED_MPS)
+
+
+def make_demo_flight(samples_dir: Path, seed: int = FLIGHT_SEED, n_frames: int | None = None
+                     ) -> Path:
+    """Render the demo flight into ``samples_dir/flight`` (replacing it): frames/*.json,
+    images/*.jpg, labels/*.png; the frames name the tug in ``samples_dir/vessels``."""
+    flight = samples_dir / "flight"
+    if flight.exists():
+        shutil.rmtree(flight)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp) / "flight"
+        write_example_vessel(work / "vessels")
+        summary = simulate(work, n_frames or FLIGHT_FRAMES, flight_config(seed))
+        if summary.failed:
+            raise RuntimeError("; ".join(f.error or "" for f in summary.failed))
+        for sub in ("frames", "images", "labels"):
+            (flight / sub).mkdir(parents=True)
+        for meta_path in sorted((work / "frames").glob("*.json")):
+            stem = meta_path.stem
+            meta = json.loads(meta_path.read_text())
+            meta["image"] = f"{stem}.jpg"
+            meta["vessel_spec"] = "../vessels/harbour-tug/vessel.yaml"
+            (flight / "frames" / meta_path.name).write_text(json.dumps(meta, indent=1) + "\n")
+            image = cv2.imread(str(work / "images" / f"{stem}.png"))
+            cv2.imwrite(str(flight / "images" / f"{stem}.jpg"), image,
+                        [cv2.IMWRITE_JPEG_QUALITY, FLIGHT_JPEG_QUALITY])
+            shutil.copy(work / "labels" / f"{stem}.png", flight / "labels" / f"{stem}.png")
+        shutil.copy(work / "dataset.json", flight / "dataset.json")
+    return flight

@@ -1,0 +1,74 @@
+"""Closing speeds of a run against a simulated flight's ground truth.
+
+The true closing speed of section k between frames i-1 and i+1 is the central difference of
+its ground-truth clearance, ``-(d_k[i+1] - d_k[i-1]) / (t[i+1] - t[i-1])``; the simulator
+moves the vessel at a constant velocity, so while it moves this is exact. Compared at the
+frames where the run measured a closing speed for its closest section and the vessel was
+moving on both sides.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class ClosingSpeedComparison:
+    measured_mps: float          # median over the compared frames
+    true_mps: float              # median over the compared frames
+    median_abs_error_mps: float
+    samples: int
+
+
+def _ground_truth(frames_dir: Path) -> dict[str, dict]:
+    """image name -> that frame's ground truth (frames without a sequence are left out)."""
+    truth = {}
+    for path in sorted(frames_dir.glob("*.json")):
+        meta = json.loads(path.read_text())
+        gt = meta.get("ground_truth") or {}
+        if "sequence" in gt:
+            truth[meta["image"]] = gt
+    return truth
+
+
+def compare_closing_speeds(flight_dir: Path, sections_csv: Path) -> ClosingSpeedComparison | None:
+    """Measured vs true closing speed of each frame's closest section (module docstring);
+    None when the flight carries no sequence ground truth or nothing could be compared."""
+    truth = _ground_truth(flight_dir / "frames")
+    if not truth or not sections_csv.is_file():
+        return None
+    order = sorted(truth, key=lambda image: truth[image]["sequence"]["time_s"])
+    position = {image: i for i, image in enumerate(order)}
+    closest: dict[str, dict] = {}
+    for row in csv.DictReader(sections_csv.open()):
+        if row["distance_m"] and row["closing_speed_mps"] and row["image"] in position:
+            best = closest.get(row["image"])
+            if best is None or float(row["distance_m"]) < float(best["distance_m"]):
+                closest[row["image"]] = row
+    measured, true, errors = [], [], []
+    for image, row in closest.items():
+        i = position[image]
+        if i == 0 or i == len(order) - 1:
+            continue
+        before, after = truth[order[i - 1]], truth[order[i + 1]]
+        if not (before["sequence"]["speed_mps"] and after["sequence"]["speed_mps"]):
+            continue
+        k = int(row["section"])
+        d0 = before["sections"][k]["distance_m"]
+        d1 = after["sections"][k]["distance_m"]
+        if d0 is None or d1 is None:
+            continue
+        dt = after["sequence"]["time_s"] - before["sequence"]["time_s"]
+        v_true = -(d1 - d0) / dt
+        v_measured = float(row["closing_speed_mps"])
+        measured.append(v_measured)
+        true.append(v_true)
+        errors.append(abs(v_measured - v_true))
+    if not measured:
+        return None
+    return ClosingSpeedComparison(statistics.median(measured), statistics.median(true),
+                                  statistics.median(errors), len(measured))
