@@ -669,6 +669,9 @@ def evaluate_distance_command(
                    ] = Path("out/evaluate-distance"),
     oracle: Annotated[bool, typer.Option(
         help="Measure on the simulator's exact labels (separates segmentation errors).")] = True,
+    flat_world: Annotated[bool, typer.Option(
+        help="Also measure on flat-world masks (scene footprints on the water plane): "
+        "pixel quantisation alone, which separates the planar assumption.")] = False,
     model: Annotated[Path | None, typer.Option(
         help="Also measure on masks from this ONNX model; 'default' for the shipped one.")] = None,
     methods: Annotated[str, typer.Option(help="Comma list of gsd, ground_plane.")
@@ -680,6 +683,7 @@ def evaluate_distance_command(
     bar plots, side by side for each mask source and conversion method."""
     from harborsight.evaluation.distance import (
         evaluate_frames,
+        flat_world_masks,
         load_frames,
         markdown_table,
         model_masks,
@@ -696,6 +700,8 @@ def evaluate_distance_command(
     if oracle:
         sources.append(("oracle", oracle_masks))
     try:
+        if flat_world:
+            sources.append(("flat", flat_world_masks(data)))
         if model is not None:
             from harborsight.perception.default_model import load_default_segmenter
 
@@ -703,8 +709,8 @@ def evaluate_distance_command(
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
             sources.append((f"model:{name}", model_masks(segmenter.segment)))
         if not sources:
-            raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle or "
-                             "give --model")
+            raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "
+                             "or give --flat-world or --model")
         frames = load_frames(data, split)[:limit]
         if not frames:
             raise InputError(data / "frames", None, "no frames" + (f" in split {split}" if split else ""))

@@ -223,3 +223,35 @@ def test_worker_processes_render_the_same_frames(dataset, tmp_path):
         b = cv2.imread(str(out / "labels" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED)
         assert np.array_equal(a, b)
         assert _frame(dataset, i)["ground_truth"] == _frame(out, i)["ground_truth"]
+
+
+def test_flat_world_masks_match_footprints_projected_by_opencv(dataset):
+    """Interior pixels of the flat-world masks equal footprints drawn with cv2.projectPoints
+    and cv2.fillPoly (pixels on a drawn boundary are left out)."""
+    from harborsight.evaluation.distance import flat_world_masks
+
+    frame = _frame(dataset, 1)
+    labels = flat_world_masks(dataset)(dataset, frame)
+    vessels = {p.parent.name: load_vessel_spec(p)
+               for p in sorted((dataset / "vessels").glob("*/vessel.yaml"))}
+    scene = plan_frame(TINY, 1, vessels)
+    camera = FrameGeometry.from_metadata(parse_frame_metadata(frame)).camera
+    r_cw = camera.camera_from_world
+    rvec, _ = cv2.Rodrigues(r_cw)
+    tvec = -r_cw @ camera.position_enu
+    intr = camera.intrinsics
+    expected = np.zeros(labels.shape, np.uint8)
+    boundary = np.zeros(labels.shape, np.uint8)
+    for obj in scene.objects:
+        polygons = getattr(obj.footprint(), "geoms", [obj.footprint()])
+        for polygon in polygons:
+            ring = np.column_stack((np.asarray(polygon.exterior.coords),
+                                    np.zeros(len(polygon.exterior.coords))))
+            uv, _ = cv2.projectPoints(ring.reshape(-1, 1, 3), rvec, tvec, intr.K, intr.dist_coeffs)
+            pts = np.round(uv.reshape(-1, 2) * 16).astype(np.int32)
+            cv2.fillPoly(expected, [pts], obj.class_id, shift=4)
+            cv2.polylines(boundary, [pts], True, 1, 2, shift=4)
+    interior = cv2.dilate(boundary, np.ones((3, 3), np.uint8)) == 0
+    assert interior.sum() > 0.5 * labels.size
+    assert np.array_equal(labels[interior], expected[interior])
+    assert set(np.unique(labels)) >= {0, 1}

@@ -54,6 +54,52 @@ def model_masks(segment: Callable[[np.ndarray], np.ndarray]) -> MaskSource:
     return source
 
 
+def flat_world_masks(dataset: Path) -> MaskSource:
+    """Masks of a flat world: each pixel centre back-projected onto the water plane and
+    labelled by the scene footprint it falls in (the simulator's scene rebuilt from the
+    dataset's seed and parameters; no bpy needed).
+
+    These masks have the rendered frame's pixel grid but no height: measuring on them leaves
+    only pixel quantisation, so ``oracle`` minus ``flat`` is the planar assumption's share
+    of the error (paper Sec. V, the first two error sources)."""
+    from harborsight.frame import FrameGeometry
+    from harborsight.sim.dataset import SimulationConfig, plan_frame
+
+    doc = json.loads((dataset / "dataset.json").read_text())
+    config = SimulationConfig.from_dict(doc["parameters"])
+    vessels = {p.parent.name: load_vessel_spec(p)
+               for p in sorted((dataset / "vessels").glob("*/vessel.yaml"))}
+
+    def source(dataset_dir: Path, frame: dict) -> np.ndarray:
+        scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
+        geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+        return flat_world_labels(geometry, [(obj.footprint(), obj.class_id)
+                                            for obj in scene.objects])
+    return source
+
+
+def flat_world_labels(geometry, footprints: list[tuple]) -> np.ndarray:
+    """Class labels of pixel centres whose ray meets the water plane inside a footprint
+    (later footprints win); 255 where the ray misses the plane."""
+    import shapely
+
+    intr = geometry.camera.intrinsics
+    u, v = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
+    ground, valid = geometry.camera.back_project_to_plane(np.column_stack((u.ravel(), v.ravel())))
+    labels = np.where(valid, 0, 255).astype(np.uint8)
+    x, y = ground[:, 0], ground[:, 1]
+    view = shapely.MultiPoint(ground[valid, :2]).envelope
+    for polygon, class_id in footprints:
+        if polygon.is_empty or not polygon.intersects(view):
+            continue
+        box = polygon.bounds
+        near = valid & (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+        inside = near.copy()
+        inside[near] = shapely.contains_xy(polygon, x[near], y[near])
+        labels[inside] = class_id
+    return labels.reshape(intr.height, intr.width)
+
+
 @dataclass
 class SectionResult:
     frame: str
