@@ -147,7 +147,7 @@ class ClearanceTimeline:
         sections = sorted({r["section"] for r in measured})
         colours = plt.get_cmap("viridis")(
             [i / max(len(sections) - 1, 1) for i in range(len(sections))])
-        fig, (ax_d, ax_v) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True,
+        fig, (ax_d, ax_v) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True,
                                          height_ratios=[2, 1], constrained_layout=True)
         for colour, k in zip(colours, sections, strict=True):
             rows = [r for r in measured if r["section"] == k]
@@ -157,7 +157,8 @@ class ClearanceTimeline:
         ax_d.axhspan(alarm_m, warn_m, color="tab:orange", alpha=0.10, lw=0)
         ax_d.set_ylim(bottom=0)
         ax_d.set_ylabel("clearance (m)")
-        ax_d.legend(ncol=min(len(sections), 6), fontsize=7, loc="upper right")
+        ax_d.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                    ncol=1 + len(sections) // 17)
         ax_d.grid(alpha=0.3)
         closest = {}
         for r in measured:
