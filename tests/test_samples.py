@@ -56,7 +56,9 @@ def test_demo_measures_every_sample(tmp_path):
     result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path)], terminal_width=160)
     assert result.exit_code == 0, result.output
     assert "5 frame(s) measured" in result.output
-    reports = sorted(tmp_path.glob("*.json"))
+    assert "48 of 48 frames measured" in result.output
+    assert (tmp_path / "flight" / "annotated.mp4").stat().st_size > 100_000
+    reports = sorted((tmp_path / "frames").glob("*.json"))
     assert len(reports) == 5
     errors = []
     for path in reports:
