@@ -70,11 +70,15 @@ def flat_world_masks(dataset: Path) -> MaskSource:
     vessels = {p.parent.name: load_vessel_spec(p)
                for p in sorted((dataset / "vessels").glob("*/vessel.yaml"))}
 
+    cache: dict[str, np.ndarray] = {}   # each method measures the same masks
+
     def source(dataset_dir: Path, frame: dict) -> np.ndarray:
-        scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
-        geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
-        return flat_world_labels(geometry, [(obj.footprint(), obj.class_id)
-                                            for obj in scene.objects])
+        if frame["image"] not in cache:
+            scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
+            geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+            cache[frame["image"]] = flat_world_labels(
+                geometry, [(obj.footprint(), obj.class_id) for obj in scene.objects])
+        return cache[frame["image"]]
     return source
 
 
@@ -88,7 +92,7 @@ def flat_world_labels(geometry, footprints: list[tuple]) -> np.ndarray:
     ground, valid = geometry.camera.back_project_to_plane(np.column_stack((u.ravel(), v.ravel())))
     labels = np.where(valid, 0, 255).astype(np.uint8)
     x, y = ground[:, 0], ground[:, 1]
-    view = shapely.MultiPoint(ground[valid, :2]).envelope
+    view = shapely.box(*ground[valid, :2].min(axis=0), *ground[valid, :2].max(axis=0))
     for polygon, class_id in footprints:
         if polygon.is_empty or not polygon.intersects(view):
             continue
