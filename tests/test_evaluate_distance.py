@@ -9,6 +9,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from harborsight.cli import app
@@ -75,3 +76,16 @@ def test_cli_writes_csv_tables_and_plots(tmp_path):
     assert np.mean(gp) < np.mean(gsd)  # the tilt-exact conversion beats the nadir GSD
     bad = CliRunner().invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), "--no-oracle"])
     assert bad.exit_code == 2 and "nothing to evaluate" in bad.output
+
+
+def test_sections_csv_reads_back(tmp_path):
+    from harborsight.evaluation.distance import SectionResult, read_csv, summarise, write_csv
+
+    results = [SectionResult("000001", 40.0, "oracle", "gsd", 3, "ok", 2.5, 2.4, 0.05, False, True),
+               SectionResult("000001", 40.0, "oracle", "gsd", 4, "clear", None, 7.0, 0.05, False,
+                             False)]
+    write_csv(results, tmp_path / "s.csv")
+    again = read_csv(tmp_path / "s.csv")
+    assert [r.kind for r in again] == ["estimate", "missed"]
+    assert again[0].abs_error_m == pytest.approx(0.1, abs=1e-4) and again[0].truncated
+    assert summarise(again)[0].missed == 1

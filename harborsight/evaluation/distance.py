@@ -224,6 +224,19 @@ def write_csv(results: list[SectionResult], path: Path) -> None:
                              int(r.contact), int(r.truncated)])
 
 
+def read_csv(path: Path) -> list[SectionResult]:
+    """The results of :func:`write_csv` again (to re-plot or re-summarise without measuring)."""
+    def number(text: str) -> float | None:
+        return float(text) if text else None
+
+    with path.open(newline="") as f:
+        return [SectionResult(row["frame"], float(row["altitude_m"]), row["masks"], row["method"],
+                              int(row["section"]), row["status"], number(row["estimate_m"]),
+                              number(row["truth_m"]), float(row["gsd_m_per_px"]),
+                              bool(int(row["contact"])), bool(int(row["truncated"])))
+                for row in csv.DictReader(f)]
+
+
 def _fmt(value: float | None, digits: int = 2) -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
@@ -270,8 +283,9 @@ def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_d
     width = 0.8 / max(1, len(configs))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     paths = []
+    figsize = (min(14.0, max(8.0, 0.55 * len(altitudes) * max(1, len(configs)) ** 0.5)), 4.5)
 
-    fig, ax = plt.subplots(figsize=(max(8, 1.1 * len(altitudes) * max(1, len(configs)) ** 0.5), 4.5))
+    fig, ax = plt.subplots(figsize=figsize)
     for c, (masks, method) in enumerate(configs):
         data = [[r.abs_error_m for r in results if r.kind == "estimate" and r.masks == masks
                  and r.method == method and r.altitude_m == a] for a in altitudes]
@@ -289,13 +303,15 @@ def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_d
     paths.append(_finish(fig, ax, altitudes, "absolute distance error (m)",
                          "Absolute distance error per section", out_dir / "distance_error_box.png"))
 
-    fig, ax = plt.subplots(figsize=(max(8, 1.1 * len(altitudes) * max(1, len(configs)) ** 0.5), 4.5))
+    fig, ax = plt.subplots(figsize=figsize)
     for c, (masks, method) in enumerate(configs):
         sel = {r.altitude_m: r for r in rows if r.masks == masks and r.method == method}
         mae = [sel[a].mae_m if a in sel and sel[a].mae_m is not None else np.nan for a in altitudes]
         std = [sel[a].std_m if a in sel and sel[a].std_m is not None else np.nan for a in altitudes]
         positions = np.arange(len(altitudes)) + (c - (len(configs) - 1) / 2) * width
-        ax.bar(positions, mae, width * 0.9, yerr=std, capsize=2, label=f"{masks}, {method}",
+        below = np.minimum(std, mae)            # an absolute error is never below zero
+        ax.bar(positions, mae, width * 0.9, yerr=[below, std], capsize=2,
+               label=f"{masks}, {method}",
                color=colours[c % len(colours)], alpha=0.8)
     paths.append(_finish(fig, ax, altitudes, "mean absolute error (m), ± std",
                          "Mean absolute distance error", out_dir / "distance_mae_bar.png"))
