@@ -145,3 +145,13 @@ def test_augmentation_is_reproducible_per_seed():
     first, again, other = run(7), run(7), [run(s) for s in range(8, 12)]
     assert all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
     assert any(not np.array_equal(first[0], o[0]) for o in other)
+
+
+def test_a_frame_still_being_written_is_left_out(dataset_copy):
+    """The simulator writes images first and the frame JSON last: an image without its frame
+    JSON and split entry belongs to a frame in progress, not to the dataset yet."""
+    shutil.copy(dataset_copy / "images" / "000000.png", dataset_copy / "images" / "000099.png")
+    assert len(SegmentationFrames([dataset_copy])) == len(TINY_SPLITS)
+    (dataset_copy / "frames" / "000099.json").write_text("{}")       # finished, but not listed
+    with pytest.raises(InputError, match="no split entry for '000099'"):
+        SegmentationFrames([dataset_copy])

@@ -441,7 +441,7 @@ def simulate(
 
     def record(result: FrameResult) -> None:
         (failed if result.error else rendered).append(result)
-        if len(rendered) % 25 == 0 and not result.error:
+        if not result.error:
             _save_dataset_json(out_dir, config)  # a dataset in the making is usable already
         if on_frame:
             on_frame(result)

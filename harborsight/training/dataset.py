@@ -61,8 +61,11 @@ def read_split_map(dataset_dir: Path) -> dict[str, str]:
     images_dir = dataset_dir / "images"
     if not images_dir.is_dir():
         raise InputError(images_dir, None, "images folder not found")
+    frames_dir = dataset_dir / "frames"
     for path in sorted(images_dir.iterdir()):
         if path.suffix.lower() in IMAGE_SUFFIXES and path.stem not in split:
+            if frames_dir.is_dir() and not (frames_dir / f"{path.stem}.json").is_file():
+                continue  # the simulator writes the frame JSON last: a frame still being written
             raise InputError(path, None, f"no split entry for {path.stem!r} in {meta_path}")
     return {str(stem): name for stem, name in split.items()}
 
