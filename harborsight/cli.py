@@ -177,6 +177,25 @@ def measure(
     console.print(f"report: {outcome.report_path}\noverlay: {outcome.overlay_path}")
 
 
+def _run_flight_with_progress(source, out: Path, vessels, segmenter, options, inputs: dict):
+    """:func:`harborsight.flight.run_flight` over ``source`` (a Folder- or VideoSource) with a
+    progress bar that flags skipped frames."""
+    from harborsight.flight import run_flight
+
+    with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
+                  console=console, transient=True) as progress:
+        task = progress.add_task("frames", total=source.frame_count or None, status="")
+
+        def advance(frame) -> None:
+            if frame.index >= 0:        # index -1: a metadata line that names no frame
+                progress.update(task, advance=1,
+                                status="" if frame.error is None else "[red]skipped one")
+
+        return run_flight(source.frames(), out, vessels, segmenter, options,
+                          source_fps=source.fps, inputs=inputs, on_frame=advance)
+
+
 @app.command("run")
 def run_command(
     input_path: Annotated[Path, typer.Argument(
@@ -215,7 +234,7 @@ def run_command(
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
-    from harborsight.flight import FolderSource, RunOptions, VideoSource, run_flight
+    from harborsight.flight import FolderSource, RunOptions, VideoSource
     from harborsight.geometry.camera import load_camera_calibration
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
@@ -245,18 +264,7 @@ def run_command(
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
                   "masks": str(masks) if masks else None}
-        with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
-                      console=console, transient=True) as progress:
-            task = progress.add_task("frames", total=source.frame_count or None, status="")
-
-            def advance(frame) -> None:
-                if frame.index >= 0:
-                    progress.update(task, advance=1,
-                                    status="" if frame.error is None else "[red]skipped one")
-
-            summary = run_flight(source.frames(), out, vessels, segmenter, options,
-                                 source_fps=source.fps, inputs=inputs, on_frame=advance)
+        summary = _run_flight_with_progress(source, out, vessels, segmenter, options, inputs)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
@@ -292,7 +300,7 @@ def demo(
     """Measure the bundled sample frames against their exact ground truth, then run the
     bundled 24 s berthing flight (annotated video, distances and closing speeds over time)."""
     from harborsight.evaluation.closing import compare_closing_speeds
-    from harborsight.flight import FolderSource, RunOptions, run_flight
+    from harborsight.flight import FolderSource, RunOptions
     from harborsight.pipeline import VesselCache
 
     samples = _bundled_samples()
@@ -305,13 +313,9 @@ def demo(
     console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
                   f"{_flight_speed(flight)} m/s, 0.5 s between frames)")
     source = FolderSource(flight, flight / "labels", use_masks=True)
-    with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
-        task = progress.add_task("frames", total=source.frame_count)
-        summary = run_flight(source.frames(), out / "flight", VesselCache(), None,
-                             RunOptions(settings=settings), source_fps=source.fps,
-                             inputs={"input": str(flight), "masks": str(flight / "labels")},
-                             on_frame=lambda _: progress.advance(task))
+    summary = _run_flight_with_progress(
+        source, out / "flight", VesselCache(), None, RunOptions(settings=settings),
+        {"input": str(flight), "masks": str(flight / "labels")})
     md = summary.min_distance_m
     console.print(f"{summary.measured} of {summary.frames} frames measured; closest approach "
                   + (f"{md:.2f} m" if md is not None else "--"))
