@@ -117,3 +117,50 @@ def test_image_border_is_not_an_obstacle():
     labels[labels_vessel == 1] = 1
     report = measure_clearance(labels, scene.geometry(), vessel)
     assert all(s.status in ("clear", "out_of_view") for s in report.sections)
+
+
+def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():
+    """A wedge whose tip enters section k's band by 0.3 px leaves no pixel centre there; the
+    pixel squares that reach across the break still give section k its (true) distance."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    from harborsight.sim.schematic import Footprint
+
+    vessel = flat_box_vessel()
+    rng = np.random.default_rng(0)
+    scene = sample_scene(vessel, rng, altitude_m=100, scenario="open")
+    geometry = scene.geometry()
+    sections = vessel.sections()
+    # a break on a straight side: its ray is the side's normal
+    k = next(i for i in range(1, sections.n_sections)
+             if abs(sections.break_ray[i] @ sections.edge_dir[sections.break_edge[i]]) < 1e-9
+             and sections.break_edge[i - 1] == sections.break_edge[i]
+             and sections.break_points[i, 1] > 0)
+    origin, ray = sections.break_points[k], sections.break_ray[k]
+    tangent = sections.edge_dir[sections.break_edge[k]]   # into section k
+    gsd_m = 100.0 / scene.intrinsics.fx
+    gap_m = 7.0
+    tip = origin + gap_m * ray + 0.3 * gsd_m * tangent
+    wedge_v = np.array([tip, tip - 8.0 * tangent, tip - 8.0 * tangent + 10.0 * ray])
+    wedge = Polygon(geometry.vessel_to_enu(wedge_v)[:, :2])
+    scene.footprints = [Footprint(wedge, 2, 5, "quay", (120, 120, 120))]
+    _, labels, _ = render(scene)
+    truth = ground_truth(scene)["sections"]
+    assert truth[k]["distance_m"] == pytest.approx(gap_m, abs=1e-6)
+
+    # precondition: no solid pixel centre lies in section k's band
+    rows, cols = np.nonzero(labels == 2)
+    solid_v, _ = geometry.pixels_to_vessel_xy(np.column_stack((cols, rows)).astype(float))
+    assert k - 1 in set(sections.assign(solid_v).section.tolist())
+    assert k not in set(sections.assign(solid_v).section.tolist())
+    assert not shapely.contains_xy(wedge, *geometry.vessel_to_enu(
+        sections.section_polyline(k))[:, :2].T).any()
+
+    report = measure_clearance(labels, geometry, vessel)
+    measured = report.sections[k]
+    assert measured.status == "ok"
+    assert abs(measured.distance_m - gap_m) <= 1.0 * report.gsd_m_per_px
+    # the section that holds the wedge is unchanged by its neighbour's candidates
+    assert abs(report.sections[k - 1].distance_m - truth[k - 1]["distance_m"]) \
+        <= 1.0 * report.gsd_m_per_px

@@ -23,12 +23,42 @@ from harborsight.evaluation.distance import (
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 
 
+def _obstacle_gap_to_band_m(frame: dict, section: int) -> float:
+    """Water-plane distance from the scene's obstacles to a section's band (the scene is
+    rebuilt from the dataset's seed, as the flat-world masks do)."""
+    import shapely
+
+    from harborsight.frame import FrameGeometry, parse_frame_metadata
+    from harborsight.sim.dataset import SimulationConfig, plan_frame
+    from harborsight.sim.ground_truth import section_band_polygon
+    from harborsight.vessel.spec import load_vessel_spec
+
+    config = SimulationConfig.from_dict(
+        json.loads((SAMPLES / "dataset.json").read_text())["parameters"])
+    vessels = {p.parent.name: load_vessel_spec(p)
+               for p in sorted((SAMPLES / "vessels").glob("*/vessel.yaml"))}
+    scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
+    geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+    vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
+    others = [shapely.transform(obj.footprint(), geometry.enu_to_vessel_xy)
+              for obj in scene.objects[1:]]   # objects[0] is the vessel of interest
+    band = section_band_polygon(vessel.sections(), section)
+    return float(shapely.distance(band, shapely.union_all(others)))
+
+
 def test_oracle_ground_plane_is_close_and_counts_nothing_missed():
-    results = evaluate_frames(SAMPLES, load_frames(SAMPLES), "oracle", oracle_masks, "ground_plane")
+    frames = load_frames(SAMPLES)
+    results = evaluate_frames(SAMPLES, frames, "oracle", oracle_masks, "ground_plane")
     estimates = [r for r in results if r.kind == "estimate"]
     assert len(estimates) >= 30
     assert np.median([r.abs_error_m / r.gsd_m_per_px for r in estimates]) <= 1.0
-    assert not [r for r in results if r.kind in ("missed", "false")]
+    assert not [r for r in results if r.kind == "missed"]
+    # a false obstacle is only allowed where one lies within 2 px of the band: a corner that
+    # close may reach into it (pixel squares, leaning heights), and missing it would be worse
+    by_stem = {Path(f["image"]).stem: f for f in frames}
+    for r in (r for r in results if r.kind == "false"):
+        gap_px = _obstacle_gap_to_band_m(by_stem[r.frame], r.section) / r.gsd_m_per_px
+        assert gap_px <= 2.0, (r, gap_px)
 
 
 def test_erased_obstacles_are_missed_and_painted_ones_are_false():

@@ -17,7 +17,10 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 4. pixel-boundary correction: a contour pixel is the centre of the outermost solid pixel,
    and the solid pixel covers its whole square, so the chosen obstacle point is moved
    toward the hull to where that ray leaves the square (0.5 to 0.71 px) before its
-   distance is taken.
+   distance is taken;
+5. band edges: a contour pixel whose square (not only its centre) reaches into a
+   neighbouring band is also a candidate of that band, so an obstacle corner poking less
+   than a pixel into a band is not missed (see ``_band_edge_pixels``).
 """
 
 from __future__ import annotations
@@ -115,6 +118,12 @@ class _Candidates:
     contact: np.ndarray
     on_border: np.ndarray
 
+    @classmethod
+    def empty(cls) -> _Candidates:
+        none = np.zeros(0)
+        return cls(none.astype(int), none, np.zeros((0, 2)), np.zeros((0, 2)),
+                   none.astype(bool), none.astype(bool))
+
     def extended(self, other: _Candidates) -> _Candidates:
         return _Candidates(*(np.concatenate((getattr(self, f), getattr(other, f)))
                              for f in self.__dataclass_fields__))
@@ -139,9 +148,7 @@ def _band_crossings(
     backward = (b >= 0) & (a == (b + 1) % n)
     pair = np.flatnonzero((forward | backward) & (a != b))
     if len(pair) == 0:
-        empty = np.zeros(0)
-        return _Candidates(empty.astype(int), empty, np.zeros((0, 2)), np.zeros((0, 2)),
-                           empty.astype(bool), empty.astype(bool))
+        return _Candidates.empty()
     k = np.where(forward[pair], b[pair], a[pair])
     p, q = points[pair], points[nxt[pair]]
     origin, ray = outline.break_points[k], outline.break_ray[k]
@@ -161,6 +168,77 @@ def _band_crossings(
         section=twice[a[pair], b[pair]], distance=twice[dist, dist],
         nearest=np.vstack((origin, origin)), points_px=np.vstack((cross_px, cross_px)),
         contact=twice[contact, contact], on_border=twice[border, border],
+    )
+
+
+_BAND_EDGE_PENALTY_PX = 2.0
+_TIP_STEPS = 3
+_PIXEL_CORNERS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+
+
+def _band_edge_pixels(
+    outline: SectionedOutline, to_outline, points: np.ndarray, points_px: np.ndarray,
+    section: np.ndarray, contours,
+) -> _Candidates:
+    """Contour pixels whose square reaches into a neighbouring section's band.
+
+    A contour point is a pixel centre, but the solid pixel covers its whole square: an
+    obstacle corner that enters section b's band by less than a pixel leaves every contour
+    centre in band a = b ± 1, and section b would see nothing there. Each contour pixel's
+    four corners are mapped like the centres (``to_outline``); when one of them falls in a
+    neighbouring band b, the pixel is also a candidate of b, at its foot on the break ray
+    ``B + s·r`` they share (distance ``s = (p - B)·r``, nearest hull point ``B``).
+
+    Whether the obstacle really crosses is beyond a binary mask (an edge running along the
+    ray within half a pixel looks the same), so only tips count: the contour, ``_TIP_STEPS``
+    points before and after, is farther from the ray by more than half a pixel. And they
+    rank as if
+    ``_BAND_EDGE_PENALTY_PX`` pixels farther: they win only where the band's own points are
+    farther still, i.e. where missing the sliver would cost more than a few pixels. The
+    reported distance is the pixel's own (with the boundary correction), not the penalty.
+    """
+    n = outline.n_sections
+    candidate = np.flatnonzero(section >= 0)
+    if n < 2 or len(candidate) == 0:
+        return _Candidates.empty()
+    corners_px = (points_px[candidate, None, :] + _PIXEL_CORNERS).reshape(-1, 2)
+    corners, corners_valid = to_outline(corners_px)
+    corner_section = np.where(corners_valid, outline.assign(
+        np.where(corners_valid[:, None], corners, 0.0)).section, -1).reshape(-1, 4)
+    own = section[candidate]
+    chosen, neighbour, shared_break = [], [], []
+    for step, break_of in ((1, (own + 1) % n), (-1, own)):
+        other = (own + step) % n
+        reaches = np.any(corner_section == other[:, None], axis=1) & (other != own)
+        chosen.append(candidate[reaches])
+        neighbour.append(other[reaches])
+        shared_break.append(break_of[reaches])
+    idx, b, k = (np.concatenate(v) for v in (chosen, neighbour, shared_break))
+    origin, ray = outline.break_points[k], outline.break_ray[k]
+    along = np.maximum(np.einsum("ij,ij->i", points[idx] - origin, ray), 0.0)
+    # the pixel's size where it lies (mean diagonal / sqrt 2), in the outline's units
+    square = corners.reshape(-1, 4, 2)[np.searchsorted(candidate, idx)]
+    pixel_size = 0.5 * (np.hypot(*(square[:, 2] - square[:, 0]).T)
+                        + np.hypot(*(square[:, 3] - square[:, 1]).T)) / 2 ** 0.5
+    # only tips: the contour must recede from the ray on both sides (an edge that runs along
+    # the ray is not a corner entering the band)
+    def side_distance(i: np.ndarray) -> np.ndarray:
+        rel = points[i] - origin
+        return rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]
+    own_side = np.sign(side_distance(idx))
+    previous = np.empty_like(contours.next_index)
+    previous[contours.next_index] = np.arange(len(previous))
+    ahead, behind = idx.copy(), idx.copy()
+    for _ in range(_TIP_STEPS):
+        ahead, behind = contours.next_index[ahead], previous[behind]
+    depth = own_side * side_distance(idx) + 0.5 * pixel_size
+    tip = ((own_side * side_distance(ahead) > depth)
+           & (own_side * side_distance(behind) > depth))
+    idx, b, origin, along, pixel_size = idx[tip], b[tip], origin[tip], along[tip], pixel_size[tip]
+    return _Candidates(
+        section=b, distance=along + _BAND_EDGE_PENALTY_PX * pixel_size, nearest=origin,
+        points_px=points_px[idx],
+        contact=contours.contact[idx], on_border=contours.on_border[idx],
     )
 
 
@@ -195,19 +273,22 @@ def measure_clearance(
 
     if settings.method == "ground_plane":
         outline = sections_v
-        points, valid = geometry.pixels_to_vessel_xy(points_px)
+        to_outline = geometry.pixels_to_vessel_xy
     else:
         outline = sections_v.transformed(vessel_to_px)
         if not np.isfinite(outline.vertices).all():
             raise InputError(geometry.source, "vessel",
                              "the hull crosses the camera's horizon: the gsd method cannot be used")
-        points, valid = points_px, np.ones(len(points_px), bool)
+        def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return uv, np.ones(len(uv), bool)
+    points, valid = to_outline(points_px)
     assignment = outline.assign(np.where(valid[:, None], points, 0.0))
     section = np.where(valid, assignment.section, -1)
     candidates = _Candidates(
         section=section, distance=assignment.distance, nearest=assignment.nearest,
         points_px=points_px, contact=contours.contact, on_border=contours.on_border,
-    ).extended(_band_crossings(outline, points, points_px, section, contours))
+    ).extended(_band_crossings(outline, points, points_px, section, contours)).extended(
+        _band_edge_pixels(outline, to_outline, points, points_px, section, contours))
 
     # nearest candidate per visible section
     inband = np.flatnonzero((candidates.section >= 0)
