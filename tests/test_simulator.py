@@ -242,7 +242,8 @@ def test_flat_world_masks_match_footprints_projected_by_opencv(dataset):
     intr = camera.intrinsics
     expected = np.zeros(labels.shape, np.uint8)
     boundary = np.zeros(labels.shape, np.uint8)
-    for obj in scene.objects:
+    own, *others = scene.objects
+    for obj in others:
         polygons = getattr(obj.footprint(), "geoms", [obj.footprint()])
         for polygon in polygons:
             ring = np.column_stack((np.asarray(polygon.exterior.coords),
@@ -251,6 +252,14 @@ def test_flat_world_masks_match_footprints_projected_by_opencv(dataset):
             pts = np.round(uv.reshape(-1, 2) * 16).astype(np.int32)
             cv2.fillPoly(expected, [pts], obj.class_id, shift=4)
             cv2.polylines(boundary, [pts], True, 1, 2, shift=4)
+    # the vessel of interest: the convex hull of its projected hull points, as in the frame
+    vessel = load_vessel_spec(dataset / frame["vessel_spec"])
+    geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+    hull_enu = geometry.vessel_to_enu(vessel.hull_points)
+    uv, _ = cv2.projectPoints(hull_enu.reshape(-1, 1, 3), rvec, tvec, intr.K, intr.dist_coeffs)
+    pts = np.round(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2) * 16).astype(np.int32)
+    cv2.fillPoly(expected, [pts], own.class_id, shift=4)
+    cv2.polylines(boundary, [pts], True, 1, 2, shift=4)
     interior = cv2.dilate(boundary, np.ones((3, 3), np.uint8)) == 0
     assert interior.sum() > 0.5 * labels.size
     assert np.array_equal(labels[interior], expected[interior])

@@ -61,7 +61,10 @@ def flat_world_masks(dataset: Path) -> MaskSource:
 
     These masks have the rendered frame's pixel grid but no height: measuring on them leaves
     only pixel quantisation, so ``oracle`` minus ``flat`` is the planar assumption's share
-    of the error (paper Sec. V, the first two error sources)."""
+    of the error (paper Sec. V, the first two error sources). The vessel of interest is
+    drawn as in the frame, as the image silhouette of its whole hull: its plan footprint
+    laid flat would stick out of that silhouette where the hull flares and become a false
+    obstacle touching the hull."""
     from harborsight.frame import FrameGeometry
     from harborsight.sim.dataset import SimulationConfig, plan_frame
 
@@ -76,16 +79,22 @@ def flat_world_masks(dataset: Path) -> MaskSource:
         if frame["image"] not in cache:
             scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
             geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+            own, *others = scene.objects   # objects[0] is the vessel of interest
             cache[frame["image"]] = flat_world_labels(
-                geometry, [(obj.footprint(), obj.class_id) for obj in scene.objects])
+                geometry, [(obj.footprint(), obj.class_id) for obj in others],
+                vessel=(vessels[Path(frame["vessel_spec"]).parent.name], own.class_id))
         return cache[frame["image"]]
     return source
 
 
-def flat_world_labels(geometry, footprints: list[tuple]) -> np.ndarray:
+def flat_world_labels(geometry, footprints: list[tuple],
+                      vessel: tuple[VesselSpec, int] | None = None) -> np.ndarray:
     """Class labels of pixel centres whose ray meets the water plane inside a footprint
-    (later footprints win); 255 where the ray misses the plane."""
+    (later footprints win); 255 where the ray misses the plane. ``vessel`` (spec, class)
+    is painted last, over the image silhouette of its hull points."""
     import shapely
+
+    from harborsight.sim.ground_truth import vessel_silhouette_px
 
     intr = geometry.camera.intrinsics
     u, v = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
@@ -101,6 +110,9 @@ def flat_world_labels(geometry, footprints: list[tuple]) -> np.ndarray:
         inside = near.copy()
         inside[near] = shapely.contains_xy(polygon, x[near], y[near])
         labels[inside] = class_id
+    if vessel is not None:
+        silhouette = shapely.Polygon(vessel_silhouette_px(vessel[0], geometry))
+        labels[shapely.contains_xy(silhouette, u.ravel(), v.ravel())] = vessel[1]
     return labels.reshape(intr.height, intr.width)
 
 
