@@ -17,6 +17,7 @@ from harborsight.evaluation.distance import (
     evaluate_frames,
     load_frames,
     oracle_masks,
+    scene_planner,
     summarise,
 )
 
@@ -29,17 +30,10 @@ def _obstacle_gap_to_band_m(frame: dict, section: int) -> float:
     import shapely
 
     from harborsight.frame import FrameGeometry, parse_frame_metadata
-    from harborsight.sim.dataset import SimulationConfig, plan_frame
     from harborsight.sim.ground_truth import section_band_polygon
-    from harborsight.vessel.spec import load_vessel_spec
 
-    config = SimulationConfig.from_dict(
-        json.loads((SAMPLES / "dataset.json").read_text())["parameters"])
-    vessels = {p.parent.name: load_vessel_spec(p)
-               for p in sorted((SAMPLES / "vessels").glob("*/vessel.yaml"))}
-    scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
+    scene, vessel = scene_planner(SAMPLES)(frame)
     geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
-    vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
     others = [shapely.transform(obj.footprint(), geometry.enu_to_vessel_xy)
               for obj in scene.objects[1:]]   # objects[0] is the vessel of interest
     band = section_band_polygon(vessel.sections(), section)

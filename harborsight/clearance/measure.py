@@ -173,6 +173,7 @@ def _band_crossings(
 
 _BAND_EDGE_PENALTY_PX = 2.0
 _TIP_STEPS = 3
+_NEAR_RAY_STEPS = 1.5
 _PIXEL_CORNERS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 
 
@@ -192,14 +193,29 @@ def _band_edge_pixels(
     Whether the obstacle really crosses is beyond a binary mask (an edge running along the
     ray within half a pixel looks the same), so only tips count: the contour, ``_TIP_STEPS``
     points before and after, is farther from the ray by more than half a pixel. And they
-    rank as if
-    ``_BAND_EDGE_PENALTY_PX`` pixels farther: they win only where the band's own points are
-    farther still, i.e. where missing the sliver would cost more than a few pixels. The
-    reported distance is the pixel's own (with the boundary correction), not the penalty.
+    rank as if ``_BAND_EDGE_PENALTY_PX`` pixels farther: they win only where the band's own
+    points are farther still, i.e. where missing the sliver would cost more than a few
+    pixels. The reported distance is the pixel's own (with the boundary correction), not
+    the penalty.
     """
     n = outline.n_sections
-    candidate = np.flatnonzero(section >= 0)
-    if n < 2 or len(candidate) == 0:
+    if n < 2:
+        return _Candidates.empty()
+    # cheap pre-filter before mapping corners: only points within about a pixel of one of
+    # their section's two boundary rays can have a corner across it. A pixel's extent in the
+    # outline's units is bounded from the steps to its contour neighbours (1 or 1.4 px each)
+    previous = np.empty_like(contours.next_index)
+    previous[contours.next_index] = np.arange(len(previous))
+    step = np.maximum(np.hypot(*(points[contours.next_index] - points).T),
+                      np.hypot(*(points[previous] - points).T))
+    own_all = np.maximum(section, 0)
+    near_ray = np.zeros(len(points), bool)
+    for k in (own_all, (own_all + 1) % n):
+        rel = points - outline.break_points[k]
+        ray = outline.break_ray[k]
+        near_ray |= np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]) <= _NEAR_RAY_STEPS * step
+    candidate = np.flatnonzero((section >= 0) & near_ray)
+    if len(candidate) == 0:
         return _Candidates.empty()
     corners_px = (points_px[candidate, None, :] + _PIXEL_CORNERS).reshape(-1, 2)
     corners, corners_valid = to_outline(corners_px)
@@ -226,8 +242,6 @@ def _band_edge_pixels(
         rel = points[i] - origin
         return rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]
     own_side = np.sign(side_distance(idx))
-    previous = np.empty_like(contours.next_index)
-    previous[contours.next_index] = np.arange(len(previous))
     ahead, behind = idx.copy(), idx.copy()
     for _ in range(_TIP_STEPS):
         ahead, behind = contours.next_index[ahead], previous[behind]

@@ -66,6 +66,25 @@ def flat_world_masks(dataset: Path) -> MaskSource:
     laid flat would stick out of that silhouette where the hull flares and become a false
     obstacle touching the hull."""
     from harborsight.frame import FrameGeometry
+
+    plan = scene_planner(dataset)
+    cache: dict[str, np.ndarray] = {}   # each method measures the same masks
+
+    def source(dataset_dir: Path, frame: dict) -> np.ndarray:
+        if frame["image"] not in cache:
+            scene, vessel = plan(frame)
+            geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+            own, *others = scene.objects   # objects[0] is the vessel of interest
+            cache[frame["image"]] = flat_world_labels(
+                geometry, [(obj.footprint(), obj.class_id) for obj in others],
+                vessel=(vessel, own.class_id))
+        return cache[frame["image"]]
+    return source
+
+
+def scene_planner(dataset: Path) -> Callable[[dict], tuple]:
+    """``plan(frame) -> (scene, vessel spec)``: a simulator frame's scene rebuilt from the
+    dataset's seed and parameters (no bpy), with the vessel of interest's spec."""
     from harborsight.sim.dataset import SimulationConfig, plan_frame
 
     doc = json.loads((dataset / "dataset.json").read_text())
@@ -73,18 +92,10 @@ def flat_world_masks(dataset: Path) -> MaskSource:
     vessels = {p.parent.name: load_vessel_spec(p)
                for p in sorted((dataset / "vessels").glob("*/vessel.yaml"))}
 
-    cache: dict[str, np.ndarray] = {}   # each method measures the same masks
-
-    def source(dataset_dir: Path, frame: dict) -> np.ndarray:
-        if frame["image"] not in cache:
-            scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
-            geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
-            own, *others = scene.objects   # objects[0] is the vessel of interest
-            cache[frame["image"]] = flat_world_labels(
-                geometry, [(obj.footprint(), obj.class_id) for obj in others],
-                vessel=(vessels[Path(frame["vessel_spec"]).parent.name], own.class_id))
-        return cache[frame["image"]]
-    return source
+    def plan(frame: dict) -> tuple:
+        scene = plan_frame(config, int(frame["simulation"]["index"]), vessels)
+        return scene, vessels[Path(frame["vessel_spec"]).parent.name]
+    return plan
 
 
 def flat_world_labels(geometry, footprints: list[tuple],
