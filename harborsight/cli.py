@@ -569,6 +569,9 @@ def train(
     threads: Annotated[int | None, typer.Option(
         help="torch CPU threads; on a shared machine fewer threads than cores can be much "
         "faster [torch's default].")] = None,
+    init_from: Annotated[Path | None, typer.Option(
+        help="Warm start: begin from this checkpoint's weights (same network; optimiser and "
+        "schedule start afresh), e.g. to fine-tune a synthetic model on real frames.")] = None,
     progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
 ) -> None:
     """Train a segmentation network on simulator-layout datasets (needs torch)."""
@@ -589,6 +592,7 @@ def train(
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,
+                 "init_from": str(init_from) if init_from else None,
                  "data_dirs": [str(d) for d in data] if data else None}
         given = {k: v for k, v in given.items() if v is not None}
         if resume:

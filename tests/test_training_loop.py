@@ -85,6 +85,36 @@ def test_resume_repeats_an_uninterrupted_run(tiny_dataset, tmp_path):
         train(changed, resume=True, show_progress=False)
 
 
+def test_warm_start_begins_from_the_checkpoint_weights(two_frame_dataset, tmp_path):
+    def config(out, **changes):
+        return TrainConfig(**{"model": "ddrnet23_slim", "data_dirs": [two_frame_dataset],
+                              "out_dir": out, "iterations": 3, "batch_size": 2,
+                              "crop_hw": (48, 64), "augment": False, "val_every": 0,
+                              "num_workers": 0, "seed": 2, "threads": 1, **changes})
+
+    source = train(config(tmp_path / "source"), show_progress=False)
+    start = load_checkpoint(source.last_checkpoint)["model"]
+    # lr 1e-12: one step leaves the weights where they started
+    warm = train(config(tmp_path / "warm", iterations=1, lr=1e-12,
+                        init_from=source.last_checkpoint), show_progress=False)
+    cold = train(config(tmp_path / "cold", iterations=1, lr=1e-12), show_progress=False)
+    warm_state = load_checkpoint(warm.last_checkpoint)
+    conv = [k for k, v in start.items() if k.endswith("conv.weight") or v.ndim == 4]
+    assert conv and all(torch.allclose(warm_state["model"][k], start[k], atol=1e-9) for k in conv)
+    cold_state = load_checkpoint(cold.last_checkpoint)["model"]
+    assert not all(torch.allclose(cold_state[k], start[k], atol=1e-3) for k in conv)
+    assert warm_state["iteration"] == 1 and read_log(tmp_path / "warm")[0]["lr"] == 1e-12
+    assert warm_state["init_from"]["iteration"] == 3
+    assert warm_state["init_from"]["path"] == str(source.last_checkpoint)
+    assert f"--init-from {source.last_checkpoint}" in warm_state["command"]
+    with pytest.raises(InputError, match=r"source/last.pt: network: holds ddrnet23_slim, but this "
+                       r"run trains bisenetv2"):
+        train(config(tmp_path / "other", model="bisenetv2", init_from=source.last_checkpoint),
+              show_progress=False)
+    with pytest.raises(InputError, match="checkpoint file not found"):
+        train(config(tmp_path / "none", init_from=tmp_path / "missing.pt"), show_progress=False)
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"batch_size": 1}, r"batch_size: must be at least 2.*BatchNorm"),
     ({"model": "resnet"}, r"model: unknown network 'resnet'"),

@@ -10,7 +10,8 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
     optimizer, scaler, rng   for an exact resume (None in best.pt)
     config        TrainConfig as a plain dict; command: an equivalent command line
     frame_hw      most common (height, width) of the training frames
-    val_miou, val_iteration, best_val_miou
+    val_miou, best_val_miou   latest and best validation mIoU (None without validation)
+    init_from     None, or the warm start's {path, iteration, command}
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from harborsight.perception.model import SegmentationModel
 from harborsight.perception.networks import NETWORKS, create_network
 
 CHECKPOINT_FORMAT = "harborsight.checkpoint/1"
-_AUX_PREFIX = "network.aux_heads."
+#: State-dict prefix of the training-only auxiliary heads.
+AUX_STATE_PREFIX = "network.aux_heads."
 
 
 def save_checkpoint(path: str | Path, payload: dict) -> Path:
@@ -66,6 +68,6 @@ def model_from_checkpoint(checkpoint: dict | str | Path, aux_heads: bool = False
                                              aux_heads=aux_heads))
     state = payload["model"]
     if not aux_heads:
-        state = {k: v for k, v in state.items() if not k.startswith(_AUX_PREFIX)}
+        state = {k: v for k, v in state.items() if not k.startswith(AUX_STATE_PREFIX)}
     model.load_state_dict(state)
     return model.eval()

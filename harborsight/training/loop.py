@@ -16,6 +16,9 @@ torch RNG state saved in ``last.pt``, a resumed run repeats an uninterrupted one
 not forked (OpenCV's thread pool deadlocks in a forked child), so a script that trains with
 workers needs the usual ``if __name__ == "__main__":`` guard.
 
+A warm start (``init_from``, a checkpoint of the same network) only replaces the initial
+weights: optimiser, schedule and sampling start at iteration 0, as in a fresh run.
+
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
 and per validation).
@@ -44,7 +47,12 @@ from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.model import SegmentationModel, TorchSegmenter
 from harborsight.perception.networks import NETWORKS, create_network
 from harborsight.training.augment import AugmentConfig, augment
-from harborsight.training.checkpoint import CHECKPOINT_FORMAT, load_checkpoint, save_checkpoint
+from harborsight.training.checkpoint import (
+    AUX_STATE_PREFIX,
+    CHECKPOINT_FORMAT,
+    load_checkpoint,
+    save_checkpoint,
+)
 from harborsight.training.dataset import SegmentationFrames
 from harborsight.training.losses import bootstrap_keep_fraction, bootstrapped_cross_entropy
 from harborsight.training.optim import parameter_groups, poly_learning_rate
@@ -100,10 +108,12 @@ class TrainConfig:
     amp: bool = True                                   # fp16 autocast, CUDA only
     num_workers: int | None = None                     # None: 0 on CPU, min(8, cores-1) on CUDA
     threads: int | None = None                         # torch CPU threads (None: torch's default)
+    init_from: str | None = None                       # checkpoint whose weights start the run
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
         self.out_dir = str(self.out_dir)
+        self.init_from = None if self.init_from is None else str(self.init_from)
         self.crop_hw = (int(self.crop_hw[0]), int(self.crop_hw[1]))
         if self.aux_weights is not None:
             self.aux_weights = tuple(float(w) for w in self.aux_weights)
@@ -193,6 +203,7 @@ _CLI_OPTIONS = {
     "augment": "augment", "train_split": "train-split", "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
+    "init_from": "init-from",
 }
 
 
@@ -296,6 +307,27 @@ def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch
         model.train(was_training)
 
 
+def load_initial_weights(model: SegmentationModel, config: TrainConfig) -> dict:
+    """Start ``model`` from the weights of checkpoint ``config.init_from`` (a warm start:
+    optimiser, schedule and sampling still start at iteration 0). The checkpoint must hold
+    the same network and classes; auxiliary heads it lacks keep their fresh initialisation.
+    Returns its provenance (path, iteration, command) for the new run's checkpoints."""
+    path = Path(config.init_from)
+    source = load_checkpoint(path)
+    if source["network"] != config.model:
+        raise InputError(path, "network", f"holds {source['network']}, but this run trains "
+                         f"{config.model}")
+    if int(source["num_classes"]) != NUM_CLASSES or list(source["class_names"]) != list(CLASS_NAMES):
+        raise InputError(path, "class_names", f"holds classes {source['class_names']}, this run "
+                         f"trains {list(CLASS_NAMES)}")
+    missing, unexpected = model.load_state_dict(source["model"], strict=False)
+    wrong = [k for k in missing if not k.startswith(AUX_STATE_PREFIX)] + list(unexpected)
+    if wrong:
+        raise InputError(path, "model", f"weights do not fit {config.model}: {wrong[:5]}")
+    return {"path": str(path), "iteration": int(source["iteration"]),
+            "command": source.get("command")}
+
+
 def _truncate_log(path: Path, iteration: int) -> None:
     """Drop log lines written after ``iteration`` (by a run that was then interrupted)."""
     if not path.is_file():
@@ -364,7 +396,9 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                 momentum=config.momentum)
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
     start, best_miou, val_miou = 0, None, None
+    initial_weights = None
     if checkpoint is not None:
+        initial_weights = checkpoint.get("init_from")
         model.load_state_dict(checkpoint["model"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         if checkpoint.get("scaler"):
@@ -375,6 +409,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         start = int(checkpoint["iteration"])
         best_miou, val_miou = checkpoint.get("best_val_miou"), checkpoint.get("val_miou")
         _truncate_log(log_path, start)
+    elif config.init_from:
+        initial_weights = load_initial_weights(model, config)
     out_dir.mkdir(parents=True, exist_ok=True)
     if checkpoint is None:  # a fresh run: nothing of an earlier, unfinished one may survive
         log_path.unlink(missing_ok=True)
@@ -391,7 +427,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             "iteration": iteration, "model": model.state_dict(),
             "optimizer": None, "scaler": None, "rng": None,
             "config": config.to_dict(), "command": config.command_line(), "frame_hw": frame_hw,
-            "val_miou": val_miou, "best_val_miou": best_miou,
+            "val_miou": val_miou, "best_val_miou": best_miou, "init_from": initial_weights,
         }
         if full:
             data["optimizer"] = optimizer.state_dict()
