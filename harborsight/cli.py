@@ -636,13 +636,16 @@ def evaluate_segmentation_command(
         help="Seconds of timing for the FPS column; 0 skips it.")] = 2.0,
     device: Annotated[str, typer.Option(help="Device of a torch checkpoint: cpu or cuda.")] = "cpu",
     threads: Annotated[int | None, typer.Option(help="CPU threads (default: all).")] = None,
+    height_bin_m: Annotated[float, typer.Option(
+        help="Also score per drone height above water (frames/*.json), in bins of this many "
+        "metres; 0: no breakdown.")] = 10.0,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
     from harborsight.evaluation.segmentation import TABLE_IOU_COLUMNS, evaluate_segmentation
 
     try:
         result = evaluate_segmentation(model, data, split or ["test"], fps_seconds, device,
-                                       threads)
+                                       threads, height_bin_m=height_bin_m)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
@@ -657,6 +660,18 @@ def evaluate_segmentation_command(
                       *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
                       _fmt(100 * sc.miou, 1))
     console.print(table)
+    for row in result.rows:
+        if not row.by_height_m:
+            continue
+        by_height = Table(title=f"{row.split} by drone height", title_justify="left")
+        for header in ("height m", "frames", "mean acc %", *(f"IoU {n.lower()} %" for n, _ in
+                                                            TABLE_IOU_COLUMNS), "mIoU %"):
+            by_height.add_column(header, justify="right")
+        for height_m, (n, sc) in sorted(row.by_height_m.items()):
+            by_height.add_row(f"{height_m:g}", str(n), _fmt(100 * sc.mean_accuracy, 1),
+                              *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
+                              _fmt(100 * sc.miou, 1))
+        console.print(by_height)
     w, h = result.resolution_wh
     console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
                   f"{result.model.params or 0:,} parameters")

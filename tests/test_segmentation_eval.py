@@ -20,6 +20,7 @@ from harborsight.evaluation.segmentation import (
     SplitEvaluation,
     confusion_matrix,
     markdown_table,
+    score_frames_grouped,
 )
 from harborsight.perception import default_model
 
@@ -60,6 +61,18 @@ def test_absent_classes_are_left_out_of_the_means():
         confusion_matrix(labels, np.full((4, 4), 3, np.uint8))
 
 
+def test_scores_per_group_add_up_to_the_total():
+    labels = np.array([[0, 1], [2, 2]], np.uint8)
+    frames = [(labels, labels), (labels, labels), (labels, labels), (labels, labels)]
+    wrong_once = iter([labels, np.zeros_like(labels), labels, labels])
+    total, groups = score_frames_grouped(lambda image: next(wrong_once), frames,
+                                         [30.0, 30.0, None, 40.0])
+    assert total.pixels == 16 and set(groups) == {30.0, 40.0}
+    assert groups[40.0].miou == 1.0 and groups[30.0].pixels == 8
+    assert groups[30.0].iou == pytest.approx([2 / 5, 1 / 2, 2 / 4])  # frame 2 called all water
+    assert total.confusion.sum() == 16
+
+
 def test_markdown_has_the_shape_of_table_ii():
     scores = SegmentationScores(np.array([[90, 10, 0], [0, 50, 0], [5, 0, 45]]))
     model = LoadedSegmenter(Path("m.onnx"), "onnx", "fchardnet70", lambda x: x, 4_118_473,
@@ -91,7 +104,23 @@ def test_cli_evaluates_a_checkpoint(trained_run, tiny_dataset, tmp_path):
     assert val["pixels"] == np.sum(val["confusion"]) and 0 <= val["miou"] <= 1
     best = torch.load(trained_run / "best.pt", weights_only=True)
     assert val["miou"] == pytest.approx(best["val_miou"])  # same frames, same model
-    assert len((tmp_path / "m.md").read_text().strip().splitlines()) == 4
+    # per drone height: the frames' own uav.alt_m - water_level_m, in 10 m bins
+    split_map = json.loads((tiny_dataset / "dataset.json").read_text())["split"]
+    expected = {}
+    for stem, split in split_map.items():
+        if split == "val":
+            frame = json.loads((tiny_dataset / "frames" / f"{stem}.json").read_text())
+            height_m = frame["uav"]["alt_m"] - frame.get("water_level_m", 0.0)
+            expected[10.0 * round(height_m / 10.0)] = expected.get(10.0 * round(height_m / 10.0),
+                                                                   0) + 1
+    by_height = val["by_height_m"]
+    assert {b["height_m"]: b["frames"] for b in by_height} == expected
+    assert np.array_equal(np.sum([b["confusion"] for b in by_height], axis=0), val["confusion"])
+    table_ii, *per_split = (tmp_path / "m.md").read_text().split("\n\n")
+    assert len(table_ii.strip().splitlines()) == 4
+    assert "val split, by drone height" in per_split[0]
+    assert len(per_split[1].strip().splitlines()) == 2 + len(expected)
+    assert "val by drone height" in result.output
 
 
 def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_path):

@@ -19,13 +19,14 @@ The paper's "Unknown" class is harborsight's ``obstacle``.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections import Counter
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from harborsight.errors import InputError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.perception.classes import CLASS_NAMES, IGNORE, NUM_CLASSES, OBSTACLE, SHIP, WATER
 
 #: Table II's IoU columns: (header, class id), in the paper's order.
@@ -107,15 +108,48 @@ def score_frames(segment: Callable[[np.ndarray], np.ndarray], frames: Sequence,
                  on_frame: Callable[[int], None] | None = None) -> SegmentationScores:
     """Accumulate the confusion matrix of ``segment(image) -> labels`` over ``(image, labels)``
     pairs."""
+    return score_frames_grouped(segment, frames, None, on_frame)[0]
+
+
+def score_frames_grouped(
+    segment: Callable[[np.ndarray], np.ndarray], frames: Sequence,
+    groups: Sequence[Hashable] | None, on_frame: Callable[[int], None] | None = None,
+) -> tuple[SegmentationScores, dict[Hashable, SegmentationScores]]:
+    """:func:`score_frames` over all frames, and per group (``groups[i]`` is frame ``i``'s key;
+    ``None`` keys and ``groups=None`` add to the total only)."""
     confusion = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
+    per_group: dict[Hashable, np.ndarray] = {}
     for i, (image, labels) in enumerate(frames):
         predicted = segment(image)
         if predicted.shape != labels.shape:
             raise ValueError(f"frame {i}: prediction {predicted.shape} vs labels {labels.shape}")
-        confusion += confusion_matrix(labels, predicted)
+        frame_confusion = confusion_matrix(labels, predicted)
+        confusion += frame_confusion
+        key = None if groups is None else groups[i]
+        if key is not None:
+            per_group.setdefault(key, np.zeros_like(confusion))
+            per_group[key] += frame_confusion
         if on_frame:
             on_frame(i)
-    return SegmentationScores(confusion)
+    return SegmentationScores(confusion), {k: SegmentationScores(v) for k, v in per_group.items()}
+
+
+def height_bins_m(records: Sequence, bin_m: float) -> list[float | None]:
+    """Each frame's drone height above water (``uav.alt_m - water_level_m`` of
+    ``frames/<stem>.json``) rounded to a multiple of ``bin_m``; ``None`` where a frame has no
+    readable metadata (it then counts in the totals only)."""
+    from harborsight.frame import load_frame_metadata
+
+    heights: list[float | None] = []
+    for record in records:
+        path = Path(record.dataset_dir) / "frames" / f"{record.stem}.json"
+        try:
+            height_m = load_frame_metadata(path).height_above_water_m
+        except HarborsightError:
+            heights.append(None)
+            continue
+        heights.append(float(round(height_m / bin_m) * bin_m))
+    return heights
 
 
 def frames_per_second(segment: Callable[[np.ndarray], np.ndarray], image: np.ndarray,
@@ -195,6 +229,8 @@ class SplitEvaluation:
     split: str
     frames: int
     scores: SegmentationScores
+    #: per drone height above water (m, binned), frames and scores; empty without metadata
+    by_height_m: dict[float, tuple[int, SegmentationScores]] = field(default_factory=dict)
 
 
 @dataclass
@@ -212,21 +248,30 @@ class SegmentationEvaluation:
             "params": self.model.params, "data": [str(d) for d in self.data_dirs],
             "fps": self.fps, "resolution_wh": list(self.resolution_wh),
             "mean_accuracy_definition": "mean over classes of per-class pixel accuracy (recall)",
-            "splits": {r.split: {"frames": r.frames, **r.scores.to_dict()} for r in self.rows},
+            "splits": {r.split: {"frames": r.frames, **r.scores.to_dict(), "by_height_m": [
+                {"height_m": h, "frames": n, **sc.to_dict()}
+                for h, (n, sc) in sorted(r.by_height_m.items())]} for r in self.rows},
         }
 
     def markdown(self) -> str:
-        return markdown_table([self])
+        """Table II, then per split a table by drone height where frames have metadata."""
+        parts = [markdown_table([self])]
+        for row in self.rows:
+            if row.by_height_m:
+                parts.append(f"\n{self.model.network}, {row.split} split, by drone height above "
+                             "water:\n\n" + height_table(row))
+        return "".join(parts)
 
 
 def evaluate_segmentation(
     model_path: str | Path, data_dirs: Sequence[str | Path], splits: Sequence[str] = ("test",),
     fps_seconds: float = 2.0, device: str = "cpu", threads: int | None = None,
-    on_frame: Callable[[int], None] | None = None,
+    on_frame: Callable[[int], None] | None = None, height_bin_m: float = 10.0,
 ) -> SegmentationEvaluation:
-    """Score a model on each split of the datasets and time it (``fps_seconds <= 0``: no
-    timing). The resolution is the network's input: the ONNX model's fixed size, or the
-    frames' most common size for a checkpoint."""
+    """Score a model on each split of the datasets, also per drone height (bins of
+    ``height_bin_m``; 0: no breakdown), and time it (``fps_seconds <= 0``: no timing). The
+    resolution is the network's input: the ONNX model's fixed size, or the frames' most
+    common size for a checkpoint."""
     from harborsight.training.dataset import SegmentationFrames
 
     loaded = load_segmenter(model_path, device, threads)
@@ -234,8 +279,11 @@ def evaluate_segmentation(
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])
         sizes.append(frames.common_size_hw())
-        rows.append(SplitEvaluation(split, len(frames), score_frames(loaded.segment, frames,
-                                                                     on_frame)))
+        heights = height_bins_m(frames.records, height_bin_m) if height_bin_m > 0 else None
+        total, by_height = score_frames_grouped(loaded.segment, frames, heights, on_frame)
+        counts = Counter(h for h in heights or [] if h is not None)
+        rows.append(SplitEvaluation(split, len(frames), total,
+                                    {h: (counts[h], sc) for h, sc in by_height.items()}))
     frame_hw = max(set(sizes), key=sizes.count)
     fps = None
     if fps_seconds > 0:
@@ -270,4 +318,15 @@ def markdown_table(evaluations: Sequence[SegmentationEvaluation]) -> str:
                      "—" if ev.fps is None else f"{ev.fps:.2f}",
                      f"{ev.resolution_wh[0]}x{ev.resolution_wh[1]}", _millions(ev.model.params)]
             lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def height_table(row: SplitEvaluation) -> str:
+    """Markdown: drone height, frames, mean accuracy and IoU per class and mean, in percent."""
+    lines = ["| height m | frames | Mean accuracy | IoU Obstacle | IoU Water | IoU Ship | IoU Mean |",
+             "|---:|---:|---:|---:|---:|---:|---:|"]
+    for height_m, (n, scores) in sorted(row.by_height_m.items()):
+        cells = [f"{height_m:g}", str(n), _percent(scores.mean_accuracy),
+                 *(_percent(scores.iou[c]) for _, c in TABLE_IOU_COLUMNS), _percent(scores.miou)]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
