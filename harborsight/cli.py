@@ -701,16 +701,22 @@ def evaluate_distance_command(
                        ] = "gsd,ground_plane",
     split: Annotated[str | None, typer.Option(help="Only frames of this split.")] = None,
     limit: Annotated[int | None, typer.Option(min=1, help="At most this many frames.")] = None,
+    by_obstacle: Annotated[bool, typer.Option(
+        help="Also attribute each true distance to the kind of object it is measured to "
+        "(quay, pier, ship, ...; rebuilds each simulator scene, about 0.3 s a frame) and "
+        "summarise the signed error per kind: by_obstacle.md/json.")] = False,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
     from harborsight.evaluation.distance import (
+        attribute_obstacles,
         evaluate_frames,
         flat_world_masks,
         load_frames,
         markdown_table,
         model_masks,
         oracle_masks,
+        truth_obstacle_kinds,
         write_outputs,
     )
 
@@ -753,13 +759,29 @@ def evaluate_distance_command(
                         skipped.append((stem, error))
 
                 results += evaluate_frames(data, frames, masks_name, source, method, done)
+        if by_obstacle:
+            kinds_of, kinds = truth_obstacle_kinds(data), {}
+            task = progress.add_task("obstacle kinds", total=len(frames))
+            for frame in frames:
+                stem = Path(frame["image"]).stem
+                try:
+                    kinds[stem] = kinds_of(frame)
+                except (HarborsightError, KeyError, ValueError) as exc:
+                    skipped.append((stem, f"obstacle kinds: {type(exc).__name__}: {exc}"))
+                progress.advance(task)
+            attribute_obstacles(results, kinds)
     written = write_outputs(results, out)
     print(markdown_table(written["rows"]))
+    if written["by_obstacle"]:
+        from harborsight.evaluation.distance import markdown_obstacle_table
+
+        print(markdown_obstacle_table(written["by_obstacle"]))
     for stem, error in skipped:
         err_console.print(f"[red]skipped[/] {stem}: {error}", highlight=False)
     console.print(f"{len(frames)} frame(s), {len(results)} section results; "
                   f"written to {out}/ (sections.csv, summary.md, summary.json, "
-                  + ", ".join(p.name for p in written["plots"]) + ")")
+                  + ", ".join(p.name for p in written["plots"])
+                  + (", by_obstacle.md, by_obstacle.json" if written["by_obstacle"] else "") + ")")
 
 
 @app.command("export")

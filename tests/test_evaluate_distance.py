@@ -19,6 +19,8 @@ from harborsight.evaluation.distance import (
     oracle_masks,
     scene_planner,
     summarise,
+    summarise_by_obstacle,
+    truth_obstacle_kinds,
 )
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
@@ -113,3 +115,57 @@ def test_sections_csv_reads_back(tmp_path):
     assert [r.kind for r in again] == ["estimate", "missed"]
     assert again[0].abs_error_m == pytest.approx(0.1, abs=1e-4) and again[0].truncated
     assert summarise(again)[0].missed == 1
+
+
+def test_true_nearest_obstacle_kinds_follow_the_scenarios():
+    kinds_of = truth_obstacle_kinds(SAMPLES)
+    kinds = {}
+    for frame in load_frames(SAMPLES):
+        truth = frame["ground_truth"]["sections"]
+        kinds[frame["ground_truth"]["scenario"]] = found = kinds_of(frame)
+        assert [k is None for k in found] == [t["distance_m"] is None for t in truth]
+        assert set(found) <= {None, "quay", "pier", "ship", "boat", "fender", "buoy", "breakwater"}
+    assert kinds["alongside"].count("quay") >= 2
+    assert "pier" in kinds["pass"]
+    # the tug touching a moored ship: the five sections at 0.68 m are along that ship
+    touching = next(f for f in load_frames(SAMPLES) if f["ground_truth"]["scenario"] == "touching")
+    near = [i for i, t in enumerate(touching["ground_truth"]["sections"])
+            if t["distance_m"] is not None and t["distance_m"] < 0.7]
+    assert len(near) == 5 and {kinds["touching"][i] for i in near} == {"ship"}
+
+
+def test_signed_errors_are_summarised_per_obstacle_kind():
+    from harborsight.evaluation.distance import SectionResult, markdown_obstacle_table
+
+    def result(altitude_m, estimate_m, truth_m, obstacle, status="ok"):
+        return SectionResult("f", altitude_m, "oracle", "ground_plane", 0, status, estimate_m,
+                             truth_m, 0.1, False, False, obstacle)
+
+    results = [result(30.0, 5.3, 5.0, "pier"), result(30.0, 5.1, 5.0, "pier"),
+               result(60.0, 4.9, 5.0, "pier"), result(30.0, 2.0, 2.1, "quay"),
+               result(30.0, None, 3.0, "quay", status="clear"),   # a miss: not an estimate
+               result(30.0, 2.0, 2.1, None)]                       # not attributed
+    pier, quay = summarise_by_obstacle(results)
+    # pier signed px: +3, +1, -1 (0.1 m pixels)
+    assert (pier.obstacle, pier.n) == ("pier", 3)
+    assert pier.median_signed_px == pytest.approx(1.0) and pier.median_abs_px == pytest.approx(1.0)
+    assert pier.mae_m == pytest.approx(0.5 / 3)
+    assert pier.over_1px_share == pytest.approx(1 / 3) and pier.under_1px_share == 0.0
+    assert pier.median_signed_px_by_altitude == pytest.approx({30.0: 2.0, 60.0: -1.0})
+    assert (quay.n, quay.median_signed_px) == (1, pytest.approx(-1.0))
+    table = markdown_obstacle_table([pier, quay])
+    assert "| oracle | ground_plane | pier | 3 | +1.00 | 1.00 | 0.17 | 33 % | 0 % |" in table
+    assert "| oracle | ground_plane | quay | -1.00 | — |" in table
+
+
+def test_cli_by_obstacle_writes_the_kind_tables(tmp_path):
+    result = CliRunner().invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), "--out",
+                                      str(tmp_path), "--methods", "ground_plane", "--by-obstacle"])
+    assert result.exit_code == 0, result.output
+    rows = json.loads((tmp_path / "by_obstacle.json").read_text())
+    assert {r["obstacle"] for r in rows} >= {"quay", "ship", "pier"}
+    assert "Median signed error (px)" in (tmp_path / "by_obstacle.md").read_text()
+    with (tmp_path / "sections.csv").open() as f:
+        estimates = [r for r in csv.DictReader(f) if r["kind"] == "estimate"]
+    assert estimates and all(r["obstacle"] for r in estimates)
+    assert sum(r["n"] for r in rows) == len(estimates)

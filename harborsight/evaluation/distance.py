@@ -10,6 +10,12 @@ Each configuration (masks: ``oracle`` = the simulator's labels or a segmentation
 
 Sections out of view are not counted. Summaries are per altitude (drone height above water,
 rounded to whole metres): n, MAE, median, p95, share off by more than 1 m, missed, false.
+
+With the obstacle attribution (:func:`truth_obstacle_kinds`), each estimate also carries the
+kind of scene object its true distance is measured to (quay, pier, ship, boat, ...), and the
+signed error ``estimate - truth`` in GSD pixels is summarised per kind: the planar
+assumption errs by kind of structure (an edge ``h`` m above the water, ``r`` m from the
+nadir, seen from ``H`` m, back-projects ``h·r/(H-h)`` m too far out), so this separates it.
 """
 
 from __future__ import annotations
@@ -140,6 +146,7 @@ class SectionResult:
     gsd_m_per_px: float
     contact: bool
     truncated: bool
+    obstacle: str | None = None      # kind of the true nearest obstacle (when attributed)
 
     @property
     def kind(self) -> str:
@@ -156,6 +163,40 @@ class SectionResult:
         if self.kind != "estimate":
             return None
         return abs(self.estimate_m - self.truth_m)
+
+    @property
+    def signed_error_px(self) -> float | None:
+        """``(estimate - truth) / GSD``: positive where the gap is overestimated."""
+        if self.kind != "estimate":
+            return None
+        return (self.estimate_m - self.truth_m) / self.gsd_m_per_px
+
+
+def truth_obstacle_kinds(dataset: Path) -> Callable[[dict], list[str | None]]:
+    """``kinds(frame)``: per section, the kind of the simulator object (``SceneObject.kind``)
+    that the frame's ground-truth ``distance_m`` is measured to, None where none is in view.
+    The scene is rebuilt from the dataset's seed and parameters (no bpy; about 0.3 s a frame)."""
+    from harborsight.frame import FrameGeometry
+    from harborsight.sim.ground_truth import nearest_visible_obstacle
+
+    plan = scene_planner(dataset)
+
+    def kinds(frame: dict) -> list[str | None]:
+        scene, vessel = plan(frame)
+        others = scene.objects[1:]      # objects[0] is the vessel of interest
+        geometry = FrameGeometry.from_metadata(parse_frame_metadata(frame))
+        nearest = nearest_visible_obstacle(geometry, vessel, [o.footprint() for o in others],
+                                           len(frame["ground_truth"]["sections"]))
+        return [None if i is None else others[i].kind for i in nearest]
+    return kinds
+
+
+def attribute_obstacles(results: list[SectionResult], kinds: dict[str, list[str | None]]) -> None:
+    """Set each result's ``obstacle`` from ``kinds[frame][section]`` (frames not in ``kinds``
+    are left as they are)."""
+    for r in results:
+        if r.frame in kinds:
+            r.obstacle = kinds[r.frame][r.section]
 
 
 def evaluate_frames(
@@ -232,19 +273,73 @@ def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
     return rows
 
 
+@dataclass
+class ObstacleSummary:
+    masks: str
+    method: str
+    obstacle: str
+    n: int
+    median_signed_px: float
+    median_abs_px: float
+    mae_m: float
+    over_1px_share: float            # estimate - truth > +1 px (gap overestimated)
+    under_1px_share: float           # estimate - truth < -1 px
+    median_signed_px_by_altitude: dict[float, float]
+
+
+def summarise_by_obstacle(results: list[SectionResult]) -> list[ObstacleSummary]:
+    """Per (masks, method, true nearest obstacle kind): signed and absolute error in GSD
+    pixels over all altitudes, and the median signed error per altitude."""
+    groups: dict[tuple, list[SectionResult]] = {}
+    for r in results:
+        if r.kind == "estimate" and r.obstacle:
+            groups.setdefault((r.masks, r.method, r.obstacle), []).append(r)
+    rows = []
+    for (masks, method, obstacle), group in sorted(groups.items()):
+        signed = np.array([r.signed_error_px for r in group])
+        by_altitude: dict[float, list[float]] = {}
+        for r, e in zip(group, signed, strict=True):
+            by_altitude.setdefault(r.altitude_m, []).append(e)
+        rows.append(ObstacleSummary(
+            masks, method, obstacle, len(group), float(np.median(signed)),
+            float(np.median(np.abs(signed))), float(np.mean([r.abs_error_m for r in group])),
+            float(np.mean(signed > 1.0)), float(np.mean(signed < -1.0)),
+            {a: float(np.median(v)) for a, v in sorted(by_altitude.items())}))
+    return rows
+
+
+def markdown_obstacle_table(rows: list[ObstacleSummary]) -> str:
+    """Two tables: per kind over all altitudes; median signed px per kind and altitude."""
+    lines = ["| masks | method | nearest obstacle | n | median signed px | median abs px | "
+             "MAE m | over > 1 px | under > 1 px |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r.masks} | {r.method} | {r.obstacle} | {r.n} | "
+                     f"{r.median_signed_px:+.2f} | {r.median_abs_px:.2f} | {r.mae_m:.2f} | "
+                     f"{100 * r.over_1px_share:.0f} % | {100 * r.under_1px_share:.0f} % |")
+    altitudes = sorted({a for r in rows for a in r.median_signed_px_by_altitude})
+    lines += ["", "Median signed error (px) by drone height above water (m):", "",
+              "| masks | method | nearest obstacle | " + " | ".join(f"{a:.0f}" for a in altitudes)
+              + " |", "|---|---|---|" + "---:|" * len(altitudes)]
+    for r in rows:
+        cells = [_fmt(r.median_signed_px_by_altitude.get(a)) for a in altitudes]
+        lines.append(f"| {r.masks} | {r.method} | {r.obstacle} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def write_csv(results: list[SectionResult], path: Path) -> None:
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["frame", "altitude_m", "masks", "method", "section", "status", "kind",
                          "estimate_m", "truth_m", "abs_error_m", "gsd_m_per_px", "contact",
-                         "truncated"])
+                         "truncated", "obstacle"])
         for r in results:
             err = r.abs_error_m
             writer.writerow([r.frame, r.altitude_m, r.masks, r.method, r.section, r.status, r.kind,
                              "" if r.estimate_m is None else f"{r.estimate_m:.4f}",
                              "" if r.truth_m is None else f"{r.truth_m:.4f}",
                              "" if err is None else f"{err:.4f}", f"{r.gsd_m_per_px:.5f}",
-                             int(r.contact), int(r.truncated)])
+                             int(r.contact), int(r.truncated), r.obstacle or ""])
 
 
 def read_csv(path: Path) -> list[SectionResult]:
@@ -256,7 +351,8 @@ def read_csv(path: Path) -> list[SectionResult]:
         return [SectionResult(row["frame"], float(row["altitude_m"]), row["masks"], row["method"],
                               int(row["section"]), row["status"], number(row["estimate_m"]),
                               number(row["truth_m"]), float(row["gsd_m_per_px"]),
-                              bool(int(row["contact"])), bool(int(row["truncated"])))
+                              bool(int(row["contact"])), bool(int(row["truncated"])),
+                              row.get("obstacle") or None)
                 for row in csv.DictReader(f)]
 
 
@@ -356,11 +452,17 @@ def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
 
 
 def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
-    """CSV of every estimate, summary JSON and Markdown, and the two plots."""
+    """CSV of every estimate, summary JSON and Markdown, the two plots, and, when results
+    carry obstacle kinds, by_obstacle.json and .md."""
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = summarise(results)
     write_csv(results, out_dir / "sections.csv")
     (out_dir / "summary.json").write_text(json.dumps([asdict(r) for r in rows], indent=1) + "\n")
     (out_dir / "summary.md").write_text(markdown_table(rows))
     plots = plot_errors(results, rows, out_dir) if results else []
-    return {"rows": rows, "plots": plots}
+    by_obstacle = summarise_by_obstacle(results)
+    if by_obstacle:
+        (out_dir / "by_obstacle.json").write_text(
+            json.dumps([asdict(r) for r in by_obstacle], indent=1) + "\n")
+        (out_dir / "by_obstacle.md").write_text(markdown_obstacle_table(by_obstacle))
+    return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle}

@@ -106,15 +106,46 @@ def frame_ground_truth(
     plane (inside the back-projected frame, outside the vessel's own silhouette);
     ``distance_all_m`` counts every obstacle.
     """
-    sections = vessel.sections(n_sections)
-    to_vessel = geometry.enu_to_vessel_xy
+    to_vessel = _to_vessel_frame(geometry)
+    obstacles = shapely.union_all([to_vessel(p) for p in footprints_enu])
+    return section_distances(vessel.sections(n_sections), obstacles,
+                             to_vessel(visible_water_plane(geometry, vessel)))
 
-    def in_vessel_frame(poly: Polygon) -> Polygon:
-        return shapely.transform(poly, lambda xy: to_vessel(xy))
 
-    obstacles = shapely.union_all([in_vessel_frame(p) for p in footprints_enu])
+def visible_water_plane(geometry: FrameGeometry, vessel: VesselSpec) -> Polygon:
+    """ENU polygon of the water plane the image shows beside the vessel: the back-projected
+    frame minus the vessel's own silhouette."""
     seen = image_ground_polygon(geometry)
     hidden_ground, ok = geometry.camera.back_project_to_plane(vessel_silhouette_px(vessel, geometry))
     if ok.all():
         seen = seen.difference(Polygon(hidden_ground[:, :2]).buffer(0))
-    return section_distances(sections, obstacles, in_vessel_frame(seen))
+    return seen
+
+
+def nearest_visible_obstacle(
+    geometry: FrameGeometry, vessel: VesselSpec, footprints_enu: list[Polygon],
+    n_sections: int | None = None,
+) -> list[int | None]:
+    """Per section, the index in ``footprints_enu`` of the obstacle that its ``distance_m``
+    (see :func:`frame_ground_truth`) is measured to; ``None`` where none is in view."""
+    to_vessel = _to_vessel_frame(geometry)
+    sections = vessel.sections(n_sections)
+    seen = to_vessel(visible_water_plane(geometry, vessel))
+    footprints = [to_vessel(p) for p in footprints_enu]
+    nearest: list[int | None] = []
+    for k in range(sections.n_sections):
+        band = shapely.intersection(section_band_polygon(sections, k), seen)
+        line = LineString(sections.section_polyline(k))
+        best, best_m = None, np.inf
+        for i, footprint in enumerate(footprints):
+            part = shapely.intersection(band, footprint)
+            if not part.is_empty and (d := float(shapely.distance(line, part))) < best_m:
+                best, best_m = i, d
+        nearest.append(best)
+    return nearest
+
+
+def _to_vessel_frame(geometry: FrameGeometry):
+    def transform(poly: Polygon) -> Polygon:
+        return shapely.transform(poly, geometry.enu_to_vessel_xy)
+    return transform
