@@ -641,7 +641,7 @@ def evaluate_segmentation_command(
         "metres; 0: no breakdown.")] = 10.0,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
-    from harborsight.evaluation.segmentation import TABLE_IOU_COLUMNS, evaluate_segmentation
+    from harborsight.evaluation.segmentation import evaluate_segmentation
 
     try:
         result = evaluate_segmentation(model, data, split or ["test"], fps_seconds, device,
@@ -649,29 +649,14 @@ def evaluate_segmentation_command(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    table = Table(title=f"{result.model.network} ({result.model.kind}): {model}",
-                  title_justify="left")
-    for header in ("split", "frames", "mean acc %", *(f"IoU {n.lower()} %" for n, _ in
-                                                    TABLE_IOU_COLUMNS), "mIoU %"):
-        table.add_column(header, justify="left" if header == "split" else "right")
+    console.print(_scores_table(
+        f"{result.model.network} ({result.model.kind}): {model}", "split",
+        [(row.split, row.frames, row.scores) for row in result.rows]))
     for row in result.rows:
-        sc = row.scores
-        table.add_row(row.split, str(row.frames), _fmt(100 * sc.mean_accuracy, 1),
-                      *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
-                      _fmt(100 * sc.miou, 1))
-    console.print(table)
-    for row in result.rows:
-        if not row.by_height_m:
-            continue
-        by_height = Table(title=f"{row.split} by drone height", title_justify="left")
-        for header in ("height m", "frames", "mean acc %", *(f"IoU {n.lower()} %" for n, _ in
-                                                            TABLE_IOU_COLUMNS), "mIoU %"):
-            by_height.add_column(header, justify="right")
-        for height_m, (n, sc) in sorted(row.by_height_m.items()):
-            by_height.add_row(f"{height_m:g}", str(n), _fmt(100 * sc.mean_accuracy, 1),
-                              *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
-                              _fmt(100 * sc.miou, 1))
-        console.print(by_height)
+        if row.by_height_m:
+            console.print(_scores_table(
+                f"{row.split} by drone height", "height m",
+                [(f"{h:g}", n, sc) for h, (n, sc) in sorted(row.by_height_m.items())]))
     w, h = result.resolution_wh
     console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
                   f"{result.model.params or 0:,} parameters")
@@ -683,6 +668,21 @@ def evaluate_segmentation_command(
         markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(result.markdown())
         console.print(f"Markdown: {markdown}")
+
+
+def _scores_table(title: str, key_header: str, rows: list[tuple[str, int, object]]) -> Table:
+    """Rich table of (key, frames, SegmentationScores) rows: Table II's accuracy/IoU columns."""
+    from harborsight.evaluation.segmentation import TABLE_IOU_COLUMNS
+
+    table = Table(title=title, title_justify="left")
+    for header in (key_header, "frames", "mean acc %",
+                   *(f"IoU {n.lower()} %" for n, _ in TABLE_IOU_COLUMNS), "mIoU %"):
+        table.add_column(header, justify="left" if header == "split" else "right")
+    for key, frames, sc in rows:
+        table.add_row(key, str(frames), _fmt(100 * sc.mean_accuracy, 1),
+                      *(_fmt(100 * sc.iou[c], 1) for _, c in TABLE_IOU_COLUMNS),
+                      _fmt(100 * sc.miou, 1))
+    return table
 
 
 @evaluate_app.command("distance")
