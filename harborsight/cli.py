@@ -83,12 +83,10 @@ def _settings(method: Method, sections: int | None, section_length_m: float | No
 
 def _segmenter(model: Path | None):
     """The ONNX model at ``model``, or the packaged default model (clear error if absent)."""
-    from harborsight.perception.default_model import load_default_segmenter
+    from harborsight.perception.default_model import describe, load_default_segmenter
 
     segmenter = load_default_segmenter(model)
-    console.print(f"segmenting with {segmenter.path}"
-                  + (f" ({segmenter.metadata['network']})" if "network" in segmenter.metadata
-                     else ""))
+    console.print(f"segmenting with {describe(segmenter)}", markup=False)
     return segmenter
 
 
@@ -298,9 +296,10 @@ def demo(
     method: Annotated[Method, typer.Option(help="Distance method.")] = Method.ground_plane,
 ) -> None:
     """Measure the bundled sample frames against their exact ground truth, then run the
-    bundled 24 s berthing flight (annotated video, distances and closing speeds over time)."""
-    from harborsight.evaluation.closing import compare_closing_speeds
+    bundled 24 s berthing flight (annotated video, distances and closing speeds over time),
+    on the exact labels and, if one is packaged, on the default segmentation model."""
     from harborsight.flight import FolderSource, RunOptions
+    from harborsight.perception.default_model import default_model_path
     from harborsight.pipeline import VesselCache
 
     samples = _bundled_samples()
@@ -312,14 +311,34 @@ def demo(
     flight = samples / "flight"
     console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
                   f"{_flight_speed(flight)} m/s, 0.5 s between frames)")
+    console.print("[bold]on the exact labels[/]")
     source = FolderSource(flight, flight / "labels", use_masks=True)
     summary = _run_flight_with_progress(
         source, out / "flight", VesselCache(), None, RunOptions(settings=settings),
         {"input": str(flight), "masks": str(flight / "labels")})
+    _print_demo_flight(flight, out / "flight", summary)
+    failed = bool(summary.skipped)
+    if default_model_path().is_file():
+        console.print("\n[bold]on the default segmentation model[/]")
+        segmenter = _segmenter(None)
+        summary = _run_flight_with_progress(
+            FolderSource(flight, use_masks=False), out / "flight-model", VesselCache(), segmenter,
+            RunOptions(settings=settings), {"input": str(flight), "model": str(segmenter.path)})
+        _print_demo_flight(flight, out / "flight-model", summary)
+        failed = failed or bool(summary.skipped)
+    else:
+        console.print("\nno default segmentation model is packaged: the flight ran on labels only")
+    raise typer.Exit(code or (1 if failed else 0))
+
+
+def _print_demo_flight(flight: Path, out: Path, summary) -> None:
+    """Frames measured, closest approach and measured-vs-true closing speed of a demo flight."""
+    from harborsight.evaluation.closing import compare_closing_speeds
+
     md = summary.min_distance_m
     console.print(f"{summary.measured} of {summary.frames} frames measured; closest approach "
                   + (f"{md:.2f} m" if md is not None else "--"))
-    comparison = compare_closing_speeds(flight, out / "flight" / "sections.csv")
+    comparison = compare_closing_speeds(flight, out / "sections.csv")
     if comparison is not None:
         console.print(
             f"closing speed of the closest section while berthing: measured "
@@ -327,7 +346,6 @@ def demo(
             f"(median over {comparison.samples} frames; true from the ground-truth distances)")
     for name, path in summary.outputs.items():
         console.print(f"  {name}: {path}")
-    raise typer.Exit(code or (1 if summary.skipped else 0))
 
 
 def _flight_speed(flight: Path) -> str:

@@ -9,6 +9,7 @@ import numpy as np
 from typer.testing import CliRunner
 
 from harborsight.cli import app
+from harborsight.evaluation.closing import compare_closing_speeds
 from harborsight.sim.samples import DEFAULT_SEED, make_demo_samples
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
@@ -56,8 +57,14 @@ def test_demo_measures_every_sample(tmp_path):
     result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path)], terminal_width=160)
     assert result.exit_code == 0, result.output
     assert "5 frame(s) measured" in result.output
-    assert "48 of 48 frames measured" in result.output
+    # the flight twice: on its exact labels, then segmented by the packaged default model
+    assert result.output.count("48 of 48 frames measured") == 2
+    assert "on the default segmentation model" in result.output
     assert (tmp_path / "flight" / "annotated.mp4").stat().st_size > 100_000
+    # the model's closing speed (0.398 m/s when shipped) against the true 0.400 m/s
+    model_speed = compare_closing_speeds(SAMPLES / "flight",
+                                         tmp_path / "flight-model" / "sections.csv")
+    assert abs(model_speed.measured_mps - model_speed.true_mps) <= 0.03
     reports = sorted((tmp_path / "frames").glob("*.json"))
     assert len(reports) == 5
     errors = []

@@ -1,8 +1,9 @@
 """The segmentation model ``measure`` uses when no masks are given (deployed path: no torch).
 
 The default model is ``harborsight/data/models/default.onnx`` with its sidecar
-``default.json`` (written by ``harborsight export``). None is shipped yet; until one is,
-:func:`load_default_segmenter` says how to make one.
+``default.json`` (written by ``harborsight export``, completed by
+``scripts/ship_default_model.py`` with the held-out scores and the commands that rebuild it).
+Without one, :func:`load_default_segmenter` says how to make one.
 """
 
 from __future__ import annotations
@@ -46,7 +47,25 @@ def load_default_segmenter(path: str | Path | None = None) -> OnnxSegmenter:
     """The default model (or the one at ``path``), or an error saying how to get one."""
     path = Path(path) if path is not None else default_model_path()
     if not path.is_file():
-        raise InputError(path, None, "no segmentation model here: harborsight ships none yet. "
+        raise InputError(path, None, "no segmentation model here. "
                          "Pass label masks (--mask / --masks), or train one (harborsight train), "
                          "export it (harborsight export) and pass --model MODEL.onnx")
     return load_onnx_segmenter(path)
+
+
+def describe(segmenter: OnnxSegmenter) -> str:
+    """One line on what a model is and how good it is on held-out frames (from its sidecar),
+    with a warning when it is below the accuracy a default model is meant to have."""
+    sidecar = segmenter.sidecar
+    network = sidecar.get("network") or segmenter.metadata.get("network")
+    parts = [str(segmenter.path)]
+    if network:
+        parts.append(f"({network}{', ' + sidecar['precision'] if 'precision' in sidecar else ''})")
+    heldout = sidecar.get("heldout")
+    if heldout:
+        parts.append(f"held-out mIoU {100 * heldout['miou']:.1f} % on {heldout['frames']} "
+                     "synthetic frames")
+        if sidecar.get("meets_target") is False:
+            parts.append(f"[below the {100 * sidecar['target_miou']:.0f} % target: "
+                         "treat its distances as indicative]")
+    return " ".join(parts)
