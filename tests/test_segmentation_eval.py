@@ -6,7 +6,6 @@ import math
 from importlib import resources
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import torch
@@ -21,9 +20,11 @@ from harborsight.evaluation.segmentation import (
     SplitEvaluation,
     confusion_matrix,
     markdown_table,
+    score_frames,
     score_frames_grouped,
 )
 from harborsight.perception import default_model
+from harborsight.training.dataset import SegmentationFrames
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 runner = CliRunner()
@@ -218,10 +219,8 @@ def test_packaged_default_model_on_the_bundled_samples():
     assert sidecar["meets_target"] == (sidecar["heldout"]["miou"] >= sidecar["target_miou"])
     assert any(step.startswith("harborsight simulate") for step in sidecar["reproduce"])
     assert any(step.startswith("harborsight train") for step in sidecar["reproduce"])
-    frames = [(cv2.imread(str(image)), cv2.imread(str(SAMPLES / "labels" / image.name),
-                                                  cv2.IMREAD_GRAYSCALE))
-              for image in sorted((SAMPLES / "images").glob("*.png"))]
-    scores, _ = score_frames_grouped(segmenter.segment, frames, None)
+    frames = SegmentationFrames([SAMPLES])
+    scores = score_frames(segmenter.segment, frames)
     assert len(frames) == 5 and scores.miou >= SAMPLES_MIOU_AT_LEAST
     line = default_model.describe(segmenter)
     assert f"held-out mIoU {100 * sidecar['heldout']['miou']:.1f} %" in line

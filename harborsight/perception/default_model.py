@@ -60,7 +60,7 @@ def describe(segmenter: OnnxSegmenter) -> str:
     network = sidecar.get("network") or segmenter.metadata.get("network")
     parts = [str(segmenter.path)]
     if network:
-        parts.append(f"({network}{', ' + sidecar['precision'] if 'precision' in sidecar else ''})")
+        parts.append(f"({', '.join(filter(None, (network, sidecar.get('precision'))))})")
     heldout = sidecar.get("heldout")
     if heldout:
         parts.append(f"held-out mIoU {100 * heldout['miou']:.1f} % on {heldout['frames']} "
