@@ -794,11 +794,19 @@ def evaluate_distance_command(
         from harborsight.evaluation.distance import markdown_obstacle_table
 
         print(markdown_obstacle_table(written["by_obstacle"]))
+    learned = [r for r in written["error_sources"] if r.masks.startswith("model:")]
+    if learned:
+        from harborsight.evaluation.distance import markdown_error_source_table
+
+        print("Where the model's error comes from (the reported obstacle point in the "
+              "simulator's masks):\n")
+        print(markdown_error_source_table(learned))
     for stem, error in skipped:
         err_console.print(f"[red]skipped[/] {stem}: {error}", highlight=False)
     console.print(f"{len(frames)} frame(s), {len(results)} section results; "
                   f"written to {out}/ (sections.csv, summary.md, summary.json, "
                   + ", ".join(p.name for p in written["plots"])
+                  + (", error_sources.md, error_sources.json" if written["error_sources"] else "")
                   + (", by_obstacle.md, by_obstacle.json" if written["by_obstacle"] else "") + ")")
 
 

@@ -169,3 +169,57 @@ def test_cli_by_obstacle_writes_the_kind_tables(tmp_path):
         estimates = [r for r in csv.DictReader(f) if r["kind"] == "estimate"]
     assert estimates and all(r["obstacle"] for r in estimates)
     assert sum(r["n"] for r in rows) == len(estimates)
+
+
+def test_obstacle_points_are_traced_to_what_they_really_lie_on():
+    from harborsight.evaluation.distance import obstacle_point_truth
+
+    near = np.zeros((20, 30), np.uint8)
+    near[5:10, 20:25] = 1
+    assert obstacle_point_truth(near, (21.4, 6.0), contact=False) == "obstacle"
+    assert obstacle_point_truth(near, (3.0, 3.0), contact=True) == "vessel-spill"
+    assert obstacle_point_truth(near, (3.0, 3.0), contact=False) == "false-solid"
+    assert obstacle_point_truth(near, (99.0, -4.0), contact=False) == "false-solid"  # clipped
+
+
+def test_a_vessel_blob_spilt_onto_the_water_is_named_as_the_error_source(tmp_path):
+    """Grow the vessel's own labels 6 px over the water, as a model does onto the vessel's
+    shadow: the sections facing open water then read a tiny gap, and the error summary
+    must put that error on the spill, not on the obstacles."""
+    import cv2
+
+    from harborsight.evaluation.distance import summarise_error_sources, write_outputs
+
+    frames = load_frames(SAMPLES)
+    oracle = evaluate_frames(SAMPLES, frames, "oracle", oracle_masks, "ground_plane")
+    traced = [r for r in oracle if r.kind == "estimate"]
+    assert traced and all(r.point_truth is not None for r in traced)
+    assert np.mean([r.point_truth == "obstacle" for r in traced]) >= 0.95
+
+    def spill(dataset, frame):
+        labels = oracle_masks(dataset, frame).copy()
+        instances = cv2.imread(str(dataset / "instances" / frame["image"]), cv2.IMREAD_UNCHANGED)
+        vessel = cv2.dilate((instances == 1).astype(np.uint8), np.ones((13, 13), np.uint8))
+        labels[(vessel > 0) & (labels == 0)] = 1
+        return labels
+
+    results = oracle + evaluate_frames(SAMPLES, frames, "model:spill", spill, "ground_plane")
+    rows = {(r.masks, r.altitude_m): r for r in summarise_error_sources(results)}
+    spilt = [r for (masks, _), r in rows.items() if masks == "model:spill"]
+    assert spilt
+    errors = {"oracle": 0.0, "model:spill": 0.0}
+    spill_error = 0.0
+    for r in results:
+        if r.kind == "estimate":
+            errors[r.masks] += r.abs_error_m
+            spill_error += r.abs_error_m if r.point_truth == "vessel-spill" else 0.0
+    assert errors["model:spill"] > 2 * errors["oracle"]
+    total_share = sum(r.error_share["vessel-spill"] * r.mae_m * r.n for r in spilt)
+    assert total_share == pytest.approx(spill_error, rel=1e-6)
+    assert spill_error > 0.5 * errors["model:spill"]
+    written = write_outputs(results, tmp_path)
+    assert (tmp_path / "error_sources.md").is_file() and written["error_sources"]
+    from harborsight.evaluation.distance import read_csv
+
+    again = read_csv(tmp_path / "sections.csv")
+    assert [r.point_truth for r in again] == [r.point_truth for r in results]

@@ -16,6 +16,15 @@ kind of scene object its true distance is measured to (quay, pier, ship, boat, .
 signed error ``estimate - truth`` in GSD pixels is summarised per kind: the planar
 assumption errs by kind of structure (an edge ``h`` m above the water, ``r`` m from the
 nadir, seen from ``H`` m, back-projects ``h·r/(H-h)`` m too far out), so this separates it.
+
+Segmentation errors are traced the same way, pixel by pixel: each reported obstacle point is
+looked up in the simulator's own masks (:func:`obstacle_point_truth`). A point within
+:data:`POINT_TOLERANCE_PX` of a truly solid pixel of another object is a real obstacle (its
+error is geometry and edge placement); a point on true water is a segmentation mistake,
+``vessel-spill`` when the solid it lies on runs into the vessel's own region (the model's
+blob of the vessel reaching out over the water, e.g. onto its shadow) and ``false-solid``
+otherwise (a blob of water taken for solid). :func:`summarise_error_sources` gives each
+kind's share of the summed absolute error per altitude.
 """
 
 from __future__ import annotations
@@ -147,6 +156,7 @@ class SectionResult:
     contact: bool
     truncated: bool
     obstacle: str | None = None      # kind of the true nearest obstacle (when attributed)
+    point_truth: str | None = None   # what the reported obstacle point really is (POINT_TRUTHS)
 
     @property
     def kind(self) -> str:
@@ -170,6 +180,39 @@ class SectionResult:
         if self.kind != "estimate":
             return None
         return (self.estimate_m - self.truth_m) / self.gsd_m_per_px
+
+
+#: obstacle points within this many pixels of a truly solid pixel count as on the obstacle
+POINT_TOLERANCE_PX = 2
+#: what a reported obstacle point lies on, in the simulator's masks (module docstring)
+POINT_TRUTHS = ("obstacle", "vessel-spill", "false-solid")
+
+
+def true_obstacle_mask(dataset: Path, frame: dict) -> np.ndarray | None:
+    """uint8 mask (1 = solid) of every object but the vessel of interest, grown by
+    :data:`POINT_TOLERANCE_PX` (square), from the frame's labels and instances; ``ignore``
+    counts as solid. None when the dataset has no labels for the frame."""
+    stem = Path(frame["image"]).stem
+    labels = cv2.imread(str(dataset / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        return None
+    solid = labels != 0
+    instances = cv2.imread(str(dataset / "instances" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    if instances is not None and instances.shape == labels.shape:
+        solid &= instances != 1                  # instance 1 is the vessel of interest
+    size = 2 * POINT_TOLERANCE_PX + 1
+    return cv2.dilate(solid.astype(np.uint8), np.ones((size, size), np.uint8))
+
+
+def obstacle_point_truth(near_obstacle: np.ndarray, point_px, contact: bool) -> str:
+    """:data:`POINT_TRUTHS` entry for a reported obstacle point ``(u, v)``, given
+    :func:`true_obstacle_mask`."""
+    h, w = near_obstacle.shape
+    u = min(max(round(float(point_px[0])), 0), w - 1)
+    v = min(max(round(float(point_px[1])), 0), h - 1)
+    if near_obstacle[v, u]:
+        return "obstacle"
+    return "vessel-spill" if contact else "false-solid"
 
 
 def truth_obstacle_kinds(dataset: Path) -> Callable[[dict], list[str | None]]:
@@ -220,6 +263,7 @@ def evaluate_frames(
             if len(report.sections) != len(truth):
                 raise HarborsightError(f"{stem}: {len(report.sections)} sections measured, "
                                        f"{len(truth)} in the ground truth")
+            near_obstacle = true_obstacle_mask(dataset, frame)
         except (HarborsightError, KeyError) as exc:
             if on_frame:
                 on_frame(stem, f"{type(exc).__name__}: {exc}")
@@ -228,9 +272,13 @@ def evaluate_frames(
         for s, t in zip(report.sections, truth, strict=True):
             if s.status not in (STATUS_OK, STATUS_CLEAR):
                 continue
+            point_truth = None
+            if near_obstacle is not None and s.status == STATUS_OK and s.obstacle_point_px:
+                point_truth = obstacle_point_truth(near_obstacle, s.obstacle_point_px, s.contact)
             results.append(SectionResult(
                 stem, altitude, masks_name, method, s.index, s.status, s.distance_m,
-                t["distance_m"], report.gsd_m_per_px, bool(s.contact), bool(s.truncated)))
+                t["distance_m"], report.gsd_m_per_px, bool(s.contact), bool(s.truncated),
+                point_truth=point_truth))
         if on_frame:
             on_frame(stem, None)
     return results
@@ -327,19 +375,72 @@ def markdown_obstacle_table(rows: list[ObstacleSummary]) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass
+class ErrorSourceSummary:
+    masks: str
+    method: str
+    altitude_m: float
+    n: int                                # estimates with a traced obstacle point
+    mae_m: float
+    mae_on_obstacle_m: float | None       # MAE of the estimates whose point is a real obstacle
+    count: dict[str, int]                 # estimates per point truth
+    error_share: dict[str, float]         # share of the summed |error| per point truth
+    false_obstacles: dict[str, int]       # false obstacles per point truth
+
+
+def summarise_error_sources(results: list[SectionResult]) -> list[ErrorSourceSummary]:
+    """Per (masks, method, altitude): how much of the absolute error comes from estimates
+    whose obstacle point is a real obstacle, the vessel's own blob spilt onto water, or
+    water taken for solid (module docstring); empty when no point was traced."""
+    groups: dict[tuple, list[SectionResult]] = {}
+    for r in results:
+        if r.point_truth is not None:
+            groups.setdefault((r.masks, r.method, r.altitude_m), []).append(r)
+    rows = []
+    for (masks, method, altitude), group in sorted(groups.items(), key=lambda kv: kv[0]):
+        estimates = [r for r in group if r.kind == "estimate"]
+        if not estimates:
+            continue
+        errors = np.array([r.abs_error_m for r in estimates])
+        on_obstacle = errors[[r.point_truth == "obstacle" for r in estimates]]
+        total = float(errors.sum())
+        rows.append(ErrorSourceSummary(
+            masks, method, altitude, len(estimates), float(errors.mean()),
+            float(on_obstacle.mean()) if len(on_obstacle) else None,
+            {t: sum(r.point_truth == t for r in estimates) for t in POINT_TRUTHS},
+            {t: (float(sum(r.abs_error_m for r in estimates if r.point_truth == t)) / total
+                 if total > 0 else 0.0) for t in POINT_TRUTHS},
+            {t: sum(r.kind == "false" and r.point_truth == t for r in group) for t in POINT_TRUTHS}))
+    return rows
+
+
+def markdown_error_source_table(rows: list[ErrorSourceSummary]) -> str:
+    lines = ["| masks | method | altitude m | n | MAE m | MAE m, point on a real obstacle | "
+             "error share: real obstacle | vessel spill | false solid | "
+             "false obstacles: vessel spill / false solid |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        share = " | ".join(f"{100 * r.error_share[t]:.0f} % ({r.count[t]})" for t in POINT_TRUTHS)
+        lines.append(f"| {r.masks} | {r.method} | {r.altitude_m:.0f} | {r.n} | {r.mae_m:.2f} | "
+                     f"{_fmt(r.mae_on_obstacle_m)} | {share} | "
+                     f"{r.false_obstacles['vessel-spill']} / {r.false_obstacles['false-solid']} |")
+    return "\n".join(lines) + "\n"
+
+
 def write_csv(results: list[SectionResult], path: Path) -> None:
     with path.open("w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["frame", "altitude_m", "masks", "method", "section", "status", "kind",
                          "estimate_m", "truth_m", "abs_error_m", "gsd_m_per_px", "contact",
-                         "truncated", "obstacle"])
+                         "truncated", "obstacle", "point_truth"])
         for r in results:
             err = r.abs_error_m
             writer.writerow([r.frame, r.altitude_m, r.masks, r.method, r.section, r.status, r.kind,
                              "" if r.estimate_m is None else f"{r.estimate_m:.4f}",
                              "" if r.truth_m is None else f"{r.truth_m:.4f}",
                              "" if err is None else f"{err:.4f}", f"{r.gsd_m_per_px:.5f}",
-                             int(r.contact), int(r.truncated), r.obstacle or ""])
+                             int(r.contact), int(r.truncated), r.obstacle or "",
+                             r.point_truth or ""])
 
 
 def read_csv(path: Path) -> list[SectionResult]:
@@ -352,7 +453,7 @@ def read_csv(path: Path) -> list[SectionResult]:
                               int(row["section"]), row["status"], number(row["estimate_m"]),
                               number(row["truth_m"]), float(row["gsd_m_per_px"]),
                               bool(int(row["contact"])), bool(int(row["truncated"])),
-                              row.get("obstacle") or None)
+                              row.get("obstacle") or None, row.get("point_truth") or None)
                 for row in csv.DictReader(f)]
 
 
@@ -452,8 +553,9 @@ def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
 
 
 def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
-    """CSV of every estimate, summary JSON and Markdown, the two plots, and, when results
-    carry obstacle kinds, by_obstacle.json and .md."""
+    """CSV of every estimate, summary JSON and Markdown, the two plots, error_sources.json
+    and .md when obstacle points were traced, and, when results carry obstacle kinds,
+    by_obstacle.json and .md."""
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = summarise(results)
     write_csv(results, out_dir / "sections.csv")
@@ -465,4 +567,9 @@ def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
         (out_dir / "by_obstacle.json").write_text(
             json.dumps([asdict(r) for r in by_obstacle], indent=1) + "\n")
         (out_dir / "by_obstacle.md").write_text(markdown_obstacle_table(by_obstacle))
-    return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle}
+    sources = summarise_error_sources(results)
+    if sources:
+        (out_dir / "error_sources.json").write_text(
+            json.dumps([asdict(r) for r in sources], indent=1) + "\n")
+        (out_dir / "error_sources.md").write_text(markdown_error_source_table(sources))
+    return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle, "error_sources": sources}
