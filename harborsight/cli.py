@@ -723,6 +723,9 @@ def evaluate_distance_command(
         help="Also attribute each true distance to the kind of object it is measured to "
         "(quay, pier, ship, ...; rebuilds each simulator scene, about 0.3 s a frame) and "
         "summarise the signed error per kind: by_obstacle.md/json.")] = False,
+    worst: Annotated[int, typer.Option(
+        min=0, help="Draw the N frames with the largest summed error of each configuration "
+        "(overlay | simulator labels | measured masks) to worst/.")] = 0,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
@@ -789,6 +792,8 @@ def evaluate_distance_command(
                 progress.advance(task)
             attribute_obstacles(results, kinds)
     written = write_outputs(results, out)
+    drawn = _draw_worst_frames(data, frames, results, sources, chosen, out / "worst", worst,
+                               skipped)
     print(markdown_table(written["rows"]))
     if written["by_obstacle"]:
         from harborsight.evaluation.distance import markdown_obstacle_table
@@ -807,7 +812,32 @@ def evaluate_distance_command(
                   f"written to {out}/ (sections.csv, summary.md, summary.json, "
                   + ", ".join(p.name for p in written["plots"])
                   + (", error_sources.md, error_sources.json" if written["error_sources"] else "")
-                  + (", by_obstacle.md, by_obstacle.json" if written["by_obstacle"] else "") + ")")
+                  + (", by_obstacle.md, by_obstacle.json" if written["by_obstacle"] else "")
+                  + (f", {drawn} picture(s) in worst/" if drawn else "") + ")")
+
+
+def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: list,
+                       methods: list[str], out_dir: Path, count: int,
+                       skipped: list[tuple[str, str]]) -> int:
+    """``count`` worst frames of every (masks, method) as panels in ``out_dir``; a frame
+    that cannot be drawn joins ``skipped``. Returns how many pictures were written."""
+    from harborsight.evaluation.distance import draw_error_panel, worst_frames
+
+    by_stem = {Path(f["image"]).stem: f for f in frames}
+    written = 0
+    for masks_name, source in sources:
+        for method in methods:
+            for rank, (stem, _) in enumerate(worst_frames(results, masks_name, method, count), 1):
+                try:
+                    panel = draw_error_panel(data, by_stem[stem], source, method, masks_name)
+                except (HarborsightError, KeyError) as exc:
+                    skipped.append((stem, f"worst-frame picture: {type(exc).__name__}: {exc}"))
+                    continue
+                out_dir.mkdir(parents=True, exist_ok=True)
+                name = f"{masks_name.replace(':', '-')}-{method}-{rank:02d}-{stem}.png"
+                cv2.imwrite(str(out_dir / name), panel)
+                written += 1
+    return written
 
 
 @app.command("export")

@@ -88,8 +88,15 @@ def test_erased_obstacles_are_missed_and_painted_ones_are_false():
 
 def test_cli_writes_csv_tables_and_plots(tmp_path):
     result = CliRunner().invoke(app, ["evaluate", "distance", "--data", str(SAMPLES),
-                                      "--out", str(tmp_path)])
+                                      "--out", str(tmp_path), "--worst", "1"])
     assert result.exit_code == 0, result.output
+    import cv2
+
+    pictures = sorted((tmp_path / "worst").glob("*.png"))
+    assert [p.name.split("-01-")[0] for p in pictures] == ["oracle-ground_plane", "oracle-gsd"]
+    frame_image = cv2.imread(str(next((SAMPLES / "images").glob("*.png"))))
+    panel = cv2.imread(str(pictures[0]))
+    assert panel.shape == (frame_image.shape[0], 3 * frame_image.shape[1], 3)
     for name in ("sections.csv", "summary.md", "summary.json", "distance_error_box.png",
                  "distance_mae_bar.png"):
         assert (tmp_path / name).is_file(), name

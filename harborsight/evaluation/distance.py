@@ -538,6 +538,54 @@ def plot_errors(results: list[SectionResult], rows: list[AltitudeSummary], out_d
     return paths
 
 
+def worst_frames(results: list[SectionResult], masks_name: str, method: str, count: int
+                 ) -> list[tuple[str, float]]:
+    """The ``count`` frames of one configuration with the largest summed absolute error
+    over their estimates, as ``(stem, summed error m)``, worst first."""
+    totals: dict[str, float] = {}
+    for r in results:
+        if r.masks == masks_name and r.method == method and r.kind == "estimate":
+            totals[r.frame] = totals.get(r.frame, 0.0) + r.abs_error_m
+    return sorted(totals.items(), key=lambda kv: -kv[1])[:count]
+
+
+def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
+                     title: str) -> np.ndarray:
+    """One frame measured again and drawn as three panels side by side: the overlay of the
+    report (distances, obstacle points), the simulator's labels and the measured masks, both
+    with the vessel's sections and the reported obstacle points, so a wrong distance can be
+    traced to the pixels that caused it."""
+    from harborsight.viz.contact_sheet import colourise_labels
+    from harborsight.viz.overlay import YELLOW, draw_banner, draw_overlay
+
+    stem = Path(frame["image"]).stem
+    meta = parse_frame_metadata(frame, dataset / "frames" / f"{stem}.json",
+                                base_dir=dataset / "frames")
+    image = cv2.imread(str(dataset / "images" / frame["image"]), cv2.IMREAD_COLOR)
+    if image is None:
+        raise HarborsightError(f"{dataset / 'images' / frame['image']}: cannot read the image")
+    measured = masks(dataset, frame)
+    report = measure_frame(measured, meta, load_vessel_spec(dataset / frame["vessel_spec"]),
+                           ClearanceSettings(method=method))
+    truth = [t["distance_m"] for t in frame["ground_truth"]["sections"]]
+    truth_text = " ".join("-" if t is None else f"{t:.1f}" for t in truth)
+    panels = [draw_overlay(image, report, footer=f"true m: {truth_text}")]
+    for labels, name in ((oracle_masks(dataset, frame), "simulator labels"),
+                         (measured, f"{title} masks")):
+        panel = colourise_labels(labels)
+        for s in report.sections:
+            hull = np.asarray(s.hull_px, float)
+            if np.isfinite(hull).all():
+                cv2.line(panel, tuple(np.round(hull[0]).astype(int)),
+                         tuple(np.round(hull[1]).astype(int)), (255, 255, 255), 1, cv2.LINE_AA)
+            if s.obstacle_point_px:
+                cv2.circle(panel, tuple(np.round(s.obstacle_point_px).astype(int)), 3, YELLOW, -1,
+                           cv2.LINE_AA)
+        draw_banner(panel, f"{stem}: {name}")
+        panels.append(panel)
+    return np.hstack(panels)
+
+
 def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
     """Frame documents of a dataset (optionally one split of dataset.json), sorted."""
     wanted = None
