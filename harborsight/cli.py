@@ -726,6 +726,10 @@ def evaluate_distance_command(
     worst: Annotated[int, typer.Option(
         min=0, help="Draw the N frames with the largest summed error of each configuration "
         "(overlay | simulator labels | measured masks) to worst/.")] = 0,
+    pose_margin_px: Annotated[float, typer.Option(
+        min=0.0, help="Growth of the vessel's own image region for pose and mask error, as "
+        "in measure [2 px]: wider hides more of a model's vessel blob spilling onto the "
+        "water, and reports a touching obstacle that much farther away.")] = 2.0,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
@@ -779,7 +783,8 @@ def evaluate_distance_command(
                     if error:
                         skipped.append((stem, error))
 
-                results += evaluate_frames(data, frames, masks_name, source, method, done)
+                results += evaluate_frames(data, frames, masks_name, source, method, done,
+                                           pose_margin_px)
         if by_obstacle:
             kinds_of, kinds = truth_obstacle_kinds(data), {}
             task = progress.add_task("obstacle kinds", total=len(frames))
@@ -793,7 +798,7 @@ def evaluate_distance_command(
             attribute_obstacles(results, kinds)
     written = write_outputs(results, out)
     drawn = _draw_worst_frames(data, frames, results, sources, chosen, out / "worst", worst,
-                               skipped)
+                               skipped, pose_margin_px)
     print(markdown_table(written["rows"]))
     if written["by_obstacle"]:
         from harborsight.evaluation.distance import markdown_obstacle_table
@@ -818,7 +823,7 @@ def evaluate_distance_command(
 
 def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: list,
                        methods: list[str], out_dir: Path, count: int,
-                       skipped: list[tuple[str, str]]) -> int:
+                       skipped: list[tuple[str, str]], pose_margin_px: float) -> int:
     """``count`` worst frames of every (masks, method) as panels in ``out_dir``; a frame
     that cannot be drawn joins ``skipped``. Returns how many pictures were written."""
     from harborsight.evaluation.distance import draw_error_panel, worst_frames
@@ -829,7 +834,8 @@ def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: l
         for method in methods:
             for rank, (stem, _) in enumerate(worst_frames(results, masks_name, method, count), 1):
                 try:
-                    panel = draw_error_panel(data, by_stem[stem], source, method, masks_name)
+                    panel = draw_error_panel(data, by_stem[stem], source, method, masks_name,
+                                             pose_margin_px)
                 except (HarborsightError, KeyError) as exc:
                     skipped.append((stem, f"worst-frame picture: {type(exc).__name__}: {exc}"))
                     continue
