@@ -192,12 +192,13 @@ def true_obstacle_mask(dataset: Path, frame: dict) -> np.ndarray | None:
     """uint8 mask (1 = solid) of every object but the vessel of interest, grown by
     :data:`POINT_TOLERANCE_PX` (square), from the frame's labels and instances; ``ignore``
     counts as solid. None when the dataset has no labels for the frame."""
-    stem = Path(frame["image"]).stem
-    labels = cv2.imread(str(dataset / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
-    if labels is None:
+    try:
+        labels = oracle_masks(dataset, frame)
+    except HarborsightError:
         return None
     solid = labels != 0
-    instances = cv2.imread(str(dataset / "instances" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    instances = cv2.imread(str(dataset / "instances" / f"{Path(frame['image']).stem}.png"),
+                           cv2.IMREAD_UNCHANGED)
     if instances is not None and instances.shape == labels.shape:
         solid &= instances != 1                  # instance 1 is the vessel of interest
     size = 2 * POINT_TOLERANCE_PX + 1
@@ -555,15 +556,14 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     report (distances, obstacle points), the simulator's labels and the measured masks, both
     with the vessel's sections and the reported obstacle points, so a wrong distance can be
     traced to the pixels that caused it."""
+    from harborsight.pipeline import read_image
     from harborsight.viz.contact_sheet import colourise_labels
     from harborsight.viz.overlay import YELLOW, draw_banner, draw_overlay
 
     stem = Path(frame["image"]).stem
     meta = parse_frame_metadata(frame, dataset / "frames" / f"{stem}.json",
                                 base_dir=dataset / "frames")
-    image = cv2.imread(str(dataset / "images" / frame["image"]), cv2.IMREAD_COLOR)
-    if image is None:
-        raise HarborsightError(f"{dataset / 'images' / frame['image']}: cannot read the image")
+    image = read_image(dataset / "images" / frame["image"])
     measured = masks(dataset, frame)
     report = measure_frame(measured, meta, load_vessel_spec(dataset / frame["vessel_spec"]),
                            ClearanceSettings(method=method, pose_margin_px=pose_margin_px))
