@@ -74,11 +74,22 @@ def print_report_table(outcome: FrameOutcome) -> None:
 
 
 def _settings(method: Method, sections: int | None, section_length_m: float | None,
-              pose_margin_px: float) -> ClearanceSettings:
+              pose_margin_px: float, own_rim_px: int) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
 
     return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
-                             n_sections=sections, section_length_m=section_length_m)
+                             own_rim_px=own_rim_px, n_sections=sections,
+                             section_length_m=section_length_m)
+
+
+#: default of --own-rim-px: ClearanceSettings.own_rim_px (kept here: the CLI starts without
+#: importing the measurement code)
+OWN_RIM_PX = 4
+
+#: help of --own-rim-px, shared by measure, run and evaluate distance
+_OWN_RIM_HELP = ("Ship-class slivers up to this many pixels thick hugging the vessel's own "
+                 "region count as the vessel (a segmenter draws the vessel a few pixels too "
+                 "wide, onto its shadow); thicker neighbours are kept whole. 0: off.")
 
 
 def _segmenter(model: Path | None):
@@ -147,6 +158,7 @@ def measure(
     pose_margin_px: Annotated[float, typer.Option(
         min=0.0, help="Growth in pixels of the vessel's own image region, for pose and mask "
         "error.")] = 2.0,
+    own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
@@ -157,7 +169,7 @@ def measure(
     try:
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
-        settings = _settings(method, sections, section_length_m, pose_margin_px)
+        settings = _settings(method, sections, section_length_m, pose_margin_px, own_rim_px)
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         if input_path.is_dir():
@@ -222,6 +234,7 @@ def run_command(
         "intrinsics.")] = None,
     pose_margin_px: Annotated[float, typer.Option(
         min=0.0, help="Growth in pixels of the vessel's own image region.")] = 2.0,
+    own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
     fps: Annotated[float | None, typer.Option(
@@ -257,7 +270,7 @@ def run_command(
             source = VideoSource(input_path, metadata, camera=intrinsics)
             segmenter = _segmenter(model)
         options = RunOptions(settings=_settings(method, sections, section_length_m,
-                                                pose_margin_px),
+                                                pose_margin_px, own_rim_px),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
@@ -306,7 +319,7 @@ def demo(
     console.print(f"[bold]harborsight demo[/]: {samples}\n"
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
-    settings = _settings(method, None, None, 2.0)
+    settings = _settings(method, None, None, 2.0, OWN_RIM_PX)
     code = _run_folder(samples, None, VesselCache(), settings, out / "frames", None, True)
     flight = samples / "flight"
     console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
@@ -730,9 +743,11 @@ def evaluate_distance_command(
         min=0.0, help="Growth of the vessel's own image region for pose and mask error, as "
         "in measure [2 px]: wider hides more of a model's vessel blob spilling onto the "
         "water, and reports a touching obstacle that much farther away.")] = 2.0,
+    own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
+    from harborsight.clearance.measure import ClearanceSettings
     from harborsight.evaluation.distance import (
         attribute_obstacles,
         evaluate_frames,
@@ -745,6 +760,7 @@ def evaluate_distance_command(
         write_outputs,
     )
 
+    clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px)
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in {m.value for m in Method}]
     if bad or not chosen:
@@ -784,7 +800,7 @@ def evaluate_distance_command(
                         skipped.append((stem, error))
 
                 results += evaluate_frames(data, frames, masks_name, source, method, done,
-                                           pose_margin_px)
+                                           clearance)
         if by_obstacle:
             kinds_of, kinds = truth_obstacle_kinds(data), {}
             task = progress.add_task("obstacle kinds", total=len(frames))
@@ -798,7 +814,7 @@ def evaluate_distance_command(
             attribute_obstacles(results, kinds)
     written = write_outputs(results, out)
     drawn = _draw_worst_frames(data, frames, results, sources, chosen, out / "worst", worst,
-                               skipped, pose_margin_px)
+                               skipped, clearance)
     print(markdown_table(written["rows"]))
     if written["by_obstacle"]:
         from harborsight.evaluation.distance import markdown_obstacle_table
@@ -823,7 +839,7 @@ def evaluate_distance_command(
 
 def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: list,
                        methods: list[str], out_dir: Path, count: int,
-                       skipped: list[tuple[str, str]], pose_margin_px: float) -> int:
+                       skipped: list[tuple[str, str]], clearance: ClearanceSettings) -> int:
     """``count`` worst frames of every (masks, method) as panels in ``out_dir``; a frame
     that cannot be drawn joins ``skipped``. Returns how many pictures were written."""
     from harborsight.evaluation.distance import draw_error_panel, worst_frames
@@ -835,7 +851,7 @@ def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: l
             for rank, (stem, _) in enumerate(worst_frames(results, masks_name, method, count), 1):
                 try:
                     panel = draw_error_panel(data, by_stem[stem], source, method, masks_name,
-                                             pose_margin_px)
+                                             clearance)
                 except (HarborsightError, KeyError) as exc:
                     skipped.append((stem, f"worst-frame picture: {type(exc).__name__}: {exc}"))
                     continue

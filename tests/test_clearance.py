@@ -9,11 +9,12 @@ from harborsight.sim.schematic import ground_truth, render, sample_scene
 from tests.helpers import flat_box_vessel
 
 
-def errors_px(vessel, scene, method="ground_plane"):
+def errors_px(vessel, scene, method="ground_plane", own_rim_px=0):
     """(error in GSD pixels, contact flag) of every section measured and true in view."""
     _, labels, _ = render(scene)
     truth = ground_truth(scene)["sections"]
-    report = measure_clearance(labels, scene.geometry(), vessel, ClearanceSettings(method=method))
+    report = measure_clearance(labels, scene.geometry(), vessel,
+                               ClearanceSettings(method=method, own_rim_px=own_rim_px))
     rows = []
     for s, t in zip(report.sections, truth, strict=True):
         if s.status == "out_of_view":
@@ -56,12 +57,15 @@ def test_tilted_ground_plane_within_1_5_px_and_gsd_worse():
     assert gsd.mean() > 3 * gp.mean() and gsd.max() > 2.0
 
 
+@pytest.mark.parametrize("own_rim_px", [0, 6])
 @pytest.mark.parametrize("altitude_m", [45, 90, 140])
-def test_touching_neighbour_only_affects_its_own_sections(altitude_m):
+def test_touching_neighbour_only_affects_its_own_sections(altitude_m, own_rim_px):
+    """Also with the own-vessel rim on: a touching neighbour is thicker than the rim, so it
+    still reads (almost) zero at the hull."""
     vessel = flat_box_vessel()
     rng = np.random.default_rng(7)
     scene = sample_scene(vessel, rng, altitude_m=altitude_m, scenario="touching")
-    rows, report = errors_px(vessel, scene)
+    rows, report = errors_px(vessel, scene, own_rim_px=own_rim_px)
     truth = ground_truth(scene)["sections"]
     margin = ClearanceSettings().pose_margin_px
     contact = [s for s in report.sections if s.contact]
@@ -164,3 +168,40 @@ def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():
     # the section that holds the wedge is unchanged by its neighbour's candidates
     assert abs(report.sections[k - 1].distance_m - truth[k - 1]["distance_m"]) \
         <= 1.0 * report.gsd_m_per_px
+
+
+def test_own_rim_removes_thin_ship_slivers_only():
+    """Hand-made mask: own region rows 40-59, cols 40-119. A 3 px ship-class sliver on its
+    top edge is the model's spill; a 3 px obstacle-class sliver on its bottom edge is a real
+    (thin) solid; a 30 px ship touches its right end."""
+    from harborsight.clearance.obstacles import OwnRegion, obstacle_contours, own_rim
+
+    labels = np.zeros((100, 200), np.uint8)
+    own_mask = np.zeros_like(labels)
+    own_mask[40:60, 40:120] = 255
+    own = OwnRegion(own_mask, (slice(40, 60), slice(40, 120)))
+    labels[40:60, 40:120] = 1
+    labels[37:40, 45:115] = 1      # ship-class spill, 3 px thick
+    labels[60:63, 45:115] = 2      # obstacle-class sliver, 3 px thick
+    labels[30:70, 120:150] = 1     # a touching ship, 30 px wide
+
+    rim = own_rim(labels, own, 4) > 0
+    assert rim[37:40, 45:115].all()
+    assert not rim[60:63].any() and not rim[:, 120:].any()
+    assert not own_rim(labels, own, 0).any()
+
+    def rows_cols(contours):
+        return set(map(tuple, contours.points_px[:, ::-1].tolist()))
+
+    plain, trimmed = obstacle_contours(labels, own), obstacle_contours(labels, own, 4)
+    assert any(r == 37 for r, _ in rows_cols(plain))          # spill read as an obstacle
+    assert not any(r < 40 and c < 120 for r, c in rows_cols(trimmed))
+    assert any(r == 62 for r, _ in rows_cols(trimmed))        # the thin obstacle stays
+    touching = {(r, c) for r, c in rows_cols(trimmed) if c == 120 and 40 <= r < 60}
+    assert touching, "the neighbour keeps its edge at the hull"
+    idx = [i for i, (u, v) in enumerate(trimmed.points_px) if u == 120 and 40 <= v < 60]
+    assert trimmed.contact[idx].all()
+    # a sliver thicker than the rim is a neighbour, not spill (the opening rounds off at
+    # most its corner pixels)
+    labels[30:40, 45:115] = 1
+    assert not (own_rim(labels, own, 4)[30:40, 48:112] > 0).any()

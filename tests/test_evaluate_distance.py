@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from harborsight.clearance.measure import ClearanceSettings
 from harborsight.cli import app
 from harborsight.evaluation.distance import (
     evaluate_frames,
@@ -227,10 +228,23 @@ def test_a_vessel_blob_spilt_onto_the_water_is_named_as_the_error_source(tmp_pat
     # a vessel region grown past the 6 px spill hides it (at the cost of reading a touching
     # obstacle that much farther away)
     wide = evaluate_frames(SAMPLES, frames, "model:spill", spill, "ground_plane",
-                           pose_margin_px=8.0)
+                           clearance=ClearanceSettings(pose_margin_px=8.0))
     wide_spill = sum(r.abs_error_m for r in wide
                      if r.kind == "estimate" and r.point_truth == "vessel-spill")
     assert wide_spill < 0.1 * spill_error
+    # the own-vessel rim removes the spill without widening the region (8 px: the square
+    # kernel's spill reaches 6·√2 px at the hull's corners), and leaves the exact labels'
+    # distances as they were
+    rim = ClearanceSettings(own_rim_px=8)
+    trimmed = evaluate_frames(SAMPLES, frames, "model:spill", spill, "ground_plane",
+                              clearance=rim)
+    trimmed_spill = sum(r.abs_error_m for r in trimmed
+                        if r.kind == "estimate" and r.point_truth == "vessel-spill")
+    assert trimmed_spill < 0.1 * spill_error
+    oracle_rim = evaluate_frames(SAMPLES, frames, "oracle", oracle_masks, "ground_plane",
+                                 clearance=rim)
+    assert sum(r.abs_error_m for r in oracle_rim if r.kind == "estimate") == pytest.approx(
+        errors["oracle"], rel=0.05)
     written = write_outputs(results, tmp_path)
     assert (tmp_path / "error_sources.md").is_file() and written["error_sources"]
     from harborsight.evaluation.distance import read_csv

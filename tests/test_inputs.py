@@ -155,5 +155,17 @@ def test_help_documents_every_option():
     result = runner.invoke(app, ["measure", "--help"], terminal_width=200)
     assert result.exit_code == 0
     for option in ("--meta", "--vessel", "--mask", "--masks", "--out", "--method", "--sections",
-                   "--section-length-m", "--camera", "--pose-margin-px", "--tables"):
+                   "--section-length-m", "--camera", "--pose-margin-px", "--own-rim-px",
+                   "--tables"):
         assert option in result.output
+
+
+def test_cli_defaults_match_the_measurement_settings():
+    """The CLI keeps its own copy of the rim default (it starts without the measurement
+    code); the two must not drift apart."""
+    from harborsight import cli
+    from harborsight.clearance.measure import ClearanceSettings
+
+    assert ClearanceSettings().own_rim_px == cli.OWN_RIM_PX
+    with pytest.raises(ValueError, match="own_rim_px"):
+        ClearanceSettings(own_rim_px=-1)

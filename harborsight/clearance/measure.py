@@ -54,6 +54,7 @@ class ClearanceSettings:
 
     method: str = "ground_plane"
     pose_margin_px: float = 2.0
+    own_rim_px: int = 4
     n_sections: int | None = None
     section_length_m: float | None = None
 
@@ -62,6 +63,8 @@ class ClearanceSettings:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if not np.isfinite(self.pose_margin_px) or self.pose_margin_px < 0:
             raise ValueError(f"pose_margin_px must be >= 0, got {self.pose_margin_px}")
+        if self.own_rim_px < 0:
+            raise ValueError(f"own_rim_px must be >= 0, got {self.own_rim_px}")
 
 
 def check_label_mask(labels: np.ndarray, width: int, height: int, source: str | None) -> None:
@@ -282,7 +285,7 @@ def measure_clearance(
         )
 
     own = own_vessel_region(vessel_to_px(vessel.hull_points), labels.shape, settings.pose_margin_px)
-    contours = obstacle_contours(labels, own)
+    contours = obstacle_contours(labels, own, settings.own_rim_px)
     points_px = contours.points_px.astype(float)
 
     if settings.method == "ground_plane":

@@ -10,6 +10,15 @@ obstacles whatever blob they belong to, so a touching neighbour is cut at the re
 and only the sections facing it read a small distance. Contour points on such a cut are
 flagged ``contact``: the solid continues into the vessel's region there, so the true gap
 is at most the reported distance.
+
+**Own-vessel rim.** A learned segmenter draws the vessel a few pixels wider than it is,
+mostly onto its own shadow; that sliver lies just outside the region and would read as an
+obstacle touching the hull. With ``rim_px = r > 0``, *ship*-class pixels outside the region
+that are within ``r`` px of it and do not survive a morphological opening of the ship-class
+pixels outside the region with a disk of diameter ``2⌈r/2⌉ + 1`` (slivers at most ``r`` px
+thick, for even r) are counted as the own vessel. A neighbour thicker than that keeps every
+pixel, its edge at the hull included, so a touching ship still reads zero; obstacle-class
+solids (quays, piles) are never touched.
 """
 
 from __future__ import annotations
@@ -52,6 +61,12 @@ def own_vessel_region(
     return OwnRegion(region, roi)
 
 
+def _grown_slices(box: tuple[slice, slice], grow: int, shape: tuple[int, int]):
+    """``box`` (row and column slices) grown by ``grow`` px, clipped to the image."""
+    corners = np.array([[box[1].start, box[0].start], [box[1].stop - 1, box[0].stop - 1]])
+    return _grown_bbox(corners, grow, shape)
+
+
 def _grown_bbox(points: np.ndarray, grow: int, shape: tuple[int, int]):
     """Slices of the bounding box of ``points`` grown by ``grow`` px, clipped to the image."""
     x0, y0 = np.floor(points.min(axis=0)).astype(int) - grow
@@ -79,7 +94,27 @@ class ObstacleContours:
     on_border: np.ndarray
 
 
-def obstacle_contours(labels: np.ndarray, own: OwnRegion) -> ObstacleContours:
+def own_rim(labels: np.ndarray, own: OwnRegion, rim_px: int) -> np.ndarray:
+    """uint8 mask (255) of the thin ship-class rim hugging the own region (see module doc).
+
+    rim = S ∩ D_r(own) ∖ open(S, disk(2⌈r/2⌉ + 1)),  S = ship-class pixels outside ``own``,
+    D_r = dilation by a disk of radius r. Only the region's box grown by 2r + 1 is searched.
+    """
+    rim = np.zeros(labels.shape, np.uint8)
+    if rim_px <= 0 or own.bbox is None:
+        return rim
+    roi = _grown_slices(own.bbox, 2 * rim_px + 1, labels.shape)
+    ship_outside = np.where((labels[roi] == SHIP) & (own.mask[roi] == 0), 255, 0).astype(np.uint8)
+    diameter = 2 * int(np.ceil(rim_px / 2)) + 1
+    opening = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter))
+    thick = cv2.morphologyEx(ship_outside, cv2.MORPH_OPEN, opening)
+    reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1))
+    near_own = cv2.dilate(own.mask[roi], reach)
+    rim[roi] = ship_outside & near_own & cv2.bitwise_not(thick)
+    return rim
+
+
+def obstacle_contours(labels: np.ndarray, own: OwnRegion, rim_px: int = 0) -> ObstacleContours:
     """Suzuki–Abe contours (``cv2.findContours``) of solid pixels outside ``own_region``.
 
     Solid is everything but water; ``ignore`` (255) counts as solid, the safe side. All
@@ -88,8 +123,13 @@ def obstacle_contours(labels: np.ndarray, own: OwnRegion) -> ObstacleContours:
     never an obstacle: only solid pixels yield contour points, and those on the outermost
     rows/columns are flagged ``on_border``.
     """
-    obstacle = cv2.subtract(labels, own.mask)  # saturating: 0 wherever the own mask is 255
+    own_mask = own.mask
+    if rim_px > 0:
+        own_mask = cv2.bitwise_or(own_mask, own_rim(labels, own, rim_px))
+    obstacle = cv2.subtract(labels, own_mask)  # saturating: 0 wherever the own mask is 255
     roi = own.bbox
+    if roi is not None and rim_px > 0:
+        roi = _grown_slices(roi, rim_px, labels.shape)
     contours, _ = cv2.findContours(obstacle, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     if not contours:
         empty = np.zeros(0, bool)
@@ -105,9 +145,8 @@ def obstacle_contours(labels: np.ndarray, own: OwnRegion) -> ObstacleContours:
     # contact: the obstacle pixel touches solid pixels inside the own-vessel region
     contact = np.zeros(len(points), bool)
     if roi is not None:
-        roi = _grown_bbox(np.array([[roi[1].start, roi[0].start], [roi[1].stop, roi[0].stop]]),
-                          1, labels.shape)
-        solid_inside = cv2.bitwise_and(labels[roi], own.mask[roi])
+        roi = _grown_slices(roi, 1, labels.shape)
+        solid_inside = cv2.bitwise_and(labels[roi], own_mask[roi])
         touching = cv2.dilate(solid_inside, np.ones((3, 3), np.uint8))
         u, v = points[:, 0] - roi[1].start, points[:, 1] - roi[0].start
         near = (u >= 0) & (v >= 0) & (u < touching.shape[1]) & (v < touching.shape[0])

@@ -30,6 +30,7 @@ kind's share of the summed absolute error per altitude.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from collections.abc import Callable, Iterable
@@ -245,10 +246,12 @@ def attribute_obstacles(results: list[SectionResult], kinds: dict[str, list[str 
 
 def evaluate_frames(
     dataset: Path, frames: Iterable[dict], masks_name: str, masks: MaskSource, method: str,
-    on_frame: Callable[[str, str | None], None] | None = None, pose_margin_px: float = 2.0,
+    on_frame: Callable[[str, str | None], None] | None = None,
+    clearance: ClearanceSettings | None = None,
 ) -> list[SectionResult]:
-    """Measure every frame with ``masks`` and ``method``; a bad frame is reported and skipped."""
-    settings = ClearanceSettings(method=method, pose_margin_px=pose_margin_px)
+    """Measure every frame with ``masks`` and ``method`` (the rest of the settings from
+    ``clearance``); a bad frame is reported and skipped."""
+    settings = dataclasses.replace(clearance or ClearanceSettings(), method=method)
     vessels: dict[str, VesselSpec] = {}
     results: list[SectionResult] = []
     for frame in frames:
@@ -551,7 +554,7 @@ def worst_frames(results: list[SectionResult], masks_name: str, method: str, cou
 
 
 def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
-                     title: str, pose_margin_px: float = 2.0) -> np.ndarray:
+                     title: str, clearance: ClearanceSettings | None = None) -> np.ndarray:
     """One frame measured again and drawn as three panels side by side: the overlay of the
     report (distances, obstacle points), the simulator's labels and the measured masks, both
     with the vessel's sections and the reported obstacle points, so a wrong distance can be
@@ -566,7 +569,7 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     image = read_image(dataset / "images" / frame["image"])
     measured = masks(dataset, frame)
     report = measure_frame(measured, meta, load_vessel_spec(dataset / frame["vessel_spec"]),
-                           ClearanceSettings(method=method, pose_margin_px=pose_margin_px))
+                           dataclasses.replace(clearance or ClearanceSettings(), method=method))
     truth = [t["distance_m"] for t in frame["ground_truth"]["sections"]]
     truth_text = " ".join("-" if t is None else f"{t:.1f}" for t in truth)
     panels = [draw_overlay(image, report, footer=f"true m: {truth_text}")]

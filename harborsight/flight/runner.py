@@ -195,6 +195,7 @@ def run_flight(
     record = {"schema": RUN_SCHEMA, "inputs": inputs or {},
               "settings": {"method": options.settings.method,
                            "pose_margin_px": options.settings.pose_margin_px,
+                           "own_rim_px": options.settings.own_rim_px,
                            "n_sections": options.settings.n_sections,
                            "section_length_m": options.settings.section_length_m,
                            "closing_window_s": options.window_s,
