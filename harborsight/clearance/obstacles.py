@@ -127,9 +127,6 @@ def obstacle_contours(labels: np.ndarray, own: OwnRegion, rim_px: int = 0) -> Ob
     if rim_px > 0:
         own_mask = cv2.bitwise_or(own_mask, own_rim(labels, own, rim_px))
     obstacle = cv2.subtract(labels, own_mask)  # saturating: 0 wherever the own mask is 255
-    roi = own.bbox
-    if roi is not None and rim_px > 0:
-        roi = _grown_slices(roi, rim_px, labels.shape)
     contours, _ = cv2.findContours(obstacle, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     if not contours:
         empty = np.zeros(0, bool)
@@ -142,10 +139,10 @@ def obstacle_contours(labels: np.ndarray, own: OwnRegion, rim_px: int = 0) -> Ob
     h, w = labels.shape
     on_border = ((points[:, 0] == 0) | (points[:, 0] == w - 1)
                  | (points[:, 1] == 0) | (points[:, 1] == h - 1))
-    # contact: the obstacle pixel touches solid pixels inside the own-vessel region
+    # contact: the obstacle pixel touches solid pixels inside the own-vessel region (and rim)
     contact = np.zeros(len(points), bool)
-    if roi is not None:
-        roi = _grown_slices(roi, 1, labels.shape)
+    if own.bbox is not None:
+        roi = _grown_slices(own.bbox, rim_px + 1, labels.shape)
         solid_inside = cv2.bitwise_and(labels[roi], own_mask[roi])
         touching = cv2.dilate(solid_inside, np.ones((3, 3), np.uint8))
         u, v = points[:, 0] - roi[1].start, points[:, 1] - roi[0].start
