@@ -82,8 +82,9 @@ def _settings(method: Method, sections: int | None, section_length_m: float | No
                              section_length_m=section_length_m)
 
 
-#: default of --own-rim-px: ClearanceSettings.own_rim_px (kept here: the CLI starts without
-#: importing the measurement code)
+#: defaults of --pose-margin-px and --own-rim-px: ClearanceSettings.pose_margin_px and
+#: .own_rim_px (kept here: the CLI starts without importing the measurement code)
+POSE_MARGIN_PX = 2.0
 OWN_RIM_PX = 4
 
 #: help of --own-rim-px, shared by measure, run and evaluate distance
@@ -157,7 +158,7 @@ def measure(
         "that replaces the frames' intrinsics.")] = None,
     pose_margin_px: Annotated[float, typer.Option(
         min=0.0, help="Growth in pixels of the vessel's own image region, for pose and mask "
-        "error.")] = 2.0,
+        "error.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
@@ -233,7 +234,7 @@ def run_command(
         help="Camera calibration (OpenCV YAML/XML or ROS camera_info) replacing the frames' "
         "intrinsics.")] = None,
     pose_margin_px: Annotated[float, typer.Option(
-        min=0.0, help="Growth in pixels of the vessel's own image region.")] = 2.0,
+        min=0.0, help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
@@ -319,7 +320,7 @@ def demo(
     console.print(f"[bold]harborsight demo[/]: {samples}\n"
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
-    settings = _settings(method, None, None, 2.0, OWN_RIM_PX)
+    settings = _settings(method, None, None, POSE_MARGIN_PX, OWN_RIM_PX)
     code = _run_folder(samples, None, VesselCache(), settings, out / "frames", None, True)
     flight = samples / "flight"
     console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
@@ -742,7 +743,7 @@ def evaluate_distance_command(
     pose_margin_px: Annotated[float, typer.Option(
         min=0.0, help="Growth of the vessel's own image region for pose and mask error, as "
         "in measure [2 px]: wider hides more of a model's vessel blob spilling onto the "
-        "water, and reports a touching obstacle that much farther away.")] = 2.0,
+        "water, and reports a touching obstacle that much farther away.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, help=_OWN_RIM_HELP)] = OWN_RIM_PX,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
