@@ -33,7 +33,7 @@ def table(flat_oracle: list[dict], model: list[dict]) -> str:
         oracle_gsd = _row(flat_oracle, "oracle", "gsd", altitude_m)
         learned = _row(model, "model", "ground_plane", altitude_m)
         model_cells = (f"{learned['mae_m']:.2f} ± {learned['std_m']:.2f} | "
-                       f"{learned['median_px']:.1f} | {learned['missed']} / {learned['false']}"
+                       f"{learned['median_px']:.2f} | {learned['missed']} / {learned['false']}"
                        if learned else "– | – | –")
         lines.append(
             f"| {altitude_m} | {oracle['n']} | {flat['median_px']:.2f} | {oracle['median_px']:.2f} "
