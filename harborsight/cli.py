@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
@@ -643,6 +644,34 @@ def train(
     console.print(f"trained {config.model} to iteration {result.iteration}; "
                   f"last: {result.last_checkpoint}; best val mIoU {best}"
                   + (f" ({result.best_checkpoint})" if result.best_checkpoint else ""))
+
+
+@app.command("average-weights")
+def average_weights(
+    checkpoint: Annotated[list[Path], typer.Option(
+        help="Checkpoint to average (repeat: at least two of one network and lineage).")],
+    out: Annotated[Path, typer.Option(help="Checkpoint to write (.pt).")],
+    weight: Annotated[list[float] | None, typer.Option(
+        help="Weight of each --checkpoint, in order [all equal].")] = None,
+) -> None:
+    """Average the weights of checkpoints of one lineage ("model soup") into a new checkpoint,
+    to export or evaluate like any other."""
+    _need_torch()
+    from harborsight.training.checkpoint import average_checkpoints, save_checkpoint
+
+    try:
+        payload = average_checkpoints(checkpoint, weight)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    options = [f"--checkpoint {shlex.quote(str(path))}" for path in checkpoint]
+    options += [f"--weight {w:g}" for w in weight or []]
+    payload["command"] = " ".join(["harborsight average-weights", *options,
+                                   f"--out {shlex.quote(str(out))}"])
+    save_checkpoint(out, payload)
+    shares = ", ".join(f"{source['weight']:.3g} × {source['path']} (iteration "
+                       f"{source['iteration']})" for source in payload["averaged_from"])
+    console.print(f"averaged {payload['network']}: {shares}\ncheckpoint: {out}")
 
 
 evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate models against labelled data.")

@@ -12,6 +12,7 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
     frame_hw      most common (height, width) of the training frames
     val_miou, best_val_miou   latest and best validation mIoU (None without validation)
     init_from     None, or the warm start's {path, iteration, command}
+    averaged_from only in averaged checkpoints: each source's {path, iteration, command, weight}
 """
 
 from __future__ import annotations
@@ -71,3 +72,50 @@ def model_from_checkpoint(checkpoint: dict | str | Path, aux_heads: bool = False
         state = {k: v for k, v in state.items() if not k.startswith(AUX_STATE_PREFIX)}
     model.load_state_dict(state)
     return model.eval()
+
+
+def average_checkpoints(paths: list[str | Path], weights: list[float] | None = None) -> dict:
+    """A checkpoint whose weights are the weighted mean of several checkpoints' ("model soup",
+    Wortsman et al. 2022): ``theta = sum_i w_i theta_i / sum_i w_i`` for every floating-point
+    tensor, BatchNorm running means and variances included; integer tensors (BatchNorm step
+    counts) come from the last checkpoint.
+
+    Averaging only makes sense for checkpoints of one lineage (one fine-tuned from the other,
+    or both from a common start), where the weights lie in one basin; it is checked that the
+    network, classes and tensor shapes agree. The result has no optimiser state (it cannot be
+    resumed, only exported, evaluated or used with ``--init-from``); ``averaged_from`` records
+    each source's path, iteration, command and weight."""
+    if len(paths) < 2:
+        raise InputError(None, "checkpoint", "averaging needs at least two checkpoints")
+    weights = [1.0] * len(paths) if weights is None else [float(w) for w in weights]
+    if len(weights) != len(paths):
+        raise InputError(None, "weight", f"{len(weights)} weight(s) for {len(paths)} checkpoints")
+    if any(w < 0 for w in weights) or sum(weights) <= 0:
+        raise InputError(None, "weight", "weights must be non-negative with a positive sum")
+    payloads = [load_checkpoint(p) for p in paths]
+    reference, reference_path = payloads[-1], Path(paths[-1])
+    for path, payload in zip(paths, payloads, strict=True):
+        for field in ("network", "num_classes", "class_names"):
+            if payload.get(field) != reference.get(field):
+                raise InputError(path, field, f"{payload.get(field)!r} differs from "
+                                 f"{reference.get(field)!r} in {reference_path}")
+        state, ref_state = payload["model"], reference["model"]
+        if state.keys() != ref_state.keys():
+            raise InputError(path, "model", f"its tensors differ from those of {reference_path}")
+        for key, tensor in state.items():
+            if tensor.shape != ref_state[key].shape:
+                raise InputError(path, f"model.{key}", f"shape {tuple(tensor.shape)} differs "
+                                 f"from {tuple(ref_state[key].shape)} in {reference_path}")
+    total = sum(weights)
+    averaged = {}
+    for key, ref_tensor in reference["model"].items():
+        if ref_tensor.is_floating_point():
+            mean = sum(w / total * p["model"][key].double() for w, p in zip(weights, payloads,
+                                                                            strict=True))
+            averaged[key] = mean.to(ref_tensor.dtype)
+        else:
+            averaged[key] = ref_tensor.clone()
+    sources = [{"path": str(path), "iteration": p.get("iteration"), "command": p.get("command"),
+                "weight": w / total} for path, p, w in zip(paths, payloads, weights, strict=True)]
+    return {**reference, "model": averaged, "optimizer": None, "scaler": None, "rng": None,
+            "val_miou": None, "best_val_miou": None, "averaged_from": sources}

@@ -1,0 +1,88 @@
+"""Weight averaging ("model soup") gives the weighted mean of every float tensor and refuses
+checkpoints that cannot be averaged, naming the file and field."""
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.perception.model import SegmentationModel
+from harborsight.perception.networks import create_network
+from harborsight.training.checkpoint import (
+    CHECKPOINT_FORMAT,
+    average_checkpoints,
+    load_checkpoint,
+    model_from_checkpoint,
+    save_checkpoint,
+)
+
+runner = CliRunner()
+
+
+def write_checkpoint(path, network="ddrnet23_slim", seed=0, iteration=10):
+    torch.manual_seed(seed)
+    model = SegmentationModel(create_network(network, 3, aux_heads=True))
+    for module in model.modules():  # distinct running statistics per checkpoint
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-1, 1)
+            module.running_var.uniform_(0.5, 2)
+            module.num_batches_tracked.fill_(iteration)
+    return save_checkpoint(path, {
+        "format": CHECKPOINT_FORMAT, "network": network, "num_classes": 3,
+        "class_names": ["water", "ship", "obstacle"], "iteration": iteration,
+        "model": model.state_dict(), "optimizer": {"state": {}}, "scaler": None, "rng": None,
+        "config": {}, "command": f"harborsight train # {seed}", "frame_hw": [360, 640],
+        "val_miou": 0.5, "best_val_miou": 0.5, "init_from": None})
+
+
+def test_weighted_mean_of_every_float_tensor(tmp_path):
+    a = write_checkpoint(tmp_path / "a.pt", seed=1, iteration=10)
+    b = write_checkpoint(tmp_path / "b.pt", seed=2, iteration=20)
+    state_a, state_b = load_checkpoint(a)["model"], load_checkpoint(b)["model"]
+    averaged = average_checkpoints([a, b], [1.0, 3.0])
+    floats = [k for k, v in state_a.items() if v.is_floating_point()]
+    assert any("running_var" in k for k in floats) and any(".weight" in k for k in floats)
+    for key in floats:
+        expected = 0.25 * state_a[key] + 0.75 * state_b[key]
+        torch.testing.assert_close(averaged["model"][key], expected, rtol=0, atol=1e-6)
+    counts = [k for k in state_a if k.endswith("num_batches_tracked")]
+    assert counts and all(int(averaged["model"][k]) == 20 for k in counts)
+    assert averaged["optimizer"] is None and averaged["val_miou"] is None
+    assert [s["weight"] for s in averaged["averaged_from"]] == [0.25, 0.75]
+    assert [s["iteration"] for s in averaged["averaged_from"]] == [10, 20]
+
+
+def test_cli_writes_a_checkpoint_that_loads_as_a_model(tmp_path):
+    a = write_checkpoint(tmp_path / "a.pt", seed=1)
+    b = write_checkpoint(tmp_path / "b.pt", seed=2)
+    out = tmp_path / "soup" / "last.pt"
+    result = runner.invoke(app, ["average-weights", "--checkpoint", str(a), "--checkpoint", str(b),
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    payload = load_checkpoint(out)
+    assert payload["command"].startswith(f"harborsight average-weights --checkpoint {a}")
+    model = model_from_checkpoint(payload)
+    state_a, state_b = load_checkpoint(a)["model"], load_checkpoint(b)["model"]
+    for key, value in model.state_dict().items():  # the inference graph holds the mean
+        if value.is_floating_point():
+            torch.testing.assert_close(value, 0.5 * state_a[key] + 0.5 * state_b[key],
+                                       rtol=0, atol=1e-6)
+    with torch.no_grad():
+        logits = model(torch.zeros(1, 64, 96, 3, dtype=torch.uint8))
+    assert logits.shape[-2:] == (64, 96)
+
+
+def test_refuses_what_cannot_be_averaged(tmp_path):
+    a = write_checkpoint(tmp_path / "a.pt")
+    other = write_checkpoint(tmp_path / "other.pt", network="bisenetv2")
+    with pytest.raises(InputError, match=r"other.pt: network: 'bisenetv2' differs"):
+        average_checkpoints([a, other, a])
+    with pytest.raises(InputError, match="at least two"):
+        average_checkpoints([a])
+    with pytest.raises(InputError, match=r"weight: 1 weight\(s\) for 2 checkpoints"):
+        average_checkpoints([a, a], [1.0])
+    result = runner.invoke(app, ["average-weights", "--checkpoint", str(a), "--checkpoint",
+                                 str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.pt")])
+    assert result.exit_code == 2 and "missing.pt" in result.output
+    assert "checkpoint file not found" in result.output and not (tmp_path / "x.pt").exists()
