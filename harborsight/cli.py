@@ -765,7 +765,8 @@ def evaluate_distance_command(
     by_obstacle: Annotated[bool, typer.Option(
         help="Also attribute each true distance to the kind of object it is measured to "
         "(quay, pier, ship, ...; rebuilds each simulator scene, about 0.3 s a frame) and "
-        "summarise the signed error per kind: by_obstacle.md/json.")] = False,
+        "summarise the signed error per kind (by_obstacle.md/json) and the summed error per "
+        "kind and per what the reported point lies on (error_budget.md/json).")] = False,
     worst: Annotated[int, typer.Option(
         min=0, help="Draw the N frames with the largest summed error of each configuration "
         "(overlay | simulator labels | measured masks) to worst/.")] = 0,
@@ -864,6 +865,7 @@ def evaluate_distance_command(
                   + ", ".join(p.name for p in written["plots"])
                   + (", error_sources.md, error_sources.json" if written["error_sources"] else "")
                   + (", by_obstacle.md, by_obstacle.json" if written["by_obstacle"] else "")
+                  + (", error_budget.md, error_budget.json" if written["error_budget"] else "")
                   + (f", {drawn} picture(s) in worst/" if drawn else "") + ")")
 
 

@@ -166,6 +166,45 @@ def test_signed_errors_are_summarised_per_obstacle_kind():
     assert "| oracle | ground_plane | quay | -1.00 | — |" in table
 
 
+def test_the_error_budget_splits_the_summed_error_by_kind_and_point_truth():
+    from harborsight.evaluation.distance import (
+        SectionResult,
+        markdown_error_budget_table,
+        summarise_error_budget,
+    )
+
+    def result(estimate_m, truth_m, obstacle, point, status="ok", masks="model:x"):
+        return SectionResult("f", 30.0, masks, "ground_plane", 0, status, estimate_m, truth_m,
+                             0.1, False, False, obstacle, point)
+
+    results = [result(7.0, 5.0, "fender", "obstacle"),          # +2 m: wider, the dangerous side
+               result(5.5, 5.0, "fender", "obstacle"),          # +0.5
+               result(1.0, 4.0, "ship", "vessel-spill"),        # -3 m: narrower
+               result(2.0, 2.5, "ship", "obstacle"),            # -0.5
+               result(None, 3.0, "buoy", None, status="clear"),  # missed
+               result(None, 3.0, "buoy", None, status="clear"),
+               result(4.0, None, None, "false-solid"),          # false obstacle: no truth
+               result(5.0, 5.1, None, "obstacle"),              # not attributed: left out
+               result(5.0, 5.2, "quay", "obstacle", masks="oracle")]
+    rows = summarise_error_budget(results)
+    model = [r for r in rows if r.masks == "model:x"]
+    # summed |error| of the attributed estimates: 2 + 0.5 + 3 + 0.5 = 6 m
+    assert [(r.obstacle, r.point) for r in model] == [
+        ("ship", "vessel-spill"), ("fender", "obstacle"), ("ship", "obstacle"), ("buoy", "missed")]
+    spill, fender, ship, missed = model
+    assert spill.error_share == pytest.approx(0.5) and (spill.wider_1m, spill.narrower_1m) == (0, 1)
+    assert fender.n == 2 and fender.mae_m == pytest.approx(1.25)
+    assert fender.error_share == pytest.approx(2.5 / 6) and (fender.wider_1m, fender.narrower_1m) == (1, 0)
+    assert ship.error_share == pytest.approx(0.5 / 6)
+    assert (missed.n, missed.mae_m, missed.error_share) == (2, None, 0.0)
+    assert sum(r.error_share for r in model) == pytest.approx(1.0)
+    (oracle,) = [r for r in rows if r.masks == "oracle"]
+    assert (oracle.obstacle, oracle.point, oracle.error_share) == ("quay", "obstacle", 1.0)
+    table = markdown_error_budget_table(rows)
+    assert "| model:x | ground_plane | fender | obstacle | 2 | 1.25 | 41.7 % | 1 | 0 |" in table
+    assert "| model:x | ground_plane | buoy | (missed) | 2 | — | — | — | — |" in table
+
+
 def test_cli_by_obstacle_writes_the_kind_tables(tmp_path):
     result = CliRunner().invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), "--out",
                                       str(tmp_path), "--methods", "ground_plane", "--by-obstacle"])
@@ -173,6 +212,7 @@ def test_cli_by_obstacle_writes_the_kind_tables(tmp_path):
     rows = json.loads((tmp_path / "by_obstacle.json").read_text())
     assert {r["obstacle"] for r in rows} >= {"quay", "ship", "pier"}
     assert "Median signed error (px)" in (tmp_path / "by_obstacle.md").read_text()
+    assert "reported point lies on" in (tmp_path / "error_budget.md").read_text()
     with (tmp_path / "sections.csv").open() as f:
         estimates = [r for r in csv.DictReader(f) if r["kind"] == "estimate"]
     assert estimates and all(r["obstacle"] for r in estimates)

@@ -24,7 +24,9 @@ error is geometry and edge placement); a point on true water is a segmentation m
 ``vessel-spill`` when the solid it lies on runs into the vessel's own region (the model's
 blob of the vessel reaching out over the water, e.g. onto its shadow) and ``false-solid``
 otherwise (a blob of water taken for solid). :func:`summarise_error_sources` gives each
-kind's share of the summed absolute error per altitude.
+kind's share of the summed absolute error per altitude; with the obstacle attribution too,
+:func:`summarise_error_budget` splits the summed error by (true obstacle kind, point truth)
+and counts the misses per kind, so a whole error can be read as a budget.
 """
 
 from __future__ import annotations
@@ -418,6 +420,66 @@ def summarise_error_sources(results: list[SectionResult]) -> list[ErrorSourceSum
     return rows
 
 
+@dataclass
+class ErrorBudgetRow:
+    masks: str
+    method: str
+    obstacle: str                     # kind of the true nearest obstacle
+    point: str                        # what the reported point lies on (POINT_TRUTHS), or "missed"
+    n: int                            # estimates (or missed sections) in the group
+    mae_m: float | None               # None for misses: they have no distance to compare
+    error_share: float                # share of the configuration's summed |error|
+    wider_1m: int                     # estimates reading the gap > 1 m wider than it is
+    narrower_1m: int                  # estimates reading it > 1 m narrower
+
+
+def summarise_error_budget(results: list[SectionResult]) -> list[ErrorBudgetRow]:
+    """Per (masks, method): the summed absolute error split by the kind of the true nearest
+    obstacle and by what the reported point lies on, largest share first, then the missed
+    obstacles per kind. Needs results with obstacle kinds (:func:`attribute_obstacles`);
+    untraced points count as ``untraced``. A wider-than-true reading is the dangerous side."""
+    configs: dict[tuple, list[SectionResult]] = {}
+    for r in results:
+        if r.obstacle and r.kind in ("estimate", "missed"):
+            configs.setdefault((r.masks, r.method), []).append(r)
+    rows: list[ErrorBudgetRow] = []
+    for (masks, method), group in sorted(configs.items()):
+        total = sum(r.abs_error_m for r in group if r.kind == "estimate")
+        cells: dict[tuple, list[SectionResult]] = {}
+        for r in group:
+            point = "missed" if r.kind == "missed" else (r.point_truth or "untraced")
+            cells.setdefault((r.obstacle, point), []).append(r)
+        estimates, misses = [], []
+        for (obstacle, point), cell in cells.items():
+            if point == "missed":
+                misses.append(ErrorBudgetRow(masks, method, obstacle, point, len(cell), None,
+                                             0.0, 0, 0))
+                continue
+            signed = np.array([r.estimate_m - r.truth_m for r in cell])
+            estimates.append(ErrorBudgetRow(
+                masks, method, obstacle, point, len(cell), float(np.abs(signed).mean()),
+                float(np.abs(signed).sum() / total) if total > 0 else 0.0,
+                int((signed > 1.0).sum()), int((signed < -1.0).sum())))
+        rows += sorted(estimates, key=lambda r: (-r.error_share, r.obstacle, r.point))
+        rows += sorted(misses, key=lambda r: (-r.n, r.obstacle))
+    return rows
+
+
+def markdown_error_budget_table(rows: list[ErrorBudgetRow]) -> str:
+    lines = ["| masks | method | nearest obstacle (truth) | reported point lies on | n | MAE m | "
+             "share of summed error | wider by > 1 m | narrower by > 1 m |",
+             "|---|---|---|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        if r.point == "missed":
+            lines.append(f"| {r.masks} | {r.method} | {r.obstacle} | (missed) | {r.n} | — | — "
+                         "| — | — |")
+        else:
+            lines.append(f"| {r.masks} | {r.method} | {r.obstacle} | {r.point} | {r.n} | "
+                         f"{_fmt(r.mae_m)} | {100 * r.error_share:.1f} % | {r.wider_1m} | "
+                         f"{r.narrower_1m} |")
+    return "\n".join(lines) + "\n"
+
+
 def markdown_error_source_table(rows: list[ErrorSourceSummary]) -> str:
     lines = ["| masks | method | altitude m | n | MAE m | MAE m, point on a real obstacle | "
              "error share: real obstacle | vessel spill | false solid | "
@@ -606,7 +668,7 @@ def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
 def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
     """CSV of every estimate, summary JSON and Markdown, the two plots, error_sources.json
     and .md when obstacle points were traced, and, when results carry obstacle kinds,
-    by_obstacle.json and .md."""
+    by_obstacle.json and .md and error_budget.json and .md."""
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = summarise(results)
     write_csv(results, out_dir / "sections.csv")
@@ -618,9 +680,15 @@ def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
         (out_dir / "by_obstacle.json").write_text(
             json.dumps([asdict(r) for r in by_obstacle], indent=1) + "\n")
         (out_dir / "by_obstacle.md").write_text(markdown_obstacle_table(by_obstacle))
+    budget = summarise_error_budget(results)
+    if budget:
+        (out_dir / "error_budget.json").write_text(
+            json.dumps([asdict(r) for r in budget], indent=1) + "\n")
+        (out_dir / "error_budget.md").write_text(markdown_error_budget_table(budget))
     sources = summarise_error_sources(results)
     if sources:
         (out_dir / "error_sources.json").write_text(
             json.dumps([asdict(r) for r in sources], indent=1) + "\n")
         (out_dir / "error_sources.md").write_text(markdown_error_source_table(sources))
-    return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle, "error_sources": sources}
+    return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle, "error_sources": sources,
+            "error_budget": budget}
