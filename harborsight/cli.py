@@ -584,6 +584,12 @@ def train(
         help="Iteration where it reaches --bootstrap-fraction [9000].")] = None,
     bootstrap_fraction: Annotated[float | None, typer.Option(
         help="Share of the hardest pixels kept at the end [0.2].")] = None,
+    small_object_weight: Annotated[float | None, typer.Option(
+        help="Up-weight small objects' pixels by clip(sqrt(A_ref / area), 1, this); needs the "
+        "datasets' instances/ masks; 1: off [1].")] = None,
+    small_object_area: Annotated[float | None, typer.Option(
+        help="A_ref of --small-object-weight, in pixels: objects this large keep weight 1 "
+        "[1000].")] = None,
     augment: Annotated[bool | None, typer.Option(
         help="Mirror/flip/scale/colour/blur/noise/JPEG augmentation; off: random crop only.")
     ] = None,
@@ -621,7 +627,9 @@ def train(
                  "aux_weights": tuple(aux_weight) if aux_weight else None,
                  "bootstrap_start_iteration": bootstrap_start,
                  "bootstrap_end_iteration": bootstrap_end,
-                 "bootstrap_end_fraction": bootstrap_fraction, "augment": augment,
+                 "bootstrap_end_fraction": bootstrap_fraction,
+                 "small_object_weight": small_object_weight,
+                 "small_object_area_px": small_object_area, "augment": augment,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,
@@ -700,13 +708,16 @@ def evaluate_segmentation_command(
     height_bin_m: Annotated[float, typer.Option(
         help="Also score per drone height above water (frames/*.json), in bins of this many "
         "metres; 0: no breakdown.")] = 10.0,
+    by_object: Annotated[bool, typer.Option(
+        help="Also score every object on its own (instances/ masks): the share of its pixels "
+        "taken for solid, per kind (simulator datasets) and per size in pixels.")] = False,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
     from harborsight.evaluation.segmentation import evaluate_segmentation
 
     try:
         result = evaluate_segmentation(model, data, split or ["test"], fps_seconds, device,
-                                       threads, height_bin_m=height_bin_m)
+                                       threads, height_bin_m=height_bin_m, by_object=by_object)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
@@ -718,6 +729,11 @@ def evaluate_segmentation_command(
             console.print(_scores_table(
                 f"{row.split} by drone height", "height m",
                 [(f"{h:g}", n, sc) for h, (n, sc) in sorted(row.by_height_m.items())]))
+        if row.objects:
+            from harborsight.evaluation.objects import markdown_object_table
+
+            console.print(f"{row.split}: recall per object", highlight=False)
+            console.print(markdown_object_table(row.objects), markup=False, highlight=False)
     w, h = result.resolution_wh
     console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
                   f"{result.model.params or 0:,} parameters")

@@ -30,6 +30,28 @@ def test_bootstrapped_loss_by_hand():
     assert bootstrapped_cross_entropy(logits, target, 0.1).item() == pytest.approx(losses[0])
 
 
+def test_pixel_weights_scale_each_loss_before_the_hardest_are_chosen():
+    logits = torch.tensor([[[[2.0, 0.0], [0.0, 1.0]],
+                            [[0.0, 0.0], [3.0, 5.0]]]])
+    target = torch.tensor([[[0, 1], [1, 255]]])
+
+    def ce(z_true, z_other):
+        return -(z_true - math.log(math.exp(z_true) + math.exp(z_other)))
+
+    easy, middle, hard = ce(2.0, 0.0), ce(0.0, 0.0), ce(3.0, 0.0)   # pixels (0,0), (0,1), (1,0)
+    ones = torch.ones(1, 2, 2)
+    assert bootstrapped_cross_entropy(logits, target, 1.0, pixel_weights=ones).item() == \
+        pytest.approx(bootstrapped_cross_entropy(logits, target, 1.0).item())
+    # the easy pixel weighted x40 becomes the hardest one: 40 * 0.127 = 5.08 > 3.05
+    weights = torch.tensor([[[40.0, 1.0], [1.0, 7.0]]])     # the ignored pixel's weight is moot
+    assert bootstrapped_cross_entropy(logits, target, 1.0, pixel_weights=weights).item() == \
+        pytest.approx((40 * easy + middle + hard) / 3)
+    assert bootstrapped_cross_entropy(logits, target, 0.1, pixel_weights=weights).item() == \
+        pytest.approx(40 * easy)
+    with pytest.raises(ValueError, match="pixel_weights"):
+        bootstrapped_cross_entropy(logits, target, 1.0, pixel_weights=torch.ones(1, 4))
+
+
 def test_loss_is_a_mean_over_images_and_handles_empty_images():
     torch.manual_seed(0)
     logits = torch.randn(2, 3, 4, 5, requires_grad=True)

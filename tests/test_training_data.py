@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from harborsight.errors import InputError
-from harborsight.training.augment import AugmentConfig, augment, mirror
+from harborsight.training.augment import AugmentConfig, augment, augment_weighted, mirror
 from harborsight.training.dataset import SegmentationFrames, list_frames
 from tests.conftest import TINY_SPLITS
 
@@ -145,6 +145,38 @@ def test_augmentation_is_reproducible_per_seed():
     first, again, other = run(7), run(7), [run(s) for s in range(8, 12)]
     assert all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
     assert any(not np.array_equal(first[0], o[0]) for o in other)
+
+
+def test_small_objects_get_the_larger_weight():
+    from harborsight.training.dataset import small_object_weights
+
+    instances = np.zeros((50, 100), np.uint16)
+    instances[0:4, 0:4] = 7            # 16 px: sqrt(1000 / 16) = 7.9, clipped to 5
+    instances[10:20, 0:25] = 8         # 250 px: sqrt(4) = 2
+    instances[20:50, 50:100] = 1       # 1500 px: large, weight 1
+    labels = np.where(instances > 0, 2, 0).astype(np.uint8)
+    labels[49, 0] = 255                # ignored water
+    weights = small_object_weights(instances, labels, area_ref_px=1000.0, max_weight=5.0)
+    assert weights.dtype == np.float32 and weights.shape == labels.shape
+    assert (weights[0:4, 0:4] == 5.0).all() and weights[10:20, 0:25] == pytest.approx(2.0)
+    assert (weights[20:50, 50:100] == 1.0).all() and weights[45, 10] == 1.0 == weights[49, 0]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_weights_follow_the_labels_through_augmentation(seed):
+    image, labels = coded_pair()
+    weights = np.where(labels == 255, 1.0, labels + 1.0).astype(np.float32)   # a function of the label
+    config = AugmentConfig(crop_hw=(48, 48), p_scale=1.0, scale_min=0.6, scale_max=1.8)
+    plain = augment(image, labels, np.random.default_rng(seed), config)
+    out_image, out_labels, out_weights = augment_weighted(image, labels, weights,
+                                                          np.random.default_rng(seed), config)
+    # the same sample as without weights, and the weights moved with the labels
+    assert np.array_equal(out_image, plain[0]) and np.array_equal(out_labels, plain[1])
+    valid = out_labels != 255
+    assert np.array_equal(out_weights[valid], out_labels[valid] + 1.0)
+    assert set(np.unique(out_weights[~valid])) <= {0.0, 1.0}   # padding 0, ignored pixels 1
+    with pytest.raises(ValueError, match="weights"):
+        augment_weighted(image, labels, weights[:5], np.random.default_rng(seed), config)
 
 
 def test_a_frame_still_being_written_is_left_out(dataset_copy):

@@ -1,6 +1,7 @@
 """The training loop learns, validates, checkpoints, resumes exactly, and refuses bad runs."""
 
 import json
+import math
 import shlex
 import shutil
 
@@ -115,11 +116,34 @@ def test_warm_start_begins_from_the_checkpoint_weights(two_frame_dataset, tmp_pa
         train(config(tmp_path / "none", init_from=tmp_path / "missing.pt"), show_progress=False)
 
 
+def test_small_object_weighting_trains_and_needs_instance_masks(two_frame_dataset, tmp_path):
+    def config(out, **changes):
+        return TrainConfig(**{"model": "ddrnet23_slim", "data_dirs": [two_frame_dataset],
+                              "out_dir": tmp_path / out, "iterations": 2, "batch_size": 2,
+                              "crop_hw": (64, 64), "val_every": 0, "num_workers": 0,
+                              "threads": 1, "seed": 1, **changes})
+
+    plain = train(config("plain"), show_progress=False)
+    weighted = train(config("weighted", small_object_weight=8.0, small_object_area_px=4000.0),
+                     show_progress=False)
+    assert len(weighted.losses) == 2 and all(math.isfinite(x) for x in weighted.losses)
+    # same samples and initial weights: the first loss differs only by the pixel weights
+    assert weighted.losses[0] > plain.losses[0]
+    stored = load_checkpoint(weighted.last_checkpoint)
+    assert stored["config"]["small_object_weight"] == 8.0
+    assert "--small-object-weight 8.0 --small-object-area 4000.0" in stored["command"]
+    shutil.rmtree(two_frame_dataset / "instances")
+    with pytest.raises(InputError, match=r"instances/0000\d\d.png: instance mask not found"):
+        train(config("missing", small_object_weight=8.0), show_progress=False)
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"batch_size": 1}, r"batch_size: must be at least 2.*BatchNorm"),
     ({"model": "resnet"}, r"model: unknown network 'resnet'"),
     ({"aux_weights": (1.0, 1.0)}, r"aux_weights: ddrnet23_slim has 1 auxiliary head"),
     ({"device": "tpu"}, r"device: expected auto, cpu or cuda"),
+    ({"small_object_weight": 0.5}, r"small_object_weight: must be at least 1"),
+    ({"small_object_area_px": 0.0}, r"small_object_area_px: must be positive"),
 ])
 def test_bad_configs_are_refused(tmp_path, changes, message):
     base = {"model": "ddrnet23_slim", "data_dirs": ["x"], "out_dir": str(tmp_path)}

@@ -21,12 +21,21 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from harborsight.errors import HarborsightError, InputError
+from harborsight.evaluation.objects import (
+    DETECTED_RECALL,
+    ObjectRecall,
+    ObjectSummary,
+    markdown_object_table,
+    object_recalls,
+    simulator_kinds,
+    summarise_objects,
+)
 from harborsight.perception.classes import CLASS_NAMES, IGNORE, NUM_CLASSES, OBSTACLE, SHIP, WATER
 
 #: Table II's IoU columns: (header, class id), in the paper's order.
@@ -114,9 +123,11 @@ def score_frames(segment: Callable[[np.ndarray], np.ndarray], frames: Sequence,
 def score_frames_grouped(
     segment: Callable[[np.ndarray], np.ndarray], frames: Sequence,
     groups: Sequence[Hashable] | None, on_frame: Callable[[int], None] | None = None,
+    on_prediction: Callable[[int, np.ndarray, np.ndarray, np.ndarray], None] | None = None,
 ) -> tuple[SegmentationScores, dict[Hashable, SegmentationScores]]:
     """:func:`score_frames` over all frames, and per group (``groups[i]`` is frame ``i``'s key;
-    ``None`` keys and ``groups=None`` add to the total only)."""
+    ``None`` keys and ``groups=None`` add to the total only). ``on_prediction(i, image,
+    labels, predicted)`` sees every frame's prediction."""
     confusion = np.zeros((NUM_CLASSES, NUM_CLASSES), np.int64)
     per_group: dict[Hashable, np.ndarray] = {}
     for i, (image, labels) in enumerate(frames):
@@ -124,6 +135,8 @@ def score_frames_grouped(
         if predicted.shape != labels.shape:
             raise ValueError(f"frame {i}: prediction {predicted.shape} vs labels {labels.shape}")
         frame_confusion = confusion_matrix(labels, predicted)
+        if on_prediction:
+            on_prediction(i, image, labels, predicted)
         confusion += frame_confusion
         key = None if groups is None else groups[i]
         if key is not None:
@@ -231,6 +244,8 @@ class SplitEvaluation:
     scores: SegmentationScores
     #: per drone height above water (m, binned), frames and scores; empty without metadata
     by_height_m: dict[float, tuple[int, SegmentationScores]] = field(default_factory=dict)
+    #: per kind of object, its recall (evaluation.objects); empty unless asked for
+    objects: list[ObjectSummary] = field(default_factory=list)
 
 
 @dataclass
@@ -250,7 +265,8 @@ class SegmentationEvaluation:
             "mean_accuracy_definition": "mean over classes of per-class pixel accuracy (recall)",
             "splits": {r.split: {"frames": r.frames, **r.scores.to_dict(), "by_height_m": [
                 {"height_m": h, "frames": n, **sc.to_dict()}
-                for h, (n, sc) in sorted(r.by_height_m.items())]} for r in self.rows},
+                for h, (n, sc) in sorted(r.by_height_m.items())],
+                "objects": [asdict(o) for o in r.objects]} for r in self.rows},
         }
 
     def markdown(self) -> str:
@@ -260,6 +276,11 @@ class SegmentationEvaluation:
             if row.by_height_m:
                 parts.append(f"\n{self.model.network}, {row.split} split, by drone height above "
                              "water:\n\n" + height_table(row))
+            if row.objects:
+                parts.append(f"\n{self.model.network}, {row.split} split, recall per object "
+                             "(solid recall: share of the object's pixels not taken for water; "
+                             f"detected: at least {DETECTED_RECALL:.0%}):\n\n"
+                             + markdown_object_table(row.objects))
         return "".join(parts)
 
 
@@ -267,11 +288,13 @@ def evaluate_segmentation(
     model_path: str | Path, data_dirs: Sequence[str | Path], splits: Sequence[str] = ("test",),
     fps_seconds: float = 2.0, device: str = "cpu", threads: int | None = None,
     on_frame: Callable[[int], None] | None = None, height_bin_m: float = 10.0,
+    by_object: bool = False,
 ) -> SegmentationEvaluation:
     """Score a model on each split of the datasets, also per drone height (bins of
-    ``height_bin_m``; 0: no breakdown), and time it (``fps_seconds <= 0``: no timing). The
-    resolution is the network's input: the ONNX model's fixed size, or the frames' most
-    common size for a checkpoint."""
+    ``height_bin_m``; 0: no breakdown), per object (``by_object``: needs the datasets'
+    ``instances/``; :mod:`harborsight.evaluation.objects`), and time it (``fps_seconds <= 0``:
+    no timing). The resolution is the network's input: the ONNX model's fixed size, or the
+    frames' most common size for a checkpoint."""
     from harborsight.training.dataset import SegmentationFrames
 
     loaded = load_segmenter(model_path, device, threads)
@@ -280,10 +303,25 @@ def evaluate_segmentation(
         frames = SegmentationFrames(data_dirs, [split])
         sizes.append(frames.common_size_hw())
         heights = height_bins_m(frames.records, height_bin_m) if height_bin_m > 0 else None
-        total, by_height = score_frames_grouped(loaded.segment, frames, heights, on_frame)
+        objects: list[ObjectRecall] = []
+        kinds_of: dict[Path, Callable | None] = {}
+
+        def score_objects(i: int, image: np.ndarray, labels: np.ndarray, predicted: np.ndarray,
+                          frames=frames, objects=objects, kinds_of=kinds_of) -> None:
+            record = frames.records[i]
+            if record.dataset_dir not in kinds_of:
+                kinds_of[record.dataset_dir] = simulator_kinds(record.dataset_dir)
+            kinds = kinds_of[record.dataset_dir]
+            objects.extend(object_recalls(record.stem, image, labels, predicted,
+                                          frames.instances(i, labels.shape),
+                                          kinds(record.stem) if kinds else None))
+
+        total, by_height = score_frames_grouped(loaded.segment, frames, heights, on_frame,
+                                                score_objects if by_object else None)
         counts = Counter(h for h in heights or [] if h is not None)
         rows.append(SplitEvaluation(split, len(frames), total,
-                                    {h: (counts[h], sc) for h, sc in by_height.items()}))
+                                    {h: (counts[h], sc) for h, sc in by_height.items()},
+                                    summarise_objects(objects)))
     frame_hw = max(set(sizes), key=sizes.count)
     fps = None
     if fps_seconds > 0:

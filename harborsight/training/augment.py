@@ -12,6 +12,8 @@ Order of operations on an image ``I`` (uint8 BGR, H x W) and its labels ``L`` (u
    ``g`` the per-pixel grey, hue shift ``h+Δh`` in HSV), Gaussian blur (σ in pixels),
    additive Gaussian noise (σ in grey levels), JPEG re-encoding (quality 0-100).
 
+:func:`augment_weighted` carries a per-pixel loss weight map through step 1 with the labels.
+
 Every random number comes from the generator passed in, so a given seed gives the same
 sample whatever the worker process that draws it.
 """
@@ -67,27 +69,42 @@ def flip(image: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 def rescale(image: np.ndarray, labels: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
     """Resize both by ``scale`` (image bilinear, labels nearest-neighbour)."""
-    h, w = labels.shape
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    return (cv2.resize(image, size, interpolation=cv2.INTER_LINEAR),
-            cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST))
+    image, (labels,) = _rescale(image, [labels], scale)
+    return image, labels
 
 
 def random_crop(image: np.ndarray, labels: np.ndarray, crop_hw: tuple[int, int],
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Pad to at least ``crop_hw`` (image 0, labels 255, bottom/right) then crop at a random
     offset ``(y0, x0)`` with ``y0 ~ U{0..H-h}``, ``x0 ~ U{0..W-w}``."""
+    image, (labels,) = _random_crop(image, [labels], [IGNORE], crop_hw, rng)
+    return image, labels
+
+
+def _rescale(image: np.ndarray, maps: list[np.ndarray], scale: float
+             ) -> tuple[np.ndarray, list[np.ndarray]]:
+    h, w = maps[0].shape
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    return (cv2.resize(image, size, interpolation=cv2.INTER_LINEAR),
+            [cv2.resize(m, size, interpolation=cv2.INTER_NEAREST) for m in maps])
+
+
+def _random_crop(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
+                 crop_hw: tuple[int, int], rng: np.random.Generator
+                 ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """:func:`random_crop` of the image and of every per-pixel map, at one offset."""
     ch, cw = crop_hw
-    h, w = labels.shape
+    h, w = maps[0].shape
     pad_h, pad_w = max(ch - h, 0), max(cw - w, 0)
     if pad_h or pad_w:
         image = cv2.copyMakeBorder(image, 0, pad_h, 0, pad_w, cv2.BORDER_CONSTANT, value=(0, 0, 0))
-        labels = cv2.copyMakeBorder(labels, 0, pad_h, 0, pad_w, cv2.BORDER_CONSTANT, value=IGNORE)
-        h, w = labels.shape
+        maps = [cv2.copyMakeBorder(m, 0, pad_h, 0, pad_w, cv2.BORDER_CONSTANT, value=v)
+                for m, v in zip(maps, pad_values, strict=True)]
+        h, w = maps[0].shape
     y0 = int(rng.integers(0, h - ch + 1))
     x0 = int(rng.integers(0, w - cw + 1))
     return (np.ascontiguousarray(image[y0:y0 + ch, x0:x0 + cw]),
-            np.ascontiguousarray(labels[y0:y0 + ch, x0:x0 + cw]))
+            [np.ascontiguousarray(m[y0:y0 + ch, x0:x0 + cw]) for m in maps])
 
 
 def colour_jitter(image: np.ndarray, rng: np.random.Generator, brightness: float,
@@ -135,18 +152,39 @@ def augment(image: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
     The seven on/off decisions are drawn first, one number each, so changing one probability
     does not change which of the other operations fire.
     """
-    if image.shape[:2] != labels.shape:
-        raise ValueError(f"image {image.shape[:2]} and labels {labels.shape} differ in size")
+    image, (labels,) = _augment(image, [labels], [IGNORE], rng, config)
+    return image, labels
+
+
+def augment_weighted(image: np.ndarray, labels: np.ndarray, weights: np.ndarray,
+                     rng: np.random.Generator, config: AugmentConfig
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`augment` with a per-pixel loss weight map carried through the same geometric
+    operations (nearest-neighbour, padded with 0). For a given ``rng`` state the image and
+    labels are exactly those :func:`augment` returns."""
+    if weights.shape != labels.shape:
+        raise ValueError(f"weights {weights.shape} and labels {labels.shape} differ in size")
+    image, (labels, weights) = _augment(image, [labels, weights], [IGNORE, 0.0], rng, config)
+    return image, labels, weights
+
+
+def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
+             rng: np.random.Generator, config: AugmentConfig
+             ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The augmentation of :func:`augment`; ``maps[0]`` are the labels, every map follows
+    the geometric operations."""
+    if image.shape[:2] != maps[0].shape:
+        raise ValueError(f"image {image.shape[:2]} and labels {maps[0].shape} differ in size")
     fire = rng.random(7)
     if fire[0] < config.p_mirror:
-        image, labels = mirror(image, labels)
+        image, maps = image[:, ::-1].copy(), [m[:, ::-1].copy() for m in maps]
     if fire[1] < config.p_flip:
-        image, labels = flip(image, labels)
+        image, maps = image[::-1].copy(), [m[::-1].copy() for m in maps]
     scale = rng.uniform(config.scale_min, config.scale_max)
     if fire[2] < config.p_scale and scale != 1.0:
-        image, labels = rescale(image, labels, scale)
+        image, maps = _rescale(image, maps, scale)
     if config.crop_hw is not None:
-        image, labels = random_crop(image, labels, config.crop_hw, rng)
+        image, maps = _random_crop(image, maps, pad_values, config.crop_hw, rng)
     if fire[3] < config.p_colour:
         image = colour_jitter(image, rng, config.brightness, config.contrast, config.saturation,
                               config.hue_deg)
@@ -157,4 +195,4 @@ def augment(image: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
     if fire[6] < config.p_jpeg:
         image = jpeg_reencode(image, int(rng.integers(config.jpeg_quality[0],
                                                       config.jpeg_quality[1] + 1)))
-    return np.ascontiguousarray(image), np.ascontiguousarray(labels)
+    return np.ascontiguousarray(image), [np.ascontiguousarray(m) for m in maps]

@@ -121,6 +121,38 @@ def read_labelled_frame(record: FrameRecord) -> tuple[np.ndarray, np.ndarray]:
     return image, labels
 
 
+def read_instances(record: FrameRecord, labels_hw: tuple[int, int]) -> np.ndarray:
+    """The frame's ``instances/<stem>.png`` (uint16 object ids, 0 water), checked for size."""
+    path = record.dataset_dir / "instances" / f"{record.stem}.png"
+    if not path.is_file():
+        raise InputError(path, None, "instance mask not found (small-object weighting needs the "
+                         "simulator's instances/ folder)")
+    instances = read_mask(path)
+    if instances.shape != labels_hw:
+        raise InputError(path, "mask", f"size {instances.shape[1]}x{instances.shape[0]} differs "
+                         f"from the labels' {labels_hw[1]}x{labels_hw[0]}")
+    return instances
+
+
+def small_object_weights(instances: np.ndarray, labels: np.ndarray, area_ref_px: float,
+                         max_weight: float) -> np.ndarray:
+    """Per-pixel loss weights that lift small objects: on the pixels of object ``k``, whose
+    visible area in the frame is ``A_k`` pixels,
+
+        w = clip(sqrt(A_ref / A_k), 1, w_max)
+
+    and 1 on water (id 0) and on ignored pixels. A fender of 16 px gets ``sqrt(1000/16) ≈ 7.9``
+    with ``A_ref = 1000``; anything of ``A_ref`` pixels or more keeps 1. The square root
+    makes a small object's summed weight grow as ``sqrt(A_k)``, so it still counts for less
+    than a large one."""
+    ids, inverse, counts = np.unique(instances, return_inverse=True, return_counts=True)
+    per_id = np.clip(np.sqrt(area_ref_px / counts), 1.0, max_weight)
+    per_id[ids == 0] = 1.0
+    weights = per_id[inverse.reshape(instances.shape)].astype(np.float32)
+    weights[labels == IGNORE] = 1.0
+    return weights
+
+
 class SegmentationFrames(Sequence):
     """Labelled frames of some splits of one or more datasets; ``frames[i] -> (image, labels)``."""
 
@@ -134,6 +166,10 @@ class SegmentationFrames(Sequence):
 
     def __getitem__(self, index):  # Sequence protocol; slices are not needed
         return read_labelled_frame(self.records[index])
+
+    def instances(self, index: int, labels_hw: tuple[int, int]) -> np.ndarray:
+        """uint16 object ids of frame ``index`` (:func:`read_instances`)."""
+        return read_instances(self.records[index], labels_hw)
 
     def common_size_hw(self) -> tuple[int, int]:
         """The most frequent (height, width) among the images (reads headers only for PNG)."""

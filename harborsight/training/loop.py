@@ -8,6 +8,12 @@ Per iteration ``i`` (0-based) with ``T`` iterations in all:
     k_i    = bootstrap keep fraction (100 % -> 20 % between iterations 1000 and 9000)
     loss_i = BCE_k(main) + Σ_h w_h · BCE_k(aux_h)          (w: per-network aux weights)
 
+With ``small_object_weight`` > 1, each pixel's cross-entropy is first multiplied by its
+small-object weight ``clip(sqrt(A_ref / A_k), 1, small_object_weight)``, ``A_k`` the visible
+area in pixels of the object it belongs to (the dataset's ``instances/`` masks;
+:func:`harborsight.training.dataset.small_object_weights`): fenders and buoys are a few dozen
+pixels, and a pixel-averaged loss barely sees them.
+
 Samples are a pure function of ``(seed, sample number)``: training sample ``n = i·B + j`` is
 frame ``perm_e[n mod N]`` of the permutation ``perm_e`` seeded by ``(seed, e)``, ``e = n div N``,
 augmented with a generator seeded by ``(seed, n)``. Together with the model, optimiser and
@@ -46,14 +52,14 @@ from harborsight.evaluation.segmentation import SegmentationScores, score_frames
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.model import SegmentationModel, TorchSegmenter
 from harborsight.perception.networks import NETWORKS, create_network
-from harborsight.training.augment import AugmentConfig, augment
+from harborsight.training.augment import AugmentConfig, augment, augment_weighted
 from harborsight.training.checkpoint import (
     AUX_STATE_PREFIX,
     CHECKPOINT_FORMAT,
     load_checkpoint,
     save_checkpoint,
 )
-from harborsight.training.dataset import SegmentationFrames
+from harborsight.training.dataset import SegmentationFrames, small_object_weights
 from harborsight.training.losses import bootstrap_keep_fraction, bootstrapped_cross_entropy
 from harborsight.training.optim import parameter_groups, poly_learning_rate
 
@@ -98,6 +104,8 @@ class TrainConfig:
     bootstrap_start_iteration: int = 1000
     bootstrap_end_iteration: int = 9000
     bootstrap_end_fraction: float = 0.2
+    small_object_weight: float = 1.0                   # w_max of the small-object weights (1: off)
+    small_object_area_px: float = 1000.0               # A_ref: objects this large or larger keep 1
     augment: bool = True                               # False: random crop only
     train_split: str = "train"
     val_split: str = "val"
@@ -148,6 +156,11 @@ class TrainConfig:
             raise bad("lr", f"must be positive, got {self.lr}")
         if not 0.0 < self.bootstrap_end_fraction <= 1.0:
             raise bad("bootstrap_end_fraction", "must be in (0, 1]")
+        if self.small_object_weight < 1.0:
+            raise bad("small_object_weight", f"must be at least 1 (1: off), got "
+                      f"{self.small_object_weight}")
+        if self.small_object_area_px <= 0:
+            raise bad("small_object_area_px", f"must be positive, got {self.small_object_area_px}")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
         if self.aux_weights is not None and len(self.aux_weights) != expected:
             raise bad("aux_weights", f"{self.model} has {expected} auxiliary head(s), got "
@@ -200,6 +213,7 @@ _CLI_OPTIONS = {
     "warmup_iterations": "warmup", "warmup_ratio": "warmup-ratio", "crop_hw": "crop",
     "aux_weights": "aux-weight", "bootstrap_start_iteration": "bootstrap-start",
     "bootstrap_end_iteration": "bootstrap-end", "bootstrap_end_fraction": "bootstrap-fraction",
+    "small_object_weight": "small-object-weight", "small_object_area_px": "small-object-area",
     "augment": "augment", "train_split": "train-split", "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
@@ -218,12 +232,15 @@ def resolve_device(name: str) -> torch.device:
 
 class TrainingSamples(torch.utils.data.Dataset):
     """Item ``n`` is the run's ``n``-th augmented sample (module docstring), whatever the
-    worker or the order of the requests."""
+    worker or the order of the requests: ``(image, labels, pixel weights)``."""
 
-    def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig) -> None:
+    def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig,
+                 small_object_weight: float = 1.0, small_object_area_px: float = 1000.0) -> None:
         self.frames = frames
         self.seed = seed
         self.augmentation = augmentation
+        self.small_object_weight = small_object_weight
+        self.small_object_area_px = small_object_area_px
         self._perm_epoch = -1
         self._perm = np.arange(0)
 
@@ -238,10 +255,16 @@ class TrainingSamples(torch.utils.data.Dataset):
     def __len__(self) -> int:  # the stream is unbounded; the sampler decides what is drawn
         return 2**62
 
-    def __getitem__(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        image, labels = self.frames[self.frame_index(n)]
+    def __getitem__(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        index = self.frame_index(n)
+        image, labels = self.frames[index]
         rng = np.random.default_rng([self.seed, 1, n])
-        return augment(image, labels, rng, self.augmentation)
+        if self.small_object_weight <= 1.0:
+            image, labels = augment(image, labels, rng, self.augmentation)
+            return image, labels, np.ones(labels.shape, np.float32)
+        weights = small_object_weights(self.frames.instances(index, labels.shape), labels,
+                                       self.small_object_area_px, self.small_object_weight)
+        return augment_weighted(image, labels, weights, rng, self.augmentation)
 
 
 def learning_rate(config: TrainConfig, iteration: int) -> float:
@@ -283,16 +306,18 @@ class TrainResult:
         return path if path.is_file() else None
 
 
-def _aux_losses(output, target: torch.Tensor, keep: float, weights: tuple[float, ...]
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+def _aux_losses(output, target: torch.Tensor, keep: float, weights: tuple[float, ...],
+                pixel_weights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     main, aux = output if isinstance(output, tuple) else (output, [])
     if len(aux) != len(weights):
         raise RuntimeError(f"network returned {len(aux)} auxiliary outputs for {len(weights)} weights")
-    main_loss = bootstrapped_cross_entropy(main.float(), target, keep)
+    main_loss = bootstrapped_cross_entropy(main.float(), target, keep,
+                                           pixel_weights=pixel_weights)
     total = main_loss
     for weight, logits in zip(weights, aux, strict=True):
         if weight:
-            total = total + weight * bootstrapped_cross_entropy(logits.float(), target, keep)
+            total = total + weight * bootstrapped_cross_entropy(logits.float(), target, keep,
+                                                                pixel_weights=pixel_weights)
     return total, main_loss
 
 
@@ -438,7 +463,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
 
     augmentation = (AugmentConfig(crop_hw=config.crop_hw) if config.augment
                     else AugmentConfig.geometric_only(config.crop_hw))
-    samples = TrainingSamples(train_frames, config.seed, augmentation)
+    samples = TrainingSamples(train_frames, config.seed, augmentation,
+                              config.small_object_weight, config.small_object_area_px)
     batch = config.batch_size
     workers = data_workers(config.num_workers, device)
     loader = torch.utils.data.DataLoader(
@@ -462,7 +488,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                  loss=math.nan, lr=config.lr, keep=1.0,
                                  miou="—" if val_miou is None else f"{val_miou:.3f}")
         iteration = start
-        for images, labels in loader:
+        for images, labels, pixel_weights in loader:
             lr = learning_rate(config, iteration)
             for group in optimizer.param_groups:
                 group["lr"] = lr
@@ -471,9 +497,11 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                            config.bootstrap_end_fraction)
             images = images.to(device, non_blocking=True)
             target = labels.to(device, non_blocking=True).long()
+            pixel_weights = (pixel_weights.to(device, non_blocking=True)
+                             if config.small_object_weight > 1.0 else None)
             with torch.autocast(device.type, torch.float16, enabled=use_amp):
                 output = model(images)
-            loss, main_loss = _aux_losses(output, target, keep, weights)
+            loss, main_loss = _aux_losses(output, target, keep, weights, pixel_weights)
             optimizer.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.step(optimizer)

@@ -8,6 +8,10 @@ For each image, the per-pixel cross-entropy is computed over its valid pixels (l
 
 ``keep_fraction`` is annealed by :func:`bootstrap_keep_fraction`: 100 % of the pixels until
 iteration 1000, then linearly down to 20 % at iteration 9000, and 20 % after that.
+
+Optional per-pixel weights ``w_ij`` (e.g. :func:`harborsight.training.dataset.small_object_weights`)
+scale each pixel's loss before the hardest are chosen, ``ℓ_ij -> w_ij · ℓ_ij``; with all
+weights 1 the loss is unchanged.
 """
 
 from __future__ import annotations
@@ -34,12 +38,12 @@ def bootstrap_keep_fraction(
 
 def bootstrapped_cross_entropy(
     logits: torch.Tensor, target: torch.Tensor, keep_fraction: float,
-    ignore_index: int = IGNORE,
+    ignore_index: int = IGNORE, pixel_weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """Mean over images of the mean cross-entropy of each image's hardest pixels.
+    """Mean over images of the mean (weighted) cross-entropy of each image's hardest pixels.
 
-    Shape: ``logits (N, C, H, W)``, ``target (N, H, W)`` long. An image without valid
-    pixels contributes zero (and keeps the graph connected).
+    Shape: ``logits (N, C, H, W)``, ``target (N, H, W)`` long, ``pixel_weights (N, H, W)``.
+    An image without valid pixels contributes zero (and keeps the graph connected).
     """
     if logits.ndim != 4 or target.shape != (logits.shape[0], *logits.shape[2:]):
         raise ValueError(f"expected logits (N, C, H, W) and target (N, H, W), got "
@@ -48,6 +52,11 @@ def bootstrapped_cross_entropy(
         raise ValueError(f"keep_fraction must be in (0, 1], got {keep_fraction}")
     n = logits.shape[0]
     pixel_loss = F.cross_entropy(logits, target, ignore_index=ignore_index, reduction="none")
+    if pixel_weights is not None:
+        if pixel_weights.shape != target.shape:
+            raise ValueError(f"pixel_weights {tuple(pixel_weights.shape)} differ from target "
+                             f"{tuple(target.shape)}")
+        pixel_loss = pixel_loss * pixel_weights
     pixel_loss = pixel_loss.reshape(n, -1)
     valid = (target != ignore_index).reshape(n, -1)
     per_image = []
