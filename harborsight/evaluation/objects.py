@@ -26,8 +26,6 @@ import numpy as np
 
 from harborsight.perception.classes import WATER
 
-#: instance ids that are not objects around the vessel: water, the vessel itself, no hit
-SKIPPED_IDS = frozenset({0, 1, 65535})
 #: visible-size bins in pixels (lower edges); the last bin is open
 AREA_BINS_PX = (0, 20, 80, 300)
 #: contrast bins in grey levels (lower edges)
@@ -50,13 +48,17 @@ def object_recalls(frame: str, image_bgr: np.ndarray, labels: np.ndarray,
                    kinds: dict[int, str] | None = None) -> list[ObjectRecall]:
     """Every object of one frame with its solid recall and contrast (module docstring);
     ``kinds`` maps instance id -> kind (``object`` where unknown)."""
+    from harborsight.sim.layout import VESSEL_INSTANCE
+    from harborsight.sim.raycast import NO_HIT
+
+    skipped = {0, VESSEL_INSTANCE, NO_HIT}   # water, the vessel itself, no hit
     grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY).astype(np.float64)
     water = labels == WATER
     kernel = np.ones((2 * _RING_PX + 1, 2 * _RING_PX + 1), np.uint8)
     rows = []
     ids, counts = np.unique(instances, return_counts=True)
     for instance_id, area in zip(ids.tolist(), counts.tolist(), strict=True):
-        if instance_id in SKIPPED_IDS:
+        if instance_id in skipped:
             continue
         mask = instances == instance_id
         ring = cv2.dilate(mask.astype(np.uint8), kernel).astype(bool) & water & ~mask
