@@ -32,9 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harborsight.sim.layout import HarbourScene, Material
-
-NO_HIT = 65535
+from harborsight.sim.layout import NO_HIT, HarbourScene, Material
 
 
 @dataclass(frozen=True)

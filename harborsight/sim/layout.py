@@ -32,6 +32,8 @@ from harborsight.vessel.spec import VesselSpec
 
 WATER, SHIP, OBSTACLE = 0, 1, 2
 VESSEL_INSTANCE = 1
+#: instance id of pixels that show no scene object (rays that hit nothing; Blender's background)
+NO_HIT = 65535
 
 
 @dataclass(frozen=True)

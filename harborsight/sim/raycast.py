@@ -15,10 +15,8 @@ import trimesh
 
 from harborsight.errors import HarborsightError
 from harborsight.frame import FrameGeometry
-from harborsight.sim.layout import HarbourScene
+from harborsight.sim.layout import NO_HIT, HarbourScene
 
-#: id of pixels whose ray hits nothing (sky); equal to the renderer's background id
-NO_HIT = 65535
 MIN_AGREEMENT = 0.995
 
 

@@ -28,11 +28,11 @@ from shapely.geometry import MultiPoint, Polygon, box
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette_px
+from harborsight.sim.layout import VESSEL_INSTANCE
 from harborsight.sim.pose import PosedScene
 from harborsight.vessel.spec import VesselSpec
 
 SHIP, OBSTACLE = 1, 2
-VESSEL_INSTANCE = 1
 
 #: DJI Mavic 3 (4/3" sensor 17.3 x 13.0 mm, 12.29 mm lens, 24 mm equiv.), video crop to 16:9,
 #: scaled to 640x360: fx = 12.29 / 17.3 * 640 = 454.7 px.
