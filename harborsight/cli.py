@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shlex
+from collections import Counter
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
@@ -12,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated
 import cv2
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -200,7 +202,7 @@ def _run_flight_with_progress(source, out: Path, vessels, segmenter, options, in
         task = progress.add_task("frames", total=source.frame_count or None, status="")
 
         def advance(frame) -> None:
-            if frame.index >= 0:        # index -1: a metadata line that names no frame
+            if frame.is_frame:          # not a metadata line without a picture
                 progress.update(task, advance=1,
                                 status="" if frame.error is None else "[red]skipped one")
 
@@ -828,13 +830,14 @@ def evaluate_distance_command(
         if not sources:
             raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "
                              "or give --flat-world or --model")
-        frames = load_frames(data, split)[:limit]
+        unreadable: list[tuple[str, str]] = []
+        frames = load_frames(data, split, unreadable)[:limit]
         if not frames:
             raise InputError(data / "frames", None, "no frames" + (f" in split {split}" if split else ""))
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False)
         raise typer.Exit(2) from None
-    results, skipped = [], []
+    results, skipped = [], list(unreadable)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True) as progress:
         for masks_name, source in sources:
@@ -874,8 +877,10 @@ def evaluate_distance_command(
         print("Where the model's error comes from (the reported obstacle point in the "
               "simulator's masks):\n")
         print(markdown_error_source_table(learned))
-    for stem, error in skipped:
-        err_console.print(f"[red]skipped[/] {stem}: {error}", highlight=False)
+    for (stem, error), times in Counter(skipped).items():   # once per frame and reason
+        repeat = f" (in {times} evaluations)" if times > 1 else ""
+        err_console.print(f"[red]skipped[/] {escape(f'{stem}: {error}{repeat}')}",
+                          highlight=False)
     console.print(f"{len(frames)} frame(s), {len(results)} section results; "
                   f"written to {out}/ (sections.csv, summary.md, summary.json, "
                   + ", ".join(p.name for p in written["plots"])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,9 @@ class _Reader:
 def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIntrinsics:
     src = reader.source
     if "calibration" in cam:
+        if not isinstance(cam["calibration"], str) or not cam["calibration"]:
+            raise InputError(src, "camera.calibration",
+                             f"expected a calibration file path, got {cam['calibration']!r}")
         calib = Path(cam["calibration"])
         if base_dir is not None and not calib.is_absolute():
             calib = base_dir / calib
@@ -114,7 +118,8 @@ def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIn
         value = cam.get(key)
         if value is None:
             raise InputError(src, f"camera.{key}", "missing")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        if (isinstance(value, bool) or not isinstance(value, (int, float))
+                or not math.isfinite(value) or value != int(value)):
             raise InputError(src, f"camera.{key}", f"expected a whole number of pixels, got {value!r}")
     width, height = int(cam["width"]), int(cam["height"])
     distortion = cam.get("distortion") or []
@@ -167,6 +172,13 @@ def parse_frame_metadata(
     if not isinstance(image, str) or not image:
         raise InputError(src, "image", "missing (the image file name)")
     intr = camera or _parse_camera(reader, reader.section(data, "camera"), base_dir)
+    timestamp = data.get("timestamp")
+    if timestamp is not None:
+        try:
+            datetime.fromisoformat(timestamp)
+        except (TypeError, ValueError):
+            raise InputError(src, "timestamp",
+                             f"expected an ISO 8601 time, got {timestamp!r}") from None
 
     uav = reader.section(data, "uav")
     att = reader.section(data, "camera_attitude")
@@ -185,7 +197,7 @@ def parse_frame_metadata(
         vessel_lon_deg=reader.number(ves, "lon", "vessel.", low=-180, high=180),
         vessel_heading_deg=reader.number(ves, "heading_deg", "vessel.", low=-360, high=360),
         water_level_m=reader.number(data, "water_level_m", default=0.0),
-        timestamp=data.get("timestamp"),
+        timestamp=timestamp,
         extra={k: v for k, v in data.items() if k not in _KNOWN_KEYS},
         source=src,
     )

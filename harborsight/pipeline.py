@@ -83,6 +83,8 @@ def _find_vessel_spec(meta: FrameMetadata, meta_path: Path) -> Path:
     ref = meta.extra.get("vessel_spec")
     if not ref:
         raise InputError(meta_path, "vessel_spec", "no --vessel given and the frame names none")
+    if not isinstance(ref, str):
+        raise InputError(meta_path, "vessel_spec", f"expected a vessel.yaml path, got {ref!r}")
     for base in (meta_path.parent, meta_path.parent.parent):
         if (base / ref).is_file():
             return base / ref

@@ -291,3 +291,38 @@ def test_a_vessel_blob_spilt_onto_the_water_is_named_as_the_error_source(tmp_pat
 
     again = read_csv(tmp_path / "sections.csv")
     assert [r.point_truth for r in again] == [r.point_truth for r in results]
+
+
+def test_bad_frames_are_skipped_and_the_rest_evaluated(tmp_path):
+    """A corrupt file, a frame without truth, one without a vessel and one whose truth has
+    no distance are each reported with file and field; the others are measured and written."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLES, data)
+    (data / "frames" / "000000.json").write_text("{broken")
+
+    def edit(stem, change):
+        path = data / "frames" / f"{stem}.json"
+        frame = json.loads(path.read_text())
+        change(frame)
+        path.write_text(json.dumps(frame))
+
+    edit("000001", lambda f: f.update(ground_truth=None))
+    edit("000002", lambda f: f.pop("vessel_spec"))
+    edit("000003", lambda f: f["ground_truth"]["sections"][0].update(distance_m="far"))
+    problems = []
+    frames = load_frames(data, problems=problems)
+    assert [Path(f["image"]).stem for f in frames] == ["000002", "000004"]
+    assert [Path(p).stem for p, _ in problems] == ["000000", "000001", "000003"]
+    assert "ground_truth.sections" in problems[1][1]
+    assert "ground_truth.sections[0].distance_m" in problems[2][1]
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["evaluate", "distance", "--data", str(data), "--out",
+                                      str(out), "--methods", "ground_plane"], terminal_width=300)
+    assert result.exit_code == 0, result.output
+    assert "000002.json: vessel_spec:" in result.output
+    assert "not readable JSON" in result.output
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    assert {r["frame"] for r in rows} == {"000004"}
+    assert (out / "summary.md").is_file() and (out / "distance_error_box.png").is_file()

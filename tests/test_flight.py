@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import shutil
 from importlib import resources
@@ -120,6 +121,52 @@ def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
     assert (out / "timeline.png").stat().st_size > 10_000
 
 
+@pytest.mark.parametrize("edit, field", [
+    (lambda m: m["camera"].update(calibration=5), "camera.calibration"),
+    (lambda m: m["camera"].update(width=float("inf")), "camera.width"),
+    (lambda m: m.update(vessel_spec=5), "vessel_spec"),
+    (lambda m: m.pop("timestamp"), "timestamp"),   # the run is timed by timestamps
+])
+def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
+    """Fields of the wrong type (not only missing or out of range) skip that frame only:
+    the run finishes and writes run.json, the timeline and the video."""
+    data = _timed_copy_of_samples(tmp_path)
+    path = data / "frames" / "000002.json"
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 4
+    [skipped] = record["skipped_frames"]
+    assert skipped["frame"] == 2
+    assert f"000002.json: {field}:" in skipped["error"]
+    assert (out / "timeline.png").is_file() and _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_flight_clock_is_fixed_by_the_first_frame():
+    from harborsight.flight.runner import FlightClock
+    from harborsight.flight.sources import FlightFrame
+    from harborsight.frame import load_frame_metadata
+
+    meta = load_frame_metadata(SAMPLES / "frames" / "000000.json")
+    untimed = dataclasses.replace(meta, timestamp=None)
+    clock = FlightClock()      # first frame untimed, in a video: the video position rules
+    assert clock.seconds(FlightFrame(0, "f0", meta=untimed, video_time_s=4.0)) == 0.0
+    timed = dataclasses.replace(meta, timestamp="2026-05-01T12:00:09Z")
+    assert clock.seconds(FlightFrame(1, "f1", meta=timed, video_time_s=4.5)) == 0.5
+    clock = FlightClock()      # first frame timed: a later untimed one is refused
+    assert clock.seconds(FlightFrame(0, "f0", meta=timed, video_time_s=4.0)) == 0.0
+    with pytest.raises(InputError, match="f1: timestamp: missing"):
+        clock.seconds(FlightFrame(1, "f1", meta=untimed, video_time_s=4.5))
+    clock = FlightClock()      # neither: no times at all
+    assert clock.seconds(FlightFrame(0, "f0", meta=untimed)) is None
+    assert clock.seconds(FlightFrame(1, "f1", meta=timed)) is None
+
+
 def _write_video(path: Path, images: list[Path], fps: float) -> None:
     first = cv2.imread(str(images[0]))
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps,
@@ -169,9 +216,10 @@ def test_explicit_frame_indices(tmp_path):
         "{broken",
         json.dumps({**meta, "frame_index": 7, "uav": {"lat": 56.0}}),   # bad record
     ]))
-    by_frame, orphans = read_metadata_lines(path, "v")
+    by_frame, orphans, line_of = read_metadata_lines(path, "v")
     assert set(by_frame) == {3, 7}
     assert by_frame[3].image == "000000.png"
+    assert line_of == {3: 1, 7: 5}
     assert "uav.lon" in by_frame[7] or "uav.alt_m" in by_frame[7]
     assert len(orphans) == 3
     assert any("already has" in o for o in orphans) and any(":4" in o for o in orphans)
@@ -182,3 +230,28 @@ def test_run_refuses_unclear_inputs(tmp_path):
     assert result.exit_code == 2 and "--metadata" in result.output
     result = runner.invoke(app, ["run", str(SAMPLES), "--metadata", str(tmp_path / "x.jsonl")])
     assert result.exit_code == 2 and "for videos" in result.output
+
+
+def test_metadata_past_the_video_end_is_reported_not_counted(tmp_path, untrained_model):
+    frames = sorted((SAMPLES / "frames").glob("*.json"))[:3]
+    video = tmp_path / "short.mp4"
+    _write_video(video, [SAMPLES / "images" / f"{p.stem}.png" for p in frames], fps=2.0)
+    lines = []
+    for path in frames + frames[:2]:                  # 5 lines for a 3-frame video
+        meta = json.loads(path.read_text())
+        for key in ("image", "ground_truth", "simulation", "vessel_spec"):
+            meta.pop(key, None)
+        lines.append(json.dumps(meta))
+    metadata = tmp_path / "short.jsonl"
+    metadata.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(video), "--metadata", str(metadata), "--model",
+                                 str(untrained_model), "--vessel",
+                                 str(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert (record["frames"], record["measured"]) == (3, 3)
+    errors = [item["error"] for item in record["skipped_frames"]]
+    assert len(errors) == 2 and all("past the video's end (3 frames)" in e for e in errors)
+    assert f"{metadata}:4:" in errors[0] and f"{metadata}:5:" in errors[1]

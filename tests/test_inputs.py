@@ -41,6 +41,11 @@ def edit_frame(path: Path, edit) -> None:
     (lambda d: d["camera"].update(distortion=[0.1, 0.2, 0.3]), "camera.distortion", "4, 5, 8"),
     (lambda d: d.pop("vessel"), "vessel", "missing"),
     (lambda d: d.update(schema="other/1"), "schema", "expected"),
+    (lambda d: d["camera"].update(calibration=5), "camera.calibration", "calibration file path"),
+    (lambda d: d["camera"].update(width=float("inf")), "camera.width", "whole number"),
+    (lambda d: d["camera"].update(height=float("nan")), "camera.height", "whole number"),
+    (lambda d: d.update(timestamp=1714564800), "timestamp", "ISO 8601"),
+    (lambda d: d.update(timestamp="noon"), "timestamp", "ISO 8601"),
 ])
 def test_bad_metadata_names_file_and_field(dataset, edit, field, message):
     frame = dataset / "frames" / "000000.json"

@@ -79,3 +79,26 @@ def test_parameter_counts_match_reference(name):
     network = create_network(name, 19, aux_heads=True)
     assert inference_parameter_count(network) == REFERENCE_PARAMS_19[name]
     assert parameter_count(create_network(name, 19, aux_heads=False)) == REFERENCE_PARAMS_19[name]
+
+
+@pytest.mark.parametrize("graph", ["identity", "float_input"])
+def test_a_foreign_onnx_model_is_refused_at_load(graph, tmp_path):
+    """A loadable ONNX graph that is not a `harborsight export` names the file and what is
+    wrong, instead of failing on every frame later."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    from harborsight.errors import InputError
+
+    dtype = TensorProto.UINT8 if graph == "identity" else TensorProto.FLOAT
+    node = helper.make_node("Identity", ["image"], ["out"])
+    model = helper.make_model(helper.make_graph(
+        [node], "foreign", [helper.make_tensor_value_info("image", dtype, [1, 8, 8, 3])],
+        [helper.make_tensor_value_info("out", dtype, [1, 8, 8, 3])]),
+        opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    path = tmp_path / "foreign.onnx"
+    onnx.save(model, path)
+    field = "outputs" if graph == "identity" else "inputs"
+    with pytest.raises(InputError, match=rf"foreign.onnx: {field}: not a harborsight"):
+        OnnxSegmenter(path)

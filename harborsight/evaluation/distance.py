@@ -44,7 +44,7 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK
-from harborsight.errors import HarborsightError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.frame import parse_frame_metadata
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
@@ -258,21 +258,28 @@ def evaluate_frames(
     results: list[SectionResult] = []
     for frame in frames:
         stem = Path(frame["image"]).stem
+        frame_path = dataset / "frames" / f"{stem}.json"
         try:
-            meta = parse_frame_metadata(frame, dataset / "frames" / f"{stem}.json",
-                                        base_dir=dataset / "frames")
-            spec_path = frame["vessel_spec"]
+            meta = parse_frame_metadata(frame, frame_path, base_dir=dataset / "frames")
+            spec_path = frame.get("vessel_spec")
+            if not isinstance(spec_path, str) or not spec_path:
+                raise InputError(frame_path, "vessel_spec", f"expected the vessel.yaml path "
+                                 f"in the dataset, got {spec_path!r}")
             if spec_path not in vessels:
                 vessels[spec_path] = load_vessel_spec(dataset / spec_path)
             truth = frame["ground_truth"]["sections"]
             report = measure_frame(masks(dataset, frame), meta, vessels[spec_path], settings)
             if len(report.sections) != len(truth):
-                raise HarborsightError(f"{stem}: {len(report.sections)} sections measured, "
+                raise HarborsightError(f"{frame_path}: {len(report.sections)} sections measured, "
                                        f"{len(truth)} in the ground truth")
             near_obstacle = true_obstacle_mask(dataset, frame)
-        except (HarborsightError, KeyError) as exc:
+        except HarborsightError as exc:
             if on_frame:
-                on_frame(stem, f"{type(exc).__name__}: {exc}")
+                on_frame(stem, str(exc))
+            continue
+        except Exception as exc:  # one bad frame must not end the evaluation
+            if on_frame:
+                on_frame(stem, f"{frame_path}: {type(exc).__name__}: {exc}")
             continue
         altitude = round(meta.height_above_water_m)
         for s, t in zip(report.sections, truth, strict=True):
@@ -651,18 +658,53 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     return np.hstack(panels)
 
 
-def load_frames(dataset: Path, split: str | None = None) -> list[dict]:
-    """Frame documents of a dataset (optionally one split of dataset.json), sorted."""
+def load_frames(dataset: Path, split: str | None = None,
+                problems: list[tuple[str, str]] | None = None) -> list[dict]:
+    """Frame documents of a dataset (optionally one split of dataset.json), sorted. A file
+    that is not a frame with ground truth is left out and, with ``problems``, listed there
+    as ``(path, reason)``; a bad dataset.json raises :class:`InputError`."""
     wanted = None
     if split:
-        doc = json.loads((dataset / "dataset.json").read_text())
-        wanted = {stem for stem, s in doc.get("split", {}).items() if s == split}
+        index_path = dataset / "dataset.json"
+        try:
+            doc = json.loads(index_path.read_text())
+            wanted = {stem for stem, s in doc["split"].items() if s == split}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise InputError(index_path, "split", f"cannot read the split table: "
+                             f"{type(exc).__name__}: {exc}") from None
     frames = []
     for path in sorted((dataset / "frames").glob("*.json")):
         if wanted is not None and path.stem not in wanted:
             continue
-        frames.append(json.loads(path.read_text()))
+        try:
+            frames.append(_frame_with_truth(path))
+        except InputError as exc:
+            if problems is not None:
+                problems.append((str(path), str(exc)))
     return frames
+
+
+def _frame_with_truth(path: Path) -> dict:
+    """One frame JSON with the fields the evaluation reads checked (``image``,
+    ``ground_truth.sections[].distance_m``); the rest is checked when it is measured."""
+    try:
+        frame = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(path, None, f"not readable JSON: {exc}") from None
+    if not isinstance(frame, dict):
+        raise InputError(path, None, "expected a JSON object")
+    if not isinstance(frame.get("image"), str) or not frame["image"]:
+        raise InputError(path, "image", "missing (the image file name)")
+    truth = frame.get("ground_truth")
+    sections = truth.get("sections") if isinstance(truth, dict) else None
+    if not isinstance(sections, list) or not sections:
+        raise InputError(path, "ground_truth.sections", "missing: not a simulator frame")
+    for n, section in enumerate(sections):
+        value = section.get("distance_m", "missing") if isinstance(section, dict) else "missing"
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise InputError(path, f"ground_truth.sections[{n}].distance_m",
+                             f"expected metres or null, got {value!r}")
+    return frame
 
 
 def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:

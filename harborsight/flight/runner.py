@@ -11,7 +11,8 @@ Outputs in ``out_dir``:
 * ``timeline.png``: clearance of every section over time;
 * ``run.json``: inputs, settings, counts, timing and every skipped frame with its reason.
 
-Time of a frame: its ``timestamp`` relative to the first timestamped frame, else its
+Time of a frame: seconds since the run's first frame, on one clock for the whole run
+(:class:`FlightClock`): the frames' ``timestamp`` if the first frame has one, else their
 position in the video, else unknown (then no closing speeds).
 """
 
@@ -28,7 +29,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
-from harborsight.errors import HarborsightError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels
@@ -98,6 +99,36 @@ class _VideoWriter:
             self.writer.release()
 
 
+class FlightClock:
+    """One time base for a run, fixed by its first frame: ``timestamp`` when that frame has
+    one (a later frame without one is then an error: mixing clocks would corrupt the
+    closing-speed fits), else the video position, else none (every time is None)."""
+
+    def __init__(self) -> None:
+        self.base: str | None = None        # "timestamp", "video" or "none"
+        self.start_s: float | None = None
+
+    def seconds(self, frame: FlightFrame) -> float | None:
+        stamp = timestamp_seconds(frame.meta)
+        if self.base is None:
+            self.base = ("timestamp" if stamp is not None
+                         else "video" if frame.video_time_s is not None else "none")
+        if self.base == "timestamp":
+            if stamp is None:
+                raise InputError(frame.source, "timestamp", "missing, while this run's frames "
+                                 "are timed by their timestamps (set by its first frame)")
+            value = stamp
+        elif self.base == "video":
+            value = frame.video_time_s
+        else:
+            return None
+        if value is None:
+            return None
+        if self.start_s is None:
+            self.start_s = value
+        return value - self.start_s
+
+
 def trend_footer(trends: dict[int, SectionTrend], has_time: bool) -> str:
     """One line on the closing section nearest to contact (or why there is none)."""
     if not has_time:
@@ -129,20 +160,17 @@ def run_flight(
     timeline = ClearanceTimeline(window_s=options.window_s)
     fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
     video = _VideoWriter(out_dir / "annotated.mp4", fps) if options.video else None
-    t0: float | None = None
+    clock = FlightClock()
     started = time.perf_counter()
     csv_path = out_dir / "sections.csv"
     with csv_path.open("w", newline="") as csv_handle:
         csv_out = ClearanceTimeline.csv_writer(csv_handle)
         for frame in frames:
-            summary.frames += frame.index >= 0       # index -1: a metadata line, no frame
+            summary.frames += frame.is_frame
             annotated = None
             if frame.error is None:
                 try:
-                    stamp = timestamp_seconds(frame.meta)
-                    if stamp is not None and t0 is None:
-                        t0 = stamp
-                    time_s = stamp - t0 if stamp is not None else frame.video_time_s
+                    time_s = clock.seconds(frame)
                     timeline.check_time(time_s, frame.source)
                     labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
                                                        frame.source)
@@ -152,6 +180,8 @@ def run_flight(
                     trends, rows = timeline.add(frame.index, time_s, report)
                 except HarborsightError as exc:
                     frame.error = str(exc)
+                except Exception as exc:  # one bad frame must not end the run
+                    frame.error = f"{frame.source}: unexpected {type(exc).__name__}: {exc}"
                 else:
                     write_rows(csv_out, rows)
                     csv_handle.flush()

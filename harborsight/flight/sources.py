@@ -46,6 +46,7 @@ class FlightFrame:
     meta_path: Path | None = None      # the file vessel_spec paths are relative to
     video_time_s: float | None = None  # position in the video, when the source is one
     error: str | None = None
+    is_frame: bool = True              # False: a metadata line with no picture (reported only)
 
     @property
     def stem(self) -> str:
@@ -76,8 +77,9 @@ class FolderSource:
                 image_path = job.image_path or job.meta_path.parent / frame.meta.image
                 frame.image = read_image(image_path)
                 check_image_size(frame.image, frame.meta, image_path)
-            except InputError as exc:
-                frame.error = str(exc)
+            except Exception as exc:  # one bad frame must not end the run
+                frame.error = (str(exc) if isinstance(exc, InputError)
+                               else f"{job.meta_path}: unexpected {type(exc).__name__}: {exc}")
                 if frame.image is None and job.image_path is not None:
                     frame.image = cv2.imread(str(job.image_path), cv2.IMREAD_COLOR)  # for the video
             yield frame
@@ -102,9 +104,10 @@ def fps_from_timestamps(times_s: Iterable[float | None]) -> float | None:
 
 
 def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | None = None
-                        ) -> tuple[dict[int, FrameMetadata | str], list[str]]:
-    """Parse a JSON-lines metadata file: ``{video frame index: metadata or error}``, plus the
-    errors of lines that name no frame (a broken line when indices are explicit)."""
+                        ) -> tuple[dict[int, FrameMetadata | str], list[str], dict[int, int]]:
+    """Parse a JSON-lines metadata file: ``{video frame index: metadata or error}``, the
+    errors of lines that name no frame (a broken line when indices are explicit), and
+    ``{video frame index: line number}``."""
     if not path.is_file():
         raise InputError(path, None, "metadata file not found")
     lines = [(n, line) for n, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
@@ -113,6 +116,7 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
     explicit = any('"frame_index"' in line for _, line in lines)
     by_frame: dict[int, FrameMetadata | str] = {}
     orphans: list[str] = []
+    line_of: dict[int, int] = {}
     for order, (line_no, line) in enumerate(lines):
         where = f"{path}:{line_no}"
         try:
@@ -122,7 +126,7 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
             if explicit:
                 orphans.append(message)
             else:
-                by_frame[order] = message
+                by_frame[order], line_of[order] = message, line_no
             continue
         index = order
         if explicit:
@@ -135,6 +139,7 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
             orphans.append(str(InputError(where, "frame_index",
                                           f"frame {index} already has a metadata line")))
             continue
+        line_of[index] = line_no
         try:
             if isinstance(record, dict):
                 record.setdefault("image", f"{video_stem}-{index:06d}.png")
@@ -142,7 +147,9 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
                                                    base_dir=path.parent)
         except InputError as exc:
             by_frame[index] = str(exc)
-    return by_frame, orphans
+        except Exception as exc:  # one bad line must not end the run
+            by_frame[index] = f"{where}: unexpected {type(exc).__name__}: {exc}"
+    return by_frame, orphans, line_of
 
 
 class VideoSource:
@@ -159,13 +166,15 @@ class VideoSource:
         self.fps = capture.get(cv2.CAP_PROP_FPS) or 0.0
         self.frame_count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
         capture.release()
-        self.by_frame, self.orphans = read_metadata_lines(metadata, video.stem, camera)
+        self.by_frame, self.orphans, self.line_of = read_metadata_lines(metadata, video.stem,
+                                                                        camera)
 
     def frames(self) -> Iterator[FlightFrame]:
         """Metadata lines that name no frame first (index -1, reported), then every video
         frame, then the metadata of frames past the video's end."""
         for message in self.orphans:
-            yield FlightFrame(-1, str(self.metadata), meta_path=self.metadata, error=message)
+            yield FlightFrame(-1, str(self.metadata), meta_path=self.metadata, error=message,
+                              is_frame=False)
         capture = cv2.VideoCapture(str(self.video))
         index = -1
         try:
@@ -192,7 +201,7 @@ class VideoSource:
         finally:
             capture.release()
         for missing in sorted(i for i in self.by_frame if i > index):
-            yield FlightFrame(missing, f"{self.metadata} frame_index {missing}",
-                              meta_path=self.metadata,
-                              error=f"{self.metadata}: frame_index: frame {missing} is past the "
-                                    f"video's end ({index + 1} frames)")
+            where = f"{self.metadata}:{self.line_of[missing]}"
+            yield FlightFrame(missing, where, meta_path=self.metadata, is_frame=False,
+                              error=f"{where}: metadata for frame {missing}, past the video's "
+                                    f"end ({index + 1} frames)")

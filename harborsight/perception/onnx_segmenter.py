@@ -35,8 +35,25 @@ class OnnxSegmenter:
         meta = self.session.get_modelmeta().custom_metadata_map.get("harborsight")
         self.metadata = json.loads(meta) if meta else {}
         self.sidecar: dict = {}  # the export sidecar, filled by perception.default_model
-        shape = self.session.get_inputs()[0].shape
-        self.input_height, self.input_width = int(shape[1]), int(shape[2])
+        self.input_height, self.input_width = self._check_interface()
+
+    def _check_interface(self) -> tuple[int, int]:
+        """Reject graphs that are not a ``harborsight export``: one uint8 input ``image``
+        (N, H, W, 3) with a fixed H and W, and outputs ``logits`` and ``labels``."""
+        inputs = self.session.get_inputs()
+        outputs = {o.name for o in self.session.get_outputs()}
+        shape = inputs[0].shape if len(inputs) == 1 else []
+        if (len(inputs) != 1 or inputs[0].name != "image" or inputs[0].type != "tensor(uint8)"
+                or len(shape) != 4 or shape[3] != 3
+                or not all(isinstance(d, int) for d in shape[1:3])):
+            found = [(i.name, i.shape, i.type) for i in inputs]
+            raise InputError(self.path, "inputs", "not a harborsight segmentation model: expected "
+                             f"one uint8 input 'image' of shape (N, H, W, 3), found {found}")
+        missing = {"logits", "labels"} - outputs
+        if missing:
+            raise InputError(self.path, "outputs", "not a harborsight segmentation model: "
+                             f"missing output(s) {sorted(missing)}, found {sorted(outputs)}")
+        return int(shape[1]), int(shape[2])
 
     def logits(self, image_bgr: np.ndarray) -> np.ndarray:
         """Float logits (C, H, W) at the model's input size."""
