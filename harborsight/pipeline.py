@@ -21,7 +21,7 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.report import ClearanceReport
-from harborsight.errors import InputError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
@@ -188,8 +188,11 @@ def run_batch(
     for job in jobs:
         try:
             outcome = measure_job(job, vessels, settings, out_dir, camera, segmenter=segmenter)
-        except InputError as exc:
+        except HarborsightError as exc:
             outcome = FrameOutcome(job, error=str(exc))
+        except Exception as exc:  # one bad frame must not end the batch
+            outcome = FrameOutcome(job, error=f"{job.meta_path}: unexpected "
+                                              f"{type(exc).__name__}: {exc}")
         outcomes.append(outcome)
         if on_done:
             on_done(outcome)
