@@ -736,6 +736,8 @@ def evaluate_segmentation_command(
 
             console.print(f"{row.split}: recall per object", highlight=False)
             console.print(markdown_object_table(row.objects), markup=False, highlight=False)
+        for _, error in row.skipped:
+            err_console.print(f"[red]skipped[/] ({row.split}) {escape(error)}", highlight=False)
     w, h = result.resolution_wh
     console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
                   f"{result.model.params or 0:,} parameters")

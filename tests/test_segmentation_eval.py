@@ -3,6 +3,7 @@
 
 import json
 import math
+import shutil
 from importlib import resources
 from pathlib import Path
 
@@ -126,6 +127,25 @@ def test_cli_evaluates_a_checkpoint(trained_run, tiny_dataset, tmp_path):
     assert "val split, by drone height" in per_split[0]
     assert len(per_split[1].strip().splitlines()) == 2 + len(expected)
     assert "val by drone height" in result.output
+
+
+def test_cli_leaves_out_an_unreadable_frame_and_scores_the_rest(trained_run, tiny_dataset,
+                                                                 tmp_path):
+    data = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data)
+    split_map = json.loads((data / "dataset.json").read_text())["split"]
+    broken = sorted(s for s, split in split_map.items() if split == "test")[0]
+    (data / "labels" / f"{broken}.png").write_bytes(b"\x89PNG truncated")
+    result = runner.invoke(app, [
+        "evaluate", "segmentation", "--model", str(trained_run / "best.pt"), "--data", str(data),
+        "--split", "val", "--split", "test", "--json", str(tmp_path / "m.json"),
+        "--markdown", str(tmp_path / "m.md"), "--fps-seconds", "0"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "m.json").read_text())
+    assert report["splits"]["val"]["frames"] == 2 and report["splits"]["test"]["frames"] == 1
+    [skipped] = report["splits"]["test"]["skipped_frames"]
+    assert skipped["path"].endswith(f"labels/{broken}.png") and "cannot decode" in skipped["error"]
+    assert "1 frame(s) left out" in (tmp_path / "m.md").read_text()
 
 
 def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_path):

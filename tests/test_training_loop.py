@@ -72,6 +72,7 @@ def test_resume_repeats_an_uninterrupted_run(tiny_dataset, tmp_path):
     assert first.iteration == 3 and load_checkpoint(first.last_checkpoint)["iteration"] == 3
     with (tmp_path / "split" / "train_log.jsonl").open("a") as log:  # a crash after the checkpoint
         log.write(json.dumps({"iteration": 4, "kind": "train", "loss": -1.0}) + "\n")
+        log.write('{"iteration": 5, "kind": "tr')                    # killed mid-line
     with pytest.raises(InputError, match="resume it"):
         train(config(tmp_path / "split"), show_progress=False)
     second = train(config(tmp_path / "split"), resume=True, show_progress=False)
@@ -84,6 +85,42 @@ def test_resume_repeats_an_uninterrupted_run(tiny_dataset, tmp_path):
     changed.lr = 0.02
     with pytest.raises(InputError, match=r"changed lr: 0.01 -> 0.02"):
         train(changed, resume=True, show_progress=False)
+
+
+def test_resume_refuses_a_changed_frame_set(tiny_dataset, tmp_path):
+    """The sampling order depends on the frames: a grown dataset is a new run, not a resume."""
+    data = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[data], out_dir=tmp_path / "run",
+                         iterations=4, batch_size=2, crop_hw=(64, 64), val_every=0,
+                         checkpoint_every=2, num_workers=0, threads=1)
+    train(config, until_iteration=2, show_progress=False)
+    meta = json.loads((data / "dataset.json").read_text())
+    meta["split"][next(s for s, split in meta["split"].items() if split == "val")] = "train"
+    (data / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"last.pt: train_frames: the training frames changed "
+                                         r"since the run began \(4 then, 5 readable now\)"):
+        train(config, resume=True, show_progress=False)
+
+
+def test_unreadable_frames_are_left_out_up_front(tiny_dataset, tmp_path, capsys):
+    """A broken train label and a broken val image cost those frames, not the run."""
+    data = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data)
+    meta = json.loads((data / "dataset.json").read_text())
+    train_stem = next(s for s, split in meta["split"].items() if split == "train")
+    val_stem = next(s for s, split in meta["split"].items() if split == "val")
+    (data / "labels" / f"{train_stem}.png").write_bytes(b"not a png")
+    (data / "images" / f"{val_stem}.png").unlink()
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[data], out_dir=tmp_path / "run",
+                         iterations=2, batch_size=2, crop_hw=(64, 64), val_every=2,
+                         checkpoint_every=2, num_workers=0, threads=1)
+    result = train(config, show_progress=False)
+    assert result.iteration == 2 and result.val_miou is not None
+    last = load_checkpoint(result.last_checkpoint)
+    assert last["train_frames"]["count"] == 3
+    assert [p.split("/")[-2:] for p in last["skipped_frames"]] == [
+        ["labels", f"{train_stem}.png"], ["images", f"{val_stem}.png"]]
 
 
 def test_warm_start_begins_from_the_checkpoint_weights(two_frame_dataset, tmp_path):

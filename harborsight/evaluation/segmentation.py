@@ -246,6 +246,8 @@ class SplitEvaluation:
     by_height_m: dict[float, tuple[int, SegmentationScores]] = field(default_factory=dict)
     #: per kind of object, its recall (evaluation.objects); empty unless asked for
     objects: list[ObjectSummary] = field(default_factory=list)
+    #: ``(path, reason)`` of each frame left out because a file of it could not be read
+    skipped: list[tuple[str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -266,13 +268,18 @@ class SegmentationEvaluation:
             "splits": {r.split: {"frames": r.frames, **r.scores.to_dict(), "by_height_m": [
                 {"height_m": h, "frames": n, **sc.to_dict()}
                 for h, (n, sc) in sorted(r.by_height_m.items())],
-                "objects": [asdict(o) for o in r.objects]} for r in self.rows},
+                "objects": [asdict(o) for o in r.objects],
+                "skipped_frames": [{"path": path, "error": error} for path, error in r.skipped],
+            } for r in self.rows},
         }
 
     def markdown(self) -> str:
         """Table II, then per split a table by drone height where frames have metadata."""
         parts = [markdown_table([self])]
         for row in self.rows:
+            if row.skipped:
+                parts.append(f"\n{row.split} split: {len(row.skipped)} frame(s) left out, "
+                             "unreadable:\n\n" + "".join(f"* {error}\n" for _, error in row.skipped))
             if row.by_height_m:
                 parts.append(f"\n{self.model.network}, {row.split} split, by drone height above "
                              "water:\n\n" + height_table(row))
@@ -301,6 +308,7 @@ def evaluate_segmentation(
     rows, sizes = [], []
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])
+        skipped = frames.drop_unreadable(instances=by_object)
         sizes.append(frames.common_size_hw())
         heights = height_bins_m(frames.records, height_bin_m) if height_bin_m > 0 else None
         objects: list[ObjectRecall] = []
@@ -321,7 +329,7 @@ def evaluate_segmentation(
         counts = Counter(h for h in heights or [] if h is not None)
         rows.append(SplitEvaluation(split, len(frames), total,
                                     {h: (counts[h], sc) for h, sc in by_height.items()},
-                                    summarise_objects(objects)))
+                                    summarise_objects(objects), skipped))
     frame_hw = max(set(sizes), key=sizes.count)
     fps = None
     if fps_seconds > 0:

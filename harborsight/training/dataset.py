@@ -9,6 +9,7 @@ model does not need the ``train`` extra.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections import Counter
 from collections.abc import Iterable, Sequence
@@ -71,12 +72,13 @@ def read_split_map(dataset_dir: Path) -> dict[str, str]:
 
 
 def _image_path(dataset_dir: Path, stem: str) -> Path:
+    """The frame's image; ``images/<stem>.png`` when none exists (reading it then fails
+    with the frame's name, so one missing image costs one frame, not the dataset)."""
     for suffix in IMAGE_SUFFIXES:
         candidate = dataset_dir / "images" / f"{stem}{suffix}"
         if candidate.is_file():
             return candidate
-    raise InputError(dataset_dir / "images" / f"{stem}.png", None,
-                     f"image file not found (frame {stem!r} is listed in dataset.json)")
+    return dataset_dir / "images" / f"{stem}.png"
 
 
 def list_frames(data_dirs: Iterable[str | Path], splits: Sequence[str] | None = None
@@ -107,6 +109,9 @@ def list_frames(data_dirs: Iterable[str | Path], splits: Sequence[str] | None = 
 
 def read_labelled_frame(record: FrameRecord) -> tuple[np.ndarray, np.ndarray]:
     """uint8 BGR image (H, W, 3) and uint8 labels (H, W) of one frame, validated."""
+    if not record.image_path.is_file():
+        raise InputError(record.image_path, None, f"image file not found (frame "
+                         f"{record.stem!r} is listed in dataset.json)")
     image = read_image(record.image_path)
     labels = read_mask(record.label_path)
     if labels.dtype != np.uint8:
@@ -166,6 +171,34 @@ class SegmentationFrames(Sequence):
 
     def __getitem__(self, index):  # Sequence protocol; slices are not needed
         return read_labelled_frame(self.records[index])
+
+    def drop_unreadable(self, instances: bool = False) -> list[tuple[str, str]]:
+        """Read every frame once (with ``instances``, its instance mask too) and leave out
+        those that fail, so that one bad file costs one frame and not a run hours later.
+        Returns ``(path, reason)`` of each frame left out."""
+        kept, dropped = [], []
+        for record in self.records:
+            try:
+                _, labels = read_labelled_frame(record)
+                if instances:
+                    read_instances(record, labels.shape)
+            except InputError as exc:
+                dropped.append((str(exc.source or record.label_path), str(exc)))
+            else:
+                kept.append(record)
+        if not kept:
+            raise InputError(", ".join(str(d) for d in self.data_dirs), "split",
+                             f"none of the {len(self.records)} frame(s) of split(s) "
+                             f"{list(self.splits or [])} is readable; first: {dropped[0][1]}")
+        self.records = kept
+        return dropped
+
+    def fingerprint(self) -> str:
+        """SHA-1 of the frames (dataset number and stem, in order): what a resumed run must
+        find again, since the sampling order depends on the frame count and order."""
+        number = {d: k for k, d in enumerate(self.data_dirs)}
+        names = "\n".join(f"{number[r.dataset_dir]}/{r.stem}" for r in self.records)
+        return hashlib.sha1(names.encode()).hexdigest()
 
     def instances(self, index: int, labels_hw: tuple[int, int]) -> np.ndarray:
         """uint16 object ids of frame ``index`` (:func:`read_instances`)."""

@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 import torch
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from harborsight.errors import HarborsightError, InputError
@@ -354,11 +355,17 @@ def load_initial_weights(model: SegmentationModel, config: TrainConfig) -> dict:
 
 
 def _truncate_log(path: Path, iteration: int) -> None:
-    """Drop log lines written after ``iteration`` (by a run that was then interrupted)."""
+    """Drop log lines written after ``iteration`` (by a run that was then interrupted), and
+    any line such a run left half-written when it was killed."""
     if not path.is_file():
         return
-    kept = [line for line in path.read_text().splitlines()
-            if line.strip() and json.loads(line)["iteration"] <= iteration]
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            if json.loads(line)["iteration"] <= iteration:
+                kept.append(line)
+        except (ValueError, KeyError, TypeError):
+            continue
     path.write_text("".join(f"{line}\n" for line in kept))
 
 
@@ -400,19 +407,35 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     checkpoint = None
     if resume:
         checkpoint = load_checkpoint(last_path)
-        _check_resume(TrainConfig.from_dict(checkpoint["config"]), config, last_path)
+        stored = TrainConfig.from_dict(checkpoint["config"])
+        _check_resume(stored, config, last_path)
+        if stored.iterations != config.iterations:
+            console.print(f"[yellow]note:[/] --iterations {stored.iterations} -> "
+                          f"{config.iterations}: the poly learning-rate schedule is stretched "
+                          "from here on, so this is no longer the run the first command "
+                          "described")
     elif last_path.exists():
         raise InputError(last_path, None, "a run already lives here: resume it (--resume) or "
                          "choose another --out")
 
     train_frames = SegmentationFrames(config.data_dirs, [config.train_split])
+    skipped = train_frames.drop_unreadable(instances=config.small_object_weight > 1.0)
     val_frames = None
     if config.val_every:
         try:
             val_frames = SegmentationFrames(config.data_dirs, [config.val_split])
+            skipped += val_frames.drop_unreadable()
         except InputError as exc:
             raise InputError(exc.source, exc.field, f"{exc.message} (train without validation "
                              "with --val-every 0)") from None
+    for _, reason in skipped:
+        console.print(f"[red]skipped frame[/] {escape(reason)}", highlight=False)
+    frames_id = {"count": len(train_frames), "sha1": train_frames.fingerprint()}
+    if checkpoint is not None and checkpoint.get("train_frames", frames_id) != frames_id:
+        then = checkpoint["train_frames"]["count"]
+        raise InputError(last_path, "train_frames", f"the training frames changed since the run "
+                         f"began ({then} then, {len(train_frames)} readable now): the sampling "
+                         "order would change; train the new set as a new run (--init-from)")
 
     torch.manual_seed(config.seed)
     model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True)).to(device)
@@ -453,6 +476,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             "optimizer": None, "scaler": None, "rng": None,
             "config": config.to_dict(), "command": config.command_line(), "frame_hw": frame_hw,
             "val_miou": val_miou, "best_val_miou": best_miou, "init_from": initial_weights,
+            "train_frames": frames_id, "skipped_frames": [path for path, _ in skipped],
         }
         if full:
             data["optimizer"] = optimizer.state_dict()
