@@ -185,6 +185,23 @@ def measure_args(out: Path) -> list[str]:
             "--out", str(out), "--no-tables"]
 
 
+def test_a_failed_export_leaves_the_previous_one_whole(trained_run, tiny_dataset, tmp_path):
+    out = tmp_path / "model.onnx"
+    args = ["export", "--checkpoint", str(trained_run / "best.pt"), "--out", str(out)]
+    assert runner.invoke(app, args).exit_code == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert set(before) == {"model.onnx", "model.json"}
+    data = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data)
+    for label in (data / "labels").iterdir():
+        label.write_bytes(b"broken")          # no calibration frame can be read
+    result = runner.invoke(app, [*args, "--int8", "--calibration-data", str(data)],
+                           terminal_width=200)
+    assert result.exit_code == 2 and "none of the" in result.output
+    after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name != "data"}
+    assert after == before                    # no new model beside an old sidecar, no scratch
+
+
 def test_measure_without_mask_uses_the_default_model(untrained_model, tmp_path, monkeypatch):
     monkeypatch.setattr(default_model, "default_model_path", lambda: tmp_path / "absent.onnx")
     result = runner.invoke(app, measure_args(tmp_path / "none"))

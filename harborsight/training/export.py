@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -92,10 +95,36 @@ def export_checkpoint(
     """Export a checkpoint to ONNX at ``height`` x ``width`` (default: its training frames'
     size), check it against torch and write the sidecar; with ``int8`` also quantise, calibrated
     on up to ``calibration_frames`` evenly spaced frames of the calibration data, and compare
-    fp32 and int8 mIoU on all of that data's selected frames."""
+    fp32 and int8 mIoU on all of that data's selected frames.
+
+    Every file is written in a scratch folder beside ``out_path`` and moved into place only
+    when all of them are done, so a failure never leaves a new model beside an old sidecar."""
     checkpoint_path, out_path = Path(checkpoint_path), Path(out_path)
     if out_path.suffix.lower() != ".onnx":
         raise InputError(out_path, None, "the output model must end in .onnx")
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f".{out_path.stem}-export-", dir=out_path.parent))
+    try:
+        result = _export(checkpoint_path, scratch / out_path.name, height, width, int8,
+                         calibration_dirs, calibration_splits, calibration_frames)
+        finals = {}
+        for path in (result.onnx_path, result.int8_path, result.sidecar_path):
+            if path is not None:
+                finals[path] = out_path.parent / path.name
+                os.replace(path, finals[path])
+        result.onnx_path, result.sidecar_path = finals[result.onnx_path], finals[result.sidecar_path]
+        if result.int8_path is not None:
+            result.int8_path = finals[result.int8_path]
+        return result
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _export(
+    checkpoint_path: Path, out_path: Path, height: int | None, width: int | None, int8: bool,
+    calibration_dirs: Sequence[str | Path] | None, calibration_splits: Sequence[str] | None,
+    calibration_frames: int,
+) -> ExportResult:
     if int8 and not calibration_dirs:
         raise InputError(None, "calibration_data", "int8 quantisation needs calibration frames "
                          "(--calibration-data DIR)")
@@ -110,6 +139,8 @@ def export_checkpoint(
     export_onnx(model, out_path, height, width, metadata)
 
     frames = SegmentationFrames(calibration_dirs, calibration_splits) if calibration_dirs else None
+    if frames is not None:
+        frames.drop_unreadable()
     if frames is not None:
         check = np.stack([_fit(frames[i][0], height, width) for i in _evenly_spaced(len(frames), 4)])
     else:
