@@ -264,3 +264,29 @@ def test_flat_world_masks_match_footprints_projected_by_opencv(dataset):
     assert interior.sum() > 0.5 * labels.size
     assert np.array_equal(labels[interior], expected[interior])
     assert set(np.unique(labels)) >= {0, 1}
+
+
+def test_a_frame_that_fails_unexpectedly_is_reported_and_the_rest_rendered(
+        dataset, tmp_path, monkeypatch):
+    import shutil
+
+    from harborsight.sim import dataset as sim_dataset
+
+    original = sim_dataset.FrameRenderer.render_files
+
+    def flaky(self, index):
+        if index == 1:
+            raise RuntimeError("Blender wrote no image")
+        return original(self, index)
+
+    monkeypatch.setattr(sim_dataset.FrameRenderer, "render_files", flaky)
+    out = tmp_path / "ds"
+    summary = simulate(out, 3, TINY)
+    assert [f.index for f in summary.failed] == [1]
+    assert "RuntimeError: Blender wrote no image" in summary.failed[0].error
+    assert sorted(p.stem for p in (out / "frames").glob("*.json")) == ["000000", "000002"]
+    broken = tmp_path / "broken"
+    shutil.copytree(out, broken)
+    (broken / "dataset.json").write_text("{broken")
+    with pytest.raises(InputError, match=r"broken/dataset.json: not valid JSON"):
+        simulate(broken, 3, TINY)

@@ -289,6 +289,8 @@ class FrameRenderer:
             result = self.render_files(index)
         except HarborsightError as exc:
             return FrameResult(index, 0.0, error=str(exc))
+        except Exception as exc:  # Blender, OpenCV, disk: one frame fails, the batch goes on
+            return FrameResult(index, 0.0, error=f"frame {index}: {type(exc).__name__}: {exc}")
         write_frame_files(self.out_dir, result.files)
         result.files = {}
         return result
@@ -382,7 +384,14 @@ class SimulationSummary:
 def _check_or_write_dataset_json(out_dir: Path, config: SimulationConfig) -> None:
     path = out_dir / "dataset.json"
     if path.is_file():
-        doc = json.loads(path.read_text())
+        try:
+            doc = json.loads(path.read_text())
+        except ValueError as exc:
+            raise InputError(path, None, f"not valid JSON ({exc}): repair or remove it, or use "
+                             "another --out") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("parameters", {}), dict):
+            raise InputError(path, "parameters", "expected an object of simulation parameters: "
+                             "is this a harborsight dataset?")
         defaults = SimulationConfig(seed=config.seed).to_dict()  # keys added since
         old = {**defaults, **doc.get("parameters", {})}
         new = config.to_dict()
