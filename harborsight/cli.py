@@ -945,6 +945,8 @@ def export_command(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
+    for _, error in result.skipped_frames:
+        err_console.print(f"[red]skipped calibration frame[/] {escape(error)}", highlight=False)
     console.print(f"ONNX: {result.onnx_path}\nsidecar: {result.sidecar_path}")
     relative = result.max_abs_difference / max(result.max_abs_logit, 1e-12)
     console.print(f"ONNX Runtime vs torch: max |logit difference| {result.max_abs_difference:.2e} "

@@ -185,20 +185,27 @@ def measure_args(out: Path) -> list[str]:
             "--out", str(out), "--no-tables"]
 
 
-def test_a_failed_export_leaves_the_previous_one_whole(trained_run, tiny_dataset, tmp_path):
-    out = tmp_path / "model.onnx"
-    args = ["export", "--checkpoint", str(trained_run / "best.pt"), "--out", str(out)]
-    assert runner.invoke(app, args).exit_code == 0
-    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
-    assert set(before) == {"model.onnx", "model.json"}
+def test_export_lists_unreadable_calibration_frames_and_a_failure_keeps_the_previous_export(
+        trained_run, tiny_dataset, tmp_path):
     data = tmp_path / "data"
     shutil.copytree(tiny_dataset, data)
-    for label in (data / "labels").iterdir():
+    labels = sorted((data / "labels").iterdir())
+    labels[0].write_bytes(b"broken")
+    out = tmp_path / "model" / "model.onnx"
+    args = ["export", "--checkpoint", str(trained_run / "best.pt"), "--out", str(out), "--int8",
+            "--calibration-data", str(data)]
+    result = runner.invoke(app, args, terminal_width=300)
+    assert result.exit_code == 0, result.output
+    assert "skipped calibration frame" in result.output and labels[0].name in result.output
+    sidecar = json.loads(out.with_suffix(".json").read_text())
+    assert [Path(p).name for p in sidecar["int8"]["skipped_frames"]] == [labels[0].name]
+    before = {p.name: p.read_bytes() for p in out.parent.iterdir()}
+    assert set(before) == {"model.onnx", "model.int8.onnx", "model.json"}
+    for label in labels:
         label.write_bytes(b"broken")          # no calibration frame can be read
-    result = runner.invoke(app, [*args, "--int8", "--calibration-data", str(data)],
-                           terminal_width=200)
+    result = runner.invoke(app, args, terminal_width=300)
     assert result.exit_code == 2 and "none of the" in result.output
-    after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name != "data"}
+    after = {p.name: p.read_bytes() for p in out.parent.iterdir()}
     assert after == before                    # no new model beside an old sidecar, no scratch
 
 

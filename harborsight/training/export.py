@@ -15,7 +15,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -56,6 +56,8 @@ class ExportResult:
     miou_int8: float | None = None
     int8_label_agreement: float | None = None     # share of pixels where both models agree
     sidecar: dict | None = None
+    #: ``(path, reason)`` of calibration frames left out because they could not be read
+    skipped_frames: list[tuple[str, str]] = field(default_factory=list)
 
 
 def _evenly_spaced(n_items: int, n_pick: int) -> list[int]:
@@ -139,8 +141,7 @@ def _export(
     export_onnx(model, out_path, height, width, metadata)
 
     frames = SegmentationFrames(calibration_dirs, calibration_splits) if calibration_dirs else None
-    if frames is not None:
-        frames.drop_unreadable()
+    skipped = frames.drop_unreadable() if frames is not None else []
     if frames is not None:
         check = np.stack([_fit(frames[i][0], height, width) for i in _evenly_spaced(len(frames), 4)])
     else:
@@ -148,7 +149,8 @@ def _export(
     with torch.no_grad():
         difference = onnx_max_abs_difference(model, out_path, check)
         scale = max(float(model(torch.from_numpy(img[None])).abs().max()) for img in check)
-    result = ExportResult(out_path, sidecar_path(out_path), difference, scale)
+    result = ExportResult(out_path, sidecar_path(out_path), difference, scale,
+                          skipped_frames=skipped)
 
     if int8 and frames is not None:
         result.int8_path = out_path.with_name(f"{out_path.stem}.int8.onnx")
@@ -196,6 +198,7 @@ def _export(
             "calibration_data": [str(d) for d in calibration_dirs],
             "miou_fp32": result.miou_fp32, "miou_int8": result.miou_int8,
             "label_agreement": result.int8_label_agreement,
+            "skipped_frames": [path for path, _ in skipped],
         },
     }
     result.sidecar_path.write_text(json.dumps(result.sidecar, indent=2) + "\n")
