@@ -200,8 +200,9 @@ def true_obstacle_mask(dataset: Path, frame: dict) -> np.ndarray | None:
     except HarborsightError:
         return None
     solid = labels != 0
-    instances = cv2.imread(str(dataset / "instances" / f"{Path(frame['image']).stem}.png"),
-                           cv2.IMREAD_UNCHANGED)
+    instances_path = dataset / "instances" / f"{Path(frame['image']).stem}.png"
+    instances = (cv2.imread(str(instances_path), cv2.IMREAD_UNCHANGED)
+                 if instances_path.is_file() else None)
     if instances is not None and instances.shape == labels.shape:
         solid &= instances != 1                  # instance 1 is the vessel of interest
     size = 2 * POINT_TOLERANCE_PX + 1
