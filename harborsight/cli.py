@@ -731,6 +731,10 @@ def evaluate_segmentation_command(
             console.print(_scores_table(
                 f"{row.split} by drone height", "height m",
                 [(f"{h:g}", n, sc) for h, (n, sc) in sorted(row.by_height_m.items())]))
+            if row.frames_without_height:
+                console.print(f"{row.split}: {row.frames_without_height} frame(s) without "
+                              "readable metadata are in the totals, not in the table by height",
+                              highlight=False)
         if row.objects:
             from harborsight.evaluation.objects import markdown_object_table
 

@@ -125,6 +125,25 @@ def test_sections_csv_reads_back(tmp_path):
     assert summarise(again)[0].missed == 1
 
 
+def test_altitude_summary_statistics_match_the_statistics_module():
+    import statistics
+
+    from harborsight.evaluation.distance import SectionResult, summarise
+
+    pairs = [(2.5, 2.4), (3.0, 4.0), (10.0, 7.5), (1.0, 1.0), (6.2, 5.0)]
+    results = [SectionResult("f", 60.0, "oracle", "ground_plane", i, "ok", est, truth, 0.05,
+                             False, False) for i, (est, truth) in enumerate(pairs)]
+    results.append(SectionResult("g", 70.0, "oracle", "ground_plane", 0, "ok", 3.0, 2.0, 0.05,
+                                 False, False))
+    errors = [abs(est - truth) for est, truth in pairs]
+    at_60, at_70 = summarise(results)
+    assert at_60.mae_m == pytest.approx(statistics.fmean(errors))
+    assert at_60.std_m == pytest.approx(statistics.stdev(errors))  # the sample std (n - 1)
+    assert at_60.median_m == pytest.approx(statistics.median(errors))
+    assert at_60.over_1m_share == pytest.approx(2 / 5)
+    assert at_70.n == 1 and at_70.mae_m == pytest.approx(1.0) and at_70.std_m is None
+
+
 def test_true_nearest_obstacle_kinds_follow_the_scenarios():
     kinds_of = truth_obstacle_kinds(SAMPLES)
     kinds = {}

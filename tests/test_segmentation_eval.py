@@ -136,6 +136,8 @@ def test_cli_leaves_out_an_unreadable_frame_and_scores_the_rest(trained_run, tin
     split_map = json.loads((data / "dataset.json").read_text())["split"]
     broken = sorted(s for s, split in split_map.items() if split == "test")[0]
     (data / "labels" / f"{broken}.png").write_bytes(b"\x89PNG truncated")
+    no_metadata = sorted(s for s, split in split_map.items() if split == "val")[0]
+    (data / "frames" / f"{no_metadata}.json").write_text("{ not json")
     result = runner.invoke(app, [
         "evaluate", "segmentation", "--model", str(trained_run / "best.pt"), "--data", str(data),
         "--split", "val", "--split", "test", "--json", str(tmp_path / "m.json"),
@@ -145,7 +147,14 @@ def test_cli_leaves_out_an_unreadable_frame_and_scores_the_rest(trained_run, tin
     assert report["splits"]["val"]["frames"] == 2 and report["splits"]["test"]["frames"] == 1
     [skipped] = report["splits"]["test"]["skipped_frames"]
     assert skipped["path"].endswith(f"labels/{broken}.png") and "cannot decode" in skipped["error"]
-    assert "1 frame(s) left out" in (tmp_path / "m.md").read_text()
+    markdown = (tmp_path / "m.md").read_text()
+    assert "1 frame(s) left out" in markdown
+    # a frame whose metadata cannot be read is scored, and said to be missing from the heights
+    val = report["splits"]["val"]
+    assert val["frames_without_height"] == 1 and report["splits"]["test"]["frames_without_height"] == 0
+    assert sum(b["frames"] for b in val["by_height_m"]) == 1
+    assert "1 frame(s) without readable metadata" in markdown
+    assert "1 frame(s) without readable metadata" in result.output
 
 
 def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_path):

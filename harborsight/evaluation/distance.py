@@ -305,6 +305,7 @@ class AltitudeSummary:
     method: str
     n: int
     mae_m: float | None
+    #: sample standard deviation of the absolute errors (n - 1 in the denominator); None below n = 2
     std_m: float | None
     median_m: float | None
     p95_m: float | None
@@ -326,7 +327,8 @@ def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
         some = len(errors) > 0
         rows.append(AltitudeSummary(
             altitude, masks, method, len(errors),
-            float(errors.mean()) if some else None, float(errors.std()) if some else None,
+            float(errors.mean()) if some else None,
+            float(errors.std(ddof=1)) if len(errors) > 1 else None,
             float(np.median(errors)) if some else None,
             float(np.percentile(errors, 95)) if some else None,
             float(np.mean(errors > 1.0)) if some else None,
@@ -541,7 +543,8 @@ def markdown_table(rows: list[AltitudeSummary]) -> str:
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         share = "—" if r.over_1m_share is None else f"{100 * r.over_1m_share:.1f} %"
-        mae = "—" if r.mae_m is None else f"{r.mae_m:.2f} ± {r.std_m:.2f}"
+        mae = "—" if r.mae_m is None else f"{r.mae_m:.2f}" + (
+            "" if r.std_m is None else f" ± {r.std_m:.2f}")
         lines.append(f"| {r.masks} | {r.method} | {r.altitude_m:.0f} | {r.n} | {mae} | "
                      f"{_fmt(r.median_m)} | {_fmt(r.median_px)} | {_fmt(r.p95_m)} | {share} | "
                      f"{r.missed} | {r.false} |")

@@ -248,6 +248,8 @@ class SplitEvaluation:
     objects: list[ObjectSummary] = field(default_factory=list)
     #: ``(path, reason)`` of each frame left out because a file of it could not be read
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    #: frames scored in the totals but missing from ``by_height_m``: no readable metadata
+    frames_without_height: int = 0
 
 
 @dataclass
@@ -268,6 +270,7 @@ class SegmentationEvaluation:
             "splits": {r.split: {"frames": r.frames, **r.scores.to_dict(), "by_height_m": [
                 {"height_m": h, "frames": n, **sc.to_dict()}
                 for h, (n, sc) in sorted(r.by_height_m.items())],
+                "frames_without_height": r.frames_without_height,
                 "objects": [asdict(o) for o in r.objects],
                 "skipped_frames": [{"path": path, "error": error} for path, error in r.skipped],
             } for r in self.rows},
@@ -329,7 +332,8 @@ def evaluate_segmentation(
         counts = Counter(h for h in heights or [] if h is not None)
         rows.append(SplitEvaluation(split, len(frames), total,
                                     {h: (counts[h], sc) for h, sc in by_height.items()},
-                                    summarise_objects(objects), skipped))
+                                    summarise_objects(objects), skipped,
+                                    sum(h is None for h in heights) if heights else 0))
     frame_hw = max(set(sizes), key=sizes.count)
     fps = None
     if fps_seconds > 0:
@@ -375,4 +379,7 @@ def height_table(row: SplitEvaluation) -> str:
         cells = [f"{height_m:g}", str(n), _percent(scores.mean_accuracy),
                  *(_percent(scores.iou[c]) for _, c in TABLE_IOU_COLUMNS), _percent(scores.miou)]
         lines.append("| " + " | ".join(cells) + " |")
+    if row.frames_without_height:
+        lines.append(f"\n{row.frames_without_height} frame(s) without readable metadata "
+                     "(frames/<stem>.json) count in the totals but not in this table.")
     return "\n".join(lines) + "\n"

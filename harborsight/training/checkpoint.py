@@ -32,13 +32,17 @@ AUX_STATE_PREFIX = "network.aux_heads."
 
 
 def save_checkpoint(path: str | Path, payload: dict) -> Path:
-    """``torch.save`` to a temporary file beside ``path``, then rename over it (atomic on
-    POSIX), so a crash mid-write never leaves a truncated checkpoint."""
+    """``torch.save`` to a temporary file beside ``path``, flush it to disk (fsync), then
+    rename over it (atomic on POSIX), so neither a crash mid-write nor a power loss just after
+    the rename leaves a truncated checkpoint."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        torch.save(payload, tmp)
+        with open(tmp, "wb") as stream:
+            torch.save(payload, stream)
+            stream.flush()
+            os.fsync(stream.fileno())
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
