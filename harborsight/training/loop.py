@@ -27,7 +27,7 @@ weights: optimiser, schedule and sampling start at iteration 0, as in a fresh ru
 
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
-and per validation).
+and per validation, written line by line).
 """
 
 from __future__ import annotations
@@ -506,8 +506,10 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                           "keep {task.fields[keep]:.0%}  val mIoU {task.fields[miou]}"),
                TimeRemainingColumn()]
     t0 = time.perf_counter()
-    with log_path.open("a") as log, Progress(*columns, console=console, disable=not show_progress,
-                                             transient=False) as progress:
+    # line-buffered: each iteration's line is on disk at once, for `tail -f` and after a kill
+    log = log_path.open("a", buffering=1)
+    with log, Progress(*columns, console=console, disable=not show_progress,
+                       transient=False) as progress:
         task = progress.add_task("train", total=config.iterations, completed=start, net=config.model,
                                  loss=math.nan, lr=config.lr, keep=1.0,
                                  miou="—" if val_miou is None else f"{val_miou:.3f}")

@@ -1,0 +1,141 @@
+"""Autopilot flight logs: PX4 ULog (``.ulg``, read with pyulog) and ArduPilot DataFlash
+(``.bin``, read with pymavlink's DFReader).
+
+Both give the airframe's GPS position and its attitude (body FRD axes relative to NED), on the
+autopilot's boot clock (``t_s`` = seconds since boot), and the UTC time of that clock from the
+GPS: PX4's ``time_utc_usec``, ArduPilot's GPS week and milliseconds (``GWk``, ``GMS``; GPS time
+runs ahead of UTC by the leap seconds, 18 s since 2017).
+
+Topics and messages read:
+
+* PX4: ``vehicle_gps_position`` (``lat``/``lon`` in 1e-7 deg and ``alt`` in mm above mean sea
+  level on older firmware; degrees and metres on newer) for position; ``vehicle_attitude``
+  (quaternion ``q``, body FRD -> NED) for attitude; ``sensor_gps`` where the GPS topic has that
+  name (PX4 1.14 on).
+* ArduPilot: ``GPS`` (``Lat``, ``Lng`` in degrees, ``Alt`` in m above mean sea level, ``GWk``,
+  ``GMS``) and ``ATT`` (``Roll``, ``Pitch``, ``Yaw`` in degrees).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from harborsight.errors import InputError
+from harborsight.telemetry.track import Track, utc_from_epoch_s
+
+#: GPS time = UTC + leap seconds; 18 s since 2017-01-01 (IERS Bulletin C: none added since).
+GPS_LEAP_SECONDS = 18
+GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
+
+
+def _attitude_fields(t_s: np.ndarray | None, ypr_deg: np.ndarray | None) -> dict:
+    """Track keyword arguments for a vehicle attitude on its own time axis."""
+    if t_s is None:
+        return {}
+    return {"attitude_t_s": t_s, "yaw_deg": ypr_deg[:, 0], "pitch_deg": ypr_deg[:, 1],
+            "roll_deg": ypr_deg[:, 2], "attitude_of": "vehicle"}
+
+
+def read_px4_ulog(path: str | Path) -> Track:
+    """A PX4 ``.ulg`` log's GPS track with the vehicle attitude at each GPS sample."""
+    from pyulog import ULog
+
+    path = Path(path)
+    topics = ["vehicle_gps_position", "sensor_gps", "vehicle_attitude"]
+    try:
+        ulog = ULog(str(path), topics)
+    except Exception as exc:  # pyulog raises plain Exceptions and struct errors on foreign files
+        raise InputError(path, None, f"not a readable PX4 ULog: {exc}") from None
+    datasets = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
+    gps = datasets.get("vehicle_gps_position", datasets.get("sensor_gps"))
+    if gps is None:
+        raise InputError(path, "vehicle_gps_position", "the log has no GPS topic "
+                         "(vehicle_gps_position or sensor_gps)")
+    notes = []
+    t_s = gps["timestamp"].astype(float) / 1e6
+    good = np.ones(len(t_s), bool)
+    if "fix_type" in gps:
+        good &= gps["fix_type"] >= 3
+        if (~good).any():
+            notes.append(f"{int((~good).sum())} GPS sample(s) without a 3-D fix skipped")
+    if "latitude_deg" in gps:                   # PX4 1.14 on: degrees and metres
+        lat, lon = gps["latitude_deg"].astype(float), gps["longitude_deg"].astype(float)
+        alt = gps["altitude_msl_m"].astype(float)
+    else:                                       # older messages: 1e-7 deg and mm
+        lat, lon = gps["lat"].astype(float) * 1e-7, gps["lon"].astype(float) * 1e-7
+        alt = gps["alt"].astype(float) * 1e-3
+    utc_start = None
+    if "time_utc_usec" in gps:
+        utc_us = gps["time_utc_usec"].astype(float)
+        synced = good & (utc_us > 0)
+        if synced.any():
+            offset_s = np.median(utc_us[synced] / 1e6 - t_s[synced])
+            utc_start = utc_from_epoch_s(offset_s)
+    ypr = att_t_s = None
+    att = datasets.get("vehicle_attitude")
+    if att is not None and len(att["timestamp"]):
+        quat_wxyz = np.column_stack([att[f"q[{i}]"] for i in range(4)]).astype(float)
+        rotation = Rotation.from_quat(quat_wxyz[:, [1, 2, 3, 0]])    # scipy wants x, y, z, w
+        ypr = rotation.as_euler("ZYX", degrees=True)                 # R_NED<-B = Rz Ry Rx
+        att_t_s = att["timestamp"].astype(float) / 1e6
+    else:
+        notes.append("no vehicle_attitude topic: no attitude")
+    return Track(
+        source=path, kind="px4-ulog", t_s=t_s[good], lat_deg=lat[good], lon_deg=lon[good],
+        alt_m=alt[good], alt_reference="GPS altitude above mean sea level",
+        **_attitude_fields(att_t_s, ypr), utc_start=utc_start,
+        clock="seconds since the autopilot booted", notes=notes,
+    )
+
+
+def read_ardupilot_bin(path: str | Path) -> Track:
+    """An ArduPilot DataFlash ``.bin`` log's GPS track with ``ATT`` attitude at each sample."""
+    from pymavlink import DFReader
+
+    path = Path(path)
+    try:
+        log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    except Exception as exc:  # DFReader raises assorted errors on foreign files
+        raise InputError(path, None, f"not a readable ArduPilot DataFlash log: {exc}") from None
+    gps_rows, att_rows, unfixed = [], [], 0
+    while True:
+        try:
+            message = log.recv_match(type=["GPS", "ATT"])
+        except Exception as exc:  # a torn record at the end of a log cut by power loss
+            raise InputError(path, None, f"unreadable record after {len(gps_rows)} GPS "
+                             f"sample(s): {exc}") from None
+        if message is None:
+            break
+        if message.get_type() == "GPS":
+            if getattr(message, "Status", 3) < 3:
+                unfixed += 1
+                continue
+            gps_rows.append((message.TimeUS / 1e6, message.Lat, message.Lng, message.Alt,
+                             message.GWk, message.GMS))
+        else:
+            att_rows.append((message.TimeUS / 1e6, message.Yaw, message.Pitch, message.Roll))
+    if not gps_rows:
+        raise InputError(path, "GPS", "the log has no GPS message with a 3-D fix")
+    gps = np.array(gps_rows, dtype=float)
+    notes = [f"{unfixed} GPS sample(s) without a 3-D fix skipped"] if unfixed else []
+    t_s = gps[:, 0]
+    utc_start = None
+    weeks, ms = gps[:, 4], gps[:, 5]
+    if (weeks > 0).any():
+        gps_time_s = weeks * 7 * 86400 + ms / 1000.0 - GPS_LEAP_SECONDS
+        offset_s = float(np.median(gps_time_s[weeks > 0] - t_s[weeks > 0]))
+        utc_start = GPS_EPOCH + timedelta(seconds=offset_s)
+    att = np.array(att_rows, dtype=float) if att_rows else None
+    if att is None:
+        notes.append("no ATT messages: no attitude")
+    return Track(
+        source=path, kind="ardupilot-bin", t_s=t_s, lat_deg=gps[:, 1], lon_deg=gps[:, 2],
+        alt_m=gps[:, 3], alt_reference="GPS altitude above mean sea level",
+        **_attitude_fields(None if att is None else att[:, 0], None if att is None else att[:, 1:]),
+        utc_start=utc_start,
+        clock="seconds since the autopilot booted", notes=notes,
+    )

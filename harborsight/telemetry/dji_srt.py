@@ -1,0 +1,163 @@
+"""DJI video telemetry: the ``.SRT`` subtitle file a DJI drone records beside each video.
+
+Each subtitle block carries one sample; its start timecode is the video time it belongs to.
+Firmware families write different text (all seen in real files):
+
+* ``[latitude: 41.424724] [longitude: 2.234156] [rel_alt: 1.3 abs_alt: 132.8]`` or
+  ``[altitude: 117.0]`` (Mini 3/4, Air 2, Air 2S, Mavic 3, ...); Mavic 2 / Air 2 firmware spell
+  ``[longtitude : ...]``, and their Mavic 2 style files have no timecodes at all;
+* ``GPS(149.0251,-20.2533,16) BAROMETER:1.9`` (Mavic Pro, P4; ``Hb:`` on older firmware) and
+  ``GPS (8.2090, 47.4692, 18), ... H 45.60m`` (P4P, P4 RTK, Mavic Mini). ``GPS(...)`` is
+  **longitude first**, then latitude, then satellites (or an altitude with ``M``), as in DJI's
+  HOME(...) fields and JuanIrache's DJI_SRT_Parser;
+* ``G.PRY (pitch°, roll°, yaw°)``: the gimbal's attitude (P4 RTK), the only SRT attitude;
+  ``F.PRY`` is the airframe's.
+
+Altitudes: ``rel_alt``, ``BAROMETER``, ``Hb`` and ``H`` are barometric heights above the
+take-off point; ``abs_alt`` is above mean sea level. A ``[altitude: ...]`` field's datum is not
+documented by DJI; the track says so and the operator sets ``water_level_m`` accordingly.
+
+Date lines are the drone's local time, with no zone: they become UTC only with a given
+``utc_offset_h``.
+"""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.telemetry.track import Track
+
+_NUMBER = r"[-+]?\d+(?:\.\d+)?"
+_TIMECODE = re.compile(r"^(\d+):(\d{2}):(\d{2})[,.](\d{3})\s*-->\s*(\d+):(\d{2}):(\d{2})[,.](\d{3})")
+_BRACKET = re.compile(r"\b(latitude|longitude|longtitude|rel_alt|abs_alt|altitude)\s*:\s*(" + _NUMBER + ")",
+                      re.IGNORECASE)
+_GPS = re.compile(r"\bGPS\s*\(\s*(" + _NUMBER + r")\s*,\s*(" + _NUMBER + r")\s*(?:,\s*(" + _NUMBER
+                  + r")\s*(M)?)?\s*\)", re.IGNORECASE)
+_BARO = re.compile(r"\b(?:BAROMETER\s*:\s*|Hb\s*:\s*|H\s+)(" + _NUMBER + r")\s*m?\b", re.IGNORECASE)
+_PRY = re.compile(r"\b([GF])\.PRY\s*\(\s*(" + _NUMBER + r")\s*°?\s*,\s*(" + _NUMBER + r")\s*°?\s*,\s*("
+                  + _NUMBER + r")\s*°?\s*\)", re.IGNORECASE)
+_DATE = re.compile(r"\b(\d{4})[-.](\d{1,2})[-.](\d{1,2})\s+(\d{1,2}):(\d{2}):(\d{2})"
+                   r"(?:[,.](\d{3})(?:[,.](\d{3}))?)?")
+_TAGS = re.compile(r"<[^>]*>")
+
+
+def _blocks(text: str) -> list[tuple[int, list[str]]]:
+    """Blank-line separated blocks with the 1-based line number of their first line."""
+    blocks, current, start = [], [], 0
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = _TAGS.sub("", line).strip()
+        if not line:
+            if current:
+                blocks.append((start, current))
+            current = []
+            continue
+        if not current:
+            start = number
+        current.append(line)
+    if current:
+        blocks.append((start, current))
+    return blocks
+
+
+def _parse_date(match: re.Match) -> datetime:
+    year, month, day, hour, minute, second, ms, us = match.groups()
+    micro = int(ms or 0) * 1000 + int(us or 0)
+    return datetime(int(year), int(month), int(day), int(hour), int(minute), int(second), micro)
+
+
+def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
+    """Read a DJI ``.SRT`` file into a :class:`Track`; blocks without a position are skipped
+    and counted in ``notes``. Raises :class:`InputError` when no block has one."""
+    path = Path(path)
+    try:
+        text = path.read_bytes().decode("utf-8-sig", errors="replace")
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    rows: list[dict] = []
+    skipped: list[int] = []
+    for line_number, lines in _blocks(text):
+        row: dict = {"line": line_number}
+        body = []
+        for line in lines:
+            if (m := _TIMECODE.match(line)) is not None:
+                h, mi, s, ms = (int(g) for g in m.groups()[:4])
+                row["video_s"] = h * 3600 + mi * 60 + s + ms / 1000.0
+            elif line.isdigit() and "video_s" not in row and not body:
+                continue                                   # the block's counter
+            else:
+                body.append(line)
+        content = " ".join(body)
+        for key, value in _BRACKET.findall(content):
+            key = key.lower().replace("longtitude", "longitude")
+            row[key] = float(value)
+        if (m := _GPS.search(content)) is not None:
+            row.setdefault("longitude", float(m.group(1)))
+            row.setdefault("latitude", float(m.group(2)))
+            if m.group(4) and m.group(3) is not None:
+                row["gps_alt"] = float(m.group(3))
+        if (m := _BARO.search(content)) is not None:
+            row["baro_alt"] = float(m.group(1))
+        for which, pitch, roll, yaw in _PRY.findall(content):
+            if which.upper() == "G":
+                row["gimbal"] = (float(yaw), float(pitch), float(roll))
+        if (m := _DATE.search(content)) is not None:
+            row["date"] = _parse_date(m)
+        if "latitude" in row and "longitude" in row and (row["latitude"], row["longitude"]) != (0.0, 0.0):
+            rows.append(row)
+        else:
+            skipped.append(line_number)
+    if not rows:
+        raise InputError(path, None, "no DJI telemetry block with a position (latitude/longitude "
+                         "or GPS(...)); is this a DJI .SRT file?")
+
+    if all("video_s" in r for r in rows):
+        t_s = np.array([r["video_s"] for r in rows])
+        clock = "video time (subtitle start timecodes)"
+    elif all("date" in r for r in rows):
+        first = rows[0]["date"]
+        t_s = np.array([(r["date"] - first).total_seconds() for r in rows])
+        clock = "seconds since the first date line (the file has no timecodes)"
+    else:
+        raise InputError(path, None, "blocks have neither timecodes nor date lines throughout: "
+                         "no time for the samples")
+
+    altitude, reference = None, None
+    for key, words in (("rel_alt", "barometric height above the take-off point (rel_alt)"),
+                       ("baro_alt", "barometric height above the take-off point"),
+                       ("abs_alt", "above mean sea level (abs_alt)"),
+                       ("altitude", "DJI 'altitude' field (datum not documented by DJI)"),
+                       ("gps_alt", "GPS altitude")):
+        if all(key in r for r in rows):
+            altitude, reference = np.array([r[key] for r in rows]), words
+            break
+    gimbal = np.array([r["gimbal"] for r in rows]) if all("gimbal" in r for r in rows) else None
+
+    notes = []
+    if skipped:
+        shown = ", ".join(str(n) for n in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
+        notes.append(f"{len(skipped)} block(s) without a position skipped "
+                     f"(line{'s' if len(skipped) > 1 else ''} {shown})")
+    utc_start = None
+    if "date" in rows[0]:
+        local_start = rows[0]["date"] - timedelta(seconds=float(t_s[0]))
+        if utc_offset_h is not None:
+            utc_start = (local_start - timedelta(hours=utc_offset_h)).replace(tzinfo=UTC)
+        else:
+            notes.append(f"date lines are local time ({local_start.isoformat()} at t = 0); "
+                         "give the UTC offset to place them in UTC")
+    return Track(
+        source=path, kind="dji-srt", t_s=t_s,
+        lat_deg=np.array([r["latitude"] for r in rows]),
+        lon_deg=np.array([r["longitude"] for r in rows]),
+        alt_m=altitude, alt_reference=reference,
+        yaw_deg=None if gimbal is None else gimbal[:, 0],
+        pitch_deg=None if gimbal is None else gimbal[:, 1],
+        roll_deg=None if gimbal is None else gimbal[:, 2],
+        attitude_of=None if gimbal is None else "gimbal",
+        utc_start=utc_start, clock=clock, notes=notes,
+    )

@@ -1,0 +1,158 @@
+"""Per-frame ``harborsight.frame/1`` metadata for a video, from the drone's log and the vessel's
+track: what ``harborsight run VIDEO --metadata FILE.jsonl`` reads.
+
+Time. Frame *n* of a video at ``fps`` is ``n / fps`` seconds into it. A DJI SRT runs on the
+video's clock, so the drone is sampled at that time directly; an autopilot log runs on its boot
+clock, so the video's UTC start is needed to place the frame on it. The vessel track is in UTC:
+the frame's UTC time is the video's start (given, or the SRT's date lines with their UTC
+offset) plus ``n / fps``, plus ``vessel_offset_s`` for a vessel clock known to be off.
+
+Camera attitude (``CameraMount``):
+
+* ``gimbal``: the log's gimbal attitude (DJI ``G.PRY``), as is;
+* ``stabilised``: a gimbal holding ``pitch_deg`` (−90: straight down) with no roll, its yaw the
+  airframe's yaw, or ``yaw_deg`` where the log has no attitude (DJI SRTs mostly have none);
+* ``rigid``: a camera fixed to the airframe, pitched ``pitch_deg`` about the body's right axis:
+  ``R_NED<-G = R_NED<-B · Ry(pitch)``, whose ZYX Euler angles are written (scipy; at exactly
+  −90° pitch the split between yaw and roll is arbitrary and the rotation still exact).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from harborsight.errors import InputError
+from harborsight.telemetry.track import Track
+
+MOUNTS = ("auto", "gimbal", "stabilised", "rigid")
+
+
+@dataclass(frozen=True)
+class CameraMount:
+    mode: str = "auto"              # auto: gimbal where the log has one, else stabilised
+    pitch_deg: float = -90.0
+    yaw_deg: float | None = None    # a fixed camera yaw, for logs without attitude
+
+    def resolve(self, drone: Track) -> str:
+        if self.mode not in MOUNTS:
+            raise ValueError(f"camera mount {self.mode!r}: expected one of {', '.join(MOUNTS)}")
+        if self.mode == "auto":
+            return "gimbal" if drone.attitude_of == "gimbal" and self.yaw_deg is None else "stabilised"
+        return self.mode
+
+
+def camera_attitude_deg(drone: Track, samples: dict[str, np.ndarray], mount: CameraMount
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Camera yaw, pitch, roll (NED ZYX Euler, degrees) per sample; NaN where unknown."""
+    n = len(samples["lat_deg"])
+    mode = mount.resolve(drone)
+    has_attitude = drone.has_attitude and "yaw_deg" in samples
+    if mode == "gimbal":
+        if drone.attitude_of != "gimbal":
+            raise InputError(drone.source, "attitude", "the log has no gimbal attitude; use the "
+                             "stabilised or rigid camera mount")
+        return samples["yaw_deg"], samples["pitch_deg"], samples.get("roll_deg", np.zeros(n))
+    if mount.yaw_deg is not None:
+        yaw = np.full(n, float(mount.yaw_deg))
+    elif has_attitude:
+        yaw = samples["yaw_deg"]
+    else:
+        raise InputError(drone.source, "attitude", "the log has no attitude: give the camera's "
+                         "yaw (degrees clockwise from true north)")
+    if mode == "stabilised":
+        return yaw, np.full(n, float(mount.pitch_deg)), np.zeros(n)
+    if not has_attitude or drone.attitude_of != "vehicle":
+        raise InputError(drone.source, "attitude", "a rigid mount needs the airframe's attitude "
+                         "(PX4 vehicle_attitude or ArduPilot ATT)")
+    body = np.column_stack([samples["yaw_deg"], samples["pitch_deg"], samples["roll_deg"]])
+    out = np.full((n, 3), np.nan)
+    finite = np.isfinite(body).all(axis=1)
+    if finite.any():
+        ned_from_body = Rotation.from_euler("ZYX", body[finite], degrees=True)
+        mount_rotation = Rotation.from_euler("Y", float(mount.pitch_deg), degrees=True)
+        with warnings.catch_warnings():     # gimbal lock at -90 deg: yaw absorbs the roll
+            warnings.simplefilter("ignore", UserWarning)
+            out[finite] = (ned_from_body * mount_rotation).as_euler("ZYX", degrees=True)
+    return out[:, 0], out[:, 1], out[:, 2]
+
+
+@dataclass
+class FrameMetadataResult:
+    frames: list[dict]                      # one harborsight.frame/1 object per usable frame
+    skipped: list[tuple[int, str]]          # (frame index, reason)
+    mount: str
+
+
+def build_video_metadata(
+    drone: Track, vessel: Track, camera: dict, n_frames: int, fps: float, *,
+    water_level_m: float, mount: CameraMount = CameraMount(),
+    video_start_utc: datetime | None = None, vessel_offset_s: float = 0.0,
+    max_gap_s: float = 1.0,
+) -> FrameMetadataResult:
+    """One ``harborsight.frame/1`` dict per frame of the video (``frame_index`` keyed), with
+    the drone and vessel sampled at the frame's time. A frame whose time falls outside a track
+    or in a gap longer than ``max_gap_s`` is skipped with the reason."""
+    if n_frames < 1 or not (fps > 0):
+        raise ValueError("need at least one frame and a positive frame rate")
+    if drone.alt_m is None:
+        raise InputError(drone.source, "altitude", "the log has no altitude")
+    video_s = np.arange(n_frames) / fps
+    if drone.kind == "dji-srt":
+        drone_t = video_s
+        start_utc = video_start_utc or drone.utc_at(0.0)
+    else:
+        if video_start_utc is None:
+            raise InputError(drone.source, None, "an autopilot log runs on its own clock: give "
+                             "the video's start time in UTC to place the frames on it")
+        if drone.utc_start is None:
+            raise InputError(drone.source, "GPS time", "the log has no UTC time from its GPS")
+        drone_t = drone.seconds_of(video_start_utc) + video_s
+        start_utc = video_start_utc
+    if start_utc is None:
+        raise InputError(drone.source, "date", "the frames' UTC time is unknown (the SRT has no "
+                         "date lines, or no UTC offset for them): give the video's start time in "
+                         "UTC, or the offset of the SRT's local time")
+    utc = [start_utc + timedelta(seconds=float(s)) for s in video_s]
+    vessel_t = np.array([vessel.seconds_of(u) for u in utc]) + vessel_offset_s
+
+    uav = drone.sample(drone_t, max_gap_s)
+    ship = vessel.sample(vessel_t, max_gap_s)
+    yaw, pitch, roll = camera_attitude_deg(drone, uav, mount)
+    frames, skipped = [], []
+    for i in range(n_frames):
+        missing = [name for name, value in (
+            ("drone position", uav["lat_deg"][i]), ("drone altitude", uav["alt_m"][i]),
+            ("camera attitude", yaw[i] + pitch[i] + roll[i]),
+            ("vessel position", ship["lat_deg"][i]), ("vessel heading", ship["heading_deg"][i]),
+        ) if not np.isfinite(value)]
+        if missing:
+            skipped.append((i, f"no {', '.join(missing)} within {max_gap_s:g} s of "
+                               f"{utc[i].isoformat()}"))
+            continue
+        height_m = uav["alt_m"][i] - water_level_m
+        if height_m <= 0:
+            skipped.append((i, f"drone altitude {uav['alt_m'][i]:.2f} m is not above the water "
+                               f"level {water_level_m:g} m"))
+            continue
+        frames.append({
+            "schema": "harborsight.frame/1", "frame_index": i,
+            "timestamp": utc[i].isoformat().replace("+00:00", "Z"),
+            "camera": camera,
+            "uav": {"lat": round(float(uav["lat_deg"][i]), 8), "lon": round(float(uav["lon_deg"][i]), 8),
+                    "alt_m": round(float(uav["alt_m"][i]), 3)},
+            "camera_attitude": {"yaw_deg": round(float(yaw[i]), 3), "pitch_deg": round(float(pitch[i]), 3),
+                                "roll_deg": round(float(roll[i]), 3)},
+            "vessel": {"lat": round(float(ship["lat_deg"][i]), 8),
+                       "lon": round(float(ship["lon_deg"][i]), 8),
+                       "heading_deg": round(float(ship["heading_deg"][i]) % 360.0, 3)},
+            "water_level_m": water_level_m,
+            "telemetry": {"drone": str(drone.source), "drone_t_s": round(float(drone_t[i]), 4),
+                          "vessel": str(vessel.source), "vessel_t_s": round(float(vessel_t[i]), 4),
+                          "alt_reference": drone.alt_reference},
+        })
+    return FrameMetadataResult(frames, skipped, mount.resolve(drone))

@@ -1,0 +1,159 @@
+"""A time series of positions (and attitudes or headings) read from one log, and its sampling.
+
+Every reader returns a :class:`Track`: sample times ``t_s`` in seconds on the log's own clock,
+``utc_start`` (the UTC time of ``t_s = 0``) where the log says it, and per-sample arrays.
+Missing quantities are ``None``, never zeros.
+
+Sampling at other times interpolates linearly between the two neighbouring samples: latitude
+and longitude directly (the step between samples is metres, where a degree is locally
+linear), angles on their unwrapped sequence (so 359 deg -> 1 deg passes through 0, not 180).
+A time farther than ``max_gap_s`` from both neighbours, or outside the track by more than
+``max_gap_s``, has no value: NaN, and the caller reports the frame instead of guessing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+#: The quantities a track may carry, each an array over samples or None.
+QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg")
+ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
+#: Quantities that may run on their own time axis (``attitude_t_s``): autopilots log attitude
+#: 10-50 times as often as position.
+ATTITUDE = ("yaw_deg", "pitch_deg", "roll_deg")
+
+
+@dataclass
+class Track:
+    """Samples of one log. ``attitude_of`` says what yaw/pitch/roll describe: ``"gimbal"``
+    (the camera, DJI's G.PRY) or ``"vehicle"`` (the airframe's body FRD axes). Attitude
+    samples are at ``attitude_t_s`` where given, else at ``t_s``."""
+
+    source: Path
+    kind: str                                # dji-srt, px4-ulog, ardupilot-bin, nmea, csv
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    alt_m: np.ndarray | None = None
+    alt_reference: str | None = None         # what alt_m is measured from, in words
+    yaw_deg: np.ndarray | None = None
+    pitch_deg: np.ndarray | None = None
+    roll_deg: np.ndarray | None = None
+    attitude_of: str | None = None
+    attitude_t_s: np.ndarray | None = None
+    heading_deg: np.ndarray | None = None    # vessel tracks: true heading
+    utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
+    clock: str = ""                          # what t_s counts, in words
+    notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
+
+    def __post_init__(self) -> None:
+        self.t_s = np.asarray(self.t_s, dtype=float)
+        if self.attitude_t_s is not None:
+            self.attitude_t_s = np.asarray(self.attitude_t_s, dtype=float)
+        for name in QUANTITIES:
+            values = getattr(self, name)
+            if values is not None:
+                values = np.asarray(values, dtype=float)
+                n = len(self._times_of(name))
+                if values.shape != (n,):
+                    raise ValueError(f"{name}: {values.shape} samples against {n} times")
+                setattr(self, name, values)
+        for axis in ("t_s", "attitude_t_s"):
+            times = getattr(self, axis)
+            if times is None or not len(times) or not np.any(np.diff(times) < 0):
+                continue
+            order = np.argsort(times, kind="stable")
+            setattr(self, axis, times[order])
+            for name in QUANTITIES:
+                values = getattr(self, name)
+                if values is not None and self._axis_of(name) == axis:
+                    setattr(self, name, values[order])
+            self.notes.append(f"{axis}: samples were out of time order and have been sorted")
+
+    def _axis_of(self, name: str) -> str:
+        return "attitude_t_s" if name in ATTITUDE and self.attitude_t_s is not None else "t_s"
+
+    def _times_of(self, name: str) -> np.ndarray:
+        return getattr(self, self._axis_of(name))
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0]) if len(self) else 0.0
+
+    @property
+    def has_attitude(self) -> bool:
+        return self.yaw_deg is not None and self.pitch_deg is not None
+
+    def utc_at(self, t_s: float) -> datetime | None:
+        """The UTC time of ``t_s`` on this track's clock, if the log states its UTC start."""
+        return None if self.utc_start is None else self.utc_start + timedelta(seconds=float(t_s))
+
+    def seconds_of(self, utc: datetime) -> float:
+        """``t_s`` of a UTC time (needs ``utc_start``)."""
+        if self.utc_start is None:
+            raise ValueError(f"{self.source}: the log states no UTC time")
+        return (utc - self.utc_start).total_seconds()
+
+    def sample(self, times_s: np.ndarray, max_gap_s: float = 1.0) -> dict[str, np.ndarray]:
+        """Each present quantity at ``times_s`` (same clock as ``t_s``), NaN where the
+        bracketing samples are more than ``2 max_gap_s`` apart, or the time lies more than
+        ``max_gap_s`` outside the samples."""
+        times_s = np.atleast_1d(np.asarray(times_s, dtype=float))
+        out: dict[str, np.ndarray] = {}
+        for name in QUANTITIES:
+            values = getattr(self, name)
+            if values is None:
+                continue
+            t = self._times_of(name)
+            finite = np.isfinite(values)
+            t, v = t[finite], values[finite]
+            if len(t) == 0:
+                out[name] = np.full(times_s.shape, np.nan)
+                continue
+            if name in ANGLES:
+                v = np.rad2deg(np.unwrap(np.deg2rad(v)))
+            sampled = np.interp(times_s, t, v)
+            if name in ANGLES:
+                sampled = (sampled + 180.0) % 360.0 - 180.0
+            out[name] = np.where(_reachable(t, times_s, max_gap_s), sampled, np.nan)
+        return out
+
+    def summary(self) -> dict:
+        """What an operator checks first: extent in time and space, rate, attitude."""
+        def span(values: np.ndarray | None) -> list[float] | None:
+            if values is None or not np.isfinite(values).any():
+                return None
+            return [float(np.nanmin(values)), float(np.nanmax(values))]
+
+        rate = (len(self) - 1) / self.duration_s if self.duration_s > 0 else None
+        return {
+            "source": str(self.source), "kind": self.kind, "samples": len(self),
+            "duration_s": self.duration_s, "rate_hz": rate, "clock": self.clock,
+            "utc_start": None if self.utc_start is None else self.utc_start.isoformat(),
+            "lat_deg": span(self.lat_deg), "lon_deg": span(self.lon_deg),
+            "alt_m": span(self.alt_m), "alt_reference": self.alt_reference,
+            "attitude": None if not self.has_attitude else self.attitude_of,
+            "heading": self.heading_deg is not None, "notes": list(self.notes),
+        }
+
+
+def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Where interpolation in the samples ``t`` is trusted (see :meth:`Track.sample`)."""
+    index = np.searchsorted(t, times_s)
+    before = t[np.clip(index - 1, 0, len(t) - 1)]
+    after = t[np.clip(index, 0, len(t) - 1)]
+    inside = (times_s >= t[0]) & (times_s <= t[-1])
+    nearest = np.minimum(np.abs(times_s - before), np.abs(after - times_s))
+    return np.where(inside, (after - before <= 2 * max_gap_s) | (nearest == 0),
+                    nearest <= max_gap_s)
+
+
+def utc_from_epoch_s(seconds: float) -> datetime:
+    return datetime.fromtimestamp(float(seconds), tz=UTC)

@@ -1,0 +1,265 @@
+"""Telemetry readers on real logs (../shared/data/telemetry, byte for byte as published) and the
+per-frame metadata they produce for `run`."""
+
+from __future__ import annotations
+
+import json
+import math
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.frame import parse_frame_metadata
+from harborsight.geometry.rotations import ned_from_gimbal_rotation
+from harborsight.telemetry import read_drone_log
+from harborsight.telemetry.dji_srt import read_dji_srt
+from harborsight.telemetry.metadata import CameraMount, build_video_metadata, camera_attitude_deg
+from harborsight.telemetry.track import Track
+from harborsight.telemetry.vessel_track import read_vessel_track
+
+TELEMETRY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "telemetry"
+DJI = TELEMETRY / "dji"
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _real_logs_present():
+    assert DJI.is_dir(), f"the real telemetry samples are missing: {TELEMETRY} (../shared beside the repo)"
+
+
+# (file, samples, first lat, first lon, first altitude, altitude datum word, rate Hz): values
+# read by eye from the files' first block
+SRT_CASES = [
+    ("air2s.srt", 17, 41.424724, 2.234156, 117.0, "altitude", 30.0),
+    ("mavic_air2.srt", 25, 41.420684, 2.162162, 27.3, "altitude", 60.0),
+    ("mavic_pro.SRT", 468, -20.2533, 149.0251, 1.9, "take-off", 1.0),
+    ("old_format.SRT", 468, -20.2533, 149.0251, 1.9, "take-off", 1.0),
+    ("mavic_mini.SRT", 117, 48.0771, -121.7458, 200.70, "take-off", 1.0),
+    ("p4p_sample.SRT", 5, 47.4692, 8.2090, 45.60, "take-off", 1.0),
+    ("p4_rtk.SRT", 55, -34.237922, -58.851745, 85.80, "take-off", 1.0),
+    ("matrice_300.srt", 381, -6.1120, 36.6146, 0.3, "take-off", 1.0),
+]
+
+
+@pytest.mark.parametrize("name, samples, lat, lon, alt, datum, rate", SRT_CASES)
+def test_dji_srt_families(name, samples, lat, lon, alt, datum, rate):
+    track = read_dji_srt(DJI / name)
+    assert len(track) == samples
+    assert track.lat_deg[0] == pytest.approx(lat) and track.lon_deg[0] == pytest.approx(lon)
+    assert track.alt_m[0] == pytest.approx(alt) and datum in track.alt_reference
+    assert track.summary()["rate_hz"] == pytest.approx(rate, rel=0.02)
+
+
+def test_gps_brackets_are_longitude_first():
+    """The Mavic Pro file writes GPS(a, b, sats); the Mavic 2 style file of the same flight labels
+    its fields: `[latitude : -20.2533] [longtitude : 149.0251]`. Both must agree."""
+    pro, labelled = read_dji_srt(DJI / "mavic_pro.SRT"), read_dji_srt(DJI / "mavic_2_style.SRT")
+    assert labelled.lat_deg[0] == pytest.approx(-20.2533)
+    assert labelled.lon_deg[0] == pytest.approx(149.0251)
+    assert (pro.lat_deg[0], pro.lon_deg[0]) == (labelled.lat_deg[0], labelled.lon_deg[0])
+    assert "no timecodes" in labelled.clock and labelled.alt_m is None
+
+
+def test_dji_gimbal_attitude_and_dates():
+    track = read_dji_srt(DJI / "p4_rtk.SRT")
+    assert track.attitude_of == "gimbal"
+    # G.PRY (-24.4°, 0.0°, 110.4°) = pitch, roll, yaw of the first block
+    assert (track.pitch_deg[0], track.roll_deg[0], track.yaw_deg[0]) == (-24.4, 0.0, 110.4)
+    air = read_dji_srt(DJI / "air2s.srt", utc_offset_h=2.0)
+    # first block: timecode 00:00:00,000 and local date 2022-08-07 13:40:40,774,808
+    assert air.utc_start == datetime(2022, 8, 7, 11, 40, 40, 774808, tzinfo=UTC)
+    assert air.t_s[1] == pytest.approx(0.033)
+    assert read_dji_srt(DJI / "air2s.srt").utc_start is None   # local time without an offset
+
+
+def test_broken_srt_files():
+    with pytest.raises(InputError, match=r"broken_empty\.SRT: no DJI telemetry block"):
+        read_dji_srt(DJI / "broken_empty.SRT")
+    track = read_dji_srt(DJI / "broken_incomplete.SRT")
+    assert len(track) == 19 and "1 block(s) without a position skipped (line 115)" in track.notes[0]
+    with pytest.raises(InputError, match="unknown drone log type"):
+        read_drone_log(DJI / "LICENSE")
+
+
+def test_px4_ulog_position_time_and_attitude():
+    from pyulog import ULog
+
+    path = TELEMETRY / "px4" / "sample_log_small.ulg"
+    track = read_drone_log(path)
+    gps = ULog(str(path), ["vehicle_gps_position"]).get_dataset("vehicle_gps_position").data
+    assert track.lat_deg[0] == pytest.approx(gps["lat"][0] * 1e-7)      # 1e-7 degree integers
+    assert track.alt_m[0] == pytest.approx(gps["alt"][0] * 1e-3)        # millimetres
+    assert 63.41 < track.lat_deg[0] < 63.42 and 10.40 < track.lon_deg[0] < 10.41  # Trondheim
+    # one boot-to-UTC offset (the median over the fixes): every fix's own UTC within the
+    # jitter of the GPS message's arrival, a few tens of milliseconds
+    for boot_us, utc_us in zip(gps["timestamp"], gps["time_utc_usec"], strict=True):
+        utc = datetime.fromtimestamp(utc_us / 1e6, tz=UTC)
+        assert abs((track.utc_at(boot_us / 1e6) - utc).total_seconds()) < 0.05
+    # attitude: PX4's own quaternion -> yaw formula, atan2(2(wz + xy), 1 - 2(y^2 + z^2))
+    att = ULog(str(path), ["vehicle_attitude"]).get_dataset("vehicle_attitude").data
+    w, x, y, z = (att[f"q[{i}]"][10].astype(float) for i in range(4))
+    yaw = math.degrees(math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    assert track.attitude_t_s[10] == pytest.approx(att["timestamp"][10] / 1e6)
+    assert track.yaw_deg[10] == pytest.approx(yaw, abs=1e-4)
+    assert track.attitude_of == "vehicle" and len(track.yaw_deg) == len(att["timestamp"])
+
+
+def test_ardupilot_bin_gps_week_to_utc():
+    track = read_drone_log(TELEMETRY / "ardupilot" / "test.BIN")
+    # first GPS message: TimeUS 81855471, GWk 1973, GMS 6448000 (read with pymavlink by hand);
+    # GPS week 1973 starts 2017-10-29 00:00:00 GPS time; 18 leap seconds to UTC
+    # (the offset is the median over the log's fixes: one fix is off by its arrival jitter)
+    expected = datetime(2017, 10, 29, 1, 47, 28, tzinfo=UTC) - timedelta(seconds=18)
+    assert abs((track.utc_at(81.855471) - expected).total_seconds()) < 0.05
+    assert track.lat_deg[0] == pytest.approx(-35.3626277) and track.lon_deg[0] == pytest.approx(149.1653034)
+    assert track.attitude_of == "vehicle" and track.yaw_deg is not None
+
+
+def test_sampling_interpolates_angles_across_north_and_refuses_gaps():
+    track = Track(source=Path("x"), kind="csv", t_s=np.array([0.0, 1.0, 2.0, 10.0]),
+                  lat_deg=np.array([10.0, 10.0002, 10.0004, 10.0]), lon_deg=np.zeros(4),
+                  heading_deg=np.array([350.0, 10.0, 30.0, 30.0]))
+    sampled = track.sample(np.array([0.5, 1.5, 5.0, 10.5, 12.0]), max_gap_s=1.0)
+    assert sampled["heading_deg"][0] == pytest.approx(0.0, abs=1e-9)    # 350 -> 10 passes north
+    assert sampled["lat_deg"][1] == pytest.approx(10.0003)
+    assert np.isnan(sampled["lat_deg"][2])                              # inside an 8 s gap
+    assert sampled["lat_deg"][3] == pytest.approx(10.0)                 # 0.5 s past the end
+    assert np.isnan(sampled["lat_deg"][4])                              # 2 s past the end
+
+
+def _nmea(body: str) -> str:
+    """A sentence with its checksum: XOR of the characters between $ and *."""
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"${body}*{checksum:02X}"
+
+
+def test_nmea_vessel_track(tmp_path):
+    # the NMEA 0183 standard's own RMC example (checksum 6A as published)
+    lines = ["$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A",
+             _nmea("HEHDT,358.0,T"),
+             _nmea("GPGGA,123520,4807.040,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"),
+             _nmea("HCHDG,0.5,0.5,E,1.0,W"),       # magnetic 0.5 + dev 0.5 E - var 1.0 W = 0.0
+             _nmea("GPGGA,123521,4807.042,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"),
+             "$HEHDT,2.0,T*00",                     # bad checksum: skipped, counted
+             _nmea("HEHDT,2.0,T"),
+             _nmea("GPVTG,084.4,T,,M,022.4,N,041.5,K")]  # course over ground: never heading
+    path = tmp_path / "ship.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert track.utc_start == datetime(1994, 3, 23, 12, 35, 19, tzinfo=UTC)
+    assert list(track.t_s) == [0.0, 1.0, 2.0]
+    assert track.lat_deg[0] == pytest.approx(48 + 7.038 / 60)
+    assert track.lat_deg[2] == pytest.approx(48 + 7.042 / 60)
+    np.testing.assert_allclose(track.heading_deg, [358.0, 0.0, 2.0], atol=1e-9)
+    assert track.notes == ["1 unreadable sentence(s) skipped (bad checksum or field; line 6)"]
+    no_heading = tmp_path / "no_heading.nmea"
+    no_heading.write_text(lines[0] + "\n" + lines[-1] + "\n")
+    with pytest.raises(InputError, match="no true heading"):
+        read_vessel_track(no_heading)
+
+
+def test_csv_vessel_track_skips_a_bad_row(tmp_path):
+    path = tmp_path / "ship.csv"
+    path.write_text("time,lat,lon,heading_deg\n2026-05-01T12:00:00Z,56.15,10.21,75\n"
+                    "2026-05-01T12:00:01Z,56.15,ten,75\n2026-05-01T12:00:02+00:00,56.1501,10.21,77\n")
+    track = read_vessel_track(path)
+    assert list(track.t_s) == [0.0, 2.0] and list(track.heading_deg) == [75.0, 77.0]
+    assert "line 3: lon: expected a number, got 'ten'" in track.notes[0]
+
+
+def test_rigid_mount_composes_body_and_mount_rotations():
+    """Camera = body · Ry(mount pitch); checked with harborsight's own rotation matrices."""
+    body = np.array([[30.0, 5.0, -3.0], [200.0, 0.0, 0.0], [-45.0, -8.0, 12.0]])
+    track = Track(source=Path("log.ulg"), kind="px4-ulog", t_s=np.arange(3.0),
+                  lat_deg=np.zeros(3), lon_deg=np.zeros(3), alt_m=np.full(3, 50.0),
+                  yaw_deg=body[:, 0], pitch_deg=body[:, 1], roll_deg=body[:, 2],
+                  attitude_of="vehicle")
+    samples = track.sample(np.arange(3.0))
+    for mount_pitch in (-90.0, -60.0):
+        yaw, pitch, roll = camera_attitude_deg(track, samples, CameraMount("rigid", mount_pitch))
+        for i in range(3):
+            expected = ned_from_gimbal_rotation(*np.deg2rad(body[i])) @ ned_from_gimbal_rotation(
+                0.0, math.radians(mount_pitch), 0.0)
+            got = ned_from_gimbal_rotation(*np.deg2rad([yaw[i], pitch[i], roll[i]]))
+            np.testing.assert_allclose(got, expected, atol=1e-9)
+    yaw, pitch, roll = camera_attitude_deg(track, samples, CameraMount("stabilised"))
+    assert list(yaw) == list(body[:, 0] - 360 * (body[:, 0] > 180)) and set(pitch) == {-90.0}
+
+
+def _vessel_csv(path: Path, start: datetime, seconds: int) -> Path:
+    rows = ["time,lat,lon,heading_deg"]
+    for s in range(seconds + 1):
+        rows.append(f"{(start + timedelta(seconds=s)).isoformat()},{-34.2379 + s * 1e-5},"
+                    f"{-58.8510},{90 + s}")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def test_video_metadata_from_a_dji_srt_and_a_vessel_csv(tmp_path):
+    start = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
+    vessel_csv = _vessel_csv(tmp_path / "ship.csv", start, 30)
+    out = tmp_path / "flight.jsonl"
+    result = runner.invoke(app, [
+        "telemetry", "video", str(DJI / "p4_rtk.SRT"), "--vessel-track", str(vessel_csv),
+        "--camera", "dji-p4rtk", "--image-size", "1280x720", "--frames", "100", "--fps", "2",
+        "--video-start", "2026-05-01T12:00:00Z", "--water-level-m", "-2", "--out", str(out)],
+        terminal_width=200)
+    assert result.exit_code == 0, result.output
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    # 100 frames span 49.5 s of video; the vessel track covers 30 s, and 1 s beyond its end
+    assert [f["frame_index"] for f in lines] == list(range(63))
+    assert "37 frame(s) left out" in result.output and "vessel position" in result.output
+    frame = lines[2]                                       # t = 1.0 s: the SRT's second block
+    assert frame["camera_attitude"] == {"yaw_deg": 110.5, "pitch_deg": -24.4, "roll_deg": 0.0}
+    assert frame["uav"] == {"lat": -34.237911, "lon": -58.85174, "alt_m": 85.83}
+    assert frame["vessel"]["lat"] == pytest.approx(-34.2379 + 1e-5)
+    assert frame["vessel"]["heading_deg"] == pytest.approx(91.0)
+    assert frame["timestamp"] == "2026-05-01T12:00:01Z"
+    meta = parse_frame_metadata({**frame, "image": "video"}, "flight.jsonl")
+    assert meta.height_above_water_m == pytest.approx(87.83)
+    assert meta.camera.fx == pytest.approx(8.8 / 13.2 * 1280)   # the preset's f / sensor width
+
+
+def test_video_metadata_needs_a_clock_and_an_attitude(tmp_path):
+    start = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
+    vessel = read_vessel_track(_vessel_csv(tmp_path / "ship.csv", start, 30))
+    camera = {"width": 64, "height": 36, "fx": 50.0, "fy": 50.0, "cx": 31.5, "cy": 17.5}
+    no_attitude = read_dji_srt(DJI / "p4p_sample.SRT")
+    with pytest.raises(InputError, match="UTC time is unknown"):
+        build_video_metadata(no_attitude, vessel, camera, 4, 1.0, water_level_m=0.0)
+    with pytest.raises(InputError, match="no attitude: give the camera's yaw"):
+        build_video_metadata(no_attitude, vessel, camera, 4, 1.0, water_level_m=0.0,
+                             video_start_utc=start)
+    result = build_video_metadata(no_attitude, vessel, camera, 4, 1.0, water_level_m=0.0,
+                                  video_start_utc=start, mount=CameraMount(yaw_deg=15.0))
+    assert [f["camera_attitude"]["yaw_deg"] for f in result.frames] == [15.0] * 4
+    ulog = read_drone_log(TELEMETRY / "px4" / "sample_log_small.ulg")
+    with pytest.raises(InputError, match="give the video's start time in UTC"):
+        build_video_metadata(ulog, vessel, camera, 4, 1.0, water_level_m=0.0)
+    # placed on the log's clock by the video's UTC start: the log's GPS runs 06:30:58.6-06:31:04.8
+    log_vessel = read_vessel_track(_vessel_csv(tmp_path / "ship2.csv",
+                                               datetime(2021, 4, 21, 6, 30, 55, tzinfo=UTC), 15))
+    result = build_video_metadata(ulog, log_vessel, camera, 10, 1.0, water_level_m=40.0,
+                                  video_start_utc=datetime(2021, 4, 21, 6, 30, 58, tzinfo=UTC))
+    # frame 0 (06:30:58) is 0.6 s before the first fix, frame 7 0.2 s after the last: within
+    # reach; frames 8 and 9 are 1.2 and 2.2 s after it
+    assert [f["frame_index"] for f in result.frames] == list(range(8))
+    assert [i for i, _ in result.skipped] == [8, 9]
+    assert all(-91 < f["camera_attitude"]["pitch_deg"] < -89 for f in result.frames)
+
+
+def test_cli_show_lists_every_log_and_fails_on_a_bad_one(tmp_path):
+    result = runner.invoke(app, ["telemetry", "show", str(DJI / "p4_rtk.SRT"),
+                                 str(DJI / "broken_empty.SRT"), "--json", str(tmp_path / "s.json")],
+                           terminal_width=200)
+    assert result.exit_code == 1
+    assert "gimbal (camera)" in result.output and "broken_empty.SRT" in result.output
+    [summary] = json.loads((tmp_path / "s.json").read_text())
+    assert summary["kind"] == "dji-srt" and summary["samples"] == 55
