@@ -263,3 +263,54 @@ def test_cli_show_lists_every_log_and_fails_on_a_bad_one(tmp_path):
     assert "gimbal (camera)" in result.output and "broken_empty.SRT" in result.output
     [summary] = json.loads((tmp_path / "s.json").read_text())
     assert summary["kind"] == "dji-srt" and summary["samples"] == 55
+
+
+def _srt_time(seconds: float) -> str:
+    millis = round(seconds * 1000)
+    return f"{millis // 3600000:02d}:{millis // 60000 % 60:02d}:{millis // 1000 % 60:02d},{millis % 1000:03d}"
+
+
+def test_bundled_flight_round_trips_through_an_srt_and_nmea(tmp_path):
+    """The bundled 48-frame flight written out as a P4 RTK style SRT (its precision: 1e-6 deg,
+    0.01 m, 0.1 deg) and an NMEA feed (RMC + HDT), then read back into frame metadata: every
+    frame within the formats' rounding of the original."""
+    from importlib import resources
+
+    from harborsight.frame import load_frame_metadata
+
+    flight = Path(str(resources.files("harborsight") / "data" / "samples" / "flight"))
+    metas = [load_frame_metadata(p) for p in sorted((flight / "frames").glob("*.json"))]
+    times = [datetime.fromisoformat(m.timestamp.replace("Z", "+00:00")) for m in metas]
+    fps = 1.0 / (times[1] - times[0]).total_seconds()
+    srt, nmea = [], []
+    for i, (m, when) in enumerate(zip(metas, times, strict=True)):
+        video_s = (when - times[0]).total_seconds()
+        srt += [str(i + 1), f"{_srt_time(video_s)} --> {_srt_time(video_s + 1 / fps)}",
+                f"F/5.6, SS 400, ISO 100, EV 0, GPS ({m.uav_lon_deg:.6f}, {m.uav_lat_deg:.6f}, 15), "
+                f"D 10.00m, H {m.uav_alt_m:.2f}m, H.S 0.00m/s, V.S 0.00m/s, "
+                f"G.PRY ({m.pitch_deg:.1f}°, {m.roll_deg:.1f}°, {m.yaw_deg:.1f}°)", ""]
+        lat, lon = abs(m.vessel_lat_deg), abs(m.vessel_lon_deg)
+        nmea += [_nmea(f"GPRMC,{when:%H%M%S}.{when.microsecond // 10000:02d},A,"
+                       f"{int(lat):02d}{lat % 1 * 60:08.5f},{'N' if m.vessel_lat_deg >= 0 else 'S'},"
+                       f"{int(lon):03d}{lon % 1 * 60:08.5f},{'E' if m.vessel_lon_deg >= 0 else 'W'},"
+                       f"0.8,{m.vessel_heading_deg:.1f},{when:%d%m%y},,"),
+                 _nmea(f"HEHDT,{m.vessel_heading_deg % 360:.2f},T")]
+    (tmp_path / "flight.SRT").write_text("\n".join(srt), encoding="utf-8")
+    (tmp_path / "ship.nmea").write_text("\n".join(nmea) + "\n")
+    result = build_video_metadata(
+        read_drone_log(tmp_path / "flight.SRT"), read_vessel_track(tmp_path / "ship.nmea"),
+        {"width": 640, "height": 360, "fx": metas[0].camera.fx, "fy": metas[0].camera.fy},
+        len(metas), fps, water_level_m=0.0, video_start_utc=times[0])
+    assert result.mount == "gimbal" and not result.skipped
+    for frame, m in zip(result.frames, metas, strict=True):
+        parsed = parse_frame_metadata({**frame, "image": "video"}, "round trip")
+        assert datetime.fromisoformat(parsed.timestamp) == datetime.fromisoformat(m.timestamp)
+        assert abs(parsed.uav_lat_deg - m.uav_lat_deg) <= 0.5e-6 + 1e-12
+        assert abs(parsed.uav_lon_deg - m.uav_lon_deg) <= 0.5e-6 + 1e-12
+        assert abs(parsed.uav_alt_m - m.uav_alt_m) <= 0.005 + 1e-9
+        for got, want in ((parsed.yaw_deg, m.yaw_deg), (parsed.pitch_deg, m.pitch_deg),
+                          (parsed.roll_deg, m.roll_deg), (parsed.vessel_heading_deg, m.vessel_heading_deg)):
+            assert abs((got - want + 180) % 360 - 180) <= 0.05 + 1e-9
+        # NMEA positions carry 1e-5 arc minutes: 1.7e-7 degrees
+        assert abs(parsed.vessel_lat_deg - m.vessel_lat_deg) <= 1e-7
+        assert abs(parsed.vessel_lon_deg - m.vessel_lon_deg) <= 1e-7
