@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shlex
 from collections import Counter
 from enum import StrEnum
@@ -758,6 +759,9 @@ def _telemetry_camera(camera: str, width: int | None, height: int | None, source
                              "give --video or --image-size")
         intrinsics = CAMERA_PRESETS[camera].intrinsics(width, height)
     else:
+        if not Path(camera).is_file():
+            raise InputError(camera, "--camera", "neither a camera preset ("
+                             + ", ".join(CAMERA_PRESETS) + ") nor a calibration file")
         intrinsics = load_camera_calibration(Path(camera))
         if width and height and (intrinsics.width, intrinsics.height) != (width, height):
             raise InputError(camera, "calibration", f"calibrated for {intrinsics.width}x"
@@ -801,8 +805,8 @@ def telemetry_video(
         help="A fixed camera yaw (degrees clockwise from true north) for logs without "
         "attitude.")] = None,
     vessel_offset_s: Annotated[float, typer.Option(
-        help="Seconds added to the frames' UTC time to read the vessel track (a vessel clock "
-        "that runs behind).")] = 0.0,
+        help="Seconds added to each frame's UTC time before reading the vessel track: -5 if "
+        "the vessel's clock runs 5 s behind.")] = 0.0,
     max_gap_s: Annotated[float, typer.Option(
         min=0.01, help="Longest gap in a track bridged by interpolation.")] = 1.0,
 ) -> None:
@@ -828,14 +832,17 @@ def telemetry_video(
             width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
             height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
             capture.release()
+            if frames <= 0 or not fps or fps <= 0:
+                raise InputError(video, None, "could not read the frame count and rate: give "
+                                 "--frames and --fps")
         if image_size:
-            try:
-                width, height = (int(v) for v in image_size.lower().split("x"))
-            except ValueError:
+            size = re.fullmatch(r"(\d+)x(\d+)", image_size.strip().lower())
+            if size is None or min(int(size[1]), int(size[2])) < 1:
                 raise InputError(None, "--image-size",
-                                 f"expected WIDTHxHEIGHT, got {image_size!r}") from None
+                                 f"expected WIDTHxHEIGHT in pixels, got {image_size!r}")
+            width, height = int(size[1]), int(size[2])
         if not frames or not fps:
-            raise InputError(video, "frames", "give --video, or --frames and --fps")
+            raise InputError(None, "--frames", "give --video, or --frames and --fps")
         start = None
         if video_start:
             try:
@@ -861,7 +868,7 @@ def telemetry_video(
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
     if result.skipped:
-        reasons = Counter(reason.split(" within ")[0] for _, reason in result.skipped)
+        reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
         err_console.print(f"[red]{len(result.skipped)} frame(s) left out[/] (frames "
                           f"{result.skipped[0][0]}..{result.skipped[-1][0]}):")
         for reason, count in reasons.most_common():

@@ -42,7 +42,7 @@ SRT_CASES = [
     ("mavic_mini.SRT", 117, 48.0771, -121.7458, 200.70, "take-off", 1.0),
     ("p4p_sample.SRT", 5, 47.4692, 8.2090, 45.60, "take-off", 1.0),
     ("p4_rtk.SRT", 55, -34.237922, -58.851745, 85.80, "take-off", 1.0),
-    ("matrice_300.srt", 381, -6.1120, 36.6146, 0.3, "take-off", 1.0),
+    ("matrice_300.srt", 381, 36.6146, -6.1120, 0.3, "take-off", 1.0),     # GPS(lat, lon, altM)
 ]
 
 
@@ -213,9 +213,10 @@ def test_video_metadata_from_a_dji_srt_and_a_vessel_csv(tmp_path):
         terminal_width=200)
     assert result.exit_code == 0, result.output
     lines = [json.loads(line) for line in out.read_text().splitlines()]
-    # 100 frames span 49.5 s of video; the vessel track covers 30 s, and 1 s beyond its end
-    assert [f["frame_index"] for f in lines] == list(range(63))
-    assert "37 frame(s) left out" in result.output and "vessel position" in result.output
+    # 100 frames span 49.5 s of video; the 1 Hz vessel track covers 30 s, and half a sample
+    # interval beyond its end
+    assert [f["frame_index"] for f in lines] == list(range(62))
+    assert "38 frame(s) left out" in result.output and "vessel position" in result.output
     frame = lines[2]                                       # t = 1.0 s: the SRT's second block
     assert frame["camera_attitude"] == {"yaw_deg": 110.5, "pitch_deg": -24.4, "roll_deg": 0.0}
     assert frame["uav"] == {"lat": -34.237911, "lon": -58.85174, "alt_m": 85.83}
@@ -246,12 +247,12 @@ def test_video_metadata_needs_a_clock_and_an_attitude(tmp_path):
     # placed on the log's clock by the video's UTC start: the log's GPS runs 06:30:58.6-06:31:04.8
     log_vessel = read_vessel_track(_vessel_csv(tmp_path / "ship2.csv",
                                                datetime(2021, 4, 21, 6, 30, 55, tzinfo=UTC), 15))
-    result = build_video_metadata(ulog, log_vessel, camera, 10, 1.0, water_level_m=40.0,
-                                  video_start_utc=datetime(2021, 4, 21, 6, 30, 58, tzinfo=UTC))
-    # frame 0 (06:30:58) is 0.6 s before the first fix, frame 7 0.2 s after the last: within
-    # reach; frames 8 and 9 are 1.2 and 2.2 s after it
-    assert [f["frame_index"] for f in result.frames] == list(range(8))
-    assert [i for i, _ in result.skipped] == [8, 9]
+    result = build_video_metadata(ulog, log_vessel, camera, 9, 1.0, water_level_m=40.0,
+                                  video_start_utc=datetime(2021, 4, 21, 6, 30, 58, 700000, tzinfo=UTC))
+    # frames 0-6 (06:30:58.7 to 06:31:04.7) lie among the 5 Hz fixes (06:30:58.61 to 06:31:04.80);
+    # frame 7 is 0.9 s after the last, beyond half a fix interval (0.1 s)
+    assert [f["frame_index"] for f in result.frames] == list(range(7))
+    assert [i for i, _ in result.skipped] == [7, 8]
     assert all(-91 < f["camera_attitude"]["pitch_deg"] < -89 for f in result.frames)
 
 
@@ -314,3 +315,87 @@ def test_bundled_flight_round_trips_through_an_srt_and_nmea(tmp_path):
         # NMEA positions carry 1e-5 arc minutes: 1.7e-7 degrees
         assert abs(parsed.vessel_lat_deg - m.vessel_lat_deg) <= 1e-7
         assert abs(parsed.vessel_lon_deg - m.vessel_lon_deg) <= 1e-7
+
+
+def test_srt_damage_is_noted_not_fatal(tmp_path):
+    text = (DJI / "p4_rtk.SRT").read_text(encoding="utf-8")
+    cut = tmp_path / "cut.SRT"                    # recording stopped inside the last block
+    cut.write_text(text[:text.rindex("F.PRY")], encoding="utf-8")
+    track = read_dji_srt(cut)
+    assert track.attitude_of == "gimbal" and np.isnan(track.yaw_deg[-1]) and track.yaw_deg[0] == 110.4
+    assert "1 block(s) without gimbal" in track.notes
+    legacy = tmp_path / "cp1252.SRT"              # the degree sign as one cp1252 byte
+    legacy.write_bytes(text.encode("cp1252"))
+    assert list(read_dji_srt(legacy).pitch_deg[:2]) == [-24.4, -24.4]
+    bad = tmp_path / "bad.SRT"
+    bad.write_text("1\n00:00:00,000 --> 00:00:01,000\n2017.13.45 10:00:00\nGPS(149.0,-20.2,16) "
+                   "BAROMETER:1.9\n\n2\n00:00:01,000 --> 00:00:02,000\nGPS(300.0,-20.2,16)\n\n"
+                   "3\n00:00:02,000 --> 00:00:03,000\n2017.08.05 10:00:02\nGPS(149.0,-20.2,16) "
+                   "BAROMETER:2.0\n")
+    track = read_dji_srt(bad)
+    assert len(track) == 2 and track.lat_deg[0] == -20.2
+    assert "1 block(s) with a position outside ±90°/±180° skipped (line 6)" in track.notes
+    assert "1 block(s) with an impossible date line (date ignored) (line 1)" in track.notes
+
+
+def test_nmea_headings_between_fixes_and_midnight(tmp_path):
+    # 1 Hz fixes, 4 Hz headings turning 4 deg/s: heading k after fix i was sent at i + k/4 s
+    lines = [_nmea("GPZDA,235958.00,30,04,2026,00,00")]
+    for second in range(4):
+        clock = f"{(23 * 3600 + 59 * 60 + 58 + second) % 86400 // 3600:02d}" \
+                f"{(59 * 60 + 58 + second) % 3600 // 60:02d}{(58 + second) % 60:02d}"
+        lines.append(_nmea(f"GPGGA,{clock},5609.000,N,01013.000,E,1,08,0.9,5.0,M,40.0,M,,"))
+        lines += [_nmea(f"HEHDT,{4 * (second + k / 4):.2f},T") for k in range(4)]
+    path = tmp_path / "turn.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    # the day rolls over at 00:00:00 although no new date arrived
+    assert track.utc_start == datetime(2026, 4, 30, 23, 59, 58, tzinfo=UTC)
+    assert list(track.t_s) == [0.0, 1.0, 2.0, 3.0]
+    np.testing.assert_allclose(track.heading_deg, [0.0, 4.0, 8.0, 12.0], atol=1e-9)
+
+
+def test_gps_time_to_utc_uses_the_leap_seconds_of_the_day():
+    from harborsight.telemetry.autopilot import GPS_EPOCH, utc_from_gps_time
+
+    for utc, leap in ((datetime(2016, 6, 1, tzinfo=UTC), 17), (datetime(2013, 1, 1, tzinfo=UTC), 16),
+                      (datetime(2026, 5, 1, 12, tzinfo=UTC), 18)):
+        gps_seconds = (utc - GPS_EPOCH).total_seconds() + leap
+        assert utc_from_gps_time(gps_seconds) == utc
+
+
+def test_mount_attitudes_in_physical_cases():
+    def track_with(yaw, pitch, roll):
+        return Track(source=Path("log.ulg"), kind="px4-ulog", t_s=np.zeros(1), lat_deg=np.zeros(1),
+                     lon_deg=np.zeros(1), alt_m=np.full(1, 50.0), yaw_deg=np.array([yaw]),
+                     pitch_deg=np.array([pitch]), roll_deg=np.array([roll]), attitude_of="vehicle")
+
+    # a level drone heading 30 deg with a camera fixed straight down: the optical axis (x_G)
+    # points down and the image top (-z_G) points along 30 deg (north-east)
+    level = track_with(30.0, 0.0, 0.0)
+    yaw, pitch, roll = camera_attitude_deg(level, level.sample(np.zeros(1)), CameraMount("rigid"))
+    rotation = ned_from_gimbal_rotation(*np.deg2rad([yaw[0], pitch[0], roll[0]]))
+    np.testing.assert_allclose(rotation[:, 0], [0.0, 0.0, 1.0], atol=1e-9)
+    np.testing.assert_allclose(rotation @ [0.0, 0.0, -1.0],
+                               [math.cos(math.radians(30)), math.sin(math.radians(30)), 0.0], atol=1e-9)
+    # nose down 10 deg with a camera pitched -60 on the body: -70 deg, yaw and roll unchanged
+    nose_down = track_with(30.0, -10.0, 0.0)
+    got = camera_attitude_deg(nose_down, nose_down.sample(np.zeros(1)), CameraMount("rigid", -60.0))
+    np.testing.assert_allclose([a[0] for a in got], [30.0, -70.0, 0.0], atol=1e-9)
+    gimbal = read_dji_srt(DJI / "p4_rtk.SRT")
+    with pytest.raises(InputError, match="gimbal's yaw"):
+        camera_attitude_deg(gimbal, gimbal.sample(np.zeros(1)), CameraMount(yaw_deg=10.0))
+
+
+def test_cli_video_refuses_bad_sizes_and_unknown_cameras(tmp_path):
+    vessel_csv = _vessel_csv(tmp_path / "ship.csv", datetime(2026, 5, 1, 12, tzinfo=UTC), 5)
+    base = ["telemetry", "video", str(DJI / "p4_rtk.SRT"), "--vessel-track", str(vessel_csv),
+            "--frames", "4", "--fps", "2", "--video-start", "2026-05-01T12:00:00Z",
+            "--water-level-m", "0", "--out", str(tmp_path / "f.jsonl")]
+    bad_size = runner.invoke(app, [*base, "--camera", "dji-p4rtk", "--image-size", "-1280x720"],
+                             terminal_width=200)
+    assert bad_size.exit_code == 2 and "--image-size" in bad_size.output
+    typo = runner.invoke(app, [*base, "--camera", "dji-p4-rtk", "--image-size", "1280x720"],
+                         terminal_width=200)
+    assert typo.exit_code == 2 and "neither a camera preset (dji-mavic3" in typo.output
+    assert not (tmp_path / "f.jsonl").exists()

@@ -4,7 +4,7 @@
 Both give the airframe's GPS position and its attitude (body FRD axes relative to NED), on the
 autopilot's boot clock (``t_s`` = seconds since boot), and the UTC time of that clock from the
 GPS: PX4's ``time_utc_usec``, ArduPilot's GPS week and milliseconds (``GWk``, ``GMS``; GPS time
-runs ahead of UTC by the leap seconds, 18 s since 2017).
+runs ahead of UTC by the leap seconds: 15 s in 2009, 18 s since 2017).
 
 Topics and messages read:
 
@@ -18,6 +18,8 @@ Topics and messages read:
 
 from __future__ import annotations
 
+import contextlib
+import io
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -27,9 +29,20 @@ from scipy.spatial.transform import Rotation
 from harborsight.errors import InputError
 from harborsight.telemetry.track import Track, utc_from_epoch_s
 
-#: GPS time = UTC + leap seconds; 18 s since 2017-01-01 (IERS Bulletin C: none added since).
-GPS_LEAP_SECONDS = 18
 GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
+#: GPS time minus UTC, from each UTC date on (IERS Bulletin C; none added since 2017-01-01).
+GPS_MINUS_UTC_S = ((datetime(2009, 1, 1, tzinfo=UTC), 15), (datetime(2012, 7, 1, tzinfo=UTC), 16),
+                   (datetime(2015, 7, 1, tzinfo=UTC), 17), (datetime(2017, 1, 1, tzinfo=UTC), 18))
+
+
+def utc_from_gps_time(gps_seconds: float) -> datetime:
+    """UTC of a GPS time (seconds since the GPS epoch), from 2009 on: minus the leap seconds
+    in force at that moment."""
+    gps_time = GPS_EPOCH + timedelta(seconds=float(gps_seconds))
+    if gps_time < GPS_MINUS_UTC_S[0][0]:
+        raise ValueError(f"GPS time {gps_time:%Y-%m-%d} is before 2009: no leap-second entry")
+    leap = [offset for since, offset in GPS_MINUS_UTC_S if gps_time - timedelta(seconds=offset) >= since]
+    return gps_time - timedelta(seconds=leap[-1])
 
 
 def _attitude_fields(t_s: np.ndarray | None, ypr_deg: np.ndarray | None) -> dict:
@@ -97,38 +110,54 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     from pymavlink import DFReader
 
     path = Path(path)
+    noise = io.StringIO()        # pymavlink prints a line per bad header on foreign files
     try:
-        log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+        with contextlib.redirect_stdout(noise):
+            log = DFReader.DFReader_binary(str(path), zero_time_base=False)
     except Exception as exc:  # DFReader raises assorted errors on foreign files
         raise InputError(path, None, f"not a readable ArduPilot DataFlash log: {exc}") from None
-    gps_rows, att_rows, unfixed = [], [], 0
-    while True:
-        try:
-            message = log.recv_match(type=["GPS", "ATT"])
-        except Exception as exc:  # a torn record at the end of a log cut by power loss
-            raise InputError(path, None, f"unreadable record after {len(gps_rows)} GPS "
-                             f"sample(s): {exc}") from None
-        if message is None:
-            break
-        if message.get_type() == "GPS":
-            if getattr(message, "Status", 3) < 3:
-                unfixed += 1
-                continue
-            gps_rows.append((message.TimeUS / 1e6, message.Lat, message.Lng, message.Alt,
-                             message.GWk, message.GMS))
-        else:
-            att_rows.append((message.TimeUS / 1e6, message.Yaw, message.Pitch, message.Roll))
+    gps_rows, att_rows, unfixed, other_instances = [], [], 0, 0
+    with contextlib.redirect_stdout(noise):
+        while True:
+            try:
+                message = log.recv_match(type=["GPS", "ATT"])
+            except Exception as exc:  # a torn record at the end of a log cut by power loss
+                raise InputError(path, None, f"unreadable record after {len(gps_rows)} GPS "
+                                 f"sample(s): {exc}") from None
+            if message is None:
+                break
+            try:
+                if message.get_type() == "GPS":
+                    if getattr(message, "I", 0) != 0:   # 4.1 on: every receiver logs as GPS
+                        other_instances += 1
+                        continue
+                    if getattr(message, "Status", 3) < 3:
+                        unfixed += 1
+                        continue
+                    gps_rows.append((message.TimeUS / 1e6, message.Lat, message.Lng, message.Alt,
+                                     message.GWk, message.GMS))
+                else:
+                    att_rows.append((message.TimeUS / 1e6, message.Yaw, message.Pitch,
+                                     message.Roll))
+            except AttributeError as exc:     # ArduPilot before 3.3: TimeMS, Week, T
+                raise InputError(path, message.get_type(), f"unsupported (older) DataFlash "
+                                 f"format: {exc}") from None
     if not gps_rows:
         raise InputError(path, "GPS", "the log has no GPS message with a 3-D fix")
     gps = np.array(gps_rows, dtype=float)
     notes = [f"{unfixed} GPS sample(s) without a 3-D fix skipped"] if unfixed else []
+    if other_instances:
+        notes.append(f"{other_instances} sample(s) of other GPS receivers (I > 0) left out")
     t_s = gps[:, 0]
     utc_start = None
     weeks, ms = gps[:, 4], gps[:, 5]
     if (weeks > 0).any():
-        gps_time_s = weeks * 7 * 86400 + ms / 1000.0 - GPS_LEAP_SECONDS
-        offset_s = float(np.median(gps_time_s[weeks > 0] - t_s[weeks > 0]))
-        utc_start = GPS_EPOCH + timedelta(seconds=offset_s)
+        gps_time_s = weeks * 7 * 86400 + ms / 1000.0
+        boot_gps_s = float(np.median(gps_time_s[weeks > 0] - t_s[weeks > 0]))
+        try:
+            utc_start = utc_from_gps_time(boot_gps_s)
+        except ValueError as exc:
+            notes.append(f"no UTC: {exc}")
     att = np.array(att_rows, dtype=float) if att_rows else None
     if att is None:
         notes.append("no ATT messages: no attitude")

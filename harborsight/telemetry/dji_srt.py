@@ -7,9 +7,12 @@ Firmware families write different text (all seen in real files):
   ``[altitude: 117.0]`` (Mini 3/4, Air 2, Air 2S, Mavic 3, ...); Mavic 2 / Air 2 firmware spell
   ``[longtitude : ...]``, and their Mavic 2 style files have no timecodes at all;
 * ``GPS(149.0251,-20.2533,16) BAROMETER:1.9`` (Mavic Pro, P4; ``Hb:`` on older firmware) and
-  ``GPS (8.2090, 47.4692, 18), ... H 45.60m`` (P4P, P4 RTK, Mavic Mini). ``GPS(...)`` is
-  **longitude first**, then latitude, then satellites (or an altitude with ``M``), as in DJI's
-  HOME(...) fields and JuanIrache's DJI_SRT_Parser;
+  ``GPS (8.2090, 47.4692, 18), ... H 45.60m`` (P4P, P4 RTK, Mavic Mini): **longitude first**,
+  then latitude, then the satellite count, as in DJI's ``HOME(...)`` fields (the Mavic Pro
+  file and the Mavic 2 style file of the same flight, which labels its fields, agree);
+* ``GPS(36.6146,-6.1120,0.0M) BAROMETER:0.3M`` (DJI Pilot, Matrice 300): the third value is an
+  altitude in metres, and this form is **latitude first** (Cádiz Bay here; other published
+  samples of it, e.g. ``GPS(37.8757,-122.3061,0.0M)``, only make sense that way);
 * ``G.PRY (pitch°, roll°, yaw°)``: the gimbal's attitude (P4 RTK), the only SRT attitude;
   ``F.PRY`` is the airframe's.
 
@@ -39,8 +42,10 @@ _BRACKET = re.compile(r"\b(latitude|longitude|longtitude|rel_alt|abs_alt|altitud
 _GPS = re.compile(r"\bGPS\s*\(\s*(" + _NUMBER + r")\s*,\s*(" + _NUMBER + r")\s*(?:,\s*(" + _NUMBER
                   + r")\s*(M)?)?\s*\)", re.IGNORECASE)
 _BARO = re.compile(r"\b(?:BAROMETER\s*:\s*|Hb\s*:\s*|H\s+)(" + _NUMBER + r")\s*m?\b", re.IGNORECASE)
-_PRY = re.compile(r"\b([GF])\.PRY\s*\(\s*(" + _NUMBER + r")\s*°?\s*,\s*(" + _NUMBER + r")\s*°?\s*,\s*("
-                  + _NUMBER + r")\s*°?\s*\)", re.IGNORECASE)
+# between a number and its comma: a degree sign, or its mis-decoded bytes (cp1252 files)
+_UNIT = r"[^\d,()+-]*"
+_PRY = re.compile(r"\b([GF])\.PRY\s*\(\s*(" + _NUMBER + ")" + _UNIT + r",\s*(" + _NUMBER + ")" + _UNIT
+                  + r",\s*(" + _NUMBER + ")" + _UNIT + r"\)", re.IGNORECASE)
 _DATE = re.compile(r"\b(\d{4})[-.](\d{1,2})[-.](\d{1,2})\s+(\d{1,2}):(\d{2}):(\d{2})"
                    r"(?:[,.](\d{3})(?:[,.](\d{3}))?)?")
 _TAGS = re.compile(r"<[^>]*>")
@@ -64,10 +69,19 @@ def _blocks(text: str) -> list[tuple[int, list[str]]]:
     return blocks
 
 
-def _parse_date(match: re.Match) -> datetime:
+def _parse_date(match: re.Match) -> datetime | None:
+    """The date line's time, or None for an impossible date (month 13, ...)."""
     year, month, day, hour, minute, second, ms, us = match.groups()
     micro = int(ms or 0) * 1000 + int(us or 0)
-    return datetime(int(year), int(month), int(day), int(hour), int(minute), int(second), micro)
+    try:
+        return datetime(int(year), int(month), int(day), int(hour), int(minute), int(second), micro)
+    except ValueError:
+        return None
+
+
+def _lines(numbers: list[int]) -> str:
+    shown = ", ".join(str(n) for n in numbers[:5]) + (", ..." if len(numbers) > 5 else "")
+    return f"line{'s' if len(numbers) > 1 else ''} {shown}"
 
 
 def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
@@ -80,6 +94,8 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
     rows: list[dict] = []
     skipped: list[int] = []
+    out_of_range: list[int] = []
+    bad_dates: list[int] = []
     for line_number, lines in _blocks(text):
         row: dict = {"line": line_number}
         body = []
@@ -96,35 +112,65 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
             key = key.lower().replace("longtitude", "longitude")
             row[key] = float(value)
         if (m := _GPS.search(content)) is not None:
-            row.setdefault("longitude", float(m.group(1)))
-            row.setdefault("latitude", float(m.group(2)))
-            if m.group(4) and m.group(3) is not None:
+            first, second = float(m.group(1)), float(m.group(2))
+            if m.group(4) and m.group(3) is not None:       # (lat, lon, altM): DJI Pilot
+                row.setdefault("latitude", first)
+                row.setdefault("longitude", second)
                 row["gps_alt"] = float(m.group(3))
+            else:                                           # (lon, lat, satellites)
+                row.setdefault("longitude", first)
+                row.setdefault("latitude", second)
         if (m := _BARO.search(content)) is not None:
             row["baro_alt"] = float(m.group(1))
         for which, pitch, roll, yaw in _PRY.findall(content):
             if which.upper() == "G":
                 row["gimbal"] = (float(yaw), float(pitch), float(roll))
         if (m := _DATE.search(content)) is not None:
-            row["date"] = _parse_date(m)
-        if "latitude" in row and "longitude" in row and (row["latitude"], row["longitude"]) != (0.0, 0.0):
-            rows.append(row)
-        else:
+            if (when := _parse_date(m)) is not None:
+                row["date"] = when
+            else:
+                bad_dates.append(line_number)
+        lat, lon = row.get("latitude"), row.get("longitude")
+        if lat is None or lon is None or (lat, lon) == (0.0, 0.0):
             skipped.append(line_number)
+        elif not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            out_of_range.append(line_number)
+        else:
+            rows.append(row)
+    if out_of_range and not rows:
+        raise InputError(path, f"line {out_of_range[0]}", "position outside ±90° latitude / "
+                         "±180° longitude: not a DJI GPS field this reader knows")
     if not rows:
         raise InputError(path, None, "no DJI telemetry block with a position (latitude/longitude "
                          "or GPS(...)); is this a DJI .SRT file?")
 
-    if all("video_s" in r for r in rows):
+    without_clock: list[int] = []
+    if any("video_s" in r for r in rows):
+        without_clock = [r["line"] for r in rows if "video_s" not in r]
+        rows = [r for r in rows if "video_s" in r]
         t_s = np.array([r["video_s"] for r in rows])
         clock = "video time (subtitle start timecodes)"
-    elif all("date" in r for r in rows):
+    elif any("date" in r for r in rows):
+        without_clock = [r["line"] for r in rows if "date" not in r]
+        rows = [r for r in rows if "date" in r]
         first = rows[0]["date"]
         t_s = np.array([(r["date"] - first).total_seconds() for r in rows])
         clock = "seconds since the first date line (the file has no timecodes)"
     else:
-        raise InputError(path, None, "blocks have neither timecodes nor date lines throughout: "
-                         "no time for the samples")
+        raise InputError(path, None, "no block has a timecode or a date line: no time for the "
+                         "samples")
+
+    partial: list[str] = []
+
+    def column(key: str, width: int = 0) -> np.ndarray | None:
+        """A quantity over all rows, NaN where a block lacks it; None where none has it."""
+        have = [key in r for r in rows]
+        if not any(have):
+            return None
+        if not all(have):
+            partial.append(f"{have.count(False)} block(s) without {key}")
+        blank = np.full(width, np.nan) if width else np.nan
+        return np.array([r.get(key, blank) for r in rows], dtype=float)
 
     altitude, reference = None, None
     for key, words in (("rel_alt", "barometric height above the take-off point (rel_alt)"),
@@ -132,19 +178,21 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
                        ("abs_alt", "above mean sea level (abs_alt)"),
                        ("altitude", "DJI 'altitude' field (datum not documented by DJI)"),
                        ("gps_alt", "GPS altitude")):
-        if all(key in r for r in rows):
-            altitude, reference = np.array([r[key] for r in rows]), words
+        if any(key in r for r in rows):
+            altitude, reference = column(key), words
             break
-    gimbal = np.array([r["gimbal"] for r in rows]) if all("gimbal" in r for r in rows) else None
+    gimbal = column("gimbal", 3)
 
-    notes = []
-    if skipped:
-        shown = ", ".join(str(n) for n in skipped[:5]) + (", ..." if len(skipped) > 5 else "")
-        notes.append(f"{len(skipped)} block(s) without a position skipped "
-                     f"(line{'s' if len(skipped) > 1 else ''} {shown})")
+    notes = [f"{len(lines)} block(s) {what} (" + _lines(lines) + ")" for lines, what in (
+        (skipped, "without a position skipped"),
+        (out_of_range, "with a position outside ±90°/±180° skipped"),
+        (without_clock, "without the file's clock (timecode or date) skipped"),
+        (bad_dates, "with an impossible date line (date ignored)"),
+    ) if lines] + partial
     utc_start = None
-    if "date" in rows[0]:
-        local_start = rows[0]["date"] - timedelta(seconds=float(t_s[0]))
+    dated = next((i for i, r in enumerate(rows) if "date" in r), None)
+    if dated is not None:
+        local_start = rows[dated]["date"] - timedelta(seconds=float(t_s[dated]))
         if utc_offset_h is not None:
             utc_start = (local_start - timedelta(hours=utc_offset_h)).replace(tzinfo=UTC)
         else:

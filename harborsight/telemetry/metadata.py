@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -42,7 +42,7 @@ class CameraMount:
         if self.mode not in MOUNTS:
             raise ValueError(f"camera mount {self.mode!r}: expected one of {', '.join(MOUNTS)}")
         if self.mode == "auto":
-            return "gimbal" if drone.attitude_of == "gimbal" and self.yaw_deg is None else "stabilised"
+            return "gimbal" if drone.attitude_of == "gimbal" else "stabilised"
         return self.mode
 
 
@@ -53,6 +53,9 @@ def camera_attitude_deg(drone: Track, samples: dict[str, np.ndarray], mount: Cam
     mode = mount.resolve(drone)
     has_attitude = drone.has_attitude and "yaw_deg" in samples
     if mode == "gimbal":
+        if mount.yaw_deg is not None:
+            raise InputError(drone.source, "attitude", "the log gives the gimbal's yaw; a fixed "
+                             "camera yaw is for logs without attitude (or a stabilised mount)")
         if drone.attitude_of != "gimbal":
             raise InputError(drone.source, "attitude", "the log has no gimbal attitude; use the "
                              "stabilised or rigid camera mount")
@@ -84,7 +87,7 @@ def camera_attitude_deg(drone: Track, samples: dict[str, np.ndarray], mount: Cam
 @dataclass
 class FrameMetadataResult:
     frames: list[dict]                      # one harborsight.frame/1 object per usable frame
-    skipped: list[tuple[int, str]]          # (frame index, reason)
+    skipped: list[tuple[int, str]]          # (frame index, "what: detail")
     mount: str
 
 
@@ -96,9 +99,12 @@ def build_video_metadata(
 ) -> FrameMetadataResult:
     """One ``harborsight.frame/1`` dict per frame of the video (``frame_index`` keyed), with
     the drone and vessel sampled at the frame's time. A frame whose time falls outside a track
-    or in a gap longer than ``max_gap_s`` is skipped with the reason."""
+    or in a gap (:meth:`Track.sample`) is skipped with the reason. A naive
+    ``video_start_utc`` is taken as UTC."""
     if n_frames < 1 or not (fps > 0):
         raise ValueError("need at least one frame and a positive frame rate")
+    if video_start_utc is not None and video_start_utc.tzinfo is None:
+        video_start_utc = video_start_utc.replace(tzinfo=UTC)     # naive: taken as UTC
     if drone.alt_m is None:
         raise InputError(drone.source, "altitude", "the log has no altitude")
     video_s = np.arange(n_frames) / fps
@@ -131,13 +137,13 @@ def build_video_metadata(
             ("vessel position", ship["lat_deg"][i]), ("vessel heading", ship["heading_deg"][i]),
         ) if not np.isfinite(value)]
         if missing:
-            skipped.append((i, f"no {', '.join(missing)} within {max_gap_s:g} s of "
+            skipped.append((i, f"no {', '.join(missing)}: none within reach of "
                                f"{utc[i].isoformat()}"))
             continue
         height_m = uav["alt_m"][i] - water_level_m
         if height_m <= 0:
-            skipped.append((i, f"drone altitude {uav['alt_m'][i]:.2f} m is not above the water "
-                               f"level {water_level_m:g} m"))
+            skipped.append((i, f"drone not above the water level: altitude "
+                               f"{uav['alt_m'][i]:.2f} m, water level {water_level_m:g} m"))
             continue
         frames.append({
             "schema": "harborsight.frame/1", "frame_index": i,

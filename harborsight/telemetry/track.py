@@ -7,8 +7,10 @@ Missing quantities are ``None``, never zeros.
 Sampling at other times interpolates linearly between the two neighbouring samples: latitude
 and longitude directly (the step between samples is metres, where a degree is locally
 linear), angles on their unwrapped sequence (so 359 deg -> 1 deg passes through 0, not 180).
-A time farther than ``max_gap_s`` from both neighbours, or outside the track by more than
-``max_gap_s``, has no value: NaN, and the caller reports the frame instead of guessing.
+A time between two samples more than ``2 max_gap_s`` apart, or outside the track by more than
+half its end sample interval (or ``max_gap_s``, if less), has no value: NaN, and the caller
+reports the frame instead of guessing. (Outside, the end sample's value is held, not
+extrapolated: GPS noise makes a slope from two samples worse than holding for half a step.)
 """
 
 from __future__ import annotations
@@ -103,8 +105,8 @@ class Track:
 
     def sample(self, times_s: np.ndarray, max_gap_s: float = 1.0) -> dict[str, np.ndarray]:
         """Each present quantity at ``times_s`` (same clock as ``t_s``), NaN where the
-        bracketing samples are more than ``2 max_gap_s`` apart, or the time lies more than
-        ``max_gap_s`` outside the samples."""
+        bracketing samples are more than ``2 max_gap_s`` apart, or the time lies outside the
+        samples by more than half the end interval (at most ``max_gap_s``)."""
         times_s = np.atleast_1d(np.asarray(times_s, dtype=float))
         out: dict[str, np.ndarray] = {}
         for name in QUANTITIES:
@@ -150,9 +152,13 @@ def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float) -> np.ndarr
     before = t[np.clip(index - 1, 0, len(t) - 1)]
     after = t[np.clip(index, 0, len(t) - 1)]
     inside = (times_s >= t[0]) & (times_s <= t[-1])
-    nearest = np.minimum(np.abs(times_s - before), np.abs(after - times_s))
-    return np.where(inside, (after - before <= 2 * max_gap_s) | (nearest == 0),
-                    nearest <= max_gap_s)
+    # outside, the end value is held: for at most half the last sample interval
+    first_step = t[1] - t[0] if len(t) > 1 else 0.0
+    last_step = t[-1] - t[-2] if len(t) > 1 else 0.0
+    reach = np.where(times_s < t[0], min(max_gap_s, first_step / 2), min(max_gap_s, last_step / 2))
+    outside_ok = np.minimum(np.abs(times_s - t[0]), np.abs(times_s - t[-1])) <= reach
+    return np.where(inside, (after - before <= 2 * max_gap_s) | (times_s == before)
+                    | (times_s == after), outside_ok)
 
 
 def utc_from_epoch_s(seconds: float) -> datetime:

@@ -4,9 +4,11 @@
 NMEA: ``RMC`` gives UTC date, time and position; ``GGA`` time and position (its date comes from
 the last ``RMC`` or ``ZDA``); ``HDT`` the true heading; ``HDG`` a magnetic heading that becomes
 true with the deviation and variation it carries (skipped when it carries no variation).
-Heading sentences have no time: each takes the time of the last position fix. The heading at
-each position fix is then interpolated (on unwrapped angles) from heading samples no more than
-``max_heading_gap_s`` away. Course over ground (``RMC``/``VTG``) is never used as heading: a
+Heading sentences have no time: those between two fixes are spread evenly over that interval
+(:func:`_heading_times`). The heading at each position fix is then interpolated (on unwrapped
+angles) from heading samples no more than ``max_heading_gap_s`` away. A fix whose time of day
+is over 12 h before the previous one's is in the next day (a GGA after midnight, before the
+next RMC/ZDA brings the date). Course over ground (``RMC``/``VTG``) is never used as heading: a
 vessel berthing moves sideways.
 
 CSV: a header line, then one row per sample, with columns ``time`` (ISO 8601 with a zone, e.g.
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import csv
 import math
-from datetime import UTC, date, datetime, time
+from datetime import UTC, date, datetime, time, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -53,10 +55,17 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
     day: date | None = None
-    last_fix: datetime | None = None
-    fixes: list[tuple[datetime, float, float]] = []
-    headings: list[tuple[datetime, float]] = []
+    fixes: list[tuple[datetime, float, float]] = []       # in arrival order
+    headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
     bad, undated, no_variation = [], 0, 0
+
+    def add_fix(clock: time, lat: float, lon: float) -> None:
+        when = _utc(day, clock)
+        if fixes and when < fixes[-1][0] - timedelta(hours=12):
+            when += timedelta(days=1)          # past midnight, before the next date arrives
+        if not fixes or fixes[-1][0] != when:  # RMC and GGA of one fix count once
+            fixes.append((when, lat, lon))
+
     for number, line in enumerate(lines, start=1):
         line = line.strip()
         start = line.find("$")
@@ -75,25 +84,22 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                 if sentence.datestamp is not None:
                     day = sentence.datestamp
                 if sentence.status == "A" and sentence.timestamp is not None and day is not None:
-                    last_fix = _utc(day, sentence.timestamp)
-                    fixes.append((last_fix, sentence.latitude, sentence.longitude))
+                    add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
             elif kind == "GGA":
                 if int(sentence.gps_qual or 0) > 0 and sentence.timestamp is not None:
                     if day is None:
                         undated += 1
                         continue
-                    last_fix = _utc(day, sentence.timestamp)
-                    if not fixes or fixes[-1][0] != last_fix:     # RMC and GGA of one fix
-                        fixes.append((last_fix, sentence.latitude, sentence.longitude))
-            elif kind == "HDT" and sentence.heading is not None and last_fix is not None:
-                headings.append((last_fix, float(sentence.heading)))
-            elif kind == "HDG" and sentence.heading is not None and last_fix is not None:
+                    add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
+            elif kind == "HDT" and sentence.heading is not None and fixes:
+                headings.append((len(fixes) - 1, float(sentence.heading)))
+            elif kind == "HDG" and sentence.heading is not None and fixes:
                 if sentence.variation is None:
                     no_variation += 1
                     continue
                 deviation = float(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
                 variation = float(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
-                headings.append((last_fix, float(sentence.heading) + deviation + variation))
+                headings.append((len(fixes) - 1, float(sentence.heading) + deviation + variation))
         except (ValueError, TypeError, AttributeError):
             bad.append(number)
     if not fixes:
@@ -111,13 +117,14 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
         notes.append(f"{undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
     if no_variation:
         notes.append(f"{no_variation} HDG sentence(s) without magnetic variation skipped")
-    fixes.sort(key=lambda f: f[0])
-    t0 = fixes[0][0]
-    fix_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
-    head_t = np.array([(h[0] - t0).total_seconds() for h in headings])
+    t0 = min(f[0] for f in fixes)
+    arrival_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
+    head_t = _heading_times(arrival_t, [epoch for epoch, _ in headings])
     order = np.argsort(head_t, kind="stable")
     head_t = head_t[order]
-    head = np.rad2deg(np.unwrap(np.deg2rad(np.array([h[1] for h in headings])[order])))
+    head = np.rad2deg(np.unwrap(np.deg2rad(np.array([h for _, h in headings])[order])))
+    fix_order = np.argsort(arrival_t, kind="stable")
+    fix_t = arrival_t[fix_order]
     heading = np.interp(fix_t, head_t, head) % 360.0
     index = np.searchsorted(head_t, fix_t)
     nearest = np.minimum(np.abs(fix_t - head_t[np.clip(index - 1, 0, len(head_t) - 1)]),
@@ -126,8 +133,25 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     if np.isnan(heading).any():
         notes.append(f"{int(np.isnan(heading).sum())} fix(es) with no heading within "
                      f"{max_heading_gap_s:g} s")
-    return _track(path, "nmea", [f[0] for f in fixes], [f[1] for f in fixes],
-                  [f[2] for f in fixes], heading, notes)
+    ordered = [fixes[i] for i in fix_order]
+    return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
+                  [f[2] for f in ordered], heading, notes)
+
+
+def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
+    """Heading sentences carry no time. The k-th of n headings after fix i is placed at
+    ``t_i + k·(t_(i+1) − t_i)/n``: evenly over the interval to the next fix (the median
+    interval after the last), as a receiver sending headings at a steady rate would."""
+    epochs_arr = np.asarray(epochs)
+    steps = np.diff(fix_t)
+    typical = float(np.median(steps[steps > 0])) if (steps > 0).any() else 1.0
+    times = np.empty(len(epochs_arr))
+    for epoch in np.unique(epochs_arr):
+        members = np.flatnonzero(epochs_arr == epoch)
+        step = fix_t[epoch + 1] - fix_t[epoch] if epoch + 1 < len(fix_t) else typical
+        step = step if step > 0 else typical
+        times[members] = fix_t[epoch] + np.arange(len(members)) * step / len(members)
+    return times
 
 
 def _utc(day: date, clock: time) -> datetime:
@@ -172,7 +196,7 @@ def _csv_time(text: str | None) -> datetime:
         raise ValueError(f"time: expected ISO 8601 with a zone, got {text!r}") from None
     if when.tzinfo is None:
         raise ValueError(f"time: {text!r} has no time zone")
-    return when
+    return when.astimezone(UTC)
 
 
 def _csv_number(text: str | None, low: float, high: float, column: str) -> float:
