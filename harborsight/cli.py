@@ -776,8 +776,9 @@ def telemetry_video(
     drone_log: Annotated[Path, typer.Argument(help="The drone's log: DJI .srt (video clock), "
                                               "PX4 .ulg or ArduPilot .bin.")],
     vessel_track: Annotated[Path, typer.Option(
-        help="The vessel's track: NMEA 0183 (RMC/GGA position, HDT or HDG true heading) or "
-        "CSV (time, lat, lon, heading_deg).")],
+        help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, "
+        "magnetic made true with the WMM) or CSV (time, lat, lon, heading_deg or "
+        "heading_mag_deg).")],
     camera: Annotated[str, typer.Option(
         help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
         "(OpenCV YAML/XML or ROS camera_info).")],

@@ -17,6 +17,7 @@ from harborsight.errors import InputError
 from harborsight.frame import parse_frame_metadata
 from harborsight.geometry.rotations import ned_from_gimbal_rotation
 from harborsight.telemetry import read_drone_log
+from harborsight.telemetry.declination import magnetic_declination_deg, wmm_model_name
 from harborsight.telemetry.dji_srt import read_dji_srt
 from harborsight.telemetry.metadata import CameraMount, build_video_metadata, camera_attitude_deg
 from harborsight.telemetry.track import Track
@@ -161,8 +162,69 @@ def test_nmea_vessel_track(tmp_path):
     assert track.notes == ["1 unreadable sentence(s) skipped (bad checksum or field; line 6)"]
     no_heading = tmp_path / "no_heading.nmea"
     no_heading.write_text(lines[0] + "\n" + lines[-1] + "\n")
-    with pytest.raises(InputError, match="no true heading"):
+    with pytest.raises(InputError, match="no heading"):
         read_vessel_track(no_heading)
+
+
+# NOAA's published test values (WMM2020testvalues.pdf, WMM2025testvalues.pdf): decimal year,
+# height km, latitude, longitude, declination D in degrees (printed to 0.01)
+WMM_TEST_VALUES = [(2020.0, 0, 80, 0, -1.28), (2020.0, 0, 0, 120, 0.16), (2020.0, 0, -80, 240, 69.36),
+                   (2022.5, 0, 80, 0, 0.01), (2022.5, 0, 0, 120, -0.06), (2022.5, 0, -80, 240, 69.13),
+                   (2025.0, 0, 80, 0, 1.28), (2025.0, 0, 0, 120, -0.16), (2025.0, 0, -80, 240, 68.78),
+                   (2025.0, 100, 80, 0, 0.85), (2025.0, 65, 43, 93, 0.50)]
+
+
+@pytest.mark.parametrize(("year", "height_km", "lat", "lon", "expected"), WMM_TEST_VALUES)
+def test_declination_matches_noaa_test_values(year, height_km, lat, lon, expected):
+    start = datetime(int(year), 1, 1, tzinfo=UTC)
+    when = start + (datetime(int(year) + 1, 1, 1, tzinfo=UTC) - start) * (year - int(year))
+    lon = lon - 360 if lon > 180 else lon
+    got = magnetic_declination_deg(lat, lon, when, alt_m=height_km * 1000.0)
+    assert got == pytest.approx(expected, abs=0.006)
+
+
+def test_declination_outside_the_models_is_refused():
+    assert wmm_model_name(2026.9) == "WMM-2025" and wmm_model_name(2019.5) == "WMM-2015v2"
+    with pytest.raises(ValueError, match="no World Magnetic Model covers 2031"):
+        magnetic_declination_deg(52.0, 4.0, datetime(2031, 1, 1, tzinfo=UTC))
+
+
+def test_magnetic_nmea_headings_made_true_with_the_wmm(tmp_path):
+    # Rotterdam, 2026: HDM and an HDG without variation get the WMM-2025 declination; HDG's
+    # deviation is still applied
+    declination = magnetic_declination_deg(51.9, 4.1, datetime(2026, 5, 1, 12, tzinfo=UTC))
+    assert 1.0 < declination < 4.0                 # about 2.5 deg E there in 2026
+    lines = [_nmea("GPRMC,120000,A,5154.000,N,00406.000,E,0.0,0.0,010526,,"),
+             _nmea("HCHDM,100.0,M"),
+             _nmea("GPRMC,120001,A,5154.000,N,00406.000,E,0.0,0.0,010526,,"),
+             _nmea("HCHDG,100.0,1.5,W,,")]
+    path = tmp_path / "magnetic.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    np.testing.assert_allclose(track.heading_deg, [100.0 + declination, 98.5 + declination],
+                               atol=0.01)
+    assert "2 magnetic heading(s)" in track.notes[0] and "WMM-2025" in track.notes[0]
+    # a true heading wins: the magnetic ones are left out, and said so
+    path.write_text("\n".join([*lines, _nmea("HEHDT,101.0,T")]) + "\n")
+    track = read_vessel_track(path)
+    assert track.notes[0] == "2 magnetic heading(s) (HDM, or HDG without variation) left out: " \
+        "the feed has true headings"
+    # a date no model covers: a clear error, not a silent magnetic heading
+    old = [line.replace("010526", "010599") for line in lines[:2]]
+    path.write_text("\n".join(_nmea(line[1:-3]) for line in old) + "\n")
+    with pytest.raises(InputError, match="cannot be made true: no World Magnetic Model covers 1999"):
+        read_vessel_track(path)
+
+
+def test_csv_magnetic_heading_column(tmp_path):
+    path = tmp_path / "ship.csv"
+    path.write_text("time,lat,lon,heading_mag_deg\n2026-05-01T12:00:00Z,51.9,4.1,100\n"
+                    "2031-05-01T12:00:01Z,51.9,4.1,100\n")
+    track = read_vessel_track(path)
+    declination = magnetic_declination_deg(51.9, 4.1, datetime(2026, 5, 1, 12, tzinfo=UTC))
+    assert list(track.heading_deg) == pytest.approx([100.0 + declination])
+    assert "line 3: no World Magnetic Model covers 2031" in track.notes[0]
+    assert "heading_mag_deg made true with the WMM-2025 declination" in track.notes[1]
 
 
 def test_csv_vessel_track_skips_a_bad_row(tmp_path):

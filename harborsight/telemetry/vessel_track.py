@@ -3,7 +3,10 @@
 
 NMEA: ``RMC`` gives UTC date, time and position; ``GGA`` time and position (its date comes from
 the last ``RMC`` or ``ZDA``); ``HDT`` the true heading; ``HDG`` a magnetic heading that becomes
-true with the deviation and variation it carries (skipped when it carries no variation).
+true with the deviation and variation it carries; ``HDM``, and an ``HDG`` without variation, a
+magnetic heading made true with the World Magnetic Model's declination at the last fix
+(:mod:`harborsight.telemetry.declination`). Where a feed has both, true headings (HDT, HDG with
+variation) are used and the magnetic ones are left out.
 Heading sentences have no time: those between two fixes are spread evenly over that interval
 (:func:`_heading_times`). The heading at each position fix is then interpolated (on unwrapped
 angles) from heading samples no more than ``max_heading_gap_s`` away. A fix whose time of day
@@ -13,7 +16,8 @@ vessel berthing moves sideways.
 
 CSV: a header line, then one row per sample, with columns ``time`` (ISO 8601 with a zone, e.g.
 ``2026-05-01T12:00:00.25Z``), ``lat``, ``lon`` (degrees) and ``heading_deg`` (true, clockwise
-from north).
+from north), or instead ``heading_mag_deg`` (magnetic, deviation already applied: made true
+with the WMM declination of each row).
 """
 
 from __future__ import annotations
@@ -26,6 +30,11 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.telemetry.declination import (
+    decimal_year,
+    magnetic_declination_deg,
+    wmm_model_name,
+)
 from harborsight.telemetry.track import Track
 
 
@@ -57,7 +66,8 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     day: date | None = None
     fixes: list[tuple[datetime, float, float]] = []       # in arrival order
     headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
-    bad, undated, no_variation = [], 0, 0
+    magnetic: list[tuple[int, float]] = []                # HDM / HDG without variation
+    bad, undated = [], 0
 
     def add_fix(clock: time, lat: float, lon: float) -> None:
         when = _utc(day, clock)
@@ -94,29 +104,37 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
             elif kind == "HDT" and sentence.heading is not None and fixes:
                 headings.append((len(fixes) - 1, float(sentence.heading)))
             elif kind == "HDG" and sentence.heading is not None and fixes:
-                if sentence.variation is None:
-                    no_variation += 1
-                    continue
                 deviation = float(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
+                if sentence.variation is None:
+                    magnetic.append((len(fixes) - 1, float(sentence.heading) + deviation))
+                    continue
                 variation = float(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
                 headings.append((len(fixes) - 1, float(sentence.heading) + deviation + variation))
+            elif kind == "HDM" and sentence.heading is not None and fixes:
+                magnetic.append((len(fixes) - 1, float(sentence.heading)))
         except (ValueError, TypeError, AttributeError):
             bad.append(number)
     if not fixes:
         raise InputError(path, None, "no NMEA position fix with a date (RMC, or GGA after an "
                          "RMC/ZDA) found")
-    if not headings:
-        raise InputError(path, None, "no true heading (HDT, or HDG with variation): the "
-                         "vessel's heading cannot come from course over ground")
     notes = []
+    if magnetic and headings:
+        notes.append(f"{len(magnetic)} magnetic heading(s) (HDM, or HDG without variation) "
+                     "left out: the feed has true headings")
+    elif magnetic:
+        headings, note = _magnetic_to_true(magnetic, fixes)
+        if not headings:
+            raise InputError(path, None, note)
+        notes.append(note)
+    if not headings:
+        raise InputError(path, None, "no heading (HDT, HDG or HDM): the vessel's heading "
+                         "cannot come from course over ground")
     if bad:
         shown = ", ".join(map(str, bad[:5])) + (", ..." if len(bad) > 5 else "")
         notes.append(f"{len(bad)} unreadable sentence(s) skipped (bad checksum or field; "
                      f"line{'s' if len(bad) > 1 else ''} {shown})")
     if undated:
         notes.append(f"{undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
-    if no_variation:
-        notes.append(f"{no_variation} HDG sentence(s) without magnetic variation skipped")
     t0 = min(f[0] for f in fixes)
     arrival_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
     head_t = _heading_times(arrival_t, [epoch for epoch, _ in headings])
@@ -136,6 +154,32 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     ordered = [fixes[i] for i in fix_order]
     return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
                   [f[2] for f in ordered], heading, notes)
+
+
+def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datetime, float, float]]
+                      ) -> tuple[list[tuple[int, float]], str]:
+    """Magnetic headings + the WMM declination at the fix each follows, and a note saying so."""
+    true, declinations, failed = [], [], ""
+    for epoch, value in magnetic:
+        when, lat, lon = fixes[epoch]
+        try:
+            declination = magnetic_declination_deg(lat, lon, when)
+        except ValueError as exc:
+            failed = str(exc)
+            continue
+        declinations.append(declination)
+        true.append((epoch, value + declination))
+    if not true:
+        return [], (f"{len(magnetic)} magnetic heading(s) (HDM, or HDG without variation) "
+                    f"cannot be made true: {failed}")
+    model = wmm_model_name(decimal_year(fixes[magnetic[0][0]][0]))
+    spread = (f"{min(declinations):+.2f}" if max(declinations) - min(declinations) < 0.005
+              else f"{min(declinations):+.2f} to {max(declinations):+.2f}")
+    note = (f"{len(true)} magnetic heading(s) (HDM, or HDG without variation) made true with "
+            f"the {model} declination, {spread} deg")
+    if len(true) < len(magnetic):
+        note += f"; {len(magnetic) - len(true)} left out: {failed}"
+    return true, note
 
 
 def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
@@ -169,23 +213,36 @@ def read_vessel_csv(path: str | Path) -> Track:
         raise InputError(path, None, f"not a readable CSV: {exc}") from None
     if not rows:
         raise InputError(path, None, "no rows")
-    missing = [c for c in ("time", "lat", "lon", "heading_deg") if c not in rows[0]]
+    heading_column = "heading_deg" if "heading_deg" in rows[0] else "heading_mag_deg"
+    missing = [c for c in ("time", "lat", "lon", heading_column) if c not in rows[0]]
     if missing:
-        raise InputError(path, missing[0], "missing column (need time, lat, lon, heading_deg)")
-    utc, lat, lon, heading, bad = [], [], [], [], []
+        raise InputError(path, missing[0].replace("heading_mag_deg", "heading_deg"),
+                         "missing column (need time, lat, lon and heading_deg, or "
+                         "heading_mag_deg for a magnetic heading)")
+    utc, lat, lon, heading, bad, declinations = [], [], [], [], [], []
     for line, row in enumerate(rows, start=2):
         try:
-            utc.append(_csv_time(row["time"]))
-            lat.append(_csv_number(row["lat"], -90, 90, "lat"))
-            lon.append(_csv_number(row["lon"], -180, 180, "lon"))
-            heading.append(_csv_number(row["heading_deg"], -360, 360, "heading_deg"))
+            when = _csv_time(row["time"])
+            row_lat = _csv_number(row["lat"], -90, 90, "lat")
+            row_lon = _csv_number(row["lon"], -180, 180, "lon")
+            value = _csv_number(row[heading_column], -360, 360, heading_column)
+            if heading_column == "heading_mag_deg":
+                declinations.append(magnetic_declination_deg(row_lat, row_lon, when))
+                value += declinations[-1]
         except ValueError as exc:
-            del utc[len(heading):], lat[len(heading):], lon[len(heading):]
             bad.append(f"line {line}: {exc}")
+            continue
+        utc.append(when)
+        lat.append(row_lat)
+        lon.append(row_lon)
+        heading.append(value)
     if not heading:
         raise InputError(path, None, "no readable row: " + "; ".join(bad[:3]))
     notes = [f"{len(bad)} row(s) skipped: " + "; ".join(bad[:5]) + ("; ..." if len(bad) > 5 else "")
              ] if bad else []
+    if declinations:
+        notes.append(f"heading_mag_deg made true with the {wmm_model_name(decimal_year(utc[0]))}"
+                     f" declination, {min(declinations):+.2f} to {max(declinations):+.2f} deg")
     return _track(path, "csv", utc, lat, lon, np.array(heading), notes)
 
 
