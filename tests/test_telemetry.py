@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -110,8 +111,48 @@ def test_px4_ulog_position_time_and_attitude():
     assert track.attitude_of == "vehicle" and len(track.yaw_deg) == len(att["timestamp"])
 
 
+def _ulog_message(kind: str, payload: bytes) -> bytes:
+    """One ULog message: uint16 payload size, uint8 type, payload (PX4's ULog file format)."""
+    return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+
+def _write_sensor_gps_ulog(path: Path, rows: list[tuple]) -> Path:
+    """A ULog with one ``sensor_gps`` topic as PX4 >= 1.14 writes it, built from the format spec:
+    header, flag bits, format, subscription, then one data message per row."""
+    fields = ("uint64_t timestamp;uint64_t timestamp_sample;uint64_t time_utc_usec;"
+              "double latitude_deg;double longitude_deg;double altitude_msl_m;uint8_t fix_type;")
+    data = b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", 0)
+    data += _ulog_message("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
+    data += _ulog_message("F", f"sensor_gps:{fields}".encode())
+    data += _ulog_message("A", struct.pack("<BH", 0, 0) + b"sensor_gps")
+    for row in rows:
+        data += _ulog_message("D", struct.pack("<H", 0) + struct.pack("<3Q3dB", *row))
+    path.write_bytes(data)
+    return path
+
+
+def test_px4_gps_timed_by_measurement_and_a_cut_log_is_noted(tmp_path):
+    # published 150 ms after the measurement, as a u-blox driver does; UTC of the measurement
+    utc0_us = 1_780_000_000_000_000
+    rows = [(1_200_000 + 200_000 * i, 1_050_000 + 200_000 * i, utc0_us + 200_000 * i,
+             51.9 + 1e-5 * i, 4.1, 30.0, 3) for i in range(6)]
+    path = _write_sensor_gps_ulog(tmp_path / "gps.ulg", rows)
+    track = read_drone_log(path)
+    np.testing.assert_allclose(track.t_s, [1.05 + 0.2 * i for i in range(6)])
+    assert track.utc_at(1.05) == datetime.fromtimestamp(utc0_us / 1e6, tz=UTC)
+    assert track.notes == ["no vehicle_attitude topic: no attitude"]
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(path.read_bytes()[:-20])     # power lost mid-message: 34 of its 54 bytes
+    track = read_drone_log(cut)
+    assert len(track) == 5
+    assert "the log ends in a partial message (34 bytes): it was cut short" in track.notes[0]
+
+
 def test_ardupilot_bin_gps_week_to_utc():
     track = read_drone_log(TELEMETRY / "ardupilot" / "test.BIN")
+    # the sample is the first 64 KiB of a log: its last record (45 bytes from offset 65512,
+    # found by walking the records by hand) is torn
+    assert "the log ends in a partial record (24 bytes)" in track.notes[0]
     # first GPS message: TimeUS 81855471, GWk 1973, GMS 6448000 (read with pymavlink by hand);
     # GPS week 1973 starts 2017-10-29 00:00:00 GPS time; 18 leap seconds to UTC
     # (the offset is the median over the log's fixes: one fix is off by its arrival jitter)

@@ -14,12 +14,18 @@ Topics and messages read:
   name (PX4 1.14 on).
 * ArduPilot: ``GPS`` (``Lat``, ``Lng`` in degrees, ``Alt`` in m above mean sea level, ``GWk``,
   ``GMS``) and ``ATT`` (``Roll``, ``Pitch``, ``Yaw`` in degrees).
+
+GPS samples are timed by when the receiver measured them (PX4's ``timestamp_sample``, where the
+message has it) rather than when the driver published them, which is 0.1-0.2 s later on
+u-blox receivers. A log cut short (power lost in flight, or only the first part copied) ends in
+a partial record: it is read up to there, and the track's notes say so.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
+import struct
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -45,6 +51,33 @@ def utc_from_gps_time(gps_seconds: float) -> datetime:
     return gps_time - timedelta(seconds=leap[-1])
 
 
+def ulog_partial_tail_bytes(path: Path) -> int:
+    """Bytes at the end of a ULog that do not form a whole message (0 for an intact file).
+
+    A ULog is a 16-byte header (magic ``ULog\\x01\\x12\\x35``, version, start time) followed by
+    messages, each a 3-byte header (``uint16`` payload size, ``uint8`` type) and its payload;
+    there is no end marker, so a torn last message is the only trace of a cut.
+    """
+    data = path.read_bytes()
+    offset = 16
+    while offset + 3 <= len(data):
+        (size,) = struct.unpack_from("<H", data, offset)
+        if offset + 3 + size > len(data):
+            break
+        offset += 3 + size
+    return len(data) - offset
+
+
+def _dataflash_partial_tail_bytes(log) -> int:
+    """Bytes of a torn last record in a DataFlash log (0 if its last record is whole), from
+    the message index pymavlink builds when it opens the file."""
+    starts = [(offsets[-1], kind) for kind, offsets in enumerate(log.offsets) if offsets]
+    if not starts:
+        return 0
+    last_start, kind = max(starts)
+    return log.data_len - last_start if last_start + log.formats[kind].len > log.data_len else 0
+
+
 def _attitude_fields(t_s: np.ndarray | None, ypr_deg: np.ndarray | None) -> dict:
     """Track keyword arguments for a vehicle attitude on its own time axis."""
     if t_s is None:
@@ -60,7 +93,8 @@ def read_px4_ulog(path: str | Path) -> Track:
     path = Path(path)
     topics = ["vehicle_gps_position", "sensor_gps", "vehicle_attitude"]
     try:
-        ulog = ULog(str(path), topics)
+        with contextlib.redirect_stdout(io.StringIO()):   # pyulog prints on corrupt files
+            ulog = ULog(str(path), topics)
     except Exception as exc:  # pyulog raises plain Exceptions and struct errors on foreign files
         raise InputError(path, None, f"not a readable PX4 ULog: {exc}") from None
     datasets = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
@@ -69,7 +103,15 @@ def read_px4_ulog(path: str | Path) -> Track:
         raise InputError(path, "vehicle_gps_position", "the log has no GPS topic "
                          "(vehicle_gps_position or sensor_gps)")
     notes = []
+    if ulog.file_corruption:
+        notes.append("the log is corrupt in places (pyulog skipped unreadable bytes)")
+    tail = ulog_partial_tail_bytes(path)
+    if tail:
+        notes.append(f"the log ends in a partial message ({tail} bytes): it was cut short, "
+                     "and is read up to there")
     t_s = gps["timestamp"].astype(float) / 1e6
+    if "timestamp_sample" in gps and (gps["timestamp_sample"] > 0).all():
+        t_s = gps["timestamp_sample"].astype(float) / 1e6     # the measurement, not the publish
     good = np.ones(len(t_s), bool)
     if "fix_type" in gps:
         good &= gps["fix_type"] >= 3
@@ -146,6 +188,10 @@ def read_ardupilot_bin(path: str | Path) -> Track:
         raise InputError(path, "GPS", "the log has no GPS message with a 3-D fix")
     gps = np.array(gps_rows, dtype=float)
     notes = [f"{unfixed} GPS sample(s) without a 3-D fix skipped"] if unfixed else []
+    tail = _dataflash_partial_tail_bytes(log)
+    if tail:
+        notes.append(f"the log ends in a partial record ({tail} bytes): it was cut short, "
+                     "and is read up to there")
     if other_instances:
         notes.append(f"{other_instances} sample(s) of other GPS receivers (I > 0) left out")
     t_s = gps[:, 0]
