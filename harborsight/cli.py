@@ -202,10 +202,12 @@ def _run_flight_with_progress(source, out: Path, vessels, segmenter, options, in
                   console=console, transient=True) as progress:
         task = progress.add_task("frames", total=source.frame_count or None, status="")
 
+        from harborsight.flight.sources import NO_METADATA
+
         def advance(frame) -> None:
             if frame.is_frame:          # not a metadata line without a picture
-                progress.update(task, advance=1,
-                                status="" if frame.error is None else "[red]skipped one")
+                skipped = frame.error not in (None, NO_METADATA)
+                progress.update(task, advance=1, status="[red]skipped one" if skipped else "")
 
         return run_flight(source.frames(), out, vessels, segmenter, options,
                           source_fps=source.fps, inputs=inputs, on_frame=advance)
@@ -256,6 +258,9 @@ def run_command(
     from harborsight.vessel.spec import load_vessel_spec
 
     try:
+        if not input_path.exists():
+            raise InputError(input_path, None, "not found (give a folder of frames, or a video "
+                             "with --metadata)")
         intrinsics = load_camera_calibration(camera) if camera else None
         if input_path.is_dir():
             if metadata is not None:
@@ -300,6 +305,11 @@ def run_command(
                           f"{out / 'run.json'}):")
         for item in summary.skipped:
             err_console.print(f"  {item['error']}", markup=False, highlight=False)
+    if summary.warnings:
+        err_console.print(f"[yellow]{len(summary.warnings)} warning(s)[/] (frames measured; also "
+                          f"in {out / 'run.json'}):")
+        for item in summary.warnings:
+            err_console.print(f"  {item['warning']}", markup=False, highlight=False)
     raise typer.Exit(1 if summary.skipped and not summary.measured else 0)
 
 

@@ -11,8 +11,10 @@ A frame may name its vessel with a ``vessel_spec`` key (path relative to the dat
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Protocol
 
@@ -127,6 +129,15 @@ def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter
     raise InputError(source, "mask", "no mask given and no segmentation model")
 
 
+def frame_image_path(job: FrameJob, meta: FrameMetadata) -> Path:
+    """The image of a job: the file named like its JSON, else the one its ``image`` key
+    names (in ``images/``, beside the JSON or in the root); the path reported as not found
+    is the one beside the JSON."""
+    if job.image_path is not None:
+        return job.image_path
+    return find_frame_image(job.meta_path, meta.image) or job.meta_path.parent / meta.image
+
+
 def measure_job(
     job: FrameJob, vessels: VesselCache, settings: ClearanceSettings, out_dir: Path | None,
     camera: CameraIntrinsics | None = None, overlay: bool = True,
@@ -135,7 +146,7 @@ def measure_job(
     """Measure one frame from files, its labels from its mask or, without one, from
     ``segmenter``; raises :class:`InputError` on bad input."""
     meta = load_frame_metadata(job.meta_path, camera=camera)
-    image_path = job.image_path or job.meta_path.parent / meta.image
+    image_path = frame_image_path(job, meta)
     image = read_image(image_path)
     check_image_size(image, meta, image_path)
     labels, mask_source = frame_labels(image, job.mask_path, segmenter, job.meta_path)
@@ -153,16 +164,46 @@ def measure_job(
     return outcome
 
 
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders the numbers inside names by value: frame_2 before frame_10."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def image_folders(meta_path: Path) -> list[Path]:
+    """Where a frame JSON's image may be: ``images/`` of the dataset, beside the JSON, and
+    the dataset root (the JSON's folder's parent when the JSON is in ``frames/``)."""
+    root = meta_path.parent.parent if meta_path.parent.name == "frames" else meta_path.parent
+    return list(dict.fromkeys([root / "images", meta_path.parent, root]))
+
+
+def find_frame_image(meta_path: Path, image_name: str | None = None) -> Path | None:
+    """The frame's image: the file its ``image`` key names, else one named like the JSON,
+    with any of :data:`IMAGE_EXTENSIONS` in any letter case (DJI writes ``.JPG``)."""
+    folders = [d for d in image_folders(meta_path) if d.is_dir()]
+    if image_name:
+        for folder in folders:
+            if (folder / image_name).is_file():
+                return folder / image_name
+    for folder in folders:
+        for candidate in sorted(folder.glob(f"{glob_escape(meta_path.stem)}.*")):
+            if candidate.suffix.lower() in IMAGE_EXTENSIONS and candidate.is_file():
+                return candidate
+    return None
+
+
 def discover_jobs(folder: Path, masks_dir: Path | None = None, segment: bool = False
                   ) -> list[FrameJob]:
-    """Frames of a batch folder, each with its image and mask paths (module docstring). The
-    mask path is ``None`` (segment with a model) for every frame when ``segment``, and when
-    there is neither ``masks_dir`` nor a ``labels/`` or ``masks/`` folder."""
+    """Frames of a batch folder in natural order of their names, each with its image and
+    mask paths (module docstring). The mask path is ``None`` (segment with a model) for
+    every frame when ``segment``, and when there is neither ``masks_dir`` nor a ``labels/``
+    or ``masks/`` folder."""
     frames_dir = folder / "frames" if (folder / "frames").is_dir() else folder
-    meta_paths = sorted(p for p in frames_dir.glob("*.json"))
+    meta_paths = sorted(frames_dir.glob("*.json"), key=lambda p: natural_key(p.name))
     if not meta_paths:
         raise InputError(folder, None, "no frame JSON files found (expected frames/*.json or *.json)")
-    image_dirs = [folder / "images", frames_dir, folder]
     mask_dirs = [masks_dir] if masks_dir else [d for d in (folder / "labels", folder / "masks")
                                                if d.is_dir()]
     if segment:
@@ -170,8 +211,7 @@ def discover_jobs(folder: Path, masks_dir: Path | None = None, segment: bool = F
     jobs = []
     for meta_path in meta_paths:
         stem = meta_path.stem
-        image = next((d / f"{stem}{ext}" for d in image_dirs for ext in (".png", ".jpg", ".jpeg")
-                      if (d / f"{stem}{ext}").is_file()), None)
+        image = find_frame_image(meta_path)
         mask = next((d / f"{stem}.png" for d in mask_dirs if (d / f"{stem}.png").is_file()),
                     mask_dirs[0] / f"{stem}.png" if mask_dirs else None)
         jobs.append(FrameJob(stem, meta_path, image, mask))

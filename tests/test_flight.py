@@ -10,6 +10,7 @@ from importlib import resources
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -41,7 +42,9 @@ def test_closing_speed_and_time_to_contact_of_a_steady_approach():
     trends = {}
     for k in range(9):               # 2 Hz
         t = 0.5 * k
-        trends, rows = timeline.add(k, t, _report([10.0 - speed * t, 5.0 + 0.1 * t, None]))
+        trends, rows, warning = timeline.add(k, t, _report([10.0 - speed * t, 5.0 + 0.1 * t,
+                                                            None]))
+        assert warning is None
         assert len(rows) == 3
         if k < 2:
             assert trends[0].closing_speed_mps is None
@@ -53,16 +56,54 @@ def test_closing_speed_and_time_to_contact_of_a_steady_approach():
     # the fit only spans the window: a speed change shows within window_s
     for k in range(9, 20):
         t = 0.5 * k
-        trends, _ = timeline.add(k, t, _report([6.8 - 1.0 * (t - 4.0), 5.0, None]))
+        trends, _, _ = timeline.add(k, t, _report([6.8 - 1.0 * (t - 4.0), 5.0, None]))
     assert trends[0].closing_speed_mps == pytest.approx(1.0)
-    with pytest.raises(InputError, match="does not advance"):
-        timeline.add(99, 1.0, _report([1.0, 1.0, 1.0]))
+    # a frame before the previous one: measured (its rows), but no speed, and a warning
+    trends, rows, warning = timeline.add(99, 1.0, _report([1.0, 1.0, 1.0]))
+    assert len(rows) == 3 and trends[0].closing_speed_mps is None
+    assert "1.000 s after the start is before the previous frame's 9.500 s" in warning
+
+
+def _section_report(distance_m: float, truncated: bool = False) -> ClearanceReport:
+    report = _report([distance_m])
+    report.sections[0].truncated = truncated
+    return report
+
+
+def test_a_time_glitch_ahead_costs_only_its_own_frame():
+    """Frame 3's GPS time is 30 min ahead: frames 4 and 5 are behind it (measured, no speed);
+    at frame 6 three frames in a row agree, frame 3's time is dropped from the fits and the
+    speeds come back, computed without it."""
+    timeline = ClearanceTimeline(window_s=2.0, min_samples=3)
+    times = [0.0, 0.5, 1.0, 1800.0, 2.0, 2.5, 3.0, 3.5]
+    warnings, trends = [], {}
+    for k, t in enumerate(times):
+        trends, _, warning = timeline.add(k, t, _section_report(20.0 - 0.5 * min(t, 4.0)))
+        warnings.append(warning)
+    assert warnings[:4] == [None] * 4 and warnings[7] is None
+    assert "before the previous frame's 1800.000 s" in warnings[4]
+    assert "before the previous frame's 1800.000 s" in warnings[5]
+    assert "the time of frame(s) 3 is taken as wrong" in warnings[6]
+    assert trends[0].closing_speed_mps == pytest.approx(0.5)
+    assert timeline._off_clock_frames == {3}
+
+
+def test_equal_times_are_in_order_and_truncated_distances_stay_out_of_the_fit():
+    timeline = ClearanceTimeline(window_s=5.0, min_samples=3)
+    for k, (t, d, cut) in enumerate([(0.0, 10.0, False), (1.0, 9.0, False), (1.0, 9.0, False),
+                                     (2.0, 3.0, True), (3.0, 7.0, False)]):
+        trends, _, warning = timeline.add(k, t, _section_report(d, cut))
+        assert warning is None                       # whole-second stamps at 2 fps are fine
+        if cut:
+            assert trends[0].closing_speed_mps is None
+    # fit over (0, 10), (1, 9), (1, 9), (3, 7): slope -1; the truncated 3.0 m would bend it
+    assert trends[0].closing_speed_mps == pytest.approx(1.0)
 
 
 def test_without_times_there_are_no_speeds():
     timeline = ClearanceTimeline()
     for k in range(5):
-        trends, rows = timeline.add(k, None, _report([3.0 - k * 0.1]))
+        trends, rows, _ = timeline.add(k, None, _report([3.0 - k * 0.1]))
     assert trends[0].closing_speed_mps is None and rows[0]["time_s"] is None
 
 
@@ -125,7 +166,6 @@ def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
     (lambda m: m["camera"].update(calibration=5), "camera.calibration"),
     (lambda m: m["camera"].update(width=float("inf")), "camera.width"),
     (lambda m: m.update(vessel_spec=5), "vessel_spec"),
-    (lambda m: m.pop("timestamp"), "timestamp"),   # the run is timed by timestamps
 ])
 def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
     """Fields of the wrong type (not only missing or out of range) skip that frame only:
@@ -145,6 +185,124 @@ def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
     assert skipped["frame"] == 2
     assert f"000002.json: {field}:" in skipped["error"]
     assert (out / "timeline.png").is_file() and _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_a_frame_without_a_time_is_measured_without_a_speed(tmp_path):
+    """The run is timed by timestamps (its first frame has one); frame 2 has none. (A
+    malformed timestamp is a malformed frame file: skipped with the field named.)"""
+    data = _timed_copy_of_samples(tmp_path)
+    path = data / "frames" / "000002.json"
+    meta = json.loads(path.read_text())
+    meta.pop("timestamp")
+    path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 5 and record["skipped_frames"] == []
+    [warning] = record["warnings"]
+    assert warning["frame"] == 2 and "000002.json: timestamp:" in warning["warning"]
+    assert "left out of the closing speeds" in warning["warning"]
+    rows = [r for r in csv.DictReader((out / "sections.csv").open()) if r["frame"] == "2"]
+    assert rows and all(r["time_s"] == "" and r["closing_speed_mps"] == "" for r in rows)
+    assert "1 warning(s)" in result.output
+
+
+def test_an_overlay_that_cannot_be_drawn_keeps_the_measurement(tmp_path, monkeypatch):
+    import harborsight.flight.runner as flight_runner
+
+    real = flight_runner.draw_overlay
+
+    def failing(image, report, **kwargs):
+        if report.image == "000003.png":
+            raise RuntimeError("drawing failed")
+        return real(image, report, **kwargs)
+
+    monkeypatch.setattr(flight_runner, "draw_overlay", failing)
+    data = _timed_copy_of_samples(tmp_path)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 5 and len(list((out / "reports").iterdir())) == 5
+    assert "overlay not drawn (RuntimeError: drawing failed)" in record["warnings"][0]["warning"]
+    assert _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_run_json_is_written_when_a_run_is_interrupted(tmp_path):
+    from harborsight.flight import FolderSource, run_flight
+    from harborsight.pipeline import VesselCache
+
+    data = _timed_copy_of_samples(tmp_path)
+    source = FolderSource(data, data / "labels")
+
+    def stop_at_frame_2(frame):
+        if frame.index == 2:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run_flight(source.frames(), out, VesselCache(), None, on_frame=stop_at_frame_2)
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 3 and (out / "timeline.png").is_file()
+    assert _video_frame_count(out / "annotated.mp4") == 3
+
+
+def test_frames_in_natural_order_and_dji_style_images(tmp_path):
+    from harborsight.pipeline import discover_jobs, natural_key
+
+    assert sorted(["frame_10", "frame_9", "frame_1", "Frame_2"], key=natural_key) == [
+        "frame_1", "Frame_2", "frame_9", "frame_10"]
+    data = tmp_path / "dji"
+    for folder in ("frames", "images", "labels"):
+        (data / folder).mkdir(parents=True)
+    shutil.copytree(SAMPLES / "vessels", data / "vessels")
+    for k, name in enumerate(["DJI_0009", "DJI_0010", "DJI_0100"]):
+        meta = json.loads((SAMPLES / "frames" / f"00000{k}.json").read_text())
+        meta["image"] = f"{name}.JPG"
+        (data / "frames" / f"{name}.json").write_text(json.dumps(meta))
+        (data / "images" / f"{name}.JPG").write_bytes(       # decoded by content, not suffix
+            (SAMPLES / "images" / f"00000{k}.png").read_bytes())
+        shutil.copy(SAMPLES / "labels" / f"00000{k}.png", data / "labels" / f"{name}.png")
+    jobs = discover_jobs(data, data / "labels")
+    assert [j.stem for j in jobs] == ["DJI_0009", "DJI_0010", "DJI_0100"]
+    assert [j.image_path.name for j in jobs] == ["DJI_0009.JPG", "DJI_0010.JPG", "DJI_0100.JPG"]
+    # an image the JSON names, not named like the JSON: found in images/
+    (data / "frames" / "DJI_0100.json").rename(data / "frames" / "flight_0100.json")
+    (data / "labels" / "DJI_0100.png").rename(data / "labels" / "flight_0100.png")
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "run.json").read_text())["measured"] == 3
+
+
+def test_frames_naming_one_image_do_not_overwrite_each_other(tmp_path):
+    data = _timed_copy_of_samples(tmp_path)
+    for path in sorted((data / "frames").glob("*.json"))[:3]:
+        meta = json.loads(path.read_text())
+        meta["image"] = "flight.png"      # every frame names one picture (found by its stem)
+        path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (out / "reports").iterdir()) == [
+        "000003.json", "000004.json", "flight-000001.json", "flight-000002.json", "flight.json"]
+
+
+def test_overlay_of_a_point_projected_far_out_of_the_image():
+    from harborsight.viz.overlay import draw_overlay
+
+    report = _report([3.0, 4.0])
+    report.sections[0].hull_px = [[3e8, 100.0], [300.0, 100.0]]   # just in front of the camera
+    report.sections[0].hull_point_px, report.sections[0].obstacle_point_px = [3e8, 100.0], [5, 5]
+    report.sections[1].hull_point_px, report.sections[1].obstacle_point_px = [1, 1], [9, 9]
+    image = np.zeros((360, 640, 3), np.uint8)
+    out = draw_overlay(image, report)
+    assert out.shape == image.shape and out[100, 320:639].any()     # the visible part is drawn
 
 
 def test_flight_clock_is_fixed_by_the_first_frame():
@@ -226,6 +384,9 @@ def test_explicit_frame_indices(tmp_path):
 
 
 def test_run_refuses_unclear_inputs(tmp_path):
+    result = runner.invoke(app, ["run", str(tmp_path / "flihgts")])
+    assert result.exit_code == 2 and "flihgts: not found" in result.output
+    (tmp_path / "clip.mp4").write_bytes(b"")
     result = runner.invoke(app, ["run", str(tmp_path / "clip.mp4")])
     assert result.exit_code == 2 and "--metadata" in result.output
     result = runner.invoke(app, ["run", str(SAMPLES), "--metadata", str(tmp_path / "x.jsonl")])

@@ -13,7 +13,9 @@ Outputs in ``out_dir``:
 
 Time of a frame: seconds since the run's first frame, on one clock for the whole run
 (:class:`FlightClock`): the frames' ``timestamp`` if the first frame has one, else their
-position in the video, else unknown (then no closing speeds).
+position in the video, else unknown (then no closing speeds). A frame whose time is missing,
+unreadable or out of order is still measured; it is left out of the closing speeds and listed
+under ``warnings`` in ``run.json``.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ class RunSummary:
     measured: int = 0
     without_metadata: int = 0
     skipped: list[dict] = field(default_factory=list)     # {"frame", "source", "error"}
+    warnings: list[dict] = field(default_factory=list)    # {"frame", "source", "warning"}
     min_distance_m: float | None = None
     min_distance_frame: int | None = None
     seconds: float = 0.0
@@ -69,6 +72,7 @@ class RunSummary:
             "seconds": round(self.seconds, 2),
             "frames_per_second": round(self.frames / self.seconds, 2) if self.seconds else None,
             "outputs": self.outputs, "skipped_frames": self.skipped,
+            "warnings": self.warnings,
         }
 
 
@@ -101,8 +105,9 @@ class _VideoWriter:
 
 class FlightClock:
     """One time base for a run, fixed by its first frame: ``timestamp`` when that frame has
-    one (a later frame without one is then an error: mixing clocks would corrupt the
-    closing-speed fits), else the video position, else none (every time is None)."""
+    one (a later frame without one, or with an unreadable one, raises: mixing clocks would
+    corrupt the closing-speed fits, so the runner measures it untimed), else the video
+    position, else none (every time is None)."""
 
     def __init__(self) -> None:
         self.base: str | None = None        # "timestamp", "video" or "none"
@@ -149,7 +154,9 @@ def run_flight(
     on_frame: Callable[[FlightFrame], None] | None = None,
 ) -> RunSummary:
     """Measure every frame of a flight (module docstring). A frame with bad input, or one
-    the measurement refuses, is recorded in the summary and skipped; the run goes on."""
+    the measurement refuses, is recorded in the summary and skipped; the run goes on. A frame
+    whose time is missing or out of order is measured, left out of the closing speeds and
+    listed in ``warnings``. ``run.json`` and the video are written however the run ends."""
     options = options or RunOptions()
     out_dir.mkdir(parents=True, exist_ok=True)
     reports_dir, overlays_dir = out_dir / "reports", out_dir / "overlays"
@@ -161,61 +168,119 @@ def run_flight(
     fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
     video = _VideoWriter(out_dir / "annotated.mp4", fps) if options.video else None
     clock = FlightClock()
+    stems = _OutputStems()
     started = time.perf_counter()
     csv_path = out_dir / "sections.csv"
-    with csv_path.open("w", newline="") as csv_handle:
-        csv_out = ClearanceTimeline.csv_writer(csv_handle)
-        for frame in frames:
-            summary.frames += frame.is_frame
-            annotated = None
-            if frame.error is None:
-                try:
-                    time_s = clock.seconds(frame)
-                    timeline.check_time(time_s, frame.source)
-                    labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
-                                                       frame.source)
-                    vessel = vessels.for_frame(frame.meta, frame.meta_path)
-                    report = measure_frame(labels, frame.meta, vessel, options.settings,
-                                           mask_source=mask_source)
-                    trends, rows = timeline.add(frame.index, time_s, report)
-                except HarborsightError as exc:
-                    frame.error = str(exc)
-                except Exception as exc:  # one bad frame must not end the run
-                    frame.error = f"{frame.source}: unexpected {type(exc).__name__}: {exc}"
-                else:
-                    write_rows(csv_out, rows)
-                    csv_handle.flush()
-                    report.write(reports_dir / f"{frame.stem}.json")
-                    annotated = draw_overlay(
-                        frame.image, report, warn_m=options.warn_m, alarm_m=options.alarm_m,
-                        footer=trend_footer(trends, time_s is not None))
-                    if options.overlays:
-                        cv2.imwrite(str(overlays_dir / f"{frame.stem}.png"), annotated)
-                    summary.measured += 1
-                    md = report.min_distance_m
-                    if md is not None and (summary.min_distance_m is None
-                                           or md < summary.min_distance_m):
-                        summary.min_distance_m, summary.min_distance_frame = md, frame.index
-            if frame.error is not None:
-                if frame.error == NO_METADATA:
-                    summary.without_metadata += 1
-                else:
-                    summary.skipped.append({"frame": frame.index, "source": frame.source,
-                                            "error": frame.error})
-                if frame.image is not None:
-                    annotated = frame.image.copy()
+    try:
+        with csv_path.open("w", newline="") as csv_handle:
+            csv_out = ClearanceTimeline.csv_writer(csv_handle)
+            for frame in frames:
+                summary.frames += frame.is_frame
+                annotated = None
+                if frame.error is None:
+                    annotated = _measure_one(frame, summary, timeline, clock, stems, csv_out,
+                                             csv_handle, reports_dir, overlays_dir, segmenter,
+                                             vessels, options)
+                if frame.error is not None:
                     if frame.error == NO_METADATA:
-                        draw_banner(annotated, "not measured: no metadata for this frame", GREY)
+                        summary.without_metadata += 1
                     else:
-                        draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
-            if video is not None and annotated is not None:
-                video.write(annotated)
-            if on_frame is not None:
-                on_frame(frame)
-    if video is not None:
-        video.close()
-    summary.seconds = time.perf_counter() - started
-    summary.outputs = {"reports": str(reports_dir), "sections_csv": str(csv_path)}
+                        summary.skipped.append({"frame": frame.index, "source": frame.source,
+                                                "error": frame.error})
+                    if frame.image is not None:
+                        annotated = frame.image.copy()
+                        if frame.error == NO_METADATA:
+                            draw_banner(annotated, "not measured: no metadata for this frame",
+                                        GREY)
+                        else:
+                            draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
+                if video is not None and annotated is not None:
+                    video.write(annotated)
+                if on_frame is not None:
+                    on_frame(frame)
+    finally:
+        if video is not None:
+            video.close()
+        summary.seconds = time.perf_counter() - started
+        _write_run_record(out_dir, summary, timeline, options, segmenter, inputs,
+                          fps if video is not None else None, video)
+    return summary
+
+
+def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTimeline,
+                 clock: FlightClock, stems: _OutputStems, csv_out, csv_handle, reports_dir: Path,
+                 overlays_dir: Path, segmenter: Segmenter | None, vessels: VesselCache,
+                 options: RunOptions) -> np.ndarray | None:
+    """Measure one frame and write its outputs; sets ``frame.error`` when it cannot be
+    measured. Returns the annotated picture for the video."""
+    warnings = []
+    try:
+        try:
+            time_s = clock.seconds(frame)
+        except InputError as exc:          # a bad time costs the closing speeds, not the frame
+            time_s = None
+            warnings.append(f"{exc}: measured, but left out of the closing speeds")
+        labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
+                                           frame.source)
+        vessel = vessels.for_frame(frame.meta, frame.meta_path)
+        report = measure_frame(labels, frame.meta, vessel, options.settings,
+                               mask_source=mask_source)
+    except HarborsightError as exc:
+        frame.error = str(exc)
+        return None
+    except Exception as exc:  # one bad frame must not end the run
+        frame.error = f"{frame.source}: unexpected {type(exc).__name__}: {exc}"
+        return None
+    trends, rows, order_warning = timeline.add(frame.index, time_s, report)
+    if order_warning:
+        warnings.append(f"{frame.source}: timestamp: {order_warning}")
+    stem = stems.claim(frame)
+    write_rows(csv_out, rows)
+    csv_handle.flush()
+    report.write(reports_dir / f"{stem}.json")
+    try:
+        annotated = draw_overlay(frame.image, report, warn_m=options.warn_m,
+                                 alarm_m=options.alarm_m,
+                                 footer=trend_footer(trends, time_s is not None))
+    except Exception as exc:  # the measurement stands without its picture
+        warnings.append(f"{frame.source}: overlay not drawn ({type(exc).__name__}: {exc})")
+        annotated = frame.image.copy()
+        draw_banner(annotated, "measured; overlay could not be drawn", GREY)
+    if options.overlays:
+        cv2.imwrite(str(overlays_dir / f"{stem}.png"), annotated)
+    summary.measured += 1
+    summary.warnings.extend({"frame": frame.index, "source": frame.source, "warning": w}
+                            for w in warnings)
+    md = report.min_distance_m
+    if md is not None and (summary.min_distance_m is None or md < summary.min_distance_m):
+        summary.min_distance_m, summary.min_distance_frame = md, frame.index
+    return annotated
+
+
+class _OutputStems:
+    """File stems of the frames' reports and overlays: the frame's ``image`` stem, with the
+    frame index added when an earlier frame of the run already used it (several frames may
+    name one image, e.g. every line of a video's metadata naming the video)."""
+
+    def __init__(self) -> None:
+        self.used: set[str] = set()
+
+    def claim(self, frame: FlightFrame) -> str:
+        stem, base, repeat = frame.stem, frame.stem, 0
+        if stem in self.used:
+            stem = f"{base}-{frame.index:06d}"
+        while stem in self.used:
+            repeat += 1
+            stem = f"{base}-{frame.index:06d}-{repeat}"
+        self.used.add(stem)
+        return stem
+
+
+def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTimeline,
+                      options: RunOptions, segmenter: Segmenter | None, inputs: dict | None,
+                      video_fps: float | None, video: _VideoWriter | None) -> None:
+    reports_dir, overlays_dir = out_dir / "reports", out_dir / "overlays"
+    summary.outputs = {"reports": str(reports_dir), "sections_csv": str(out_dir / "sections.csv")}
     if options.overlays:
         summary.outputs["overlays"] = str(overlays_dir)
     if video is not None and video.frames:
@@ -229,11 +294,10 @@ def run_flight(
                            "n_sections": options.settings.n_sections,
                            "section_length_m": options.settings.section_length_m,
                            "closing_window_s": options.window_s,
-                           "video_fps": fps if video is not None else None,
+                           "video_fps": video_fps,
                            "model": str(segmenter.path) if segmenter is not None else None},
               **summary.to_dict()}
     (out_dir / "run.json").write_text(json.dumps(record, indent=2, default=_json_default) + "\n")
-    return summary
 
 
 def _short(text: str, limit: int = 90) -> str:

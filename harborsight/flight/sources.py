@@ -29,7 +29,7 @@ from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds
 from harborsight.frame import FrameMetadata, load_frame_metadata, parse_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.pipeline import check_image_size, discover_jobs, read_image
+from harborsight.pipeline import check_image_size, discover_jobs, frame_image_path, read_image
 
 NO_METADATA = "no metadata"
 
@@ -55,8 +55,9 @@ class FlightFrame:
 
 class FolderSource:
     """Frames of a folder (the layouts of :func:`harborsight.pipeline.discover_jobs`), in the
-    order of their file names. With ``use_masks`` a frame's mask (``labels/``, ``masks/`` or
-    ``masks_dir``) is used; otherwise every frame is segmented."""
+    natural order of their file names (frame_2 before frame_10). With ``use_masks`` a
+    frame's mask (``labels/``, ``masks/`` or ``masks_dir``) is used; otherwise every frame is
+    segmented."""
 
     def __init__(self, folder: Path, masks_dir: Path | None = None, use_masks: bool = True,
                  camera: CameraIntrinsics | None = None) -> None:
@@ -74,7 +75,7 @@ class FolderSource:
                                 meta_path=job.meta_path)
             try:
                 frame.meta = load_frame_metadata(job.meta_path, camera=self.camera)
-                image_path = job.image_path or job.meta_path.parent / frame.meta.image
+                image_path = frame_image_path(job, frame.meta)
                 frame.image = read_image(image_path)
                 check_image_size(frame.image, frame.meta, image_path)
             except Exception as exc:  # one bad frame must not end the run

@@ -69,37 +69,78 @@ class SectionTrend:
 
 @dataclass
 class ClearanceTimeline:
-    """Collects every measured frame; estimates each section's closing speed as it goes."""
+    """Collects every measured frame; estimates each section's closing speed as it goes.
+
+    Only sections with status ``ok`` and not ``truncated`` enter the fit: a truncated
+    distance is an upper bound set by where the image edge falls, and the drone's drift would
+    turn it into a speed. Frames must come in time order (equal times are fine). A frame
+    whose time is before the previous frame's is measured but left out of the fits, with a
+    warning. When ``resync_frames`` frames in a row are behind (and in order among
+    themselves), it was the earlier time that was wrong (a glitch ahead, e.g. a bad GPS
+    time): its samples are dropped from the fits, the run of frames joins them, and the clock
+    follows the frames again.
+    """
 
     window_s: float = 2.0
     min_samples: int = 3
     min_closing_mps: float = 0.05
+    resync_frames: int = 3
     rows: list[dict] = field(default_factory=list)
     _history: dict[int, deque] = field(default_factory=lambda: defaultdict(deque))
     _last_time_s: float | None = None
+    _behind: list[tuple[int, float]] = field(default_factory=list)   # (frame, time_s)
+    _off_clock_frames: set[int] = field(default_factory=set)
 
-    def check_time(self, time_s: float | None, source: str) -> None:
-        """Frames must come in time order (checked before the frame is measured)."""
-        if time_s is not None and self._last_time_s is not None and time_s <= self._last_time_s:
-            raise InputError(source, "timestamp",
-                             f"{time_s:.3f} s after the start does not advance past the "
-                             f"previous frame's {self._last_time_s:.3f} s")
+    def _place_in_time(self, frame_index: int, time_s: float) -> tuple[bool, str | None]:
+        """Whether this frame's time can join the fits, and a warning when it cannot."""
+        if self._last_time_s is None or time_s >= self._last_time_s:
+            self._behind.clear()
+            return True, None
+        if self._behind and time_s < self._behind[-1][1]:
+            self._behind.clear()            # only a run of frames in order can resync
+        self._behind.append((frame_index, time_s))
+        if len(self._behind) >= self.resync_frames:
+            wrong_from = self._behind[0][1]
+            behind_frames = {f for f, _ in self._behind}
+            ahead = sorted({r["frame"] for r in self.rows if r["time_s"] is not None
+                            and r["time_s"] > wrong_from and r["frame"] not in behind_frames})
+            for history in self._history.values():
+                while history and history[-1][0] > wrong_from:
+                    history.pop()
+            for row in self.rows:             # the run's earlier frames join the fits now
+                if (row["frame"] in behind_frames and row["status"] == STATUS_OK
+                        and not row["truncated"]):
+                    self._history[row["section"]].append((row["time_s"], row["distance_m"]))
+            self._off_clock_frames.update(ahead)
+            self._off_clock_frames.difference_update(behind_frames)
+            warning = (f"{len(self._behind)} frames in a row are before {self._last_time_s:.3f} s:"
+                       f" the time of frame(s) {', '.join(map(str, ahead))} is taken as wrong, "
+                       "left out of the closing speeds from here on, and the clock follows the "
+                       "frames again")
+            self._behind.clear()
+            return True, warning
+        self._off_clock_frames.add(frame_index)
+        return False, (f"{time_s:.3f} s after the start is before the previous frame's "
+                       f"{self._last_time_s:.3f} s: measured, but left out of the closing speeds")
 
     def add(self, frame_index: int, time_s: float | None, report: ClearanceReport
-            ) -> tuple[dict[int, SectionTrend], list[dict]]:
+            ) -> tuple[dict[int, SectionTrend], list[dict], str | None]:
         """Record one frame's report (``time_s``: seconds since the flight's start, or None
-        when unknown); returns every section's trend and the frame's CSV rows."""
-        self.check_time(time_s, report.image)
+        when unknown); returns every section's trend, the frame's CSV rows, and a warning
+        when the frame's time is out of order (see the class docstring)."""
+        timed, warning = (False, None) if time_s is None else self._place_in_time(frame_index,
+                                                                                  time_s)
         trends, rows = {}, []
         for section in report.sections:
             trend = SectionTrend(None, None)
-            if time_s is not None:
+            fits = section.status == STATUS_OK and not section.truncated
+            if timed:
                 history = self._history[section.index]
-                if section.status == STATUS_OK:
+                if fits:
                     history.append((time_s, section.distance_m))
                 while history and history[0][0] < time_s - self.window_s:
                     history.popleft()
-                if section.status == STATUS_OK and len(history) >= self.min_samples:
+                if fits and len(history) >= self.min_samples:
                     times, distances = zip(*history, strict=True)
                     slope = least_squares_slope(list(times), list(distances))
                     if math.isfinite(slope):
@@ -118,10 +159,10 @@ class ClearanceTimeline:
                 "closing_speed_mps": _round(trend.closing_speed_mps, 3),
                 "time_to_contact_s": _round(trend.time_to_contact_s, 1),
             })
-        if time_s is not None:
+        if timed:
             self._last_time_s = time_s
         self.rows.extend(rows)
-        return trends, rows
+        return trends, rows, warning
 
     @staticmethod
     def csv_writer(handle) -> csv.DictWriter:
@@ -142,7 +183,10 @@ class ClearanceTimeline:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        use_time = all(r["time_s"] is not None for r in measured)
+        on_clock = [r for r in measured
+                    if r["time_s"] is not None and r["frame"] not in self._off_clock_frames]
+        use_time = bool(on_clock)         # frames off the clock are left out of a time axis
+        measured = on_clock if use_time else measured
         x_key, x_label = ("time_s", "time (s)") if use_time else ("frame", "frame")
         sections = sorted({r["section"] for r in measured})
         colours = plt.get_cmap("viridis")(

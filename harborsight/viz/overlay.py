@@ -22,6 +22,25 @@ def _fixed(point) -> tuple[int, int]:
     return round(point[0] * _SCALE), round(point[1] * _SCALE)
 
 
+def _clipped(p0, p1, width: int, height: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The part of segment p0-p1 inside the image grown by its own size on every side, or
+    None. A point just in front of the camera plane projects millions of pixels away, past
+    what OpenCV's fixed-point drawing can hold; the clipped segment keeps its direction."""
+    from shapely import LineString, clip_by_rect
+
+    piece = clip_by_rect(LineString([tuple(p0), tuple(p1)]), -width, -height, 2 * width,
+                         2 * height)
+    if piece.is_empty or piece.geom_type != "LineString":
+        return None
+    a, b = np.asarray(piece.coords, float)[[0, -1]]
+    return a, b
+
+
+def _on_canvas(point, width: int, height: int) -> bool:
+    return bool(np.isfinite(point).all() and -width <= point[0] <= 2 * width
+                and -height <= point[1] <= 2 * height)
+
+
 def _label(image: np.ndarray, text: str, anchor: np.ndarray, colour, scale: float) -> None:
     font = cv2.FONT_HERSHEY_SIMPLEX
     thickness = max(1, round(scale * 2))
@@ -64,19 +83,27 @@ def draw_overlay(
         if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
             continue
         colour = section_colour(s.distance_m, warn_m, alarm_m)
-        cv2.line(out, _fixed(end[0]), _fixed(end[1]), colour, thickness, cv2.LINE_AA, _SHIFT)
-        cv2.circle(out, _fixed(end[0]), 2 * _SCALE, BLACK, -1, cv2.LINE_AA, _SHIFT)
+        piece = _clipped(end[0], end[1], w, h)
+        if piece is not None:
+            cv2.line(out, _fixed(piece[0]), _fixed(piece[1]), colour, thickness, cv2.LINE_AA,
+                     _SHIFT)
+        if _on_canvas(end[0], w, h):
+            cv2.circle(out, _fixed(end[0]), 2 * _SCALE, BLACK, -1, cv2.LINE_AA, _SHIFT)
 
     for s, end in zip(report.sections, ends, strict=True):
         if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
             continue
-        mid = end.mean(axis=0)
+        mid = np.clip(end.mean(axis=0), [-w, -h], [2 * w, 2 * h])
         outward = mid - centre
         outward /= max(np.linalg.norm(outward), 1e-9)
         if s.status == STATUS_OK:
-            cv2.line(out, _fixed(s.hull_point_px), _fixed(s.obstacle_point_px), YELLOW,
-                     max(1, thickness - 1), cv2.LINE_AA, _SHIFT)
-            cv2.circle(out, _fixed(s.obstacle_point_px), 2 * _SCALE, YELLOW, -1, cv2.LINE_AA, _SHIFT)
+            piece = _clipped(s.hull_point_px, s.obstacle_point_px, w, h)
+            if piece is not None:
+                cv2.line(out, _fixed(piece[0]), _fixed(piece[1]), YELLOW, max(1, thickness - 1),
+                         cv2.LINE_AA, _SHIFT)
+            if _on_canvas(s.obstacle_point_px, w, h):
+                cv2.circle(out, _fixed(s.obstacle_point_px), 2 * _SCALE, YELLOW, -1,
+                           cv2.LINE_AA, _SHIFT)
             text = f"{s.distance_m:.1f}m" + ("!" if s.contact else "")
             colour = section_colour(s.distance_m, warn_m, alarm_m)
         else:
