@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 from datetime import datetime
@@ -100,3 +101,56 @@ def test_bundled_flight_closing_speed_matches_the_truth(tmp_path):
     assert comparison.true_mps == pytest.approx(0.4, abs=0.05)
     assert comparison.median_abs_error_mps < 0.05
     assert math.isfinite(comparison.measured_mps)
+
+
+def _synthetic_flight(root: Path, scenes: list[tuple[float, float]], frames: int = 5,
+                      interval_s: float = 0.5) -> list[str]:
+    """Frame JSONs of several scenes, each with its own clock from 0: section 0 starts at
+    d0 and closes at a constant speed, section 1 stays 50 m off."""
+    (root / "frames").mkdir(parents=True)
+    images = []
+    for scene, (d0, speed) in enumerate(scenes):
+        for frame in range(frames):
+            t = interval_s * frame
+            image = f"{len(images):06d}.png"
+            truth = {"sections": [{"distance_m": d0 - speed * t}, {"distance_m": 50.0}],
+                     "sequence": {"scene": scene, "frame": frame, "time_s": t,
+                                  "speed_mps": speed}}
+            (root / "frames" / f"{len(images):06d}.json").write_text(
+                json.dumps({"image": image, "ground_truth": truth}))
+            images.append(image)
+    return images
+
+
+def _sections_csv(path: Path, rows: list[dict]) -> Path:
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, ["image", "section", "distance_m", "closing_speed_mps"])
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def test_closing_speed_truth_stays_within_each_scene(tmp_path):
+    """Two scenes closing at 0.4 and 1.0 m/s, both measured exactly: every compared frame
+    takes its truth from its own scene's neighbours (3 inner frames per scene)."""
+    scenes = [(10.0, 0.4), (30.0, 1.0)]
+    images = _synthetic_flight(tmp_path, scenes)
+    rows = []
+    for index, image in enumerate(images):
+        (d0, speed), frame = scenes[index // 5], index % 5
+        rows.append({"image": image, "section": 0, "distance_m": d0 - speed * 0.5 * frame,
+                     "closing_speed_mps": speed})
+    comparison = compare_closing_speeds(tmp_path, _sections_csv(tmp_path / "s.csv", rows))
+    assert comparison.samples == 6 and comparison.median_abs_error_mps == pytest.approx(0.0)
+
+
+def test_closing_speed_is_compared_for_the_closest_section_only(tmp_path):
+    """Section 1 is the closest (2 m) but has no speed (e.g. truncated): the frame is not
+    compared, rather than comparing the farther section 0."""
+    images = _synthetic_flight(tmp_path, [(10.0, 0.4)])
+    rows = []
+    for frame, image in enumerate(images):
+        rows.append({"image": image, "section": 0, "distance_m": 10.0 - 0.2 * frame,
+                     "closing_speed_mps": 0.4})
+        rows.append({"image": image, "section": 1, "distance_m": 2.0, "closing_speed_mps": ""})
+    assert compare_closing_speeds(tmp_path, _sections_csv(tmp_path / "s.csv", rows)) is None

@@ -1,10 +1,12 @@
 """Closing speeds of a run against a simulated flight's ground truth.
 
 The true closing speed of section k between frames i-1 and i+1 is the central difference of
-its ground-truth clearance, ``-(d_k[i+1] - d_k[i-1]) / (t[i+1] - t[i-1])``; the simulator
-moves the vessel at a constant velocity, so while it moves this is exact. Compared at the
-frames where the run measured a closing speed for its closest section and the vessel was
-moving on both sides.
+its ground-truth clearance, ``-(d_k[i+1] - d_k[i-1]) / (t[i+1] - t[i-1])``, where i-1 and
+i+1 are the neighbouring frames of the same scene (a flight dataset may hold several scenes,
+each with its own clock from 0); the simulator moves the vessel at a constant velocity, so
+while it moves this is exact. Compared at the frames where the run measured a closing speed
+for its closest section (the section nearest an obstacle, whether or not it has a speed)
+and the vessel was moving on both sides.
 """
 
 from __future__ import annotations
@@ -41,20 +43,25 @@ def compare_closing_speeds(flight_dir: Path, sections_csv: Path) -> ClosingSpeed
     truth = _ground_truth(flight_dir / "frames")
     if not truth or not sections_csv.is_file():
         return None
-    order = sorted(truth, key=lambda image: truth[image]["sequence"]["time_s"])
-    position = {image: i for i, image in enumerate(order)}
+    def scene_and_frame(image: str) -> tuple[int, int]:
+        sequence = truth[image]["sequence"]
+        return int(sequence.get("scene", 0)), int(sequence["frame"])
+
+    by_key = {scene_and_frame(image): image for image in truth}
     closest: dict[str, dict] = {}
     for row in csv.DictReader(sections_csv.open()):
-        if row["distance_m"] and row["closing_speed_mps"] and row["image"] in position:
+        if row["distance_m"] and row["image"] in truth:
             best = closest.get(row["image"])
             if best is None or float(row["distance_m"]) < float(best["distance_m"]):
                 closest[row["image"]] = row
     measured, true, errors = [], [], []
     for image, row in closest.items():
-        i = position[image]
-        if i == 0 or i == len(order) - 1:
+        if not row["closing_speed_mps"]:
             continue
-        before, after = truth[order[i - 1]], truth[order[i + 1]]
+        scene, frame = scene_and_frame(image)
+        if (scene, frame - 1) not in by_key or (scene, frame + 1) not in by_key:
+            continue
+        before, after = truth[by_key[scene, frame - 1]], truth[by_key[scene, frame + 1]]
         if not (before["sequence"]["speed_mps"] and after["sequence"]["speed_mps"]):
             continue
         k = int(row["section"])

@@ -18,6 +18,7 @@ The paper's "Unknown" class is harborsight's ``obstacle``.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Callable, Hashable, Sequence
@@ -161,7 +162,7 @@ def height_bins_m(records: Sequence, bin_m: float) -> list[float | None]:
         except HarborsightError:
             heights.append(None)
             continue
-        heights.append(float(round(height_m / bin_m) * bin_m))
+        heights.append(float(math.floor(height_m / bin_m + 0.5) * bin_m))   # halves go up
     return heights
 
 
