@@ -143,3 +143,28 @@ def test_bad_calibration_names_file_and_field(tmp_path):
     path.write_text("image_width: 640\nimage_height: 480\n")
     with pytest.raises(InputError, match=r"bad.yaml: camera_matrix"):
         load_camera_calibration(path)
+
+
+def test_strong_barrel_distortion_refuses_points_past_its_fold():
+    """r_d = r(1 + k1 r^2) with k1 = -0.3 peaks at r = 1/sqrt(3 * 0.3) = 1.054 and turns back:
+    cv2.projectPoints folds a point at r = 1.5 (r_d = 0.49) into the image. It has no true
+    pixel; a point inside the fold (r = 0.5) still matches cv2.projectPoints."""
+    intr = CameraIntrinsics(640, 360, 300.0, 300.0, 319.5, 179.5, (-0.3, 0.0, 0.0, 0.0, 0.0))
+    cam = Camera(intr, np.zeros(3), world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    # nadir camera at the origin, 10 m up is the plane z = -10; camera x is world east
+    points = np.array([[5.0, 0.0, -10.0], [15.0, 0.0, -10.0]])
+    uv, valid = cam.project(points)
+    theirs, _ = cv2.projectPoints(np.array([[0.5, 0.0, 1.0]]), np.zeros(3), np.zeros(3),
+                                  intr.K, intr.dist_coeffs)
+    assert valid.tolist() == [True, False] and np.isnan(uv[1]).all()
+    assert np.allclose(uv[0], theirs.reshape(2), atol=1e-6)
+    folded, _ = cv2.projectPoints(np.array([[1.5, 0.0, 1.0]]), np.zeros(3), np.zeros(3),
+                                  intr.K, intr.dist_coeffs)
+    assert 0 <= folded.reshape(2)[0] < 640           # where OpenCV alone would have put it
+
+
+def test_no_pixels_to_back_project_with_distortion():
+    cam = Camera(INTR, np.array([0.0, 0.0, 50.0]),
+                 world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    xy, valid = cam.pixels_to_plane_xy(np.zeros((0, 2)))
+    assert xy.shape == (0, 2) and valid.shape == (0,)

@@ -205,3 +205,30 @@ def test_own_rim_removes_thin_ship_slivers_only():
     # most its corner pixels)
     labels[30:40, 45:115] = 1
     assert not (own_rim(labels, own, 4)[30:40, 48:112] > 0).any()
+
+
+def test_two_sections_take_a_band_edge_sliver_at_the_right_break():
+    """With two sections both breaks (bow and stern tips) separate the same two bands, and
+    a box's two break rays lie on one line. A wedge whose tip pokes 0.3 px across the bow
+    ray must be measured at the bow, as with three sections, not at the stern tip 40 m
+    away."""
+    from shapely.geometry import Polygon
+
+    from harborsight.sim.schematic import Footprint
+
+    results = {}
+    for n in (2, 3):
+        vessel = flat_box_vessel(n)
+        scene = sample_scene(vessel, np.random.default_rng(0), altitude_m=100, scenario="open")
+        geometry = scene.geometry()
+        gsd_m = 100.0 / scene.intrinsics.fx
+        tip = np.array([37.0, 0.3 * gsd_m])
+        wedge = tip + np.array([[0.0, 0.0], [5.0, -5.0], [0.0, -10.0], [-5.0, -5.0]])
+        scene.footprints = [Footprint(Polygon(geometry.vessel_to_enu(wedge)[:, :2]), 2, 5,
+                                      "quay", (120, 120, 120))]
+        _, labels, _ = render(scene)
+        truth = ground_truth(scene)["sections"][0]["distance_m"]
+        report = measure_clearance(labels, geometry, vessel, ClearanceSettings(own_rim_px=0))
+        results[n] = report.sections[0].distance_m
+        assert results[n] == pytest.approx(truth, abs=2 * gsd_m)
+    assert results[2] == pytest.approx(results[3])

@@ -1,5 +1,7 @@
 """Vessel specs, outlines from meshes and AIS dimensions, and equal-length sections."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import shapely
@@ -40,7 +42,10 @@ def test_box_mesh_waterline_and_axes(tmp_path):
     # V x = -(mesh x - 5) spans -5..15; V y = mesh y - 1 spans -4..2
     assert Polygon(spec.outline).bounds == pytest.approx((-5.0, -4.0, 15.0, 2.0))
     assert spec.hull_points[:, 2].min() == pytest.approx(-3.0)  # 3 m above the waterline
-    assert spec.hull_points[:, 2].max() == pytest.approx(2.0)   # 2 m draft
+    # the 2 m draft is under water: the image never shows it, so it is not in hull_points
+    assert spec.hull_points[:, 2].max() == pytest.approx(0.0)
+    assert Polygon(spec.hull_points[:, :2]).convex_hull.bounds == pytest.approx(
+        (-5.0, -4.0, 15.0, 2.0))
 
 
 def test_flared_hull_silhouette_is_wider_than_waterline(tmp_path):
@@ -97,3 +102,41 @@ def test_outline_height_above_the_mesh_is_an_error(tmp_path):
     trimesh.creation.box(extents=(20, 6, 4)).export(tmp_path / "b.stl")
     with pytest.raises(InputError, match=r"outline: the mesh does not reach 30 m"):
         load_vessel_spec(write_spec(tmp_path, "hull_mesh: b.stl\noutline: 30\n"))
+
+
+def test_submerged_hull_does_not_hide_an_obstacle_beside_the_vessel():
+    """The bundled tug (its mesh reaches 4 m under water) seen 60 m up from 40 m off its port
+    side, camera tilted 20 deg toward it: a quay 0.5 m off the port waterline is measured at
+    0.5 m, not pushed out by the projected bilge. The bilge at depth d, r from the nadir,
+    would show d·r/(H + d) nearer the camera: about 1.5 m beyond the waterline here."""
+    from importlib import resources
+
+    import cv2
+
+    from harborsight.clearance import ClearanceSettings, measure_clearance
+    from harborsight.frame import FrameGeometry
+    from harborsight.geometry.camera import Camera, CameraIntrinsics
+    from harborsight.geometry.geodesy import GeoOrigin
+    from harborsight.geometry.rotations import world_from_camera_rotation
+
+    samples = Path(str(resources.files("harborsight") / "data" / "samples"))
+    spec = load_vessel_spec(samples / "vessels" / "harbour-tug" / "vessel.yaml")
+    assert spec.mesh.bounds[1, 2] > 3.0 and spec.hull_points[:, 2].max() <= 1e-9
+    intrinsics = CameraIntrinsics(640, 360, 454.66, 454.66, 319.5, 179.5)
+    camera = Camera(intrinsics, np.array([-40.0, 0.0, 60.0]),
+                    world_from_camera_rotation(np.radians(90.0), np.radians(-70.0), 0.0))
+    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
+
+    def to_px(points_v: np.ndarray) -> np.ndarray:
+        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
+
+    port_y = spec.outline[:, 1].min()
+    labels = np.zeros((360, 640), np.uint8)
+    above = spec.mesh.slice_plane([0, 0, 0], [0, 0, -1]).vertices      # what the image shows
+    cv2.fillPoly(labels, [cv2.convexHull(to_px(above))], 1, cv2.LINE_8, shift=4)
+    quay = np.array([[-5.0, port_y - 0.5, 0], [25.0, port_y - 0.5, 0],
+                     [25.0, port_y - 15.5, 0], [-5.0, port_y - 15.5, 0]])
+    cv2.fillPoly(labels, [to_px(quay)], 2, cv2.LINE_8, shift=4)
+    report = measure_clearance(labels, geometry, spec, ClearanceSettings())
+    assert report.min_distance_m == pytest.approx(0.5, abs=0.15)
+    assert not any(s.contact for s in report.sections if s.status == "ok")

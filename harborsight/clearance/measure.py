@@ -209,14 +209,15 @@ def _band_edge_pixels(
     # outline's units is bounded from the steps to its contour neighbours (1 or 1.4 px each)
     previous = np.empty_like(contours.next_index)
     previous[contours.next_index] = np.arange(len(previous))
-    step = np.maximum(np.hypot(*(points[contours.next_index] - points).T),
-                      np.hypot(*(points[previous] - points).T))
+    step_size = np.maximum(np.hypot(*(points[contours.next_index] - points).T),
+                           np.hypot(*(points[previous] - points).T))
     own_all = np.maximum(section, 0)
     near_ray = np.zeros(len(points), bool)
     for k in (own_all, (own_all + 1) % n):
         rel = points - outline.break_points[k]
         ray = outline.break_ray[k]
-        near_ray |= np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]) <= _NEAR_RAY_STEPS * step
+        near_ray |= (np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0])
+                     <= _NEAR_RAY_STEPS * step_size)
     candidate = np.flatnonzero((section >= 0) & near_ray)
     if len(candidate) == 0:
         return _Candidates.empty()
@@ -228,7 +229,16 @@ def _band_edge_pixels(
     chosen, neighbour, shared_break = [], [], []
     for step, break_of in ((1, (own + 1) % n), (-1, own)):
         other = (own + step) % n
-        reaches = np.any(corner_section == other[:, None], axis=1) & (other != own)
+        # near this break's own ray: with two sections both breaks separate the same pair
+        # of bands (and a box's two rays lie on one line), and only the ray the pixel
+        # straddles is the one it reaches across
+        rel = points[candidate] - outline.break_points[break_of]
+        ray = outline.break_ray[break_of]
+        reach = _NEAR_RAY_STEPS * step_size[candidate]
+        near_this_ray = ((np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]) <= reach)
+                         & (np.einsum("ij,ij->i", rel, ray) >= -reach))    # the ray, not its line
+        reaches = (np.any(corner_section == other[:, None], axis=1) & (other != own)
+                   & near_this_ray)
         chosen.append(candidate[reaches])
         neighbour.append(other[reaches])
         shared_break.append(break_of[reaches])

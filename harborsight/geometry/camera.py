@@ -203,6 +203,9 @@ class Camera:
         """Project ENU points ``(N, 3)`` to pixels ``(N, 2)``.
 
         Returns ``(uv, in_front)``; points at or behind the camera plane get NaN pixels.
+        So do points beyond the radius where a strongly barrel-distorted model stops growing
+        (``r·(1 + k1·r² + ...)`` turns back): ``cv2.projectPoints`` folds them back into the
+        image, so a projection whose undistortion does not return the point is refused.
         """
         pts_c = self.to_camera_frame(np.atleast_2d(points_enu))
         in_front = pts_c[:, 2] > 1e-9
@@ -215,22 +218,38 @@ class Camera:
             projected, _ = cv2.projectPoints(
                 front.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs
             )
-            uv[in_front] = projected.reshape(-1, 2)
+            projected = projected.reshape(-1, 2)
+            ideal = front[:, :2] / front[:, 2:3]
+            recovered = self.normalized_coordinates(projected)
+            with np.errstate(invalid="ignore"):
+                folded = ~(np.hypot(*(recovered - ideal).T)
+                           <= 1e-6 * (1.0 + np.hypot(*ideal.T)))
+            projected[folded] = np.nan
+            uv[in_front] = projected
+            in_front[np.flatnonzero(in_front)[folded]] = False
         else:
             uv[in_front, 0] = intr.fx * front[:, 0] / front[:, 2] + intr.cx
             uv[in_front, 1] = intr.fy * front[:, 1] / front[:, 2] + intr.cy
         return uv, in_front
 
     def normalized_coordinates(self, uv: np.ndarray) -> np.ndarray:
-        """Undistorted normalised image coordinates ``(x, y)`` of pixels ``(N, 2)``."""
+        """Undistorted normalised image coordinates ``(x, y)`` of pixels ``(N, 2)``; NaN for
+        a pixel the distortion model cannot invert (beyond a strongly barrel-distorted
+        model's fold, the iteration stops at a point that does not project back to it)."""
         uv = np.atleast_2d(np.asarray(uv, float))
         intr = self.intrinsics
+        if len(uv) == 0:
+            return np.zeros((0, 2))
         if intr.has_distortion:
             criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
             xy = cv2.undistortPointsIter(
                 uv.reshape(-1, 1, 2), intr.K, intr.dist_coeffs, None, None, criteria
-            )
-            return xy.reshape(-1, 2)
+            ).reshape(-1, 2)
+            back, _ = cv2.projectPoints(np.column_stack((xy, np.ones(len(xy)))).reshape(-1, 1, 3),
+                                        np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs)
+            with np.errstate(invalid="ignore"):
+                xy[~(np.hypot(*(back.reshape(-1, 2) - uv).T) <= 0.01)] = np.nan
+            return xy
         return np.column_stack(((uv[:, 0] - intr.cx) / intr.fx, (uv[:, 1] - intr.cy) / intr.fy))
 
     def plane_homography(self, plane_z_m: float = 0.0) -> np.ndarray:

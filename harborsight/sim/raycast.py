@@ -59,8 +59,10 @@ def ray_cast_ids(geometry: FrameGeometry, triangles: np.ndarray, triangle_ids: n
     mesh = trimesh.Trimesh(vertices=triangles.reshape(-1, 3),
                            faces=np.arange(len(triangles) * 3).reshape(-1, 3), process=False)
     intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(mesh)
+    finite = np.flatnonzero(np.isfinite(dirs).all(axis=1))   # pixels the lens model can invert
     index_tri, index_ray, locations = intersector.intersects_id(
-        origins, dirs, multiple_hits=False, return_locations=True)
+        origins[finite], dirs[finite], multiple_hits=False, return_locations=True)
+    index_ray = finite[index_ray]
     ids = np.full(len(uv), NO_HIT, np.int64)
     ids[index_ray] = triangle_ids[index_tri]
     ranges = np.full(len(uv), np.inf)

@@ -27,8 +27,8 @@ class VesselSpec:
     """A vessel in its own frame V (x bow, y starboard, z down, origin at the antenna).
 
     ``outline`` is the convex outline used for sections (clockwise from above, from the bow);
-    ``hull_points`` are V-frame points whose convex hull contains the whole vessel, used to
-    find the vessel's own pixels in an image.
+    ``hull_points`` are V-frame points whose convex hull contains the vessel above the
+    waterline, used to find the vessel's own pixels in an image (the water hides the rest).
     """
 
     name: str
@@ -108,9 +108,9 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
             raise InputError(path, "mesh_axes", str(exc)) from exc
         try:
             outline = outline_from_mesh(mesh_v, mode)
+            hull_points = above_water_hull_points(mesh_v)
         except ValueError as exc:
             raise InputError(path, "outline", str(exc)) from exc
-        hull_points = np.asarray(mesh_v.convex_hull.vertices)
     elif doc.get("dimensions"):
         dims = doc["dimensions"]
         if not isinstance(dims, dict):
@@ -141,6 +141,21 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
             raise InputError(path, "sections", f"expected a positive whole number, got {n!r}")
         n_sections = n
     return VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
+
+
+def above_water_hull_points(mesh_v) -> np.ndarray:
+    """Vertices of the convex hull of the part of a V-frame mesh at or above the waterline
+    (z <= 0, z down). The submerged hull is hidden by the water, and left in it would make
+    the vessel's image region too large: seen obliquely, a point at depth d and horizontal
+    distance r from the camera's nadir shows d·r/(H + d) nearer the nadir, so the bilge on
+    the side facing the camera projects beyond the visible waterline (1-2 m at 60 m up,
+    40 m off), and an obstacle there would be erased."""
+    import trimesh
+
+    above = mesh_v.slice_plane(plane_origin=[0.0, 0.0, 0.0], plane_normal=[0.0, 0.0, -1.0])
+    if above is None or len(above.vertices) < 4:
+        raise ValueError("no part of the hull mesh is above the waterline")
+    return np.asarray(trimesh.convex.convex_hull(above.vertices).vertices)
 
 
 def load_vessel_spec(path: str | Path) -> VesselSpec:
