@@ -162,14 +162,8 @@ def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
     assert (out / "timeline.png").stat().st_size > 10_000
 
 
-@pytest.mark.parametrize("edit, field", [
-    (lambda m: m["camera"].update(calibration=5), "camera.calibration"),
-    (lambda m: m["camera"].update(width=float("inf")), "camera.width"),
-    (lambda m: m.update(vessel_spec=5), "vessel_spec"),
-])
-def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
-    """Fields of the wrong type (not only missing or out of range) skip that frame only:
-    the run finishes and writes run.json, the timeline and the video."""
+def _run_with_frame_2_edited(tmp_path: Path, edit) -> tuple:
+    """`run` over the timed samples with frame 2's JSON changed by ``edit``; (result, out)."""
     data = _timed_copy_of_samples(tmp_path)
     path = data / "frames" / "000002.json"
     meta = json.loads(path.read_text())
@@ -179,6 +173,18 @@ def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
     result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
                                  "--out", str(out)], terminal_width=200)
     assert result.exit_code == 0, result.output
+    return result, out
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda m: m["camera"].update(calibration=5), "camera.calibration"),
+    (lambda m: m["camera"].update(width=float("inf")), "camera.width"),
+    (lambda m: m.update(vessel_spec=5), "vessel_spec"),
+])
+def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
+    """Fields of the wrong type (not only missing or out of range) skip that frame only:
+    the run finishes and writes run.json, the timeline and the video."""
+    _, out = _run_with_frame_2_edited(tmp_path, edit)
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 4
     [skipped] = record["skipped_frames"]
@@ -190,15 +196,7 @@ def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
 def test_a_frame_without_a_time_is_measured_without_a_speed(tmp_path):
     """The run is timed by timestamps (its first frame has one); frame 2 has none. (A
     malformed timestamp is a malformed frame file: skipped with the field named.)"""
-    data = _timed_copy_of_samples(tmp_path)
-    path = data / "frames" / "000002.json"
-    meta = json.loads(path.read_text())
-    meta.pop("timestamp")
-    path.write_text(json.dumps(meta))
-    out = tmp_path / "out"
-    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
-                                 "--out", str(out)], terminal_width=200)
-    assert result.exit_code == 0, result.output
+    result, out = _run_with_frame_2_edited(tmp_path, lambda meta: meta.pop("timestamp"))
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 5 and record["skipped_frames"] == []
     [warning] = record["warnings"]
