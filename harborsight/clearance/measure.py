@@ -180,6 +180,20 @@ _NEAR_RAY_STEPS = 1.5
 _PIXEL_CORNERS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 
 
+def _side_of_ray(points: np.ndarray, origin: np.ndarray, ray: np.ndarray) -> np.ndarray:
+    """Signed distance of points from the line ``origin + s·ray`` (unit ``ray``)."""
+    rel = points - origin
+    return rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]
+
+
+def _near_ray(points: np.ndarray, origin: np.ndarray, ray: np.ndarray,
+              reach: np.ndarray) -> np.ndarray:
+    """Points within ``reach`` of the ray ``origin + s·ray, s >= 0`` (not of its whole line:
+    with two sections, a box's two break rays lie on one line)."""
+    along = np.einsum("ij,ij->i", points - origin, ray)
+    return (np.abs(_side_of_ray(points, origin, ray)) <= reach) & (along >= -reach)
+
+
 def _band_edge_pixels(
     outline: SectionedOutline, to_outline, points: np.ndarray, points_px: np.ndarray,
     section: np.ndarray, contours,
@@ -214,10 +228,8 @@ def _band_edge_pixels(
     own_all = np.maximum(section, 0)
     near_ray = np.zeros(len(points), bool)
     for k in (own_all, (own_all + 1) % n):
-        rel = points - outline.break_points[k]
-        ray = outline.break_ray[k]
-        near_ray |= (np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0])
-                     <= _NEAR_RAY_STEPS * step_size)
+        near_ray |= _near_ray(points, outline.break_points[k], outline.break_ray[k],
+                              _NEAR_RAY_STEPS * step_size)
     candidate = np.flatnonzero((section >= 0) & near_ray)
     if len(candidate) == 0:
         return _Candidates.empty()
@@ -230,13 +242,10 @@ def _band_edge_pixels(
     for step, break_of in ((1, (own + 1) % n), (-1, own)):
         other = (own + step) % n
         # near this break's own ray: with two sections both breaks separate the same pair
-        # of bands (and a box's two rays lie on one line), and only the ray the pixel
-        # straddles is the one it reaches across
-        rel = points[candidate] - outline.break_points[break_of]
-        ray = outline.break_ray[break_of]
-        reach = _NEAR_RAY_STEPS * step_size[candidate]
-        near_this_ray = ((np.abs(rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]) <= reach)
-                         & (np.einsum("ij,ij->i", rel, ray) >= -reach))    # the ray, not its line
+        # of bands, and only the ray the pixel straddles is the one it reaches across
+        near_this_ray = _near_ray(points[candidate], outline.break_points[break_of],
+                                  outline.break_ray[break_of],
+                                  _NEAR_RAY_STEPS * step_size[candidate])
         reaches = (np.any(corner_section == other[:, None], axis=1) & (other != own)
                    & near_this_ray)
         chosen.append(candidate[reaches])
@@ -252,8 +261,7 @@ def _band_edge_pixels(
     # only tips: the contour must recede from the ray on both sides (an edge that runs along
     # the ray is not a corner entering the band)
     def side_distance(i: np.ndarray) -> np.ndarray:
-        rel = points[i] - origin
-        return rel[:, 0] * ray[:, 1] - rel[:, 1] * ray[:, 0]
+        return _side_of_ray(points[i], origin, ray)
     own_side = np.sign(side_distance(idx))
     ahead, behind = idx.copy(), idx.copy()
     for _ in range(_TIP_STEPS):

@@ -220,7 +220,7 @@ class Camera:
             )
             projected = projected.reshape(-1, 2)
             ideal = front[:, :2] / front[:, 2:3]
-            recovered = self.normalized_coordinates(projected)
+            recovered = self._undistorted(projected)
             with np.errstate(invalid="ignore"):
                 folded = ~(np.hypot(*(recovered - ideal).T)
                            <= 1e-6 * (1.0 + np.hypot(*ideal.T)))
@@ -232,6 +232,14 @@ class Camera:
             uv[in_front, 1] = intr.fy * front[:, 1] / front[:, 2] + intr.cy
         return uv, in_front
 
+    def _undistorted(self, uv: np.ndarray) -> np.ndarray:
+        """OpenCV's iterative undistortion of pixels ``(N, 2)`` to normalised coordinates."""
+        intr = self.intrinsics
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        return cv2.undistortPointsIter(
+            uv.reshape(-1, 1, 2), intr.K, intr.dist_coeffs, None, None, criteria
+        ).reshape(-1, 2)
+
     def normalized_coordinates(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised image coordinates ``(x, y)`` of pixels ``(N, 2)``; NaN for
         a pixel the distortion model cannot invert (beyond a strongly barrel-distorted
@@ -241,10 +249,7 @@ class Camera:
         if len(uv) == 0:
             return np.zeros((0, 2))
         if intr.has_distortion:
-            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-            xy = cv2.undistortPointsIter(
-                uv.reshape(-1, 1, 2), intr.K, intr.dist_coeffs, None, None, criteria
-            ).reshape(-1, 2)
+            xy = self._undistorted(uv)
             back, _ = cv2.projectPoints(np.column_stack((xy, np.ones(len(xy)))).reshape(-1, 1, 3),
                                         np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs)
             with np.errstate(invalid="ignore"):

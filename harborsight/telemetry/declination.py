@@ -16,7 +16,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from functools import lru_cache
 
-#: The epochs pygeomag ships, with the first and last decimal year each is valid for.
+#: The epochs pygeomag ships: (first decimal year each is valid for, coefficient file name).
 WMM_EPOCHS = ((2010, "2010"), (2015, "2015v2"), (2020, "2020"), (2025, "2025"))
 WMM_END_YEAR = 2030.0
 
