@@ -6,6 +6,7 @@ import math
 import cv2
 import numpy as np
 import pytest
+import shapely
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError
@@ -168,3 +169,49 @@ def test_no_pixels_to_back_project_with_distortion():
                  world_from_camera_rotation(0.0, math.radians(-90), 0.0))
     xy, valid = cam.pixels_to_plane_xy(np.zeros((0, 2)))
     assert xy.shape == (0, 2) and valid.shape == (0,)
+
+
+def _box_corners(x0, x1, y0, y1, z0, z1):
+    return np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)])
+
+
+@pytest.mark.parametrize("k1", [-0.2, 0.0, 0.05])
+def test_convex_outline_follows_distorted_edges(k1):
+    """A 28 x 14 x 8 m box seen from 60 m near the image corner: every point of its twelve
+    edges, projected one by one by cv2.projectPoints, lies inside the outline's hull, and
+    the hull reaches no farther than those points. With k1 = -0.2 the hull of the eight
+    projected corners alone leaves more than a pixel of the bent edges outside."""
+    intr = CameraIntrinsics(640, 360, 320.0, 320.0, 319.5, 179.5, (k1, 0.0, 0.0, 0.0, 0.0))
+    cam = Camera(intr, np.array([0.0, 0.0, 60.0]),
+                 world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    corners = _box_corners(20.0, 48.0, -26.0, -12.0, 0.0, 8.0)
+    t = np.linspace(0.0, 1.0, 400)[:, None]
+    edges = np.vstack([a + t * (b - a) for i, a in enumerate(corners) for b in corners[i + 1:]
+                       if np.count_nonzero(a != b) == 1])
+    R_cw = cam.camera_from_world
+    theirs, _ = cv2.projectPoints(edges.reshape(-1, 1, 3), cv2.Rodrigues(R_cw)[0],
+                                  -R_cw @ cam.position_enu, intr.K, intr.dist_coeffs)
+    theirs = theirs.reshape(-1, 2)
+    assert cam.in_image(theirs).all()
+
+    outline = shapely.MultiPoint(cam.project_convex_outline(corners)).convex_hull
+    truth = shapely.MultiPoint(theirs).convex_hull
+    outside = shapely.distance(outline, shapely.points(theirs)).max()
+    assert outside < 0.05
+    assert outline.hausdorff_distance(truth) < 0.05
+    corners_only = shapely.MultiPoint(cam.project(corners)[0]).convex_hull
+    spill = shapely.distance(corners_only, shapely.points(theirs)).max()
+    assert (spill > 1.0) == (k1 < 0)
+
+
+def test_pixels_just_inside_a_barrel_fold_back_project():
+    """k1 = -0.2 folds at r = 1/sqrt(0.6) = 1.291. OpenCV's fixed-point undistortion is
+    still 1e-3 off at r = 1.25 after 40 steps (and the pixel was refused); the Newton
+    polish recovers points up to 0.2 % short of the fold to 1e-9."""
+    intr = CameraIntrinsics(640, 360, 320.0, 320.0, 319.5, 179.5, (-0.2, 0.0, 0.0, 0.0, 0.0))
+    cam = Camera(intr, np.zeros(3), world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    direction = np.array([0.9, 0.436]) / np.hypot(0.9, 0.436)
+    ideal = np.outer([0.5, 1.0, 1.2, 1.25, 1.28, 1.288], direction)
+    pixels, _ = cv2.projectPoints(np.column_stack((ideal, np.ones(len(ideal)))).reshape(-1, 1, 3),
+                                  np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs)
+    assert np.allclose(cam.normalized_coordinates(pixels.reshape(-1, 2)), ideal, atol=1e-9)

@@ -2,10 +2,14 @@
 
 import numpy as np
 import pytest
+import shapely
 
 from harborsight.clearance import ClearanceSettings, measure_clearance
+from harborsight.clearance.obstacles import SHIP, WATER
 from harborsight.errors import InputError
+from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.sim.schematic import ground_truth, render, sample_scene
+from harborsight.vessel.spec import VesselSpec
 from tests.helpers import flat_box_vessel
 
 
@@ -232,3 +236,28 @@ def test_two_sections_take_a_band_edge_sliver_at_the_right_break():
         results[n] = report.sections[0].distance_m
         assert results[n] == pytest.approx(truth, abs=2 * gsd_m)
     assert results[2] == pytest.approx(results[3])
+
+
+def test_wide_barrel_lens_keeps_the_vessel_inside_its_own_region():
+    """k1 = -0.2 bends the straight sides of a 40 m vessel with an 8 m high deck by up to
+    10 px when it fills a wide (90 degree) view from 28 m. The mask holds nothing but the
+    vessel, each pixel marked where its undistorted ray falls inside the pinhole image of
+    the vessel's convex hull, so every section must be clear. The hull of the projected
+    corners alone cut the bent sides off (5,745 vessel pixels outside it), and the deck's
+    edge then read as an obstacle 0.4-1.5 m off 12 of the 16 sections."""
+    flat = flat_box_vessel()
+    deck = np.column_stack((flat.outline, np.full(len(flat.outline), -8.0)))  # z down
+    vessel = VesselSpec("decked", flat.outline, np.vstack((flat.hull_points, deck)), 16)
+    intr = CameraIntrinsics(640, 360, 320.0, 320.0, 319.5, 179.5, (-0.2, 0.0, 0.0, 0.0, 0.0))
+    scene = sample_scene(vessel, np.random.default_rng(5), altitude_m=28, scenario="open",
+                         intrinsics=intr)
+    camera = scene.geometry().camera
+    hull_c = camera.to_camera_frame(scene.geometry().vessel_to_enu(vessel.hull_points))
+    image_of_hull = shapely.MultiPoint(hull_c[:, :2] / hull_c[:, 2:3]).convex_hull
+    grid = np.stack(np.meshgrid(np.arange(640.0), np.arange(360.0)), -1).reshape(-1, 2)
+    rays = camera.normalized_coordinates(grid)
+    on_vessel = shapely.contains_xy(image_of_hull, *np.nan_to_num(rays, nan=1e9).T)
+    labels = np.where(on_vessel, SHIP, WATER).astype(np.uint8).reshape(360, 640)
+    assert 0.2 < on_vessel.mean() < 0.9
+    report = measure_clearance(labels, scene.geometry(), vessel)
+    assert {s.status for s in report.sections} <= {"clear", "out_of_view"}

@@ -302,7 +302,8 @@ def measure_clearance(
             f"pixel ({centre_px[0]:.0f}, {centre_px[1]:.0f}) in a {intr.width}x{intr.height} image)",
         )
 
-    own = own_vessel_region(vessel_to_px(vessel.hull_points), labels.shape, settings.pose_margin_px)
+    vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
+    own = own_vessel_region(vessel_outline_px, labels.shape, settings.pose_margin_px)
     contours = obstacle_contours(labels, own, settings.own_rim_px)
     points_px = contours.points_px.astype(float)
 

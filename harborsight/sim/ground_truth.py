@@ -74,9 +74,10 @@ def section_distances(
 
 
 def vessel_silhouette_px(vessel: VesselSpec, geometry: FrameGeometry) -> np.ndarray:
-    """Convex hull (pixels) of the whole vessel's projected hull points."""
-    uv, front = geometry.camera.project(geometry.vessel_to_enu(vessel.hull_points))
-    hull = cv2.convexHull(uv[front].astype(np.float32))
+    """Convex hull (pixels) of the vessel's image: its hull points' convex hull projected,
+    edges followed through the lens distortion (:meth:`Camera.project_convex_outline`)."""
+    uv = geometry.camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
+    hull = cv2.convexHull(uv.astype(np.float32))
     return hull.reshape(-1, 2).astype(float)
 
 
