@@ -72,7 +72,14 @@ def test_onnx_export_matches_torch(name, tmp_path):
     with torch.no_grad():
         expected = model(torch.from_numpy(frame[None])).argmax(1)[0].numpy()
     assert (segmenter.segment(frame) == expected).mean() > 0.999
-    assert segmenter.segment(images(1, 144, 200)[0]).shape == (144, 200)  # resized and back
+    # another size: the frame resized to the input, the logits bilinearly back (torch's
+    # interpolate with align_corners=False maps pixel centres the same way)
+    big = images(1, 144, 200, seed=6)[0]
+    with torch.no_grad():
+        logits = torch.from_numpy(segmenter.logits(big))[None]
+        expected = torch.nn.functional.interpolate(logits, size=(144, 200), mode="bilinear",
+                                                   align_corners=False).argmax(1)[0].numpy()
+    assert (segmenter.segment(big) == expected).mean() > 0.999
 
 
 def test_parameter_counts_match_reference(name):

@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from harborsight.errors import InputError
-from harborsight.training.augment import AugmentConfig, augment, augment_weighted, mirror
+from harborsight.training.augment import (
+    AugmentConfig,
+    _rescale,
+    augment,
+    augment_weighted,
+    mirror,
+)
 from harborsight.training.dataset import SegmentationFrames, list_frames
 from tests.conftest import TINY_SPLITS
 
@@ -122,6 +128,20 @@ def test_geometric_augmentation_keeps_alignment(seed):
     expected = np.array([LUT[v] for v in out_labels.ravel()]).reshape(out_image.shape)
     match = (np.abs(out_image.astype(int) - expected).max(axis=2) <= 8).mean()
     assert match > 0.85
+
+
+def test_rescaled_label_edge_stays_on_the_image_edge():
+    """A vertical edge between columns 49 and 50, scaled by 1.365, lies at x = 68.25 (pixel
+    corners): output pixel 68 (centre 68.5) is past it, and the bilinear image is above half
+    there. cv2.INTER_NEAREST samples source column floor(68 / 1.365) = 49 and put the label
+    edge half a pixel right of the image's."""
+    image = np.zeros((4, 100, 3), np.uint8)
+    image[:, 50:] = 255
+    labels = (image[..., 0] > 0).astype(np.uint8)
+    out_image, (out_labels,) = _rescale(image, [labels], 1.365)
+    image_edge = int(np.argmax(out_image[0, :, 0] > 127))
+    label_edge = int(np.argmax(out_labels[0] == 1))
+    assert image_edge == label_edge == 68
 
 
 def test_photometric_augmentation_leaves_labels_alone():

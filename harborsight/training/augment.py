@@ -86,7 +86,7 @@ def _rescale(image: np.ndarray, maps: list[np.ndarray], scale: float
     h, w = maps[0].shape
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     return (cv2.resize(image, size, interpolation=cv2.INTER_LINEAR),
-            [cv2.resize(m, size, interpolation=cv2.INTER_NEAREST) for m in maps])
+            [cv2.resize(m, size, interpolation=cv2.INTER_NEAREST_EXACT) for m in maps])
 
 
 def _random_crop(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
