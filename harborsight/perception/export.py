@@ -86,4 +86,57 @@ def quantize_int8(
                           if n.op_type in ("ArgMax", "Cast")],
     )
     prepared.unlink(missing_ok=True)
+    quantized = onnx.load(str(out_path))
+    float_classifier_tail(quantized)
+    onnx.save(quantized, str(out_path))
     return out_path
+
+
+def float_classifier_tail(model: onnx.ModelProto) -> int:
+    """Drop the QuantizeLinear -> DequantizeLinear pairs from the last Conv (the classifier)
+    on, in place; returns how many pairs went.
+
+    Static quantisation puts the classifier's output, and the Resize and Slice after it, on
+    a uint8 grid. Two classes then often tie, and ``ArgMax`` takes the lower index on a tie:
+    water, the unsafe side, so ship and obstacle edges shrink. Without the pairs, ONNX
+    Runtime runs the classifier in float (int8 weights dequantised) and the logits stay
+    float; the backbone stays int8.
+    """
+    nodes = list(model.graph.node)
+    last_conv = max((i for i, n in enumerate(nodes) if n.op_type == "Conv"), default=None)
+    if last_conv is None:
+        return 0
+    producers = {out: node for node in nodes for out in node.output}
+    consumers: dict[str, list] = {}
+    for node in nodes:
+        for name in node.input:
+            consumers.setdefault(name, []).append(node)
+    graph_outputs = {o.name for o in model.graph.output}
+    removed = 0
+    for node in nodes[last_conv:]:
+        if node.op_type != "QuantizeLinear":
+            continue
+        followers = consumers.get(node.output[0], [])
+        if len(followers) != 1 or followers[0].op_type != "DequantizeLinear":
+            continue
+        dequantize = followers[0]
+        source, target = node.input[0], dequantize.output[0]
+        if target in graph_outputs:
+            # keep the output's name: the float tensor's producer writes it instead
+            producer = producers[source]
+            producer.output[list(producer.output).index(source)] = target
+            for user in consumers.get(source, []):
+                if user is not node:
+                    user.input[list(user.input).index(source)] = target
+        else:
+            for user in consumers.get(target, []):
+                for k, name in enumerate(user.input):
+                    if name == target:
+                        user.input[k] = source
+        model.graph.node.remove(node)
+        model.graph.node.remove(dequantize)
+        removed += 1
+    used = {name for node in model.graph.node for name in node.input}
+    for unused in [t for t in model.graph.initializer if t.name not in used]:
+        model.graph.initializer.remove(unused)
+    return removed
