@@ -86,3 +86,50 @@ def test_refuses_what_cannot_be_averaged(tmp_path):
                                  str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.pt")])
     assert result.exit_code == 2 and "missing.pt" in result.output
     assert "checkpoint file not found" in result.output and not (tmp_path / "x.pt").exists()
+
+
+def test_ddrnet_one_unit_stages_end_in_their_relu():
+    """ydhongHIT/DDRNet's _make_layer marks no_relu only on the last of two or more blocks,
+    so layer5 and layer5_ (one bottleneck each) end in a ReLU; stages of two do not."""
+    network = create_network("ddrnet23_slim", 3)
+    assert isinstance(network.low5[0].act, torch.nn.ReLU)
+    assert isinstance(network.high5[0].act, torch.nn.ReLU)
+    assert isinstance(network.high4[-1].act, torch.nn.Identity)
+    legacy = create_network("ddrnet23_slim", 3, layer5_relu=False)
+    assert isinstance(legacy.low5[0].act, torch.nn.Identity)
+
+
+def test_checkpoints_rebuild_the_network_they_were_trained_as(tmp_path):
+    """A checkpoint from before network_options existed was trained without layer5's ReLU
+    and is rebuilt so; one that records its options gets them."""
+    old = write_checkpoint(tmp_path / "old.pt")
+    assert isinstance(model_from_checkpoint(old).network.low5[0].act, torch.nn.Identity)
+    payload = load_checkpoint(old)
+    payload["network_options"] = {"layer5_relu": True}
+    new = save_checkpoint(tmp_path / "new.pt", payload)
+    assert isinstance(model_from_checkpoint(new).network.low5[0].act, torch.nn.ReLU)
+    with pytest.raises(InputError, match="network_options"):
+        average_checkpoints([old, new])
+
+
+def test_weights_of_another_network_name_the_file(tmp_path):
+    path = write_checkpoint(tmp_path / "x.pt")
+    payload = load_checkpoint(path)
+    payload["network"] = "bisenetv2"
+    save_checkpoint(path, payload)
+    with pytest.raises(InputError, match=r"x.pt: model: weights do not fit bisenetv2"):
+        model_from_checkpoint(path)
+    del payload["num_classes"]
+    save_checkpoint(path, payload)
+    with pytest.raises(InputError, match=r"x.pt: num_classes: missing"):
+        model_from_checkpoint(path)
+
+
+def test_resume_keeps_a_better_best_checkpoint(tmp_path):
+    from harborsight.training.loop import _best_so_far
+
+    best = write_checkpoint(tmp_path / "best.pt")  # best_val_miou 0.5
+    assert _best_so_far(0.4, best) == 0.5
+    assert _best_so_far(None, best) == 0.5
+    assert _best_so_far(0.6, best) == 0.6
+    assert _best_so_far(0.4, tmp_path / "none.pt") == 0.4

@@ -182,6 +182,10 @@ def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_
     report = json.loads((tmp_path / "e.json").read_text())
     assert report["kind"] == "onnx" and report["network"] == "ddrnet23_slim"
     assert report["splits"]["train"]["miou"] == pytest.approx(int8["miou_int8"])
+    # export writes one sidecar; the int8 file finds it, without the fp32 graph's scores
+    quantised = default_model.load_onnx_segmenter(out.with_name("model.int8.onnx"))
+    assert quantised.sidecar["precision"] == "int8" and quantised.sidecar["heldout"] is None
+    assert quantised.sidecar["network"] == "ddrnet23_slim"
     result = runner.invoke(app, ["export", "--checkpoint", str(trained_run / "best.pt"),
                                  "--out", str(tmp_path / "x.onnx"), "--int8"])
     assert result.exit_code == 2 and "--calibration-data" in result.output

@@ -228,7 +228,7 @@ def load_segmenter(path: str | Path, device: str = "cpu", threads: int | None = 
         if threads:
             torch.set_num_threads(threads)
         payload = load_checkpoint(path)
-        model = model_from_checkpoint(payload).to(device)
+        model = model_from_checkpoint(payload, source=path).to(device)
         runner = TorchSegmenter(model, device, amp=False)
         meta = {k: payload.get(k) for k in ("iteration", "val_miou", "best_val_miou", "command")}
         return LoadedSegmenter(path, "torch", payload["network"], runner.segment,

@@ -24,16 +24,24 @@ def default_model_path() -> Path:
 
 def load_onnx_segmenter(path: str | Path, threads: int | None = None) -> OnnxSegmenter:
     """An :class:`OnnxSegmenter` with its sidecar (``model.json`` beside ``model.onnx``, if any)
-    as ``.sidecar``; refuses a model whose classes are not harborsight's."""
+    as ``.sidecar``; refuses a model whose classes are not harborsight's.
+
+    ``harborsight export --int8`` writes one sidecar for both files: ``model.int8.onnx``
+    takes ``model.json`` when that names it as ``onnx_int8``, with ``precision`` int8 and
+    no held-out block (those scores are the fp32 graph's)."""
     path = Path(path)
     segmenter = OnnxSegmenter(path, threads=threads)
     sidecar_file = path.with_suffix(".json")
     segmenter.sidecar = {}
     if sidecar_file.is_file():
-        try:
-            segmenter.sidecar = json.loads(sidecar_file.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(sidecar_file, None, f"invalid JSON: {exc}") from None
+        segmenter.sidecar = _read_sidecar(sidecar_file)
+    elif path.name.endswith(".int8.onnx"):
+        fp32_sidecar = path.with_name(path.name[:-len(".int8.onnx")] + ".json")
+        if fp32_sidecar.is_file():
+            shared = _read_sidecar(fp32_sidecar)
+            if shared.get("onnx_int8") == path.name:
+                sidecar_file = fp32_sidecar
+                segmenter.sidecar = {**shared, "precision": "int8", "heldout": None}
     classes = segmenter.sidecar.get("classes") or segmenter.metadata.get("classes")
     if classes is not None:
         names = list(classes.values()) if isinstance(classes, dict) else list(classes)
@@ -41,6 +49,13 @@ def load_onnx_segmenter(path: str | Path, threads: int | None = None) -> OnnxSeg
             raise InputError(sidecar_file if segmenter.sidecar else path, "classes",
                              f"model classes {names} differ from harborsight's {list(CLASS_NAMES)}")
     return segmenter
+
+
+def _read_sidecar(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(path, None, f"invalid JSON: {exc}") from None
 
 
 def load_default_segmenter(path: str | Path | None = None) -> OnnxSegmenter:

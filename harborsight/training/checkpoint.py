@@ -12,6 +12,9 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
     frame_hw      most common (height, width) of the training frames
     val_miou, best_val_miou   latest and best validation mIoU (None without validation)
     init_from     None, or the warm start's {path, iteration, command}
+    network_options  constructor options of the network (e.g. {"layer5_relu": true} for
+                  DDRNet); absent in checkpoints written before 2026-11-23, which get
+                  :data:`LEGACY_NETWORK_OPTIONS`
     averaged_from only in averaged checkpoints: each source's {path, iteration, command, weight}
 """
 
@@ -29,6 +32,19 @@ from harborsight.perception.networks import NETWORKS, create_network
 CHECKPOINT_FORMAT = "harborsight.checkpoint/1"
 #: State-dict prefix of the training-only auxiliary heads.
 AUX_STATE_PREFIX = "network.aux_heads."
+#: What a checkpoint without ``network_options`` was trained as: DDRNet's one-unit
+#: bottleneck stages ended without their ReLU until 2026-11-23 (same weights, other maths).
+LEGACY_NETWORK_OPTIONS = {"ddrnet23_slim": {"layer5_relu": False}, "ddrnet23": {"layer5_relu": False}}
+#: The options a new run records.
+CURRENT_NETWORK_OPTIONS = {"ddrnet23_slim": {"layer5_relu": True}, "ddrnet23": {"layer5_relu": True}}
+
+
+def network_options(payload: dict) -> dict:
+    """The constructor options the checkpoint's network was trained with."""
+    options = payload.get("network_options")
+    if options is None:
+        options = LEGACY_NETWORK_OPTIONS.get(payload["network"], {})
+    return dict(options)
 
 
 def save_checkpoint(path: str | Path, payload: dict) -> Path:
@@ -65,16 +81,32 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     return payload
 
 
-def model_from_checkpoint(checkpoint: dict | str | Path, aux_heads: bool = False) -> SegmentationModel:
+def model_from_checkpoint(checkpoint: dict | str | Path, aux_heads: bool = False,
+                          source: str | Path | None = None) -> SegmentationModel:
     """The checkpoint's :class:`SegmentationModel` in eval mode, on the CPU; without its
-    training-only auxiliary heads unless ``aux_heads``."""
+    training-only auxiliary heads unless ``aux_heads``. ``source`` names the file in errors
+    when ``checkpoint`` is an already loaded dict."""
+    if not isinstance(checkpoint, dict):
+        source = checkpoint
     payload = checkpoint if isinstance(checkpoint, dict) else load_checkpoint(checkpoint)
-    model = SegmentationModel(create_network(payload["network"], int(payload["num_classes"]),
-                                             aux_heads=aux_heads))
-    state = payload["model"]
-    if not aux_heads:
-        state = {k: v for k, v in state.items() if not k.startswith(AUX_STATE_PREFIX)}
-    model.load_state_dict(state)
+    try:
+        model = SegmentationModel(create_network(payload["network"], int(payload["num_classes"]),
+                                                 aux_heads=aux_heads, **network_options(payload)))
+        state = payload["model"]
+        if not aux_heads:
+            state = {k: v for k, v in state.items() if not k.startswith(AUX_STATE_PREFIX)}
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except KeyError as exc:
+        raise InputError(source, str(exc.args[0]), "missing from the checkpoint") from None
+    except (RuntimeError, TypeError) as exc:
+        detail = next((line.strip() for line in str(exc).splitlines() if "size mismatch" in line),
+                      str(exc).splitlines()[0])
+        raise InputError(source, "model", f"weights do not fit {payload['network']}: "
+                         f"{detail[:300]}") from None
+    if missing or unexpected:
+        raise InputError(source, "model", f"weights do not fit {payload['network']}: "
+                         f"{len(missing)} tensor(s) missing (e.g. {missing[:2]}), "
+                         f"{len(unexpected)} unexpected (e.g. {unexpected[:2]})")
     return model.eval()
 
 
@@ -103,6 +135,9 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
             if payload.get(field) != reference.get(field):
                 raise InputError(path, field, f"{payload.get(field)!r} differs from "
                                  f"{reference.get(field)!r} in {reference_path}")
+        if network_options(payload) != network_options(reference):
+            raise InputError(path, "network_options", f"{network_options(payload)} differs from "
+                             f"{network_options(reference)} in {reference_path}")
         state, ref_state = payload["model"], reference["model"]
         if state.keys() != ref_state.keys():
             raise InputError(path, "model", f"its tensors differ from those of {reference_path}")
@@ -121,5 +156,6 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
             averaged[key] = ref_tensor.clone()
     sources = [{"path": str(path), "iteration": p.get("iteration"), "command": p.get("command"),
                 "weight": w / total} for path, p, w in zip(paths, payloads, weights, strict=True)]
-    return {**reference, "model": averaged, "optimizer": None, "scaler": None, "rng": None,
+    return {**reference, "network_options": network_options(reference),
+            "model": averaged, "optimizer": None, "scaler": None, "rng": None,
             "val_miou": None, "best_val_miou": None, "averaged_from": sources}

@@ -131,7 +131,7 @@ def _export(
         raise InputError(None, "calibration_data", "int8 quantisation needs calibration frames "
                          "(--calibration-data DIR)")
     payload = load_checkpoint(checkpoint_path)
-    model = model_from_checkpoint(payload)
+    model = model_from_checkpoint(payload, source=checkpoint_path)
     frame_hw = payload.get("frame_hw") or (360, 640)
     height, width = int(height or frame_hw[0]), int(width or frame_hw[1])
     config = payload.get("config", {})

@@ -57,7 +57,9 @@ from harborsight.training.augment import AugmentConfig, augment, augment_weighte
 from harborsight.training.checkpoint import (
     AUX_STATE_PREFIX,
     CHECKPOINT_FORMAT,
+    CURRENT_NETWORK_OPTIONS,
     load_checkpoint,
+    network_options,
     save_checkpoint,
 )
 from harborsight.training.dataset import SegmentationFrames, small_object_weights
@@ -354,6 +356,18 @@ def load_initial_weights(model: SegmentationModel, config: TrainConfig) -> dict:
             "command": source.get("command")}
 
 
+def _best_so_far(best_miou: float | None, best_path: Path) -> float | None:
+    """The best validation mIoU a resumed run has to beat: last.pt's, or best.pt's when an
+    interrupted run wrote a better best.pt after its last checkpoint (a best.pt the run
+    keeps and must not overwrite with a worse one)."""
+    if not best_path.is_file():
+        return best_miou
+    written = load_checkpoint(best_path).get("best_val_miou")
+    if written is None or (best_miou is not None and best_miou >= written):
+        return best_miou
+    return float(written)
+
+
 def _truncate_log(path: Path, iteration: int) -> None:
     """Drop log lines written after ``iteration`` (by a run that was then interrupted), and
     any line such a run left half-written when it was killed."""
@@ -438,7 +452,11 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                          "order would change; train the new set as a new run (--init-from)")
 
     torch.manual_seed(config.seed)
-    model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True)).to(device)
+    # a resumed run keeps the architecture it began with; a new one takes the current
+    options = (network_options(checkpoint) if checkpoint is not None
+               else CURRENT_NETWORK_OPTIONS.get(config.model, {}))
+    model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True,
+                                             **options)).to(device)
     model.train()
     optimizer = torch.optim.SGD(parameter_groups(model, config.weight_decay), lr=config.lr,
                                 momentum=config.momentum)
@@ -456,6 +474,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             torch.cuda.set_rng_state_all(checkpoint["rng"]["cuda"])
         start = int(checkpoint["iteration"])
         best_miou, val_miou = checkpoint.get("best_val_miou"), checkpoint.get("val_miou")
+        best_miou = _best_so_far(best_miou, best_path)
         _truncate_log(log_path, start)
     elif config.init_from:
         initial_weights = load_initial_weights(model, config)
@@ -464,13 +483,15 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         log_path.unlink(missing_ok=True)
         best_path.unlink(missing_ok=True)
     if device.type == "cuda":
+        # fastest kernels; their choice may vary between runs, so a CUDA resume is exact only
+        # up to floating-point summation order (a CPU resume is bit-exact)
         torch.backends.cudnn.benchmark = True
     frame_hw = list(train_frames.common_size_hw())
 
     def payload(iteration: int, full: bool) -> dict:
         """A checkpoint; ``full`` adds what an exact resume needs (optimiser, scaler, RNG)."""
         data = {
-            "format": CHECKPOINT_FORMAT, "network": config.model,
+            "format": CHECKPOINT_FORMAT, "network": config.model, "network_options": options,
             "num_classes": NUM_CLASSES, "class_names": list(CLASS_NAMES),
             "iteration": iteration, "model": model.state_dict(),
             "optimizer": None, "scaler": None, "rng": None,

@@ -22,11 +22,12 @@ NETWORKS: dict[str, type[nn.Module]] = {
 }
 
 
-def create_network(name: str, num_classes: int = 3, aux_heads: bool = True) -> nn.Module:
-    """Build a network by name (see :data:`NETWORKS`)."""
+def create_network(name: str, num_classes: int = 3, aux_heads: bool = True, **options) -> nn.Module:
+    """Build a network by name (see :data:`NETWORKS`); ``options`` go to its constructor
+    (checkpoints record them as ``network_options``)."""
     if name not in NETWORKS:
         raise ValueError(f"unknown network {name!r}; choose from {sorted(NETWORKS)}")
-    return NETWORKS[name](num_classes=num_classes, aux_heads=aux_heads)
+    return NETWORKS[name](num_classes=num_classes, aux_heads=aux_heads, **options)
 
 
 def parameter_count(module: nn.Module) -> int:

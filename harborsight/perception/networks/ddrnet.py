@@ -74,11 +74,15 @@ class _Residual(nn.Module):
         return self.act(self.body(x) + self.skip(x))
 
 
-def _stage(in_ch: int, ch: int, depth: int, stride: int = 1, bottleneck: bool = False) -> nn.Sequential:
-    """``depth`` residual units; only the first may stride, only the last skips its ReLU."""
+def _stage(in_ch: int, ch: int, depth: int, stride: int = 1, bottleneck: bool = False,
+           single_relu: bool = True) -> nn.Sequential:
+    """``depth`` residual units; only the first may stride. The last of several skips its
+    ReLU; a stage of one unit keeps it (the reference's ``_make_layer`` marks ``no_relu``
+    only on the last of two or more blocks), unless ``single_relu=False``."""
     units = []
     for i in range(depth):
-        units.append(_Residual(in_ch, ch, stride if i == 0 else 1, bottleneck, relu_out=i < depth - 1))
+        relu_out = i < depth - 1 or (depth == 1 and single_relu)
+        units.append(_Residual(in_ch, ch, stride if i == 0 else 1, bottleneck, relu_out))
         in_ch = ch * 2 if bottleneck else ch
     return nn.Sequential(*units)
 
@@ -135,13 +139,19 @@ class _SegHead(nn.Module):
 
 
 class _DDRNet23(nn.Module):
-    """DDRNet-23 family with base width ``width`` (stage channels w, 2w, 4w, 8w, 16w)."""
+    """DDRNet-23 family with base width ``width`` (stage channels w, 2w, 4w, 8w, 16w).
+
+    ``layer5_relu=False`` rebuilds the network harborsight trained before 2026-11-23, whose
+    one-unit bottleneck stages (``low5``, ``high5``) ended without the ReLU the reference
+    applies; checkpoints written then say so by lacking ``network_options``.
+    """
 
     name = "ddrnet23_base"
     output_stride = 32
 
     def __init__(
-        self, num_classes: int, aux_heads: bool, width: int, head_width: int, dappm_width: int = 128
+        self, num_classes: int, aux_heads: bool, width: int, head_width: int, dappm_width: int = 128,
+        layer5_relu: bool = True,
     ) -> None:
         super().__init__()
         w = width
@@ -156,11 +166,11 @@ class _DDRNet23(nn.Module):
         # Low-resolution branch: 1/16, 1/32, then a bottleneck unit to 1/64.
         self.low3 = _stage(2 * w, 4 * w, 2, stride=2)
         self.low4 = _stage(4 * w, 8 * w, 2, stride=2)
-        self.low5 = _stage(8 * w, 8 * w, 1, stride=2, bottleneck=True)
+        self.low5 = _stage(8 * w, 8 * w, 1, stride=2, bottleneck=True, single_relu=layer5_relu)
         # High-resolution branch, kept at 1/8.
         self.high3 = _stage(2 * w, high_ch, 2)
         self.high4 = _stage(high_ch, high_ch, 2)
-        self.high5 = _stage(high_ch, high_ch, 1, bottleneck=True)
+        self.high5 = _stage(high_ch, high_ch, 1, bottleneck=True, single_relu=layer5_relu)
         # Bilateral fusion: high -> low by strided 3x3 convs, low -> high by 1x1 compression.
         self.high_to_low3 = nn.Sequential(nn.Conv2d(high_ch, 4 * w, 3, 2, 1, bias=False), _norm(4 * w))
         self.high_to_low4 = nn.Sequential(
@@ -216,8 +226,8 @@ class DDRNet23Slim(_DDRNet23):
     name = "ddrnet23_slim"
     output_stride = 32
 
-    def __init__(self, num_classes: int = 3, aux_heads: bool = True) -> None:
-        super().__init__(num_classes, aux_heads, width=32, head_width=64)
+    def __init__(self, num_classes: int = 3, aux_heads: bool = True, layer5_relu: bool = True) -> None:
+        super().__init__(num_classes, aux_heads, width=32, head_width=64, layer5_relu=layer5_relu)
 
 
 class DDRNet23(_DDRNet23):
@@ -226,5 +236,5 @@ class DDRNet23(_DDRNet23):
     name = "ddrnet23"
     output_stride = 32
 
-    def __init__(self, num_classes: int = 3, aux_heads: bool = True) -> None:
-        super().__init__(num_classes, aux_heads, width=64, head_width=128)
+    def __init__(self, num_classes: int = 3, aux_heads: bool = True, layer5_relu: bool = True) -> None:
+        super().__init__(num_classes, aux_heads, width=64, head_width=128, layer5_relu=layer5_relu)
