@@ -154,3 +154,18 @@ def test_closing_speed_is_compared_for_the_closest_section_only(tmp_path):
                      "closing_speed_mps": 0.4})
         rows.append({"image": image, "section": 1, "distance_m": 2.0, "closing_speed_mps": ""})
     assert compare_closing_speeds(tmp_path, _sections_csv(tmp_path / "s.csv", rows)) is None
+
+
+def test_flight_frame_yaw_stays_within_a_turn(tug):
+    """The hover jitter added to a yaw drawn near 360 went past it (360.01), which the frame
+    parser refuses (yaw within [-360, 360]): such a flight's frames could not be measured."""
+    import dataclasses
+
+    from harborsight.sim.sequence import sequence_frame
+
+    config = flight_config()
+    scene = dataclasses.replace(plan_frame(config, 0, tug), yaw_deg=359.95)
+    yaws = [sequence_frame(scene, 0, k, 0.5, 0.4, np.random.default_rng(k)).yaw_deg
+            for k in range(40)]
+    assert all(0.0 <= y < 360.0 for y in yaws)
+    assert any(y < 1.0 for y in yaws) and any(y > 359.0 for y in yaws)

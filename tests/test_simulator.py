@@ -290,3 +290,35 @@ def test_a_frame_that_fails_unexpectedly_is_reported_and_the_rest_rendered(
     (broken / "dataset.json").write_text("{broken")
     with pytest.raises(InputError, match=r"broken/dataset.json: not valid JSON"):
         simulate(broken, 3, TINY)
+
+
+def test_a_given_vessel_is_copied_with_its_mesh_only(tmp_path):
+    """`--vessel project/vessel.yaml` copied the spec's whole folder (a project root: .venv,
+    data, the output folder itself). Only the spec and its mesh go into the dataset; a mesh
+    outside the spec's folder lands beside the copy, which names it so."""
+    from harborsight.sim.dataset import prepare_vessels
+
+    tug = Path(__file__).resolve().parent.parent / "harborsight/data/samples/vessels/harbour-tug"
+    project = tmp_path / "project"
+    (project / "meshes").mkdir(parents=True)
+    (project / "meshes" / "tug.stl").write_bytes((tug / "hull.stl").read_bytes())
+    (project / "notes.txt").write_text("not part of the vessel")
+    spec = (tug / "vessel.yaml").read_text().replace("hull.stl", "meshes/tug.stl")
+    (project / "vessel.yaml").write_text(spec)
+    out = project / "data" / "train"
+    paths = prepare_vessels(out, SimulationConfig(seed=0, vessel_spec=str(project / "vessel.yaml")))
+    (copied,) = paths.values()
+    files = sorted(p.relative_to(copied.parent).as_posix() for p in copied.parent.rglob("*")
+                   if p.is_file())
+    assert files == ["meshes/tug.stl", "vessel.yaml"]
+    assert load_vessel_spec(copied).mesh is not None
+
+    elsewhere = tmp_path / "specs"
+    elsewhere.mkdir()
+    (elsewhere / "tug.yaml").write_text(
+        (tug / "vessel.yaml").read_text().replace("hull.stl", str(project / "meshes" / "tug.stl")))
+    paths = prepare_vessels(tmp_path / "ds2",
+                            SimulationConfig(seed=0, vessel_spec=str(elsewhere / "tug.yaml")))
+    (copied,) = paths.values()
+    assert sorted(p.name for p in copied.parent.iterdir()) == ["tug.stl", "vessel.yaml"]
+    assert load_vessel_spec(copied).mesh is not None

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from harborsight import __version__
 from harborsight.errors import HarborsightError, InputError
@@ -124,6 +125,25 @@ def split_of(config: SimulationConfig, index: int) -> str:
 # ---------------------------------------------------------------------------- vessels
 
 
+def _copy_vessel_spec(src: Path, dst: Path) -> None:
+    """Copy a vessel spec and its mesh, nothing else, into ``dst`` (``vessel.yaml`` written
+    last, so a half-done copy is redone). A mesh named by a relative path inside the spec's
+    folder keeps that path; any other goes beside the spec and the copy names it so."""
+    doc = yaml.safe_load(src.read_text())
+    mesh_src = (src.parent / str(doc["hull_mesh"])).resolve()
+    try:
+        mesh_rel = mesh_src.relative_to(src.parent.resolve())
+    except ValueError:
+        mesh_rel = Path(mesh_src.name)
+    (dst / mesh_rel).parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(mesh_src, dst / mesh_rel)
+    if mesh_rel.as_posix() == str(doc["hull_mesh"]):
+        text = src.read_text()   # unchanged, comments and all
+    else:
+        text = yaml.safe_dump({**doc, "hull_mesh": mesh_rel.as_posix()}, sort_keys=False)
+    _atomic_write_bytes(dst / "vessel.yaml", text.encode())
+
+
 def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
     """Write the vessel(s) under ``vessels/`` (idempotent); returns name -> vessel.yaml."""
     vessels_dir = out_dir / "vessels"
@@ -136,9 +156,7 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
             raise InputError(src, "hull_mesh", "the simulator renders the vessel's mesh: give one")
         dst = vessels_dir / spec.name
         if not (dst / "vessel.yaml").is_file():
-            shutil.copytree(src.parent, dst, dirs_exist_ok=True)
-            if src.name != "vessel.yaml":
-                shutil.copy(src, dst / "vessel.yaml")
+            _copy_vessel_spec(src, dst)
         return {spec.name: dst / "vessel.yaml"}
     paths = {}
     for k in range(config.vessel_pool):
@@ -487,7 +505,10 @@ def _run_dask(out_dir: Path, config: SimulationConfig, pending: list[int], sched
                     for p in (out_dir / "vessels").rglob("*") if p.is_file()}
     chunks = [pending[i:i + chunk_size] for i in range(0, len(pending), chunk_size)]
     with Client(scheduler) as client:
-        shared = client.scatter(vessel_files, broadcast=True)
+        # one future for the whole dict, keyed by a hash of its content: scattering the dict
+        # itself would key each file by its path, the same in every dataset, so two datasets
+        # rendering on one cluster would overwrite each other's hulls
+        [shared] = client.scatter([vessel_files], broadcast=True, hash=True)
         futures = [client.submit(render_chunk_files, config.to_dict(), chunk, shared,
                                  pure=False) for chunk in chunks]
         for future in as_completed(futures):

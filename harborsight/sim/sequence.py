@@ -83,7 +83,7 @@ def sequence_frame(scene: HarbourScene, scene_index: int, frame: int, interval_s
     stamp = SEQUENCE_EPOCH + timedelta(minutes=scene_index, seconds=time_s)
     return dataclasses.replace(
         scene, objects=objects, uav_enu=np.asarray(scene.uav_enu, float) + wander,
-        yaw_deg=scene.yaw_deg + float(rng.normal(0.0, 0.3)),
+        yaw_deg=(scene.yaw_deg + float(rng.normal(0.0, 0.3))) % 360.0,   # frame.py: [-360, 360]
         origin=GeoOrigin(float(lat), float(lon), scene.origin.alt_m),
         timestamp=stamp.isoformat(timespec="milliseconds").replace("+00:00", "Z"),
         water_anchor_xy=(float(shift[0]), float(shift[1])), water_time_s=time_s,
