@@ -132,13 +132,16 @@ def test_warm_start_begins_from_the_checkpoint_weights(two_frame_dataset, tmp_pa
 
     source = train(config(tmp_path / "source"), show_progress=False)
     start = load_checkpoint(source.last_checkpoint)["model"]
-    # lr 1e-12: one step leaves the weights where they started
+    # lr 1e-12: one step moves a weight by lr·|grad|, under 1e-6 even where a 48x64 crop leaves
+    # DDRNet's 1/64 branch one pixel, and BatchNorm over two such values has huge gradients;
+    # two random initialisations differ by far more than 1e-3
     warm = train(config(tmp_path / "warm", iterations=1, lr=1e-12,
                         init_from=source.last_checkpoint), show_progress=False)
     cold = train(config(tmp_path / "cold", iterations=1, lr=1e-12), show_progress=False)
     warm_state = load_checkpoint(warm.last_checkpoint)
     conv = [k for k, v in start.items() if k.endswith("conv.weight") or v.ndim == 4]
-    assert conv and all(torch.allclose(warm_state["model"][k], start[k], atol=1e-9) for k in conv)
+    assert conv and all(torch.allclose(warm_state["model"][k], start[k], rtol=0, atol=1e-5)
+                        for k in conv)
     cold_state = load_checkpoint(cold.last_checkpoint)["model"]
     assert not all(torch.allclose(cold_state[k], start[k], atol=1e-3) for k in conv)
     assert warm_state["iteration"] == 1 and read_log(tmp_path / "warm")[0]["lr"] == 1e-12
