@@ -113,7 +113,7 @@ def check_image_size(image: np.ndarray, meta: FrameMetadata, source: str | Path)
     """The image must have the size the frame's camera says."""
     if image.shape[:2] != (meta.camera.height, meta.camera.width):
         raise InputError(
-            source, "camera.width",
+            source, "camera.width" if image.shape[1] != meta.camera.width else "camera.height",
             f"image is {image.shape[1]}x{image.shape[0]} but the camera is "
             f"{meta.camera.width}x{meta.camera.height}",
         )

@@ -245,7 +245,100 @@ def test_run_json_is_written_when_a_run_is_interrupted(tmp_path):
         run_flight(source.frames(), out, VesselCache(), None, on_frame=stop_at_frame_2)
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 3 and (out / "timeline.png").is_file()
+    assert (record["completed"], record["aborted"]) == (False, "KeyboardInterrupt")
     assert _video_frame_count(out / "annotated.mp4") == 3
+
+
+def test_a_report_that_cannot_be_written_skips_only_its_frame(tmp_path):
+    """Frame 1's image key is a valid string but no valid file name (too long): its report
+    cannot be written, so it is skipped like a bad input, with nothing of it in the CSV; the
+    frames after it are measured."""
+    data = _timed_copy_of_samples(tmp_path)
+    path = data / "frames" / "000001.json"
+    meta = json.loads(path.read_text())
+    meta["image"] = "x" * 300 + ".png"
+    path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["completed"] is True and record["measured"] == 4
+    [skipped] = record["skipped_frames"]
+    assert skipped["frame"] == 1 and "000001.json: image: its report" in skipped["error"]
+    assert len(list((out / "reports").iterdir())) == 4
+    assert not list((out / "reports").glob("*.part"))
+    assert "1" not in {r["frame"] for r in csv.DictReader((out / "sections.csv").open())}
+    assert _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_a_video_that_cannot_be_written_is_a_warning(tmp_path):
+    """OpenCV's mp4 writer refuses 90,000 fps (a time base some containers report as their
+    rate): the run measures every frame without the video and says why."""
+    data = _timed_copy_of_samples(tmp_path)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out), "--fps", "90000"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["completed"] is True and record["measured"] == 5
+    assert "video" not in record["outputs"] and not (out / "annotated.mp4").exists()
+    assert any("no annotated video" in w["warning"] for w in record["warnings"])
+
+
+def test_closing_speeds_when_the_first_frame_has_no_timestamp(tmp_path):
+    """Before, the untimed first frame fixed the run's clock to "none": no speeds at all."""
+    data = _timed_copy_of_samples(tmp_path)
+    path = data / "frames" / "000000.json"
+    meta = json.loads(path.read_text())
+    meta.pop("timestamp")
+    path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    assert {r["time_s"] for r in rows if r["frame"] == "0"} == {""}
+    assert {r["time_s"] for r in rows if r["frame"] != "0"} == {"0.0", "0.5", "1.0", "1.5"}
+    assert any(r["closing_speed_mps"] for r in rows)
+
+
+def test_a_skipped_frame_found_by_its_image_key_stays_in_the_video(tmp_path):
+    """The image is named only by the (otherwise broken) frame JSON: the frame is skipped,
+    but its picture keeps its place in the video."""
+    data = _timed_copy_of_samples(tmp_path)
+    (data / "images" / "000002.png").rename(data / "images" / "cam_2.png")
+    path = data / "frames" / "000002.json"
+    meta = json.loads(path.read_text())
+    meta["image"] = "cam_2.png"
+    del meta["uav"]["alt_m"]
+    path.write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 4 and [s["frame"] for s in record["skipped_frames"]] == [2]
+    assert _video_frame_count(out / "annotated.mp4") == 5
+
+
+def test_implausible_container_frame_rates_are_ignored():
+    from harborsight.flight.sources import plausible_fps
+
+    assert plausible_fps(29.97) == 29.97 and plausible_fps(1000.0) == 1000.0
+    assert [plausible_fps(v) for v in (0.0, float("nan"), 90000.0, None)] == [None] * 4
+
+
+def test_image_size_mismatch_names_the_field_that_differs():
+    from harborsight.frame import load_frame_metadata
+    from harborsight.pipeline import check_image_size
+
+    meta = load_frame_metadata(SAMPLES / "frames" / "000000.json")
+    w, h = meta.camera.width, meta.camera.height
+    with pytest.raises(InputError, match="f: camera.height: "):
+        check_image_size(np.zeros((h + 1, w, 3), np.uint8), meta, "f")
+    with pytest.raises(InputError, match="f: camera.width: "):
+        check_image_size(np.zeros((h, w - 1, 3), np.uint8), meta, "f")
 
 
 def test_frames_in_natural_order_and_dji_style_images(tmp_path):
@@ -311,16 +404,20 @@ def test_flight_clock_is_fixed_by_the_first_frame():
     meta = load_frame_metadata(SAMPLES / "frames" / "000000.json")
     untimed = dataclasses.replace(meta, timestamp=None)
     clock = FlightClock()      # first frame untimed, in a video: the video position rules
-    assert clock.seconds(FlightFrame(0, "f0", meta=untimed, video_time_s=4.0)) == 0.0
+    assert clock.seconds(FlightFrame(0, "f0", meta=untimed, video_time_s=4.0)) == 4.0
     timed = dataclasses.replace(meta, timestamp="2026-05-01T12:00:09Z")
-    assert clock.seconds(FlightFrame(1, "f1", meta=timed, video_time_s=4.5)) == 0.5
+    assert clock.seconds(FlightFrame(1, "f1", meta=timed, video_time_s=4.5)) == 4.5
     clock = FlightClock()      # first frame timed: a later untimed one is refused
     assert clock.seconds(FlightFrame(0, "f0", meta=timed, video_time_s=4.0)) == 0.0
     with pytest.raises(InputError, match="f1: timestamp: missing"):
         clock.seconds(FlightFrame(1, "f1", meta=untimed, video_time_s=4.5))
-    clock = FlightClock()      # neither: no times at all
+    clock = FlightClock()      # a folder whose first frame is untimed: the next timed one rules
     assert clock.seconds(FlightFrame(0, "f0", meta=untimed)) is None
-    assert clock.seconds(FlightFrame(1, "f1", meta=timed)) is None
+    assert clock.seconds(FlightFrame(1, "f1", meta=timed)) == 0.0
+    later = dataclasses.replace(meta, timestamp="2026-05-01T12:00:10.5Z")
+    assert clock.seconds(FlightFrame(2, "f2", meta=later)) == 1.5
+    clock = FlightClock()      # video positions count from the video's start
+    assert clock.seconds(FlightFrame(90, "f90", meta=untimed, video_time_s=3.0)) == 3.0
 
 
 def _write_video(path: Path, images: list[Path], fps: float) -> None:

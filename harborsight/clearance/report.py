@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harborsight.files import write_text_atomic
+
 REPORT_SCHEMA = "harborsight.report/1"
 
 STATUS_OK = "ok"
@@ -92,4 +94,4 @@ class ClearanceReport:
         }
 
     def write(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=2) + "\n")

@@ -9,13 +9,19 @@ Outputs in ``out_dir``:
 * ``sections.csv``: one row per section per measured frame, with closing speed and time to
   contact (:mod:`harborsight.flight.timeline`), written as the run goes;
 * ``timeline.png``: clearance of every section over time;
-* ``run.json``: inputs, settings, counts, timing and every skipped frame with its reason.
+* ``run.json``: inputs, settings, counts, timing, every skipped frame with its reason, and
+  ``completed`` (false, with ``aborted``, when the run was stopped or failed part-way).
 
-Time of a frame: seconds since the run's first frame, on one clock for the whole run
-(:class:`FlightClock`): the frames' ``timestamp`` if the first frame has one, else their
-position in the video, else unknown (then no closing speeds). A frame whose time is missing,
-unreadable or out of order is still measured; it is left out of the closing speeds and listed
-under ``warnings`` in ``run.json``.
+Time of a frame (``time_s``), on one clock for the whole run (:class:`FlightClock`): the
+frames' ``timestamp``, in seconds since the first timestamped frame, if the first frame that
+has a time at all has a timestamp; else the position in the video (seconds since the video's
+start). Frames of a folder before its first timestamp have no time. A frame whose time is
+missing, unreadable or out of order is still measured; it is left out of the closing speeds
+and listed under ``warnings`` in ``run.json``.
+
+Outputs are written per frame: a frame whose report cannot be written is skipped like a bad
+input (nothing of it in ``sections.csv``); an overlay or video that cannot be written is a
+warning, and the run goes on.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels
@@ -63,9 +70,12 @@ class RunSummary:
     min_distance_frame: int | None = None
     seconds: float = 0.0
     outputs: dict[str, str] = field(default_factory=dict)
+    completed: bool = False
+    aborted: str | None = None        # why the run stopped early
 
     def to_dict(self) -> dict:
         return {
+            "completed": self.completed, "aborted": self.aborted,
             "frames": self.frames, "measured": self.measured,
             "skipped": len(self.skipped), "without_metadata": self.without_metadata,
             "min_distance_m": self.min_distance_m, "min_distance_frame": self.min_distance_frame,
@@ -104,34 +114,33 @@ class _VideoWriter:
 
 
 class FlightClock:
-    """One time base for a run, fixed by its first frame: ``timestamp`` when that frame has
-    one (a later frame without one, or with an unreadable one, raises: mixing clocks would
-    corrupt the closing-speed fits, so the runner measures it untimed), else the video
-    position, else none (every time is None)."""
+    """One time base for a run, fixed by the first frame that has a time: ``timestamp`` when
+    that frame has one (a later frame without one, or with an unreadable one, raises: mixing
+    clocks would corrupt the closing-speed fits, so the runner measures it untimed), else the
+    video position. Until then every time is None.
+
+    Timestamps count from the first timestamped frame; video positions from the video's
+    start, so that ``time_s`` of a video run is the time in the video."""
 
     def __init__(self) -> None:
-        self.base: str | None = None        # "timestamp", "video" or "none"
+        self.base: str | None = None        # "timestamp" or "video"; None until a frame has one
         self.start_s: float | None = None
 
     def seconds(self, frame: FlightFrame) -> float | None:
         stamp = timestamp_seconds(frame.meta)
         if self.base is None:
-            self.base = ("timestamp" if stamp is not None
-                         else "video" if frame.video_time_s is not None else "none")
+            if stamp is not None:
+                self.base, self.start_s = "timestamp", stamp
+            elif frame.video_time_s is not None:
+                self.base, self.start_s = "video", 0.0
+            else:
+                return None
         if self.base == "timestamp":
             if stamp is None:
                 raise InputError(frame.source, "timestamp", "missing, while this run's frames "
-                                 "are timed by their timestamps (set by its first frame)")
-            value = stamp
-        elif self.base == "video":
-            value = frame.video_time_s
-        else:
-            return None
-        if value is None:
-            return None
-        if self.start_s is None:
-            self.start_s = value
-        return value - self.start_s
+                                 "are timed by their timestamps (set by its first timed frame)")
+            return stamp - self.start_s
+        return None if frame.video_time_s is None else frame.video_time_s - self.start_s
 
 
 def trend_footer(trends: dict[int, SectionTrend], has_time: bool) -> str:
@@ -195,10 +204,24 @@ def run_flight(
                         else:
                             draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
                 if video is not None and annotated is not None:
-                    video.write(annotated)
+                    try:
+                        video.write(annotated)
+                    except HarborsightError as exc:     # the measurements stand without it
+                        summary.warnings.append({"frame": frame.index, "source": str(video.path),
+                                                 "warning": f"{exc}; no annotated video"})
+                        video.close()
+                        video.path.unlink(missing_ok=True)
+                        video = None
                 if on_frame is not None:
                     on_frame(frame)
+        summary.completed = True
+    except BaseException as exc:
+        summary.aborted = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        raise
     finally:
+        close = getattr(frames, "close", None)      # a generator: release its files now
+        if close is not None:
+            close()
         if video is not None:
             video.close()
         summary.seconds = time.perf_counter() - started
@@ -231,13 +254,18 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
     except Exception as exc:  # one bad frame must not end the run
         frame.error = f"{frame.source}: unexpected {type(exc).__name__}: {exc}"
         return None
+    stem = stems.claim(frame)
+    try:        # the report first: a frame without one leaves no trace in the CSV or the fits
+        report.write(reports_dir / f"{stem}.json")
+    except (OSError, ValueError) as exc:
+        frame.error = (f"{frame.source}: image: its report {stem!r}.json cannot be written "
+                       f"({type(exc).__name__}: {exc})")
+        return None
     trends, rows, order_warning = timeline.add(frame.index, time_s, report)
     if order_warning:
         warnings.append(f"{frame.source}: timestamp: {order_warning}")
-    stem = stems.claim(frame)
     write_rows(csv_out, rows)
     csv_handle.flush()
-    report.write(reports_dir / f"{stem}.json")
     try:
         annotated = draw_overlay(frame.image, report, warn_m=options.warn_m,
                                  alarm_m=options.alarm_m,
@@ -247,7 +275,13 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
         annotated = frame.image.copy()
         draw_banner(annotated, "measured; overlay could not be drawn", GREY)
     if options.overlays:
-        cv2.imwrite(str(overlays_dir / f"{stem}.png"), annotated)
+        overlay_path = overlays_dir / f"{stem}.png"
+        try:
+            written = cv2.imwrite(str(overlay_path), annotated)
+        except cv2.error:
+            written = False
+        if not written:
+            warnings.append(f"{frame.source}: overlay {overlay_path} could not be written")
     summary.measured += 1
     summary.warnings.extend({"frame": frame.index, "source": frame.source, "warning": w}
                             for w in warnings)
@@ -285,8 +319,14 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
         summary.outputs["overlays"] = str(overlays_dir)
     if video is not None and video.frames:
         summary.outputs["video"] = str(video.path)
-    if timeline.plot(out_dir / "timeline.png", alarm_m=options.alarm_m, warn_m=options.warn_m):
-        summary.outputs["timeline"] = str(out_dir / "timeline.png")
+    try:
+        if timeline.plot(out_dir / "timeline.png", alarm_m=options.alarm_m,
+                         warn_m=options.warn_m):
+            summary.outputs["timeline"] = str(out_dir / "timeline.png")
+    except Exception as exc:  # run.json matters more than the plot
+        summary.warnings.append({"frame": None, "source": str(out_dir / "timeline.png"),
+                                 "warning": f"timeline not plotted ({type(exc).__name__}: "
+                                            f"{exc})"})
     record = {"schema": RUN_SCHEMA, "inputs": inputs or {},
               "settings": {"method": options.settings.method,
                            "pose_margin_px": options.settings.pose_margin_px,
@@ -297,7 +337,8 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "video_fps": video_fps,
                            "model": str(segmenter.path) if segmenter is not None else None},
               **summary.to_dict()}
-    (out_dir / "run.json").write_text(json.dumps(record, indent=2, default=_json_default) + "\n")
+    write_text_atomic(out_dir / "run.json",
+                      json.dumps(record, indent=2, default=_json_default) + "\n")
 
 
 def _short(text: str, limit: int = 90) -> str:

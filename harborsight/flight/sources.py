@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import statistics
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -29,7 +30,13 @@ from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds
 from harborsight.frame import FrameMetadata, load_frame_metadata, parse_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.pipeline import check_image_size, discover_jobs, frame_image_path, read_image
+from harborsight.pipeline import (
+    check_image_size,
+    discover_jobs,
+    find_frame_image,
+    frame_image_path,
+    read_image,
+)
 
 NO_METADATA = "no metadata"
 
@@ -81,9 +88,28 @@ class FolderSource:
             except Exception as exc:  # one bad frame must not end the run
                 frame.error = (str(exc) if isinstance(exc, InputError)
                                else f"{job.meta_path}: unexpected {type(exc).__name__}: {exc}")
-                if frame.image is None and job.image_path is not None:
-                    frame.image = cv2.imread(str(job.image_path), cv2.IMREAD_COLOR)  # for the video
+                if frame.image is None:
+                    frame.image = _picture_for_video(job)
             yield frame
+
+
+def _picture_for_video(job) -> np.ndarray | None:
+    """The picture of a frame that cannot be measured, for the annotated video: the image
+    named like its JSON, else the one its (possibly otherwise broken) JSON's ``image`` key
+    names; None if neither can be read."""
+    path = job.image_path
+    if path is None:
+        try:
+            name = json.loads(job.meta_path.read_text()).get("image")
+        except (OSError, ValueError, AttributeError):
+            name = None
+        path = find_frame_image(job.meta_path, name if isinstance(name, str) else None)
+    if path is None:
+        return None
+    try:
+        return cv2.imread(str(path), cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
 
 
 def _raw_timestamp_s(meta_path: Path) -> float | None:
@@ -164,11 +190,15 @@ class VideoSource:
         capture = cv2.VideoCapture(str(video))
         if not capture.isOpened():
             raise InputError(video, None, "cannot open the video (unknown format or corrupt)")
-        self.fps = capture.get(cv2.CAP_PROP_FPS) or 0.0
-        self.frame_count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        self.container_fps = plausible_fps(capture.get(cv2.CAP_PROP_FPS))
+        count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
+        self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0
         capture.release()
         self.by_frame, self.orphans, self.line_of = read_metadata_lines(metadata, video.stem,
                                                                         camera)
+        # the annotated video's rate: the container's, else the metadata's timestamps
+        self.fps = self.container_fps or fps_from_timestamps(
+            _meta_timestamp_s(entry) for entry in self.by_frame.values())
 
     def frames(self) -> Iterator[FlightFrame]:
         """Metadata lines that name no frame first (index -1, reported), then every video
@@ -184,7 +214,7 @@ class VideoSource:
                 if not ok:
                     break
                 index += 1
-                video_time_s = index / self.fps if self.fps > 0 else None
+                video_time_s = index / self.container_fps if self.container_fps else None
                 entry = self.by_frame.get(index)
                 frame = FlightFrame(index, f"{self.video} frame {index}", image=image,
                                     meta_path=self.metadata, video_time_s=video_time_s)
@@ -195,14 +225,35 @@ class VideoSource:
                 else:
                     frame.meta = entry
                     try:
-                        check_image_size(image, entry, frame.source)
+                        check_image_size(image, entry, f"{self.metadata}:{self.line_of[index]} "
+                                                       f"(video frame {index})")
                     except InputError as exc:
                         frame.error = str(exc)
                 yield frame
         finally:
             capture.release()
+        decoded = index + 1
+        end = (f"past the video's end ({decoded} frames)" if decoded >= self.frame_count else
+               f"past the last frame that could be decoded ({decoded} of the {self.frame_count} "
+               f"its header counts: the video may be truncated or corrupt)")
         for missing in sorted(i for i in self.by_frame if i > index):
             where = f"{self.metadata}:{self.line_of[missing]}"
             yield FlightFrame(missing, where, meta_path=self.metadata, is_frame=False,
-                              error=f"{where}: metadata for frame {missing}, past the video's "
-                                    f"end ({index + 1} frames)")
+                              error=f"{where}: metadata for frame {missing}, {end}")
+
+
+def plausible_fps(value: float | None) -> float | None:
+    """A container's frame rate if it is one a camera records at (0.1 to 1000 fps); None for
+    0, NaN or a time base passed off as a rate (90000 in some MPEG-TS files)."""
+    if value is None or not math.isfinite(value) or not 0.1 <= value <= 1000.0:
+        return None
+    return float(value)
+
+
+def _meta_timestamp_s(entry: FrameMetadata | str) -> float | None:
+    if isinstance(entry, str) or entry.timestamp is None:
+        return None
+    try:
+        return iso_seconds(entry.timestamp)
+    except ValueError:
+        return None

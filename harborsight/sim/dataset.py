@@ -27,6 +27,7 @@ import yaml
 
 from harborsight import __version__
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import write_bytes_atomic
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
 from harborsight.sim.layout import SCENARIOS, HarbourScene, generate_vessel, sample_harbour_scene
@@ -141,7 +142,7 @@ def _copy_vessel_spec(src: Path, dst: Path) -> None:
         text = src.read_text()   # unchanged, comments and all
     else:
         text = yaml.safe_dump({**doc, "hull_mesh": mesh_rel.as_posix()}, sort_keys=False)
-    _atomic_write_bytes(dst / "vessel.yaml", text.encode())
+    write_bytes_atomic(dst / "vessel.yaml", text.encode())
 
 
 def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
@@ -229,12 +230,6 @@ def class_mask(instances: np.ndarray, class_of_instance: dict[int, int]) -> np.n
     return lookup[instances]
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _encode_png(image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".png", image)
     if not ok:
@@ -319,7 +314,7 @@ def write_frame_files(out_dir: Path, files: dict[str, bytes]) -> None:
     for rel in sorted(files, key=lambda r: r.startswith("frames/")):
         path = out_dir / rel
         path.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write_bytes(path, files[rel])
+        write_bytes_atomic(path, files[rel])
 
 
 # ---------------------------------------------------------------------------- workers
@@ -444,7 +439,7 @@ def _dataset_doc(out_dir: Path, config: SimulationConfig) -> dict:
 
 
 def _save_dataset_json(out_dir: Path, config: SimulationConfig) -> None:
-    _atomic_write_bytes(out_dir / "dataset.json",
+    write_bytes_atomic(out_dir / "dataset.json",
                         (json.dumps(_dataset_doc(out_dir, config), indent=1) + "\n").encode())
 
 
