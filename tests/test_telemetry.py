@@ -73,10 +73,52 @@ def test_dji_gimbal_attitude_and_dates():
     # G.PRY (-24.4°, 0.0°, 110.4°) = pitch, roll, yaw of the first block
     assert (track.pitch_deg[0], track.roll_deg[0], track.yaw_deg[0]) == (-24.4, 0.0, 110.4)
     air = read_dji_srt(DJI / "air2s.srt", utc_offset_h=2.0)
-    # first block: timecode 00:00:00,000 and local date 2022-08-07 13:40:40,774,808
-    assert air.utc_start == datetime(2022, 8, 7, 11, 40, 40, 774808, tzinfo=UTC)
+    # first block: timecode 00:00:00,000 and local date 2022-08-07 13:40:40,774,808; the
+    # start is the median over the 17 blocks of date minus timecode, within 1 ms of it
+    assert abs((air.utc_start - datetime(2022, 8, 7, 11, 40, 40, 774808, tzinfo=UTC))
+               .total_seconds()) < 1e-3
     assert air.t_s[1] == pytest.approx(0.033)
     assert read_dji_srt(DJI / "air2s.srt").utc_start is None   # local time without an offset
+
+
+def _srt_block(n: int, start_s: float, body: str) -> str:
+    def code(t: float) -> str:
+        return f"00:00:{int(t):02d},{round((t % 1) * 1000):03d}"
+    return f"{n}\n{code(start_s)} --> {code(start_s + 1)}\n{body}\n"
+
+
+def test_dji_gb_gimbal_fields_and_blocks_without_blank_lines(tmp_path):
+    """Mavic 3 Enterprise style: the gimbal as [gb_yaw gb_pitch gb_roll]; the blocks were
+    written without blank lines between them, so each timecode starts a block."""
+    body = ("2023-03-15 11:26:44.{ms:03d}\n[latitude: 40.37182{k}] [longitude: -3.689040] "
+            "[rel_alt: 48.2 abs_alt: 715.4] [gb_yaw: -137.7 gb_pitch: -45.0 gb_roll: 0.5]")
+    text = "".join(_srt_block(k + 1, k * 1.0, body.format(ms=525 + 0, k=k)) for k in range(3))
+    path = tmp_path / "m3e.srt"
+    path.write_text(text)
+    track = read_dji_srt(path)
+    assert len(track) == 3 and list(track.t_s) == [0.0, 1.0, 2.0]
+    assert track.lat_deg[2] == pytest.approx(40.371822)
+    assert track.attitude_of == "gimbal"
+    assert (track.yaw_deg[0], track.pitch_deg[0], track.roll_deg[0]) == (-137.7, -45.0, 0.5)
+
+
+def test_dji_whole_second_dates_are_placed_by_all_blocks(tmp_path):
+    """Dates truncated to whole seconds, blocks every 0.4 s, true start 10:00:00.7 local:
+    the first block alone says 10:00:00.0 (0.7 s early); all of them together pin it within
+    0.2 s. Positions printed to four decimals are noted as 11 m steps."""
+    true_start_s = 0.7
+    blocks = []
+    for k in range(25):
+        t = 0.4 * k
+        stamp = f"2017-08-05 10:00:{int(true_start_s + t):02d}"
+        blocks.append(_srt_block(k + 1, t, f"GPS(149.0251,-20.2533,16) BAROMETER:1.9\n{stamp}"))
+    path = tmp_path / "old.srt"
+    path.write_text("\n".join(blocks))
+    track = read_dji_srt(path, utc_offset_h=0.0)
+    start = datetime(2017, 8, 5, 10, 0, 0, 700000, tzinfo=UTC)
+    assert abs((track.utc_start - start).total_seconds()) < 0.2
+    assert any("steps of 11 m" in note for note in track.notes)
+    assert not any("steps of 11 m" in note for note in read_dji_srt(DJI / "air2s.srt").notes)
 
 
 def test_broken_srt_files():
@@ -116,19 +158,43 @@ def _ulog_message(kind: str, payload: bytes) -> bytes:
     return struct.pack("<HB", len(payload), ord(kind)) + payload
 
 
-def _write_sensor_gps_ulog(path: Path, rows: list[tuple]) -> Path:
-    """A ULog with one ``sensor_gps`` topic as PX4 >= 1.14 writes it, built from the format spec:
-    header, flag bits, format, subscription, then one data message per row."""
-    fields = ("uint64_t timestamp;uint64_t timestamp_sample;uint64_t time_utc_usec;"
-              "double latitude_deg;double longitude_deg;double altitude_msl_m;uint8_t fix_type;")
+def _write_sensor_gps_ulog(path: Path, rows: list[tuple],
+                           global_rows: list[tuple] | None = None) -> Path:
+    """A ULog with a ``sensor_gps`` topic as PX4 >= 1.14 writes it (and, with
+    ``global_rows``, a ``vehicle_global_position`` topic: timestamp, lat, lon, alt), built
+    from the format spec: header, flag bits, formats, subscriptions, then one data message per
+    row."""
+    topics = [("sensor_gps", "uint64_t timestamp;uint64_t timestamp_sample;uint64_t "
+               "time_utc_usec;double latitude_deg;double longitude_deg;double altitude_msl_m;"
+               "uint8_t fix_type;", "<3Q3dB", rows)]
+    if global_rows is not None:
+        topics.append(("vehicle_global_position", "uint64_t timestamp;double lat;double lon;"
+                       "float alt;", "<Q2df", global_rows))
     data = b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", 0)
     data += _ulog_message("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
-    data += _ulog_message("F", f"sensor_gps:{fields}".encode())
-    data += _ulog_message("A", struct.pack("<BH", 0, 0) + b"sensor_gps")
-    for row in rows:
-        data += _ulog_message("D", struct.pack("<H", 0) + struct.pack("<3Q3dB", *row))
+    for name, fields, _, _ in topics:
+        data += _ulog_message("F", f"{name}:{fields}".encode())
+    for msg_id, (name, _, _, _) in enumerate(topics):
+        data += _ulog_message("A", struct.pack("<BH", 0, msg_id) + name.encode())
+    for msg_id, (_, _, layout, topic_rows) in enumerate(topics):
+        for row in topic_rows:
+            data += _ulog_message("D", struct.pack("<H", msg_id) + struct.pack(layout, *row))
     path.write_bytes(data)
     return path
+
+
+def test_px4_altitude_is_the_estimators_where_the_log_has_it(tmp_path):
+    """GPS altitude wanders 30 -> 33 m; the EKF's (vehicle_global_position.alt, every 0.1 s)
+    says 20.0 + 0.5 t. Samples outside the estimator's span keep the GPS altitude, noted."""
+    gps_rows = [(1_000_000 + 200_000 * i, 1_000_000 + 200_000 * i, 0, 51.9, 4.1, 30.0 + i, 3)
+                for i in range(6)]                                  # t = 1.0 ... 2.0 s
+    global_rows = [(1_000_000 + 100_000 * k, 51.9, 4.1, 20.0 + 0.5 * (1.0 + 0.1 * k))
+                   for k in range(9)]                               # t = 1.0 ... 1.8 s
+    track = read_drone_log(_write_sensor_gps_ulog(tmp_path / "ekf.ulg", gps_rows, global_rows))
+    np.testing.assert_allclose(track.alt_m[:5], [20.5 + 0.1 * i for i in range(5)], atol=1e-5)
+    assert track.alt_m[5] == 35.0                                   # 2.0 s: past the EKF's end
+    assert "vehicle_global_position.alt" in track.alt_reference
+    assert any("1 GPS sample(s) outside the estimator's time span" in n for n in track.notes)
 
 
 def test_px4_gps_timed_by_measurement_and_a_cut_log_is_noted(tmp_path):
@@ -140,7 +206,10 @@ def test_px4_gps_timed_by_measurement_and_a_cut_log_is_noted(tmp_path):
     track = read_drone_log(path)
     np.testing.assert_allclose(track.t_s, [1.05 + 0.2 * i for i in range(6)])
     assert track.utc_at(1.05) == datetime.fromtimestamp(utc0_us / 1e6, tz=UTC)
-    assert track.notes == ["no vehicle_attitude topic: no attitude"]
+    assert track.notes == ["no estimator altitude in the log: the GPS receiver's own "
+                           "altitude is used, which can drift by metres in seconds",
+                           "no vehicle_attitude topic: no attitude"]
+    assert track.alt_reference == "GPS receiver altitude above mean sea level"
     cut = tmp_path / "cut.ulg"
     cut.write_bytes(path.read_bytes()[:-20])     # power lost mid-message: 34 of its 54 bytes
     track = read_drone_log(cut)
@@ -159,6 +228,15 @@ def test_ardupilot_bin_gps_week_to_utc():
     expected = datetime(2017, 10, 29, 1, 47, 28, tzinfo=UTC) - timedelta(seconds=18)
     assert abs((track.utc_at(81.855471) - expected).total_seconds()) < 0.05
     assert track.lat_deg[0] == pytest.approx(-35.3626277) and track.lon_deg[0] == pytest.approx(149.1653034)
+    # altitude: the EKF's POS.Alt, not the receiver's GPS.Alt (588.82 m at the first fix)
+    from pymavlink import DFReader
+    log = DFReader.DFReader_binary(str(TELEMETRY / "ardupilot" / "test.BIN"), zero_time_base=False)
+    pos = []
+    while (message := log.recv_match(type="POS")) is not None:
+        pos.append((message.TimeUS / 1e6, message.Alt))
+    pos_t, pos_alt = np.array(pos).T
+    assert track.alt_m[0] == pytest.approx(np.interp(track.t_s[0], pos_t, pos_alt))
+    assert 584.0 < track.alt_m[0] < 584.5 and "POS.Alt" in track.alt_reference
     assert track.attitude_of == "vehicle" and track.yaw_deg is not None
 
 

@@ -13,15 +13,22 @@ Firmware families write different text (all seen in real files):
 * ``GPS(36.6146,-6.1120,0.0M) BAROMETER:0.3M`` (DJI Pilot, Matrice 300): the third value is an
   altitude in metres, and this form is **latitude first** (Cádiz Bay here; other published
   samples of it, e.g. ``GPS(37.8757,-122.3061,0.0M)``, only make sense that way);
-* ``G.PRY (pitch°, roll°, yaw°)``: the gimbal's attitude (P4 RTK), the only SRT attitude;
-  ``F.PRY`` is the airframe's.
+* ``G.PRY (pitch°, roll°, yaw°)``: the gimbal's attitude (P4 RTK); ``F.PRY`` is the
+  airframe's. Enterprise models of the Mavic 3 generation write the gimbal as
+  ``[gb_yaw: -137.7 gb_pitch: -45.0 gb_roll: 0.0]`` (absolute angles, degrees).
 
 Altitudes: ``rel_alt``, ``BAROMETER``, ``Hb`` and ``H`` are barometric heights above the
 take-off point; ``abs_alt`` is above mean sea level. A ``[altitude: ...]`` field's datum is not
 documented by DJI; the track says so and the operator sets ``water_level_m`` accordingly.
 
 Date lines are the drone's local time, with no zone: they become UTC only with a given
-``utc_offset_h``.
+``utc_offset_h``. The local time at t = 0 is the median over all dated blocks of date minus
+block time; older firmware writes whole seconds (truncated), and then it is their mean plus
+0.5 s, good to a few tenths of a second instead of up to 1 s early from the first block alone.
+
+Latitude/longitude printed with four decimals (Mavic Pro, Mavic Mini, Matrice 300 files) are
+steps of 11 m north-south: the track's notes say so, since the drone's position places the
+vessel in the image.
 """
 
 from __future__ import annotations
@@ -46,13 +53,16 @@ _BARO = re.compile(r"\b(?:BAROMETER\s*:\s*|Hb\s*:\s*|H\s+)(" + _NUMBER + r")\s*m
 _UNIT = r"[^\d,()+-]*"
 _PRY = re.compile(r"\b([GF])\.PRY\s*\(\s*(" + _NUMBER + ")" + _UNIT + r",\s*(" + _NUMBER + ")" + _UNIT
                   + r",\s*(" + _NUMBER + ")" + _UNIT + r"\)", re.IGNORECASE)
+_GIMBAL_ANGLES = re.compile(r"\bgb_(yaw|pitch|roll)\s*:\s*(" + _NUMBER + ")", re.IGNORECASE)
 _DATE = re.compile(r"\b(\d{4})[-.](\d{1,2})[-.](\d{1,2})\s+(\d{1,2}):(\d{2}):(\d{2})"
                    r"(?:[,.](\d{3})(?:[,.](\d{3}))?)?")
 _TAGS = re.compile(r"<[^>]*>")
 
 
 def _blocks(text: str) -> list[tuple[int, list[str]]]:
-    """Blank-line separated blocks with the 1-based line number of their first line."""
+    """Subtitle blocks with the 1-based line number of their first line: separated by blank
+    lines, and also by a timecode line in a block that already has one (files whose blank
+    lines were lost, e.g. by an editor; the block's counter line before it moves along)."""
     blocks, current, start = [], [], 0
     for number, line in enumerate(text.splitlines(), start=1):
         line = _TAGS.sub("", line).strip()
@@ -61,6 +71,11 @@ def _blocks(text: str) -> list[tuple[int, list[str]]]:
                 blocks.append((start, current))
             current = []
             continue
+        if _TIMECODE.match(line) and any(_TIMECODE.match(seen) for seen in current):
+            counter = [current.pop()] if current[-1].isdigit() else []
+            if current:
+                blocks.append((start, current))
+            current, start = counter, number - len(counter)
         if not current:
             start = number
         current.append(line)
@@ -82,6 +97,29 @@ def _parse_date(match: re.Match) -> datetime | None:
 def _lines(numbers: list[int]) -> str:
     shown = ", ".join(str(n) for n in numbers[:5]) + (", ..." if len(numbers) > 5 else "")
     return f"line{'s' if len(numbers) > 1 else ''} {shown}"
+
+
+def _local_time_at_zero(rows: list[dict], t_s: np.ndarray) -> datetime | None:
+    """The date lines' local time at t = 0 (module docstring), None without date lines."""
+    dated = [(r["date"], float(t)) for r, t in zip(rows, t_s, strict=True) if "date" in r]
+    if not dated:
+        return None
+    reference = dated[0][0]
+    offsets_s = np.array([(date - reference).total_seconds() - t for date, t in dated])
+    if any(date.microsecond for date, _ in dated):
+        shift_s = float(np.median(offsets_s))
+    else:                   # each date is floor(true time): true offset in [o, o + 1)
+        shift_s = float(np.mean(offsets_s)) + 0.5
+    return reference + timedelta(seconds=shift_s)
+
+
+def _coarse_position_notes(rows: list[dict]) -> list[str]:
+    """A note when the file prints latitude with four decimals or fewer (11 m steps)."""
+    lat = np.array([r["latitude"] for r in rows]) * 1e4
+    if len(lat) < 2 or not np.allclose(lat, np.round(lat), rtol=0.0, atol=1e-3):
+        return []
+    return ["positions are printed to 1e-4 degree (steps of 11 m north-south): the drone's "
+            "position, and so where the vessel is drawn in the image, is that coarse"]
 
 
 def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
@@ -125,6 +163,9 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         for which, pitch, roll, yaw in _PRY.findall(content):
             if which.upper() == "G":
                 row["gimbal"] = (float(yaw), float(pitch), float(roll))
+        angles = {k.lower(): float(v) for k, v in _GIMBAL_ANGLES.findall(content)}
+        if "gimbal" not in row and len(angles) == 3:
+            row["gimbal"] = (angles["yaw"], angles["pitch"], angles["roll"])
         if (m := _DATE.search(content)) is not None:
             if (when := _parse_date(m)) is not None:
                 row["date"] = when
@@ -145,6 +186,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
                          "or GPS(...)); is this a DJI .SRT file?")
 
     without_clock: list[int] = []
+    notes_clock: list[str] = []
     if any("video_s" in r for r in rows):
         without_clock = [r["line"] for r in rows if "video_s" not in r]
         rows = [r for r in rows if "video_s" in r]
@@ -156,6 +198,9 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         first = rows[0]["date"]
         t_s = np.array([(r["date"] - first).total_seconds() for r in rows])
         clock = "seconds since the first date line (the file has no timecodes)"
+        notes_clock = ["no timecodes: the video is taken to start at the first date line"
+                       + (", to within 1 s (whole-second dates)"
+                          if not any(r["date"].microsecond for r in rows) else "")]
     else:
         raise InputError(path, None, "no block has a timecode or a date line: no time for the "
                          "samples")
@@ -188,11 +233,10 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (out_of_range, "with a position outside ±90°/±180° skipped"),
         (without_clock, "without the file's clock (timecode or date) skipped"),
         (bad_dates, "with an impossible date line (date ignored)"),
-    ) if lines] + partial
+    ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
     utc_start = None
-    dated = next((i for i, r in enumerate(rows) if "date" in r), None)
-    if dated is not None:
-        local_start = rows[dated]["date"] - timedelta(seconds=float(t_s[dated]))
+    local_start = _local_time_at_zero(rows, t_s)
+    if local_start is not None:
         if utc_offset_h is not None:
             utc_start = (local_start - timedelta(hours=utc_offset_h)).replace(tzinfo=UTC)
         else:
