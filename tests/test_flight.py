@@ -396,6 +396,23 @@ def test_overlay_of_a_point_projected_far_out_of_the_image():
     assert out.shape == image.shape and out[100, 320:639].any()     # the visible part is drawn
 
 
+def test_overlay_of_a_measured_section_with_one_end_behind_the_camera():
+    """An oblique camera can see a section's hull point while one of its ends lies behind
+    the camera (NaN pixels): its measurement is still drawn and labelled, at the hull point."""
+    from harborsight.viz.overlay import YELLOW, draw_overlay
+
+    report = _report([3.0, 30.0])
+    section = report.sections[0]
+    section.hull_px = [[float("nan"), float("nan")], [300.0, 200.0]]
+    section.hull_point_px, section.obstacle_point_px = [300.0, 200.0], [300.0, 120.0]
+    report.sections[1].hull_px = [[400.0, 200.0], [500.0, 200.0]]
+    report.sections[1].hull_point_px, report.sections[1].obstacle_point_px = [450, 200], [450, 40]
+    out = draw_overlay(np.zeros((360, 640, 3), np.uint8), report)
+    line = out[160, 297:304].astype(int)                 # the line to its obstacle point
+    assert (np.abs(line - YELLOW).sum(axis=1) < 60).any()
+    assert (out[150:200, 200:300] > 0).any()             # its label, outward of the hull point
+
+
 def test_flight_clock_is_fixed_by_the_first_frame():
     from harborsight.flight.runner import FlightClock
     from harborsight.flight.sources import FlightFrame

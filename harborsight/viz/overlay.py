@@ -77,7 +77,9 @@ def draw_overlay(
     scale = max(0.35, min(w, h) / 900.0)
     thickness = max(2, round(min(w, h) / 220))
     ends = [np.asarray(s.hull_px, float) for s in report.sections]
-    centre = np.nanmean(np.vstack(ends), axis=0)
+    anchors = [_label_anchor(s, end, w, h) for s, end in zip(report.sections, ends, strict=True)]
+    known = [a for a in anchors if a is not None]
+    centre = np.mean(known, axis=0) if known else np.array([w / 2.0, h / 2.0])
 
     for s, end in zip(report.sections, ends, strict=True):
         if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
@@ -90,10 +92,9 @@ def draw_overlay(
         if _on_canvas(end[0], w, h):
             cv2.circle(out, _fixed(end[0]), 2 * _SCALE, BLACK, -1, cv2.LINE_AA, _SHIFT)
 
-    for s, end in zip(report.sections, ends, strict=True):
-        if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
+    for s, mid in zip(report.sections, anchors, strict=True):
+        if s.status not in (STATUS_OK, STATUS_CLEAR) or mid is None:
             continue
-        mid = np.clip(end.mean(axis=0), [-w, -h], [2 * w, 2 * h])
         outward = mid - centre
         outward /= max(np.linalg.norm(outward), 1e-9)
         if s.status == STATUS_OK:
@@ -117,6 +118,22 @@ def draw_overlay(
     if footer:
         draw_banner(out, footer, WHITE, bottom=True)
     return out
+
+
+def _label_anchor(section, end: np.ndarray, w: int, h: int) -> np.ndarray | None:
+    """Where a section's label hangs: the middle of its visible ends (kept within a frame's
+    width of the picture), else, for a section with one end behind the camera, its hull
+    point; None if neither is known."""
+    finite = end[np.isfinite(end).all(axis=1)]
+    if len(finite) == 2:
+        point = finite.mean(axis=0)
+    elif section.hull_point_px is not None and np.isfinite(section.hull_point_px).all():
+        point = np.asarray(section.hull_point_px, float)
+    elif len(finite):
+        point = finite[0]
+    else:
+        return None
+    return np.clip(point, [-w, -h], [2 * w, 2 * h])
 
 
 def draw_banner(image_bgr: np.ndarray, text: str, colour=WHITE, bottom: bool = False) -> None:
