@@ -335,9 +335,9 @@ def test_image_size_mismatch_names_the_field_that_differs():
 
     meta = load_frame_metadata(SAMPLES / "frames" / "000000.json")
     w, h = meta.camera.width, meta.camera.height
-    with pytest.raises(InputError, match="f: camera.height: "):
+    with pytest.raises(InputError, match=r"f: camera\.height: "):
         check_image_size(np.zeros((h + 1, w, 3), np.uint8), meta, "f")
-    with pytest.raises(InputError, match="f: camera.width: "):
+    with pytest.raises(InputError, match=r"f: camera\.width: "):
         check_image_size(np.zeros((h, w - 1, 3), np.uint8), meta, "f")
 
 

@@ -240,6 +240,17 @@ def test_ardupilot_bin_gps_week_to_utc():
     assert track.attitude_of == "vehicle" and track.yaw_deg is not None
 
 
+def test_ardupilot_log_cut_inside_a_record_header(tmp_path):
+    """45,981 bytes end with a whole record; one more byte is the first byte of the next
+    record's header (0xA3), which pymavlink does not index: still a cut log, noted."""
+    data = (TELEMETRY / "ardupilot" / "test.BIN").read_bytes()
+    whole, torn = tmp_path / "whole.bin", tmp_path / "torn.bin"
+    whole.write_bytes(data[:45981])
+    torn.write_bytes(data[:45982])
+    assert not any("partial record" in note for note in read_drone_log(whole).notes)
+    assert "the log ends in a partial record (1 bytes)" in read_drone_log(torn).notes[0]
+
+
 def test_sampling_interpolates_angles_across_north_and_refuses_gaps():
     track = Track(source=Path("x"), kind="csv", t_s=np.array([0.0, 1.0, 2.0, 10.0]),
                   lat_deg=np.array([10.0, 10.0002, 10.0004, 10.0]), lon_deg=np.zeros(4),
@@ -250,6 +261,9 @@ def test_sampling_interpolates_angles_across_north_and_refuses_gaps():
     assert np.isnan(sampled["lat_deg"][2])                              # inside an 8 s gap
     assert sampled["lat_deg"][3] == pytest.approx(10.0)                 # 0.5 s past the end
     assert np.isnan(sampled["lat_deg"][4])                              # 2 s past the end
+    across = Track(source=Path("x"), kind="csv", t_s=np.array([0.0, 1.0]),
+                   lat_deg=np.zeros(2), lon_deg=np.array([179.9999, -179.9999]))
+    assert abs(across.sample(np.array([0.5]))["lon_deg"][0]) == pytest.approx(180.0)  # not 0
 
 
 def _nmea(body: str) -> str:
@@ -353,6 +367,36 @@ def test_csv_vessel_track_skips_a_bad_row(tmp_path):
     track = read_vessel_track(path)
     assert list(track.t_s) == [0.0, 2.0] and list(track.heading_deg) == [75.0, 77.0]
     assert "line 3: lon: expected a number, got 'ten'" in track.notes[0]
+
+
+def test_csv_with_a_byte_order_mark(tmp_path):
+    """Excel's "CSV UTF-8" starts the file with a BOM, which must not become part of the
+    first column's name."""
+    path = tmp_path / "ship.csv"
+    path.write_bytes(b"\xef\xbb\xbftime,lat,lon,heading_deg\n"
+                     b"2026-05-01T12:00:00Z,56.15,10.21,75\n2026-05-01T12:00:01Z,56.15,10.21,76\n")
+    assert list(read_vessel_track(path).heading_deg) == [75.0, 76.0]
+
+
+def test_nmea_fixes_without_a_position_are_counted(tmp_path):
+    """RMC status V, GGA quality 0 and 6 (dead reckoning) give no fix; headings before the
+    first fix have no time: all are counted in the notes, not dropped silently."""
+    lines = [_nmea("HEHDT,10.0,T"),
+             _nmea("GPRMC,120000,V,5154.000,N,00406.000,E,0.0,0.0,010526,,"),
+             _nmea("GPRMC,120001,A,5154.000,N,00406.000,E,0.0,0.0,010526,,"),
+             _nmea("HEHDT,11.0,T"),
+             _nmea("GPGGA,120002,5154.001,N,00406.000,E,0,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPGGA,120003,5154.002,N,00406.000,E,6,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPGGA,120004,5154.003,N,00406.000,E,1,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("HEHDT,12.0,T")]
+    path = tmp_path / "ship.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert list(track.t_s) == [0.0, 3.0]
+    assert track.lat_deg[1] == pytest.approx(51 + 54.003 / 60)
+    for what in ("1 sentence(s) skipped: RMC status V", "1 sentence(s) skipped: GGA quality 0",
+                 "1 sentence(s) skipped: GGA quality 6", "1 sentence(s) skipped: headings before"):
+        assert any(note.startswith(what) for note in track.notes), what
 
 
 def test_rigid_mount_composes_body_and_mount_rotations():

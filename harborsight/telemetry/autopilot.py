@@ -78,13 +78,15 @@ def ulog_partial_tail_bytes(path: Path) -> int:
 
 
 def _dataflash_partial_tail_bytes(log) -> int:
-    """Bytes of a torn last record in a DataFlash log (0 if its last record is whole), from
-    the message index pymavlink builds when it opens the file."""
+    """Bytes after the last whole record of a DataFlash log (0 if it ends with one): a torn
+    record, or the first one or two bytes of a record header, which pymavlink does not index.
+    From the message index pymavlink builds when it opens the file."""
     starts = [(offsets[-1], kind) for kind, offsets in enumerate(log.offsets) if offsets]
     if not starts:
         return 0
     last_start, kind = max(starts)
-    return log.data_len - last_start if last_start + log.formats[kind].len > log.data_len else 0
+    last_end = last_start + log.formats[kind].len
+    return log.data_len - last_start if last_end > log.data_len else log.data_len - last_end
 
 
 def _px4_estimator_altitude(datasets: dict) -> tuple[np.ndarray, np.ndarray, str]:
@@ -173,6 +175,8 @@ def read_px4_ulog(path: str | Path) -> Track:
         alt = gps["alt"].astype(float) * 1e-3
     alt, alt_reference = _estimator_altitude(t_s, alt, *_px4_estimator_altitude(datasets),
                                              notes)
+    if not good.any():
+        raise InputError(path, "fix_type", "the log has no GPS sample with a 3-D fix")
     utc_start = None
     if "time_utc_usec" in gps:
         utc_us = gps["time_utc_usec"].astype(float)

@@ -6,7 +6,8 @@ Missing quantities are ``None``, never zeros.
 
 Sampling at other times interpolates linearly between the two neighbouring samples: latitude
 and longitude directly (the step between samples is metres, where a degree is locally
-linear), angles on their unwrapped sequence (so 359 deg -> 1 deg passes through 0, not 180).
+linear), angles and longitude on their unwrapped sequence (so 359 deg -> 1 deg passes through
+0, not 180, and a track across the antimeridian stays near ±180 deg).
 A time between two samples more than ``2 max_gap_s`` apart, or outside the track by more than
 half its end sample interval (or ``max_gap_s``, if less), has no value: NaN, and the caller
 reports the frame instead of guessing. (Outside, the end sample's value is held, not
@@ -119,10 +120,11 @@ class Track:
             if len(t) == 0:
                 out[name] = np.full(times_s.shape, np.nan)
                 continue
-            if name in ANGLES:
+            wraps = name in ANGLES or name == "lon_deg"
+            if wraps:
                 v = np.rad2deg(np.unwrap(np.deg2rad(v)))
             sampled = np.interp(times_s, t, v)
-            if name in ANGLES:
+            if wraps:
                 sampled = (sampled + 180.0) % 360.0 - 180.0
             out[name] = np.where(_reachable(t, times_s, max_gap_s), sampled, np.nan)
         return out

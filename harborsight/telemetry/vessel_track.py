@@ -68,6 +68,9 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
     magnetic: list[tuple[int, float]] = []                # HDM / HDG without variation
     bad, undated = [], 0
+    no_fix = {"RMC status V (no fix)": 0, "GGA quality 0 (no fix)": 0,
+              "GGA quality 6 (dead reckoning, not a measured position)": 0,
+              "headings before the first fix": 0}
 
     def add_fix(clock: time, lat: float, lon: float) -> None:
         when = _utc(day, clock)
@@ -93,10 +96,16 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
             elif kind == "RMC":
                 if sentence.datestamp is not None:
                     day = sentence.datestamp
-                if sentence.status == "A" and sentence.timestamp is not None and day is not None:
+                if sentence.status != "A":
+                    no_fix["RMC status V (no fix)"] += 1
+                elif sentence.timestamp is not None and day is not None:
                     add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
             elif kind == "GGA":
-                if int(sentence.gps_qual or 0) > 0 and sentence.timestamp is not None:
+                quality = int(sentence.gps_qual or 0)
+                if quality in (0, 6):
+                    no_fix["GGA quality 0 (no fix)" if quality == 0 else
+                           "GGA quality 6 (dead reckoning, not a measured position)"] += 1
+                elif sentence.timestamp is not None:
                     if day is None:
                         undated += 1
                         continue
@@ -112,6 +121,8 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                 headings.append((len(fixes) - 1, float(sentence.heading) + deviation + variation))
             elif kind == "HDM" and sentence.heading is not None and fixes:
                 magnetic.append((len(fixes) - 1, float(sentence.heading)))
+            elif kind in ("HDT", "HDG", "HDM") and sentence.heading is not None:
+                no_fix["headings before the first fix"] += 1
         except (ValueError, TypeError, AttributeError):
             bad.append(number)
     if not fixes:
@@ -135,6 +146,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                      f"line{'s' if len(bad) > 1 else ''} {shown})")
     if undated:
         notes.append(f"{undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
+    notes += [f"{count} sentence(s) skipped: {what}" for what, count in no_fix.items() if count]
     t0 = min(f[0] for f in fixes)
     arrival_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
     head_t = _heading_times(arrival_t, [epoch for epoch, _ in headings])
@@ -205,7 +217,7 @@ def _utc(day: date, clock: time) -> datetime:
 def read_vessel_csv(path: str | Path) -> Track:
     path = Path(path)
     try:
-        with path.open(newline="") as stream:
+        with path.open(newline="", encoding="utf-8-sig") as stream:   # Excel's "CSV UTF-8"
             rows = list(csv.DictReader(stream))
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
