@@ -394,8 +394,12 @@ def make_samples(
     ground truth, and the berthing flight; needs the sim extra)."""
     from harborsight.sim.samples import make_demo_flight, make_demo_samples
 
-    stems = make_demo_samples(out, seed)
-    flight = make_demo_flight(out, flight_seed)
+    try:
+        stems = make_demo_samples(out, seed)
+        flight = make_demo_flight(out, flight_seed)
+    except (HarborsightError, RuntimeError) as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
     console.print(f"wrote {len(stems)} frames to {out}/ and a flight of "
                   f"{len(list((flight / 'frames').glob('*.json')))} frames to {flight}/ "
                   f"({json.loads((out / 'dataset.json').read_text())['generator']})")

@@ -79,3 +79,19 @@ def test_demo_measures_every_sample(tmp_path):
     errors = np.abs(errors)
     assert len(errors) >= 20
     assert np.median(errors) <= 0.6 and np.max(errors) <= 2.5
+
+
+def test_make_samples_never_replaces_a_folder_it_did_not_write(tmp_path):
+    """`make-samples --out DIR` used to delete DIR first, whatever it held."""
+    from harborsight.sim.samples import check_replaceable
+
+    user = tmp_path / "thesis"
+    user.mkdir()
+    (user / "chapter1.txt").write_text("months of work")
+    result = CliRunner().invoke(app, ["make-samples", "--out", str(user)])
+    assert result.exit_code == 2 and "refusing to replace it" in result.output
+    assert (user / "chapter1.txt").read_text() == "months of work"
+    check_replaceable(tmp_path / "new")                   # absent: fine
+    (tmp_path / "empty").mkdir()
+    check_replaceable(tmp_path / "empty")                 # empty: fine
+    check_replaceable(SAMPLES)                            # an earlier demo samples folder

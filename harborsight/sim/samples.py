@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import yaml
 
+from harborsight.errors import InputError
 from harborsight.sim.dataset import SimulationConfig, simulate
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 
@@ -54,16 +55,44 @@ def demo_config(seed: int = DEFAULT_SEED) -> SimulationConfig:
         split="demo")
 
 
-def make_demo_samples(out_dir: Path, seed: int = DEFAULT_SEED, n_frames: int | None = None
-                      ) -> list[str]:
-    """Render the demo dataset into ``out_dir`` (replacing it) with the Blender simulator;
-    returns the frame stems. ``n_frames`` renders only the first frames (tests)."""
+def check_replaceable(out_dir: Path) -> None:
+    """``out_dir`` may be (re)written by ``make-samples``: absent, empty, or an earlier demo
+    samples folder (its ``dataset.json`` parameters say split ``demo``). Anything else is
+    refused, so that ``--out .`` or ``--out data/train`` never deletes a user's files."""
+    if not out_dir.exists() or (out_dir.is_dir() and not any(out_dir.iterdir())):
+        return
+    try:
+        split = json.loads((out_dir / "dataset.json").read_text())["parameters"]["split"]
+    except (OSError, ValueError, KeyError, TypeError):
+        split = None
+    if not out_dir.is_dir() or split != "demo":
+        raise InputError(out_dir, None, "exists and is not a demo samples folder (no "
+                         "dataset.json with split 'demo'): refusing to replace it; give a new "
+                         "or empty folder")
+
+
+def _replace_folder(out_dir: Path, built: Path) -> None:
+    """Put the finished ``built`` folder where ``out_dir`` was (old one removed only now)."""
     if out_dir.exists():
         shutil.rmtree(out_dir)
-    write_example_vessel(out_dir / "vessels")
-    summary = simulate(out_dir, n_frames or len(DEMO_SCENARIOS), demo_config(seed))
-    if summary.failed:
-        raise RuntimeError("; ".join(f.error or "" for f in summary.failed))
+    built.rename(out_dir)
+
+
+def make_demo_samples(out_dir: Path, seed: int = DEFAULT_SEED, n_frames: int | None = None
+                      ) -> list[str]:
+    """Render the demo dataset into ``out_dir`` with the Blender simulator; returns the
+    frame stems. It is rendered beside ``out_dir`` and replaces it only when every frame was
+    rendered (:func:`check_replaceable` first). ``n_frames`` renders only the first frames
+    (tests)."""
+    check_replaceable(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=out_dir.parent, prefix=f".{out_dir.name}-") as tmp:
+        work = Path(tmp) / "samples"
+        write_example_vessel(work / "vessels")
+        summary = simulate(work, n_frames or len(DEMO_SCENARIOS), demo_config(seed))
+        if summary.failed:
+            raise RuntimeError("; ".join(f.error or "" for f in summary.failed))
+        _replace_folder(out_dir, work)
     return sorted(p.stem for p in (out_dir / "frames").glob("*.json"))
 
 
@@ -86,13 +115,14 @@ def flight_config(seed: int = FLIGHT_SEED) -> SimulationConfig:
 
 def make_demo_flight(samples_dir: Path, seed: int = FLIGHT_SEED, n_frames: int | None = None
                      ) -> Path:
-    """Render the demo flight into ``samples_dir/flight`` (replacing it): frames/*.json,
-    images/*.jpg, labels/*.png; the frames name the tug in ``samples_dir/vessels``."""
-    flight = samples_dir / "flight"
-    if flight.exists():
-        shutil.rmtree(flight)
-    with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp) / "flight"
+    """Render the demo flight into ``samples_dir/flight`` (replacing it once every frame is
+    rendered): frames/*.json, images/*.jpg, labels/*.png; the frames name the tug in
+    ``samples_dir/vessels``."""
+    final = samples_dir / "flight"
+    samples_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=samples_dir, prefix=".flight-") as tmp:
+        work = Path(tmp) / "render"
+        flight = Path(tmp) / "flight"
         write_example_vessel(work / "vessels")
         summary = simulate(work, n_frames or FLIGHT_FRAMES, flight_config(seed))
         if summary.failed:
@@ -110,4 +140,5 @@ def make_demo_flight(samples_dir: Path, seed: int = FLIGHT_SEED, n_frames: int |
                         [cv2.IMWRITE_JPEG_QUALITY, FLIGHT_JPEG_QUALITY])
             shutil.copy(work / "labels" / f"{stem}.png", flight / "labels" / f"{stem}.png")
         shutil.copy(work / "dataset.json", flight / "dataset.json")
-    return flight
+        _replace_folder(final, flight)
+    return final
