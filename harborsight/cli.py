@@ -81,6 +81,9 @@ def _settings(method: Method, sections: int | None, section_length_m: float | No
               pose_margin_px: float, own_rim_px: int) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
 
+    if sections is not None and section_length_m is not None:
+        raise InputError(None, "--section-length-m", "give either --sections or "
+                         "--section-length-m, not both")
     return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
                              own_rim_px=own_rim_px, n_sections=sections,
                              section_length_m=section_length_m)
@@ -147,9 +150,11 @@ def measure(
         help="Folder of masks named like the frames (folders only; default labels/ or masks/).")] = None,
     model: Annotated[Path | None, typer.Option(
         help="ONNX segmentation model (harborsight export) that labels the frames instead of "
-        "masks. Frames without any mask use the packaged default model.")] = None,
-    out: Annotated[Path, typer.Option(help="Where reports (JSON) and overlays (PNG) go.")] = Path(
-        "out/measure"),
+        "masks. Without it, frames are labelled by the packaged default model when no mask is "
+        "given (no --mask/--masks, no labels/ or masks/ folder); in a folder with masks, a "
+        "frame whose mask is missing is reported and skipped.")] = None,
+    out: Annotated[Path, typer.Option(help="Where reports (JSON) and overlays (PNG) go, named "
+                                           "like the frame JSONs.")] = Path("out/measure"),
     method: Annotated[Method, typer.Option(
         help="ground_plane: back-project onto the water plane with the full pose (exact for "
         "any tilt); gsd: the paper's nadir GSD times pixel distances.")] = Method.ground_plane,
@@ -178,8 +183,15 @@ def measure(
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         if input_path.is_dir():
+            for name, given in (("--meta", meta), ("--mask", mask)):
+                if given is not None:
+                    raise InputError(given, name, f"{name} is for a single image; a folder's "
+                                     "frames carry their own JSON files (and masks: --masks)")
             raise typer.Exit(_run_folder(input_path, masks, vessels, settings, out, intrinsics,
                                          tables, model))
+        if masks is not None:
+            raise InputError(masks, "--masks", "--masks is for folders; give a single image's "
+                             "mask with --mask")
         meta_path = meta or input_path.with_suffix(".json")
         job = FrameJob(input_path.stem, meta_path, input_path, mask)
         segmenter = _segmenter(model) if mask is None else None

@@ -155,7 +155,7 @@ def measure_job(
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        stem = Path(meta.image).stem
+        stem = job.stem          # the JSON's name: unique in a folder, and what masks go by
         outcome.report_path = out_dir / f"{stem}.json"
         report.write(outcome.report_path)
         if overlay:

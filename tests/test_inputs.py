@@ -135,6 +135,31 @@ def test_batch_skips_bad_frames_and_writes_the_rest(dataset):
     assert "000004.png: cannot decode image" in text
 
 
+def test_batch_outputs_are_named_like_the_frame_jsons(dataset):
+    """Two frames whose JSONs name one image used to overwrite each other's report."""
+    edit_frame(dataset / "frames" / "000001.json", lambda d: d.update(image="000000.png"))
+    out = dataset / "out"
+    result = runner.invoke(app, ["measure", str(dataset), "--out", str(out), "--no-tables"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.glob("*.json")) == [f"{k:06d}.json" for k in range(5)]
+
+
+@pytest.mark.parametrize("extra, expected", [
+    (["--masks", "labels"], "--masks is for folders"),
+    (["--sections", "8", "--section-length-m", "2"], "give either --sections or"),
+])
+def test_options_that_would_be_ignored_are_refused(dataset, extra, expected):
+    extra = [str(dataset / e) if e == "labels" else e for e in extra]
+    result = runner.invoke(app, [*measure_args(dataset), *extra])
+    assert result.exit_code == 2 and expected in result.output
+
+
+def test_single_image_options_on_a_folder_are_refused(dataset):
+    result = runner.invoke(app, ["measure", str(dataset), "--mask",
+                                 str(dataset / "labels" / "000000.png")])
+    assert result.exit_code == 2 and "--mask is for a single image" in result.output
+
+
 def test_batch_of_only_bad_frames_fails(dataset):
     for frame in (dataset / "frames").glob("*.json"):
         edit_frame(frame, lambda d: d.pop("camera"))
