@@ -64,6 +64,21 @@ def test_the_vessel_stops_short_of_the_quay(tug):
     assert clearance == pytest.approx(last.sequence["stop_gap_m"], abs=1e-3)
 
 
+def test_timestamps_never_run_backwards_between_long_flights(tug):
+    """Flights of 150 frames at 0.5 s last 74.5 s: the next scene's clock starts 2 minutes
+    after this one's (it used to start 1 minute after, inside this flight)."""
+    import dataclasses
+
+    from harborsight.sim.sequence import scene_slot_s
+
+    assert scene_slot_s(48, 0.5) == 60.0 and scene_slot_s(120, 0.5) == 60.0
+    assert scene_slot_s(121, 0.5) == 120.0 and scene_slot_s(150, 0.5) == 120.0
+    config = dataclasses.replace(flight_config(), sequence_frames=150)
+    last, next_first = plan_frame(config, 149, tug), plan_frame(config, 150, tug)
+    gap = datetime.fromisoformat(next_first.timestamp) - datetime.fromisoformat(last.timestamp)
+    assert gap.total_seconds() == pytest.approx(120.0 - 74.5)
+
+
 def test_frames_of_a_flight_share_their_split():
     config = SimulationConfig(seed=1, sequence_frames=8)
     for scene in range(20):

@@ -199,7 +199,8 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
 
         scene = sequence_frame(scene, scene_index, step, config.frame_interval_s,
                                config.approach_speed_mps,
-                               np.random.default_rng([config.seed, scene_index, step, 3]))
+                               np.random.default_rng([config.seed, scene_index, step, 3]),
+                               n_frames=config.sequence_frames)
     return scene
 
 

@@ -13,6 +13,7 @@ a small hover wander. The true closing speed of a section is ``v`` times the cos
 from __future__ import annotations
 
 import dataclasses
+import math
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -23,7 +24,7 @@ from shapely.ops import nearest_points
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
 from harborsight.sim.layout import VESSEL_INSTANCE, HarbourScene, Part, SceneObject
 
-#: the first frame of sequence scene i is this time plus i minutes
+#: the first frame of sequence scene i is this time plus i scene slots (:func:`scene_slot_s`)
 SEQUENCE_EPOCH = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
 
 
@@ -66,10 +67,18 @@ def approach_plan(scene: HarbourScene, stop_gap_m: float) -> tuple[np.ndarray, f
     return u, lo, clearance
 
 
+def scene_slot_s(n_frames: int, interval_s: float) -> float:
+    """Seconds between the first frames of consecutive scenes: whole minutes, one for a
+    flight shorter than a minute, more for longer ones, so that a dataset's timestamps
+    never run backwards from one scene to the next."""
+    return 60.0 * max(1, math.floor((n_frames - 1) * interval_s / 60.0) + 1)
+
+
 def sequence_frame(scene: HarbourScene, scene_index: int, frame: int, interval_s: float,
                    speed_mps: float, rng: np.random.Generator, stop_gap_m: float = 0.5,
-                   hover_sigma_m: float = 0.3) -> HarbourScene:
-    """Frame ``frame`` of the berthing sequence of ``scene`` (module docstring)."""
+                   hover_sigma_m: float = 0.3, n_frames: int = 0) -> HarbourScene:
+    """Frame ``frame`` of the berthing sequence of ``scene`` (module docstring); the flight
+    has ``n_frames`` frames (spaces the scenes' clocks)."""
     time_s = frame * interval_s
     u, s_max, clearance = approach_plan(scene, stop_gap_m)
     travel_m = min(speed_mps * time_s, s_max)
@@ -80,7 +89,8 @@ def sequence_frame(scene: HarbourScene, scene_index: int, frame: int, interval_s
     lat, lon, _ = enu_to_geodetic(np.array([u[0] * travel_m, u[1] * travel_m, 0.0]),
                                   scene.origin)
     wander = rng.normal(0.0, hover_sigma_m, 3) * np.array([1.0, 1.0, 0.5])
-    stamp = SEQUENCE_EPOCH + timedelta(minutes=scene_index, seconds=time_s)
+    slot_s = scene_slot_s(max(n_frames, frame + 1), interval_s)
+    stamp = SEQUENCE_EPOCH + timedelta(seconds=scene_index * slot_s + time_s)
     return dataclasses.replace(
         scene, objects=objects, uav_enu=np.asarray(scene.uav_enu, float) + wander,
         yaw_deg=(scene.yaw_deg + float(rng.normal(0.0, 0.3))) % 360.0,   # frame.py: [-360, 360]
