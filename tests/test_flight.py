@@ -249,6 +249,22 @@ def test_run_json_is_written_when_a_run_is_interrupted(tmp_path):
     assert _video_frame_count(out / "annotated.mp4") == 3
 
 
+def test_a_second_run_into_the_same_folder_leaves_only_its_own_outputs(tmp_path):
+    data = _timed_copy_of_samples(tmp_path)
+    out = tmp_path / "out"
+    (out / "reports").mkdir(parents=True)
+    (out / "reports" / "old-flight-000123.json").write_text("{}")
+    (out / "notes.txt").write_text("the operator's own file")
+    for frame in ("000003", "000004"):
+        (data / "frames" / f"{frame}.json").unlink()
+    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
+                                 "--out", str(out), "--no-video"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in (out / "reports").iterdir()) == [
+        "000000.json", "000001.json", "000002.json"]
+    assert (out / "notes.txt").is_file()
+
+
 def test_a_report_that_cannot_be_written_skips_only_its_frame(tmp_path):
     """Frame 1's image key is a valid string but no valid file name (too long): its report
     cannot be written, so it is skipped like a bad input, with nothing of it in the CSV; the

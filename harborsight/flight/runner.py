@@ -19,6 +19,10 @@ start). Frames of a folder before its first timestamp have no time. A frame whos
 missing, unreadable or out of order is still measured; it is left out of the closing speeds
 and listed under ``warnings`` in ``run.json``.
 
+A run into a folder that holds an earlier run's outputs first removes them (the files named
+above: reports/*.json, overlays/*.png and the run's own files), so that what is there
+afterwards is this run's alone.
+
 Outputs are written per frame: a frame whose report cannot be written is skipped like a bad
 input (nothing of it in ``sections.csv``); an overlay or video that cannot be written is a
 warning, and the run goes on.
@@ -169,6 +173,7 @@ def run_flight(
     options = options or RunOptions()
     out_dir.mkdir(parents=True, exist_ok=True)
     reports_dir, overlays_dir = out_dir / "reports", out_dir / "overlays"
+    _remove_earlier_outputs(out_dir)
     reports_dir.mkdir(exist_ok=True)
     if options.overlays:
         overlays_dir.mkdir(exist_ok=True)
@@ -228,6 +233,17 @@ def run_flight(
         _write_run_record(out_dir, summary, timeline, options, segmenter, inputs,
                           fps if video is not None else None, video)
     return summary
+
+
+def _remove_earlier_outputs(out_dir: Path) -> None:
+    """Delete what an earlier run wrote here (module docstring); nothing else is touched."""
+    stale = [out_dir / name for name in ("annotated.mp4", "timeline.png", "sections.csv",
+                                         "run.json")]
+    stale += sorted((out_dir / "reports").glob("*.json")) + sorted(
+        (out_dir / "overlays").glob("*.png"))
+    for path in stale:
+        if path.is_file():
+            path.unlink()
 
 
 def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTimeline,
