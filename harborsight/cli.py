@@ -38,7 +38,8 @@ class Method(StrEnum):
 
 
 def _fmt(value: float | None, digits: int) -> str:
-    return "—" if value is None else f"{value:.{digits}f}"
+    """A number to ``digits`` decimals; "—" for None or NaN (a class absent from a split)."""
+    return "—" if value is None or value != value else f"{value:.{digits}f}"
 
 
 def print_report_table(outcome: FrameOutcome) -> None:
@@ -937,8 +938,18 @@ def evaluate_segmentation_command(
     from harborsight.evaluation.segmentation import evaluate_segmentation
 
     try:
-        result = evaluate_segmentation(model, data, split or ["test"], fps_seconds, device,
-                                       threads, height_bin_m=height_bin_m, by_object=by_object)
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn(), console=console, transient=True) as progress:
+            task = progress.add_task("reading frames", total=None)
+
+            def on_split(name: str, n_frames: int) -> None:
+                progress.update(task, description=f"scoring {name}", total=n_frames,
+                                completed=0)
+
+            result = evaluate_segmentation(
+                model, data, split or ["test"], fps_seconds, device, threads,
+                on_frame=lambda _: progress.advance(task), height_bin_m=height_bin_m,
+                by_object=by_object, on_split=on_split)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

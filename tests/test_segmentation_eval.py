@@ -280,7 +280,7 @@ def test_packaged_default_model_on_the_bundled_samples():
     scores = score_frames(segmenter.segment, frames)
     assert len(frames) == 5 and scores.miou >= SAMPLES_MIOU_AT_LEAST
     line = default_model.describe(segmenter)
-    assert f"held-out mIoU {100 * sidecar['heldout']['miou']:.1f} %" in line
+    assert f"held-out mIoU {100 * sidecar['heldout']['miou']:.2f} %" in line
     assert ("below the 95 % target" in line) != sidecar["meets_target"]
 
 

@@ -299,13 +299,14 @@ def evaluate_segmentation(
     model_path: str | Path, data_dirs: Sequence[str | Path], splits: Sequence[str] = ("test",),
     fps_seconds: float = 2.0, device: str = "cpu", threads: int | None = None,
     on_frame: Callable[[int], None] | None = None, height_bin_m: float = 10.0,
-    by_object: bool = False,
+    by_object: bool = False, on_split: Callable[[str, int], None] | None = None,
 ) -> SegmentationEvaluation:
     """Score a model on each split of the datasets, also per drone height (bins of
     ``height_bin_m``; 0: no breakdown), per object (``by_object``: needs the datasets'
     ``instances/``; :mod:`harborsight.evaluation.objects`), and time it (``fps_seconds <= 0``:
     no timing). The resolution is the network's input: the ONNX model's fixed size, or the
-    frames' most common size for a checkpoint."""
+    frames' most common size for a checkpoint. ``on_split(split, n_frames)`` is called when a
+    split's frames are read and checked, before they are scored (``on_frame`` per frame)."""
     from harborsight.training.dataset import SegmentationFrames
 
     loaded = load_segmenter(model_path, device, threads)
@@ -313,6 +314,8 @@ def evaluate_segmentation(
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])
         skipped = frames.drop_unreadable(instances=by_object)
+        if on_split is not None:
+            on_split(split, len(frames))
         sizes.append(frames.common_size_hw())
         heights = height_bins_m(frames.records, height_bin_m) if height_bin_m > 0 else None
         objects: list[ObjectRecall] = []

@@ -78,7 +78,7 @@ def describe(segmenter: OnnxSegmenter) -> str:
         parts.append(f"({', '.join(filter(None, (network, sidecar.get('precision'))))})")
     heldout = sidecar.get("heldout")
     if heldout:
-        parts.append(f"held-out mIoU {100 * heldout['miou']:.1f} % on {heldout['frames']} "
+        parts.append(f"held-out mIoU {100 * heldout['miou']:.2f} % on {heldout['frames']} "
                      "synthetic frames")
         if sidecar.get("meets_target") is False:
             parts.append(f"[below the {100 * sidecar['target_miou']:.0f} % target: "
