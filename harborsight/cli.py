@@ -112,7 +112,8 @@ def _segmenter(model: Path | None):
 
 def _run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
-                model: Path | None = None) -> int:
+                model: Path | None = None, strict: bool = False) -> int:
+    """Measure a folder; exit code 1 if every frame failed (``strict``: if any did)."""
     from harborsight.pipeline import discover_jobs, run_batch
 
     jobs = discover_jobs(folder, masks, segment=model is not None)
@@ -127,12 +128,12 @@ def _run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     if show_tables:
         for outcome in good:
             print_report_table(outcome)
-    console.print(f"[green]{len(good)} frame(s) measured[/]; reports and overlays in {out}/")
+    console.print(f"[green]{len(good)} frame(s) measured[/]; reports and overlays in {escape(str(out))}/")
     if bad:
         err_console.print(f"[red]{len(bad)} frame(s) skipped:[/]")
         for outcome in bad:
             err_console.print(f"  {outcome.job.stem}: {outcome.error}", markup=False)
-    return 1 if bad and not good else 0
+    return 1 if bad and (strict or not good) else 0
 
 
 @app.command()
@@ -202,7 +203,8 @@ def measure(
         raise typer.Exit(2) from None
     if tables:
         print_report_table(outcome)
-    console.print(f"report: {outcome.report_path}\noverlay: {outcome.overlay_path}")
+    console.print(f"report: {outcome.report_path}\noverlay: {outcome.overlay_path}",
+                  markup=False, highlight=False)
 
 
 def _run_flight_with_progress(source, out: Path, vessels, segmenter, options, inputs: dict):
@@ -312,7 +314,7 @@ def run_command(
         console.print(f"{summary.without_metadata} video frame(s) had no metadata line "
                       "(in the video, not measured)")
     for name, path in summary.outputs.items():
-        console.print(f"  {name}: {path}")
+        console.print(f"  {name}: {path}", markup=False, highlight=False)
     if summary.skipped:
         err_console.print(f"[red]{len(summary.skipped)} frame(s) skipped[/] (also in "
                           f"{out / 'run.json'}):")
@@ -339,16 +341,28 @@ def demo(
     """Measure the bundled sample frames against their exact ground truth, then run the
     bundled 24 s berthing flight (annotated video, distances and closing speeds over time),
     on the exact labels and, if one is packaged, on the default segmentation model."""
-    from harborsight.flight import FolderSource, RunOptions
-    from harborsight.perception.default_model import default_model_path
-    from harborsight.pipeline import VesselCache
-
     samples = _bundled_samples()
     console.print(f"[bold]harborsight demo[/]: {samples}\n"
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
+    try:
+        code = _demo_runs(samples, out, method)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    raise typer.Exit(code)
+
+
+def _demo_runs(samples: Path, out: Path, method: Method) -> int:
+    """The demo's three runs; exit code 1 if any bundled frame was skipped (a defect: the
+    bundled data are all good)."""
+    from harborsight.flight import FolderSource, RunOptions
+    from harborsight.perception.default_model import default_model_path
+    from harborsight.pipeline import VesselCache
+
     settings = _settings(method, None, None, POSE_MARGIN_PX, OWN_RIM_PX)
-    code = _run_folder(samples, None, VesselCache(), settings, out / "frames", None, True)
+    code = _run_folder(samples, None, VesselCache(), settings, out / "frames", None, True,
+                       strict=True)
     flight = samples / "flight"
     console.print(f"\n[bold]flight[/]: {flight} (the tug berthing at "
                   f"{_flight_speed(flight)} m/s, 0.5 s between frames)")
@@ -369,7 +383,7 @@ def demo(
         failed = failed or bool(summary.skipped)
     else:
         console.print("\nno default segmentation model is packaged: the flight ran on labels only")
-    raise typer.Exit(code or (1 if failed else 0))
+    return code or (1 if failed else 0)
 
 
 def _print_demo_flight(flight: Path, out: Path, summary) -> None:
@@ -386,7 +400,7 @@ def _print_demo_flight(flight: Path, out: Path, summary) -> None:
             f"{comparison.measured_mps:.3f} m/s, true {comparison.true_mps:.3f} m/s "
             f"(median over {comparison.samples} frames; true from the ground-truth distances)")
     for name, path in summary.outputs.items():
-        console.print(f"  {name}: {path}")
+        console.print(f"  {name}: {path}", markup=False, highlight=False)
 
 
 def _flight_speed(flight: Path) -> str:
@@ -415,7 +429,8 @@ def make_samples(
         raise typer.Exit(2) from None
     console.print(f"wrote {len(stems)} frames to {out}/ and a flight of "
                   f"{len(list((flight / 'frames').glob('*.json')))} frames to {flight}/ "
-                  f"({json.loads((out / 'dataset.json').read_text())['generator']})")
+                  f"({json.loads((out / 'dataset.json').read_text())['generator']})",
+                  markup=False, highlight=False)
 
 
 @app.command()
@@ -520,7 +535,8 @@ def simulate(
             def on_frame(result) -> None:
                 progress.advance(task)
                 if result.error:
-                    err_console.print(f"[red]frame {result.index:06d} failed:[/] {result.error}")
+                    err_console.print(f"[red]frame {result.index:06d} failed:[/] "
+                                      f"{escape(result.error or '')}")
                 else:
                     progress.update(task, status=f"{result.seconds:.1f} s/frame")
 
@@ -555,9 +571,19 @@ def contact_sheet_command(
         err_console.print(f"error: {dataset / 'frames'}: no frames", markup=False)
         raise typer.Exit(2)
     sheet = contact_sheet(dataset, stems, columns, tile_width)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(out), sheet)
-    console.print(f"wrote {out} ({len(stems)} frames, {sheet.shape[1]}x{sheet.shape[0]} px)")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        written = cv2.imwrite(str(out), sheet)
+    except (OSError, cv2.error) as exc:
+        written, why = False, str(exc).strip().splitlines()[-1]
+    else:
+        why = "OpenCV could not write it (a folder that cannot be written?)"
+    if not written:
+        err_console.print(f"error: {out}: {why}; give a writable .png path", markup=False,
+                          highlight=False)
+        raise typer.Exit(2)
+    console.print(f"wrote {out} ({len(stems)} frames, {sheet.shape[1]}x{sheet.shape[0]} px)",
+                  markup=False, highlight=False)
 
 
 def _need_torch() -> None:
@@ -709,7 +735,8 @@ def average_weights(
     save_checkpoint(out, payload)
     shares = ", ".join(f"{source['weight']:.3g} × {source['path']} (iteration "
                        f"{source['iteration']})" for source in payload["averaged_from"])
-    console.print(f"averaged {payload['network']}: {shares}\ncheckpoint: {out}")
+    console.print(f"averaged {payload['network']}: {shares}\ncheckpoint: {out}", markup=False,
+                  highlight=False)
 
 
 telemetry_app = typer.Typer(
@@ -1146,8 +1173,11 @@ def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: l
                     continue
                 out_dir.mkdir(parents=True, exist_ok=True)
                 name = f"{masks_name.replace(':', '-')}-{method}-{rank:02d}-{stem}.png"
-                cv2.imwrite(str(out_dir / name), panel)
-                written += 1
+                if cv2.imwrite(str(out_dir / name), panel):
+                    written += 1
+                else:
+                    skipped.append((stem, f"worst-frame picture: {out_dir / name} could not "
+                                          "be written"))
     return written
 
 
