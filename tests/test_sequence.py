@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import shapely
 
+from harborsight.errors import InputError
 from harborsight.evaluation.closing import compare_closing_speeds
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.sim.dataset import SimulationConfig, plan_frame, simulate, split_of
@@ -155,8 +156,19 @@ def test_closing_speed_truth_stays_within_each_scene(tmp_path):
         (d0, speed), frame = scenes[index // 5], index % 5
         rows.append({"image": image, "section": 0, "distance_m": d0 - speed * 0.5 * frame,
                      "closing_speed_mps": speed})
+        rows.append({"image": image, "section": 1, "distance_m": 50.0, "closing_speed_mps": ""})
     comparison = compare_closing_speeds(tmp_path, _sections_csv(tmp_path / "s.csv", rows))
     assert comparison.samples == 6 and comparison.median_abs_error_mps == pytest.approx(0.0)
+
+
+def test_closing_speeds_of_a_run_with_other_sections_are_refused(tmp_path):
+    """A run made with --sections 3 would be compared section by section against a truth
+    of 2: refused, naming the CSV (it used to compare the wrong sections)."""
+    images = _synthetic_flight(tmp_path, [(10.0, 0.4)])
+    rows = [{"image": image, "section": k, "distance_m": 10.0, "closing_speed_mps": 0.4}
+            for image in images for k in range(3)]
+    with pytest.raises(InputError, match=r"s\.csv: section: 000000\.png: the run measured 3"):
+        compare_closing_speeds(tmp_path, _sections_csv(tmp_path / "s.csv", rows))
 
 
 def test_closing_speed_is_compared_for_the_closest_section_only(tmp_path):

@@ -17,6 +17,8 @@ import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
+from harborsight.errors import InputError
+
 
 @dataclass(frozen=True)
 class ClosingSpeedComparison:
@@ -27,13 +29,17 @@ class ClosingSpeedComparison:
 
 
 def _ground_truth(frames_dir: Path) -> dict[str, dict]:
-    """image name -> that frame's ground truth (frames without a sequence are left out)."""
+    """image name -> that frame's ground truth (frames without a sequence, or whose JSON
+    cannot be read, are left out: the run reports those)."""
     truth = {}
     for path in sorted(frames_dir.glob("*.json")):
-        meta = json.loads(path.read_text())
-        gt = meta.get("ground_truth") or {}
-        if "sequence" in gt:
-            truth[meta["image"]] = gt
+        try:
+            meta = json.loads(path.read_text())
+            gt = meta.get("ground_truth") or {}
+            if "sequence" in gt and isinstance(gt.get("sections"), list):
+                truth[str(meta["image"])] = gt
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            continue
     return truth
 
 
@@ -49,8 +55,18 @@ def compare_closing_speeds(flight_dir: Path, sections_csv: Path) -> ClosingSpeed
 
     by_key = {scene_and_frame(image): image for image in truth}
     closest: dict[str, dict] = {}
-    for row in csv.DictReader(sections_csv.open()):
-        if row["distance_m"] and row["image"] in truth:
+    with sections_csv.open(newline="") as handle:
+        rows = [row for row in csv.DictReader(handle) if row.get("image") in truth]
+    sections_of: dict[str, int] = {}
+    for row in rows:
+        sections_of[row["image"]] = sections_of.get(row["image"], 0) + 1
+    for image, n in sections_of.items():
+        if n != len(truth[image]["sections"]):
+            raise InputError(sections_csv, "section", f"{image}: the run measured {n} sections, "
+                             f"its ground truth has {len(truth[image]['sections'])}: compare "
+                             "a run made with the vessel spec's own sections")
+    for row in rows:
+        if row["distance_m"]:
             best = closest.get(row["image"])
             if best is None or float(row["distance_m"]) < float(best["distance_m"]):
                 closest[row["image"]] = row
