@@ -162,10 +162,14 @@ def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
     assert (out / "timeline.png").stat().st_size > 10_000
 
 
-def _run_with_frame_2_edited(tmp_path: Path, edit) -> tuple:
-    """`run` over the timed samples with frame 2's JSON changed by ``edit``; (result, out)."""
+def _run_with_a_frame_edited(tmp_path: Path, edit, frame: str = "000002",
+                             prepare=None) -> tuple:
+    """`run` over the timed samples with ``frame``'s JSON changed by ``edit`` (after
+    ``prepare(dataset folder)``, if given); (result, out)."""
     data = _timed_copy_of_samples(tmp_path)
-    path = data / "frames" / "000002.json"
+    if prepare is not None:
+        prepare(data)
+    path = data / "frames" / f"{frame}.json"
     meta = json.loads(path.read_text())
     edit(meta)
     path.write_text(json.dumps(meta))
@@ -184,7 +188,7 @@ def _run_with_frame_2_edited(tmp_path: Path, edit) -> tuple:
 def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
     """Fields of the wrong type (not only missing or out of range) skip that frame only:
     the run finishes and writes run.json, the timeline and the video."""
-    _, out = _run_with_frame_2_edited(tmp_path, edit)
+    _, out = _run_with_a_frame_edited(tmp_path, edit)
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 4
     [skipped] = record["skipped_frames"]
@@ -196,7 +200,7 @@ def test_run_skips_a_frame_whatever_its_field_holds(tmp_path, edit, field):
 def test_a_frame_without_a_time_is_measured_without_a_speed(tmp_path):
     """The run is timed by timestamps (its first frame has one); frame 2 has none. (A
     malformed timestamp is a malformed frame file: skipped with the field named.)"""
-    result, out = _run_with_frame_2_edited(tmp_path, lambda meta: meta.pop("timestamp"))
+    result, out = _run_with_a_frame_edited(tmp_path, lambda meta: meta.pop("timestamp"))
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 5 and record["skipped_frames"] == []
     [warning] = record["warnings"]
@@ -269,15 +273,8 @@ def test_a_report_that_cannot_be_written_skips_only_its_frame(tmp_path):
     """Frame 1's image key is a valid string but no valid file name (too long): its report
     cannot be written, so it is skipped like a bad input, with nothing of it in the CSV; the
     frames after it are measured."""
-    data = _timed_copy_of_samples(tmp_path)
-    path = data / "frames" / "000001.json"
-    meta = json.loads(path.read_text())
-    meta["image"] = "x" * 300 + ".png"
-    path.write_text(json.dumps(meta))
-    out = tmp_path / "out"
-    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
-                                 "--out", str(out)], terminal_width=200)
-    assert result.exit_code == 0, result.output
+    _, out = _run_with_a_frame_edited(tmp_path, lambda m: m.update(image="x" * 300 + ".png"),
+                                      frame="000001")
     record = json.loads((out / "run.json").read_text())
     assert record["completed"] is True and record["measured"] == 4
     [skipped] = record["skipped_frames"]
@@ -304,15 +301,8 @@ def test_a_video_that_cannot_be_written_is_a_warning(tmp_path):
 
 def test_closing_speeds_when_the_first_frame_has_no_timestamp(tmp_path):
     """Before, the untimed first frame fixed the run's clock to "none": no speeds at all."""
-    data = _timed_copy_of_samples(tmp_path)
-    path = data / "frames" / "000000.json"
-    meta = json.loads(path.read_text())
-    meta.pop("timestamp")
-    path.write_text(json.dumps(meta))
-    out = tmp_path / "out"
-    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
-                                 "--out", str(out)], terminal_width=200)
-    assert result.exit_code == 0, result.output
+    _, out = _run_with_a_frame_edited(tmp_path, lambda meta: meta.pop("timestamp"),
+                                      frame="000000")
     rows = list(csv.DictReader((out / "sections.csv").open()))
     assert {r["time_s"] for r in rows if r["frame"] == "0"} == {""}
     assert {r["time_s"] for r in rows if r["frame"] != "0"} == {"0.0", "0.5", "1.0", "1.5"}
@@ -322,17 +312,14 @@ def test_closing_speeds_when_the_first_frame_has_no_timestamp(tmp_path):
 def test_a_skipped_frame_found_by_its_image_key_stays_in_the_video(tmp_path):
     """The image is named only by the (otherwise broken) frame JSON: the frame is skipped,
     but its picture keeps its place in the video."""
-    data = _timed_copy_of_samples(tmp_path)
-    (data / "images" / "000002.png").rename(data / "images" / "cam_2.png")
-    path = data / "frames" / "000002.json"
-    meta = json.loads(path.read_text())
-    meta["image"] = "cam_2.png"
-    del meta["uav"]["alt_m"]
-    path.write_text(json.dumps(meta))
-    out = tmp_path / "out"
-    result = runner.invoke(app, ["run", str(data), "--masks", str(data / "labels"),
-                                 "--out", str(out)], terminal_width=200)
-    assert result.exit_code == 0, result.output
+    def rename_image(data: Path) -> None:
+        (data / "images" / "000002.png").rename(data / "images" / "cam_2.png")
+
+    def edit(meta: dict) -> None:
+        meta["image"] = "cam_2.png"
+        del meta["uav"]["alt_m"]
+
+    _, out = _run_with_a_frame_edited(tmp_path, edit, prepare=rename_image)
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 4 and [s["frame"] for s in record["skipped_frames"]] == [2]
     assert _video_frame_count(out / "annotated.mp4") == 5
