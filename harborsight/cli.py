@@ -19,6 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import write_image
 
 if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
     from harborsight.clearance.measure import ClearanceSettings
@@ -536,7 +537,7 @@ def simulate(
                 progress.advance(task)
                 if result.error:
                     err_console.print(f"[red]frame {result.index:06d} failed:[/] "
-                                      f"{escape(result.error or '')}")
+                                      f"{escape(result.error)}")
                 else:
                     progress.update(task, status=f"{result.seconds:.1f} s/frame")
 
@@ -573,14 +574,13 @@ def contact_sheet_command(
     sheet = contact_sheet(dataset, stems, columns, tile_width)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        written = cv2.imwrite(str(out), sheet)
-    except (OSError, cv2.error) as exc:
-        written, why = False, str(exc).strip().splitlines()[-1]
-    else:
-        why = "OpenCV could not write it (a folder that cannot be written?)"
-    if not written:
-        err_console.print(f"error: {out}: {why}; give a writable .png path", markup=False,
+    except OSError as exc:
+        err_console.print(f"error: {out.parent}: {exc.strerror or exc}", markup=False,
                           highlight=False)
+        raise typer.Exit(2) from None
+    if not write_image(out, sheet):
+        err_console.print(f"error: {out}: could not be written (a folder that cannot be "
+                          "written, or not a .png/.jpg name)", markup=False, highlight=False)
         raise typer.Exit(2)
     console.print(f"wrote {out} ({len(stems)} frames, {sheet.shape[1]}x{sheet.shape[0]} px)",
                   markup=False, highlight=False)
@@ -1173,7 +1173,7 @@ def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: l
                     continue
                 out_dir.mkdir(parents=True, exist_ok=True)
                 name = f"{masks_name.replace(':', '-')}-{method}-{rank:02d}-{stem}.png"
-                if cv2.imwrite(str(out_dir / name), panel):
+                if write_image(out_dir / name, panel):
                     written += 1
                 else:
                     skipped.append((stem, f"worst-frame picture: {out_dir / name} could not "

@@ -26,3 +26,14 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
 def write_text_atomic(path: str | Path, text: str) -> None:
     """:func:`write_bytes_atomic` of UTF-8 text."""
     write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def write_image(path: str | Path, image) -> bool:
+    """``cv2.imwrite`` that says whether the picture was written: False for a folder that
+    cannot be written and for a name OpenCV has no encoder for (where it raises)."""
+    import cv2
+
+    try:
+        return bool(cv2.imwrite(str(path), image))
+    except cv2.error:
+        return False

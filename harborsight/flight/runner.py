@@ -42,7 +42,7 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import write_text_atomic
+from harborsight.files import write_image, write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels
@@ -292,11 +292,7 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
         draw_banner(annotated, "measured; overlay could not be drawn", GREY)
     if options.overlays:
         overlay_path = overlays_dir / f"{stem}.png"
-        try:
-            written = cv2.imwrite(str(overlay_path), annotated)
-        except cv2.error:
-            written = False
-        if not written:
+        if not write_image(overlay_path, annotated):
             warnings.append(f"{frame.source}: overlay {overlay_path} could not be written")
     summary.measured += 1
     summary.warnings.extend({"frame": frame.index, "source": frame.source, "warning": w}

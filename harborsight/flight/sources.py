@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.flight.timeline import iso_seconds
+from harborsight.flight.timeline import iso_seconds, timestamp_seconds
 from harborsight.frame import FrameMetadata, load_frame_metadata, parse_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.pipeline import (
@@ -251,9 +251,11 @@ def plausible_fps(value: float | None) -> float | None:
 
 
 def _meta_timestamp_s(entry: FrameMetadata | str) -> float | None:
-    if isinstance(entry, str) or entry.timestamp is None:
+    """A metadata line's timestamp in seconds; None for a line in error or a bad time (the
+    frame's own measurement reports those)."""
+    if isinstance(entry, str):
         return None
     try:
-        return iso_seconds(entry.timestamp)
-    except ValueError:
+        return timestamp_seconds(entry)
+    except InputError:
         return None

@@ -173,10 +173,10 @@ def read_px4_ulog(path: str | Path) -> Track:
     else:                                       # older messages: 1e-7 deg and mm
         lat, lon = gps["lat"].astype(float) * 1e-7, gps["lon"].astype(float) * 1e-7
         alt = gps["alt"].astype(float) * 1e-3
-    alt, alt_reference = _estimator_altitude(t_s, alt, *_px4_estimator_altitude(datasets),
-                                             notes)
     if not good.any():
         raise InputError(path, "fix_type", "the log has no GPS sample with a 3-D fix")
+    alt, alt_reference = _estimator_altitude(t_s, alt, *_px4_estimator_altitude(datasets),
+                                             notes)
     utc_start = None
     if "time_utc_usec" in gps:
         utc_us = gps["time_utc_usec"].astype(float)
