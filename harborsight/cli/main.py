@@ -1,4 +1,5 @@
-"""The ``harborsight`` command line: thin wrappers over the library."""
+"""The ``harborsight`` app and its original commands (measure, run, demo, simulate, train,
+evaluate, export, telemetry, ...): thin wrappers over the library."""
 
 from __future__ import annotations
 
@@ -1229,6 +1230,3 @@ def main() -> None:
         err_console.print(f"error: {exc}", markup=False)
         raise SystemExit(2) from None
 
-
-if __name__ == "__main__":
-    main()

@@ -1,0 +1,10 @@
+"""The ``harborsight`` command line: thin wrappers over the library.
+
+``main`` holds the app and the measurement, flight, simulator, training and evaluation
+commands; each newer command group lives in a module of its own that registers itself on
+the app when this package is imported.
+"""
+
+from harborsight.cli.main import OWN_RIM_PX, app, console, err_console, main
+
+__all__ = ["OWN_RIM_PX", "app", "console", "err_console", "main"]

@@ -1,0 +1,3 @@
+from harborsight.cli import main
+
+main()
