@@ -8,3 +8,8 @@ the app when this package is imported.
 from harborsight.cli.main import OWN_RIM_PX, app, console, err_console, main
 
 __all__ = ["OWN_RIM_PX", "app", "console", "err_console", "main"]
+
+from harborsight.cli import (
+    dataset,  # noqa: F401
+    segment,  # noqa: F401
+)

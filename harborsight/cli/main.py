@@ -21,6 +21,7 @@ from rich.table import Table
 
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import write_image
+from harborsight.perception.segment_images import SegmentMode
 
 if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
     from harborsight.clearance.measure import ClearanceSettings
@@ -943,9 +944,10 @@ def evaluate_callback() -> None:
 
 @evaluate_app.command("segmentation")
 def evaluate_segmentation_command(
-    model: Annotated[Path, typer.Option(help="A torch checkpoint (.pt) or an ONNX model (.onnx).")],
     data: Annotated[list[Path], typer.Option(
         help="Dataset folder (dataset.json, images/, labels/); repeat for several.")],
+    model: Annotated[Path | None, typer.Option(
+        help="A torch checkpoint (.pt) or an ONNX model (.onnx); or give --predictions.")] = None,
     split: Annotated[list[str] | None, typer.Option(
         help="Split(s) to score, one table row each [test].")] = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Write the metrics as JSON.")
@@ -961,11 +963,32 @@ def evaluate_segmentation_command(
     by_object: Annotated[bool, typer.Option(
         help="Also score every object on its own (instances/ masks): the share of its pixels "
         "taken for solid, per kind (simulator datasets) and per size in pixels.")] = False,
+    mode: Annotated[SegmentMode, typer.Option(
+        help="How an ONNX model meets frames of another size than its input: resize (stretch "
+        "into the input) or tiles (overlapping windows blended), as in harborsight segment "
+        "(see its --help); tiles needs an ONNX model.")] = SegmentMode.resize,
+    tile_overlap: Annotated[float | None, typer.Option(
+        min=0.0, max=0.9, show_default=False,
+        help="tiles: overlap of neighbouring windows, a fraction of a window [0.25].")] = None,
+    tile_scale: Annotated[float | None, typer.Option(
+        min=0.01, max=16.0, show_default=False,
+        help="tiles: scale each frame by this factor before cutting windows [1.0].")] = None,
+    max_side: Annotated[int | None, typer.Option(
+        min=1, show_default=False,
+        help="tiles: and at most this many pixels on the scaled frame's longer side.")] = None,
+    predictions: Annotated[Path | None, typer.Option(
+        help="Score the masks in this folder (<stem>.png, e.g. from harborsight segment) "
+        "instead of running a model; a frame whose mask is missing or of another size is "
+        "listed and skipped.")] = None,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
     from harborsight.evaluation.segmentation import evaluate_segmentation
+    from harborsight.perception.segment_images import SegmentOptions
 
     try:
+        if (model is None) == (predictions is None):
+            raise InputError(None, "--model", "give either --model or --predictions")
+        options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), console=console, transient=True) as progress:
             task = progress.add_task("reading frames", total=None)
@@ -977,13 +1000,16 @@ def evaluate_segmentation_command(
             result = evaluate_segmentation(
                 model, data, split or ["test"], fps_seconds, device, threads,
                 on_frame=lambda _: progress.advance(task), height_bin_m=height_bin_m,
-                by_object=by_object, on_split=on_split)
+                by_object=by_object, on_split=on_split, options=options,
+                predictions=predictions)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    console.print(_scores_table(
-        f"{result.model.network} ({result.model.kind}): {model}", "split",
-        [(row.split, row.frames, row.scores) for row in result.rows]))
+    how = f"; mode {options.describe()}" if result.model.kind == "onnx" else ""
+    source = (f"{result.model.network} ({result.model.kind}{how}): {model}"
+              if predictions is None else f"masks in {predictions}")
+    console.print(_scores_table(source, "split",
+                                [(row.split, row.frames, row.scores) for row in result.rows]))
     for row in result.rows:
         if row.by_height_m:
             console.print(_scores_table(
@@ -1001,8 +1027,9 @@ def evaluate_segmentation_command(
         for _, error in row.skipped:
             err_console.print(f"[red]skipped[/] ({row.split}) {escape(error)}", highlight=False)
     w, h = result.resolution_wh
-    console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
-                  f"{result.model.params or 0:,} parameters")
+    if predictions is None:
+        console.print(f"speed {_fmt(result.fps, 2)} FPS at {w}x{h}, "
+                      f"{result.model.params or 0:,} parameters")
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")

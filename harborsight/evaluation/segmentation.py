@@ -24,6 +24,7 @@ from collections import Counter
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from harborsight.evaluation.objects import (
     summarise_objects,
 )
 from harborsight.perception.classes import CLASS_NAMES, IGNORE, NUM_CLASSES, OBSTACLE, SHIP, WATER
+
+if TYPE_CHECKING:
+    from harborsight.perception.segment_images import SegmentOptions
 
 #: Table II's IoU columns: (header, class id), in the paper's order.
 TABLE_IOU_COLUMNS = (("Obstacle", OBSTACLE), ("Water", WATER), ("Ship", SHIP))
@@ -260,12 +264,15 @@ class SegmentationEvaluation:
     rows: list[SplitEvaluation]
     fps: float | None
     resolution_wh: tuple[int, int]
+    #: how the frames were segmented (SegmentOptions.to_dict, or the predictions folder)
+    mode: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
             "schema": "harborsight.segmentation-evaluation/1",
             "model": str(self.model.path), "kind": self.model.kind, "network": self.model.network,
             "params": self.model.params, "data": [str(d) for d in self.data_dirs],
+            "mode": self.mode or None,
             "fps": self.fps, "resolution_wh": list(self.resolution_wh),
             "mean_accuracy_definition": "mean over classes of per-class pixel accuracy (recall)",
             "splits": {r.split: {"frames": r.frames, **r.scores.to_dict(), "by_height_m": [
@@ -300,20 +307,54 @@ def evaluate_segmentation(
     fps_seconds: float = 2.0, device: str = "cpu", threads: int | None = None,
     on_frame: Callable[[int], None] | None = None, height_bin_m: float = 10.0,
     by_object: bool = False, on_split: Callable[[str, int], None] | None = None,
+    options: SegmentOptions | None = None, predictions: str | Path | None = None,
 ) -> SegmentationEvaluation:
     """Score a model on each split of the datasets, also per drone height (bins of
     ``height_bin_m``; 0: no breakdown), per object (``by_object``: needs the datasets'
     ``instances/``; :mod:`harborsight.evaluation.objects`), and time it (``fps_seconds <= 0``:
     no timing). The resolution is the network's input: the ONNX model's fixed size, or the
     frames' most common size for a checkpoint. ``on_split(split, n_frames)`` is called when a
-    split's frames are read and checked, before they are scored (``on_frame`` per frame)."""
+    split's frames are read and checked, before they are scored (``on_frame`` per frame).
+
+    ``options``: how an ONNX model meets frames of another size
+    (:mod:`harborsight.perception.segment_images`; ``tiles`` needs an ONNX model). With
+    ``predictions`` (a folder; ``model_path`` None) no model runs: ``<predictions>/<stem>.png``
+    is scored as frame ``<stem>``'s labels, and a frame whose prediction is missing,
+    unreadable, of another size or with values outside the classes is left out as skipped."""
+    from harborsight.perception.segment_images import SegmentOptions, segment_function
     from harborsight.training.dataset import SegmentationFrames
 
-    loaded = load_segmenter(model_path, device, threads)
+    options = options or SegmentOptions()
+    if predictions is not None:
+        if model_path is not None or options.mode != "resize":
+            raise InputError(predictions, "--predictions", "scores written masks: give no "
+                             "--model and no --mode tiles with it")
+        predictions = Path(predictions)
+        if not predictions.is_dir():
+            raise InputError(predictions, "--predictions", "folder not found")
+        loaded = LoadedSegmenter(predictions, "predictions", "predictions", lambda image: image,
+                                 None, None)
+        mode = {"mode": "predictions", "predictions": str(predictions)}
+    else:
+        loaded = load_segmenter(model_path, device, threads)
+        if options.mode == "tiles":
+            if loaded.kind != "onnx":
+                raise InputError(model_path, "--mode", "tiles needs an ONNX model (a fixed "
+                                 "input size to cut the windows to)")
+            from harborsight.perception.default_model import load_onnx_segmenter
+
+            loaded.segment = segment_function(load_onnx_segmenter(loaded.path, threads), options)
+        # a checkpoint runs at each frame's own size (TorchSegmenter pads inside)
+        mode = options.to_dict() if loaded.kind == "onnx" else {"mode": "frame size"}
     rows, sizes = [], []
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])
         skipped = frames.drop_unreadable(instances=by_object)
+        segment, scored = loaded.segment, frames
+        if predictions is not None:
+            skipped += _drop_missing_predictions(frames, predictions)
+            scored = _PredictedFrames(frames, predictions)
+            segment = scored.prediction
         if on_split is not None:
             on_split(split, len(frames))
         sizes.append(frames.common_size_hw())
@@ -331,7 +372,7 @@ def evaluate_segmentation(
                                           frames.instances(i, labels.shape),
                                           kinds(record.stem) if kinds else None))
 
-        total, by_height = score_frames_grouped(loaded.segment, frames, heights, on_frame,
+        total, by_height = score_frames_grouped(segment, scored, heights, on_frame,
                                                 score_objects if by_object else None)
         counts = Counter(h for h in heights or [] if h is not None)
         rows.append(SplitEvaluation(split, len(frames), total,
@@ -340,12 +381,70 @@ def evaluate_segmentation(
                                     sum(h is None for h in heights) if heights else 0))
     frame_hw = max(set(sizes), key=sizes.count)
     fps = None
-    if fps_seconds > 0:
+    if fps_seconds > 0 and predictions is None:
         image = np.random.default_rng(0).integers(0, 256, (*frame_hw, 3), dtype=np.uint8)
         fps = frames_per_second(loaded.segment, image, min_seconds=fps_seconds)
     net_hw = loaded.input_hw or frame_hw
     return SegmentationEvaluation(loaded, [Path(d) for d in data_dirs], rows, fps,
-                                  (net_hw[1], net_hw[0]))
+                                  (net_hw[1], net_hw[0]), mode)
+
+
+def _drop_missing_predictions(frames, folder: Path) -> list[tuple[str, str]]:
+    """Leave out of ``frames`` (a SegmentationFrames) each frame without a usable
+    ``folder/<stem>.png``: missing, unreadable, of another size than the frame, with values
+    outside the classes, or a stem that several datasets share (the file would be ambiguous).
+    Returns ``(path, reason)`` of each; none usable is an :class:`InputError`."""
+    from harborsight.pipeline import read_mask
+    from harborsight.training.dataset import _image_size_hw
+
+    stems = Counter(record.stem for record in frames.records)
+    kept, dropped = [], []
+    for record in frames.records:
+        path = folder / f"{record.stem}.png"
+        try:
+            if stems[record.stem] > 1:
+                raise InputError(path, "--predictions", f"frame {record.stem!r} is in several "
+                                 "datasets; one prediction file cannot stand for each")
+            predicted = read_mask(path)
+            frame_hw = _image_size_hw(record.image_path)
+            if predicted.shape != frame_hw:
+                raise InputError(path, "mask", f"size {predicted.shape[1]}x{predicted.shape[0]} "
+                                 f"differs from the frame's {frame_hw[1]}x{frame_hw[0]} "
+                                 f"({record.image_path})")
+            if predicted.dtype != np.uint8 or predicted.max(initial=0) >= NUM_CLASSES:
+                raise InputError(path, "mask", f"expected uint8 class ids 0..{NUM_CLASSES - 1}, "
+                                 f"got {predicted.dtype} up to {predicted.max(initial=0)}")
+        except InputError as exc:
+            dropped.append((str(path), str(exc)))
+        else:
+            kept.append(record)
+    if not kept:
+        raise InputError(folder, "--predictions", f"none of the {len(frames.records)} frame(s) "
+                         f"has a usable prediction; first: {dropped[0][1]}")
+    frames.records = kept
+    return dropped
+
+
+class _PredictedFrames(Sequence):
+    """``frames[i] -> (image, labels)`` that remembers ``i``: :func:`score_frames_grouped`
+    calls ``segment(image)`` right after taking frame ``i``, and :meth:`prediction` returns
+    that frame's ``folder/<stem>.png``."""
+
+    def __init__(self, frames, folder: Path) -> None:
+        self.frames, self.folder, self.index = frames, folder, -1
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, index: int):
+        item = self.frames[index]
+        self.index = index
+        return item
+
+    def prediction(self, image: np.ndarray) -> np.ndarray:
+        from harborsight.pipeline import read_mask
+
+        return read_mask(self.folder / f"{self.frames.records[self.index].stem}.png")
 
 
 def _percent(x: float) -> str:
