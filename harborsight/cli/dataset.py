@@ -1,0 +1,140 @@
+"""``harborsight dataset``: labelled datasets from annotation tools (a thin shell over
+:mod:`harborsight.datasets`)."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from harborsight.cli.main import app, console, err_console
+from harborsight.errors import HarborsightError
+
+dataset_app = typer.Typer(no_args_is_help=True, help="Labelled datasets: import annotations made "
+                          "with COCO, LabelMe, CVAT or YOLO tools.")
+app.add_typer(dataset_app, name="dataset")
+
+#: issues printed one per line; the rest are counted (all are in dataset.json)
+SHOWN_ISSUES = 20
+
+
+class Background(StrEnum):
+    water = "water"
+    ignore = "ignore"
+
+
+@dataset_app.callback()
+def dataset_callback() -> None:
+    """Labelled datasets: import annotations made with COCO, LabelMe, CVAT or YOLO tools into
+    harborsight's dataset layout (images/, labels/, dataset.json) for train and evaluate."""
+
+
+def _print_issues(title: str, style: str, issues: list) -> None:
+    if not issues:
+        return
+    err_console.print(f"[{style}]{len(issues)} {title}[/]" + (" (all in dataset.json)" if
+                                                                 len(issues) > SHOWN_ISSUES else ""))
+    for issue in issues[:SHOWN_ISSUES]:
+        err_console.print(f"  {issue}", markup=False, highlight=False)
+    if len(issues) > SHOWN_ISSUES:
+        err_console.print(f"  ... and {len(issues) - SHOWN_ISSUES} more", highlight=False)
+
+
+@dataset_app.command("import")
+def import_command(
+    sources: Annotated[list[Path], typer.Argument(
+        metavar="SOURCE...", show_default=False,
+        help="coco: instances JSON file(s). labelme: JSON files or folders of them. cvat: "
+        "annotations.xml file(s). yolo-seg: folder(s) of .txt label files.")],
+    fmt: Annotated[str, typer.Option(
+        "--format", "-f", show_default=False,
+        help="coco, labelme, cvat, yolo-seg (polygons) or yolo-boxes (refused: boxes are not "
+        "masks; see `harborsight dataset label-from-boxes`).")],
+    out: Annotated[Path, typer.Option(
+        show_default=False, help="Dataset folder to write: new or empty (or see --append).")],
+    images: Annotated[Path | None, typer.Option(
+        help="Folder the annotations' image names are relative to (default: coco, cvat: the "
+        "annotation file's folder, then images/ beside it; labelme: the JSON's folder; yolo: the "
+        "images folder mirroring labels/).")] = None,
+    classes: Annotated[Path | None, typer.Option(
+        help="yolo: class names, data.yaml/classes.yaml (names:) or classes.txt (default: found "
+        "beside the labels).")] = None,
+    map_: Annotated[list[str] | None, typer.Option(
+        "--map", help="NAME=CLASS: the annotations' class NAME (any letter case) is harborsight's "
+        "water, ship, obstacle or ignore (or 0, 1, 2, 255); repeat for each name. The names "
+        "water, ship, obstacle and ignore need none; any other name without one is an error.")
+    ] = None,
+    background: Annotated[Background, typer.Option(
+        help="Class of the pixels no annotation covers: water (0) or ignore (255).")
+    ] = Background.water,
+    split: Annotated[str | None, typer.Option(
+        help="Split of every imported frame: train, val or test (default: train).")] = None,
+    split_file: Annotated[Path | None, typer.Option(
+        help="CSV of stem,split lines giving each frame's split; every imported stem must be "
+        "listed.")] = None,
+    max_side: Annotated[int | None, typer.Option(
+        min=1, help="Shrink images whose longer side is larger to this many pixels (image "
+        "INTER_AREA, mask INTER_NEAREST_EXACT).")] = None,
+    append: Annotated[bool, typer.Option(
+        help="Add the frames to the dataset in --out (made by this command); a stem already "
+        "there is an error.")] = False,
+    keep_unlabelled: Annotated[bool, typer.Option(
+        help="Also import images without any annotated region (all background); by default "
+        "they are skipped and listed.")] = False,
+    progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
+) -> None:
+    """Import annotations into a dataset folder: images/<stem>.<ext>, labels/<stem>.png (0
+    water, 1 ship, 2 obstacle, 255 ignore) and dataset.json. Shapes are painted in order, a
+    later one over an earlier one (CVAT z_order first, then file order); a class mapped to
+    ignore paints 255 in its turn. Coordinates are continuous pixel positions (pixel (0, 0)
+    covers 0..1 x 0..1); parts of shapes outside the image are cut off and reported as
+    warnings. A frame whose image is missing or unreadable, whose annotation states another
+    size than its image's, or which has no annotated region is skipped and listed (also in
+    dataset.json); the others are imported. Exit code 0 if a frame was imported, 1 if none, 2
+    for a bad option or a class name without a harborsight class (nothing written)."""
+    from harborsight.datasets.classmap import TARGETS, parse_class_map
+    from harborsight.datasets.layout import ImportOptions, plan_import, run_import
+    from harborsight.errors import InputError
+
+    try:
+        if split is not None and split_file is not None:
+            raise InputError(None, "--split", "give --split or --split-file, not both")
+        options = ImportOptions(
+            format=fmt, sources=list(sources), out_dir=out, images_dir=images,
+            classes_path=classes, class_map=parse_class_map(map_ or []),
+            background=TARGETS[background.value], split=split or "train", split_file=split_file,
+            max_side=max_side, append=append, keep_unlabelled=keep_unlabelled)
+        plan = plan_import(options)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    with Progress(TextColumn("[bold]importing"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True,
+                  disable=not progress) as bar:
+        task = bar.add_task("frames", total=len(plan.frames))
+        result = run_import(plan, on_frame=lambda *_: bar.advance(task))
+    _print_issues("frame(s) or file(s) skipped:", "red", result.skipped)
+    _print_issues("warning(s) (frames imported):", "yellow", result.warnings)
+    if not result.splits:
+        err_console.print(f"no frame imported; nothing written to {out}", markup=False,
+                          highlight=False)
+        raise typer.Exit(1)
+    console.print(f"[green]{len(result.splits)} frame(s) imported[/] from {plan.options.format} "
+                  f"into {escape(str(out))}/", highlight=False)
+    table = Table()
+    table.add_column("split")
+    table.add_column("frames", justify="right")
+    for name, n in result.frames_per_split().items():
+        table.add_row(name, str(n))
+    console.print(table)
+    fractions = result.pixel_fractions()
+    console.print("pixels: " + ", ".join(f"{name} {100 * share:.1f}%" for name, share in
+                                         fractions.items()), highlight=False)
+    console.print(f"dataset: {out / 'dataset.json'}"
+                  + (f"; {len(result.skipped)} skipped" if result.skipped else ""),
+                  markup=False, highlight=False)
