@@ -138,3 +138,98 @@ def import_command(
     console.print(f"dataset: {out / 'dataset.json'}"
                   + (f"; {len(result.skipped)} skipped" if result.skipped else ""),
                   markup=False, highlight=False)
+
+
+@dataset_app.command("label-from-boxes")
+def label_from_boxes_command(
+    labels_dir: Annotated[Path, typer.Argument(
+        metavar="BOXES_DIR", show_default=False,
+        help="Folder of YOLO box files (class cx cy w h, normalised), one per image.")],
+    out: Annotated[Path, typer.Option(show_default=False, help="Dataset folder to write: new or empty.")],
+    images: Annotated[Path | None, typer.Option(
+        help="Folder of the images (default: the images folder mirroring labels/, or beside it).")
+    ] = None,
+    classes: Annotated[Path | None, typer.Option(
+        help="Class names: data.yaml/classes.yaml (names:) or classes.txt (default: found beside "
+        "the boxes).")] = None,
+    map_: Annotated[list[str] | None, typer.Option(
+        "--map", help="NAME=CLASS for each box class name: water, ship, obstacle or ignore. Boxes "
+        "of ship classes are cut out by GrabCut and become ship; everything solid that is not "
+        "in a ship box is obstacle; ignore boxes make their solid pixels 255.")] = None,
+    split: Annotated[str | None, typer.Option(help="Split of every frame (default: train).")] = None,
+    split_file: Annotated[Path | None, typer.Option(
+        help="CSV of stem,split lines; every labelled image must be listed.")] = None,
+    corrections: Annotated[Path | None, typer.Option(
+        help="YAML of the reviewer's corrections per image stem (polygons or boxes with a class, "
+        "optionally repainting only some classes; or exclude: reason). See "
+        "harborsight.datasets.box_dataset.")] = None,
+    max_side: Annotated[int | None, typer.Option(
+        min=16, help="Shrink larger images (and their masks) to this long side before writing.")
+    ] = None,
+    review: Annotated[Path | None, typer.Option(
+        help="Folder for the review sheets (default: OUT/review).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
+) -> None:
+    """Proposed label masks from boxes plus the image: water from texture and colour
+    (GrabCut), vessels cut out of their boxes, everything else solid is obstacle, and 255 on
+    unexplained islands in the water and along every class boundary. The reviewer's
+    corrections are applied on top; the masks before correction go to OUT/proposals/, the
+    reviewed ones to OUT/labels/, images (JPEG) to OUT/images/, review sheets (image |
+    proposal | reviewed) to OUT/review/ and dataset.json records the agreement between
+    proposals and reviewed masks. These are proposals: look at every review sheet. Exit code
+    0 if an image was labelled, 1 if none, 2 for a bad option or class name."""
+    from harborsight.datasets.box_dataset import read_corrections, write_box_dataset
+    from harborsight.datasets.classmap import (
+        find_class_names_file,
+        parse_class_map,
+        read_class_names,
+        read_split_file,
+    )
+    from harborsight.datasets.yolo import default_images_dir, read_yolo_boxes
+    from harborsight.errors import InputError
+    from harborsight.viz.review_sheet import review_sheets
+
+    try:
+        if split is not None and split_file is not None:
+            raise InputError(None, "--split", "give --split or --split-file, not both")
+        if not labels_dir.is_dir():
+            raise InputError(labels_dir, None, "boxes folder not found")
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise InputError(out, None, "exists and is not an empty folder: give a new one")
+        names_file = classes or find_class_names_file(labels_dir, labels_dir.parent)
+        if names_file is None:
+            raise InputError(labels_dir, "classes", "no class names found: give --classes")
+        images_dir = images or default_images_dir(labels_dir)
+        found, skipped = read_yolo_boxes(labels_dir, images_dir, read_class_names(names_file),
+                                         parse_class_map(map_ or []))
+        fixes = read_corrections(corrections) if corrections else None
+        stems = [item.image_path.stem for item in found]
+        if split_file is not None:
+            listed = read_split_file(split_file)
+            missing = [s for s in stems if s not in listed]
+            if missing:
+                raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
+                                 + ", ".join(missing[:10]))
+            splits = {s: listed[s] for s in stems}
+        else:
+            splits = dict.fromkeys(stems, split or "train")
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    with Progress(TextColumn("[bold]labelling"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True,
+                  disable=not progress) as bar:
+        task = bar.add_task("images", total=len(found))
+        result = write_box_dataset(found, out, splits, fixes, max_side,
+                                   on_image=lambda *_: bar.advance(task))
+    problems = [f"{file}: {reason}" for file, reason in [*skipped, *result.skipped]]
+    _print_issues("image(s) skipped:", "red", problems)
+    if not result.splits:
+        err_console.print(f"no image labelled; nothing usable in {out}", markup=False, highlight=False)
+        raise typer.Exit(1)
+    sheets = review_sheets(out, review or out / "review", sorted(result.splits))
+    agreement = list(result.agreement.values())
+    console.print(f"[green]{len(result.splits)} image(s) labelled[/] into {escape(str(out))}/; "
+                  f"proposal vs reviewed agreement {100 * sum(agreement) / len(agreement):.2f}% "
+                  f"(mean over images); {len(sheets)} review sheet(s) in "
+                  f"{escape(str(review or out / 'review'))}/", highlight=False)

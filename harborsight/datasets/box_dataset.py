@@ -1,0 +1,232 @@
+"""A labelled dataset from a box dataset: :func:`label_from_boxes` per image, the reviewer's
+corrections on top, a review sheet, and the dataset layout of ``layout.py``.
+
+Corrections (``--corrections FILE``, YAML) record what a reviewer changed after looking at
+the proposals, so that the reviewed masks can be rebuilt from the boxes and the file::
+
+    DJI_0298:                                  # image stem
+      - class: obstacle                        # water, ship, obstacle or ignore
+        only: [water]                          # optional: repaint only pixels of these classes
+        polygon: [[1510, 700], [2047, 520], [2047, 1000], [1500, 1100]]   # pixels of the image
+        why: lawn behind the rip-rap taken for water
+      - class: ignore
+        box: [100, 200, 300, 400]              # x0, y0, x1, y1, instead of a polygon
+
+Polygons are in pixels of the original image (x right, y down), painted in file order with
+``cv2.fillPoly`` (pixel centres inside or on the outline). ``exclude: <reason>`` instead of a
+list leaves the image out of the dataset, with the reason recorded in ``dataset.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from harborsight import __version__
+from harborsight.datasets.classmap import TARGET_NAMES, class_of
+from harborsight.datasets.from_boxes import BoxLabelSettings, label_from_boxes
+from harborsight.datasets.layout import CLASSES, SCHEMA
+from harborsight.datasets.yolo import ImageBoxes
+from harborsight.errors import InputError
+from harborsight.files import write_bytes_atomic, write_text_atomic
+from harborsight.perception.classes import IGNORE
+
+
+@dataclass(frozen=True)
+class Correction:
+    class_id: int
+    polygon: np.ndarray            # (N, 2) float, pixels of the original image
+    only: tuple[int, ...] | None   # classes it may repaint; None: all
+    why: str = ""
+
+
+@dataclass
+class Corrections:
+    by_stem: dict[str, list[Correction]] = field(default_factory=dict)
+    excluded: dict[str, str] = field(default_factory=dict)   # stem -> reason
+
+
+def read_corrections(path: str | Path) -> Corrections:
+    """Parse a corrections YAML (module docstring); :class:`InputError` names the entry."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(path, None, f"cannot read corrections: {exc}") from None
+    if not isinstance(doc, dict):
+        raise InputError(path, None, "expected a map of image stem -> list of corrections")
+    result = Corrections()
+    for stem, entries in doc.items():
+        stem = str(stem)
+        if isinstance(entries, dict) and set(entries) == {"exclude"}:
+            result.excluded[stem] = str(entries["exclude"])
+            continue
+        if not isinstance(entries, list):
+            raise InputError(path, stem, "expected a list of corrections or {exclude: reason}")
+        items = []
+        for k, entry in enumerate(entries):
+            where = f"{stem}[{k}]"
+            if not isinstance(entry, dict):
+                raise InputError(path, where, "expected a map with class and polygon or box")
+            cls = class_of(str(entry.get("class", "")), {})
+            if cls is None:
+                raise InputError(path, f"{where}.class", f"{entry.get('class')!r} is not water, "
+                                 "ship, obstacle or ignore")
+            if "polygon" in entry:
+                points = np.asarray(entry["polygon"], float)
+                if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3:
+                    raise InputError(path, f"{where}.polygon", "expected 3 or more [x, y] points")
+            elif "box" in entry:
+                values = np.asarray(entry["box"], float).ravel()
+                if values.size != 4 or values[2] <= values[0] or values[3] <= values[1]:
+                    raise InputError(path, f"{where}.box", "expected [x0, y0, x1, y1] with x1 > x0, "
+                                     "y1 > y0")
+                x0, y0, x1, y1 = values
+                points = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+            else:
+                raise InputError(path, where, "needs a polygon or a box")
+            only = entry.get("only")
+            if only is not None:
+                ids = [class_of(str(name), {}) for name in only]
+                if None in ids:
+                    raise InputError(path, f"{where}.only", f"unknown class in {only}")
+                only = tuple(ids)
+            items.append(Correction(cls, points, only, str(entry.get("why", ""))))
+        result.by_stem[stem] = items
+    return result
+
+
+def apply_corrections(labels: np.ndarray, corrections: list[Correction]) -> np.ndarray:
+    """The labels with each correction painted in order (a copy)."""
+    out = labels.copy()
+    for item in corrections:
+        region = np.zeros(out.shape, np.uint8)
+        cv2.fillPoly(region, [np.round(item.polygon).astype(np.int32)], 1)
+        paint = region > 0
+        if item.only is not None:
+            paint &= np.isin(out, item.only)
+        out[paint] = item.class_id
+    return out
+
+
+@dataclass
+class BoxDatasetResult:
+    splits: dict[str, str] = field(default_factory=dict)
+    skipped: list[tuple[str, str]] = field(default_factory=list)  # (file, reason)
+    notes: dict[str, list[str]] = field(default_factory=dict)
+    agreement: dict[str, float] = field(default_factory=dict)     # stem -> pixel agreement
+
+
+def _agreement(proposal: np.ndarray, reviewed: np.ndarray) -> float:
+    """Share of pixels labelled in both (not 255) on which proposal and reviewed mask agree."""
+    both = (proposal != IGNORE) & (reviewed != IGNORE)
+    return float((proposal[both] == reviewed[both]).mean()) if both.any() else 1.0
+
+
+def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dict[str, str],
+                      corrections: Corrections | None = None, max_side: int | None = None,
+                      settings: BoxLabelSettings | None = None,
+                      on_image: Callable[[str, str | None], None] | None = None) -> BoxDatasetResult:
+    """Label each image from its boxes, apply the corrections, write ``images/``,
+    ``labels/``, ``proposals/`` (the masks before correction) and ``dataset.json``.
+    ``splits`` maps every stem to its split. One image that fails is skipped and listed."""
+    out_dir = Path(out_dir)
+    corrections = corrections or Corrections()
+    result = BoxDatasetResult()
+    for sub in ("images", "labels", "proposals"):
+        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+    try:
+        for item in images:
+            stem = item.image_path.stem
+            problem = None
+            if stem in corrections.excluded:
+                problem = f"excluded by the review: {corrections.excluded[stem]}"
+            elif stem not in splits:
+                problem = "no split given for this image"
+            else:
+                problem = _write_one(item, stem, out_dir, corrections, max_side, settings, result)
+            if problem is None:
+                result.splits[stem] = splits[stem]
+            else:
+                result.skipped.append((str(item.image_path), problem))
+            if on_image is not None:
+                on_image(stem, problem)
+    finally:
+        if result.splits:
+            _write_doc(out_dir, images, result, corrections, max_side)
+    return result
+
+
+def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Corrections,
+               max_side: int | None, settings: BoxLabelSettings | None,
+               result: BoxDatasetResult) -> str | None:
+    image = cv2.imread(str(item.image_path), cv2.IMREAD_COLOR)
+    if image is None:
+        return "cannot decode image (missing, corrupt or not an image)"
+    if image.shape[:2] != (item.height, item.width):
+        return (f"image is {image.shape[1]}x{image.shape[0]}, the boxes were read for "
+                f"{item.width}x{item.height}")
+    proposal = label_from_boxes(image, item.boxes, settings)
+    labels = apply_corrections(proposal.labels, corrections.by_stem.get(stem, []))
+    result.agreement[stem] = _agreement(proposal.labels, labels)
+    result.notes[stem] = proposal.notes
+    proposed = proposal.labels
+    if max_side is not None and max(image.shape[:2]) > max_side:
+        scale = max_side / max(image.shape[:2])
+        size = (max(1, round(image.shape[1] * scale)), max(1, round(image.shape[0] * scale)))
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        labels = cv2.resize(labels, size, interpolation=cv2.INTER_NEAREST_EXACT)
+        proposed = cv2.resize(proposed, size, interpolation=cv2.INTER_NEAREST_EXACT)
+    ok_image, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 92])
+    ok_labels, png = cv2.imencode(".png", labels)
+    ok_proposal, proposal_png = cv2.imencode(".png", proposed)
+    if not (ok_image and ok_labels and ok_proposal):
+        return "encoding failed"
+    write_bytes_atomic(out_dir / "labels" / f"{stem}.png", png.tobytes())
+    write_bytes_atomic(out_dir / "proposals" / f"{stem}.png", proposal_png.tobytes())
+    write_bytes_atomic(out_dir / "images" / f"{stem}.jpg", jpeg.tobytes())
+    return None
+
+
+def _write_doc(out_dir: Path, images: list[ImageBoxes], result: BoxDatasetResult,
+               corrections: Corrections, max_side: int | None) -> None:
+    labels_used = Counter(box.label for item in images for box in item.boxes)
+    class_map = {}
+    for item in images:
+        for box in item.boxes:
+            class_map.setdefault(box.label, TARGET_NAMES[box.class_id])
+    agreement = list(result.agreement.values())
+    doc = {
+        "schema": SCHEMA,
+        "generator": f"harborsight dataset label-from-boxes {__version__}",
+        "time": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "source": {"format": "yolo-boxes", "images": sorted({str(i.image_path.parent.resolve())
+                                                             for i in images})},
+        "classes": CLASSES,
+        "ignore_index": IGNORE,
+        "class_map": dict(sorted(class_map.items())),
+        "boxes_per_class_name": dict(sorted(labels_used.items())),
+        "split": dict(sorted(result.splits.items())),
+        "frames_without_pose": True,
+        "max_side": max_side,
+        "labels": "label-from-boxes proposals with the reviewer's corrections; proposals/ holds "
+                  "the masks before correction",
+        "corrections": {stem: len(items) for stem, items in sorted(corrections.by_stem.items())},
+        "proposal_agreement": {
+            "mean": float(np.mean(agreement)) if agreement else None,
+            "per_image": {s: round(a, 5) for s, a in sorted(result.agreement.items())},
+            "meaning": "share of pixels labelled in both the proposal and the reviewed mask "
+                       "(neither 255) on which they agree",
+        },
+        "notes": {s: n for s, n in sorted(result.notes.items()) if n},
+        "skipped": [{"file": f, "reason": r} for f, r in result.skipped],
+    }
+    write_text_atomic(out_dir / "dataset.json", json.dumps(doc, indent=1) + "\n")
