@@ -11,9 +11,14 @@ the proposals, so that the reviewed masks can be rebuilt from the boxes and the 
         why: lawn behind the rip-rap taken for water
       - class: ignore
         box: [100, 200, 300, 400]              # x0, y0, x1, y1, instead of a polygon
+      - class: ship
+        relabel_box: 8                         # the 9th box read (from 0; a box wholly outside
+        why: a boat on the lift, no canopy     # the image is not read) is a ship box
 
 Polygons are in pixels of the original image (x right, y down), painted in file order with
-``cv2.fillPoly`` (pixel centres inside or on the outline). ``exclude: <reason>`` instead of a
+``cv2.fillPoly`` (pixel centres inside or on the outline). ``relabel_box`` changes the class
+of one box before the proposal is made (the box datasets box a boat on a lift as ``lift``;
+the boat is a ship, the lift and its canopy are not). ``exclude: <reason>`` instead of a
 list leaves the image out of the dataset, with the reason recorded in ``dataset.json``.
 """
 
@@ -22,7 +27,7 @@ from __future__ import annotations
 import json
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -52,13 +57,26 @@ class Correction:
 class Corrections:
     by_stem: dict[str, list[Correction]] = field(default_factory=dict)
     excluded: dict[str, str] = field(default_factory=dict)   # stem -> reason
+    box_classes: dict[str, dict[int, int]] = field(default_factory=dict)  # stem -> box -> class
+
+
+class _KeysAsWrittenLoader(yaml.SafeLoader):
+    """Safe YAML whose map keys stay as written: YAML 1.1 reads the stem ``000123`` as the
+    octal number 83 (and ``12:30`` as 750), which would miss the image silently."""
+
+    def construct_mapping(self, node, deep=False):
+        self.flatten_mapping(node)  # merge keys (<<) first
+        for key, _ in node.value:
+            if isinstance(key, yaml.ScalarNode):
+                key.tag = "tag:yaml.org,2002:str"
+        return super().construct_mapping(node, deep=deep)
 
 
 def read_corrections(path: str | Path) -> Corrections:
     """Parse a corrections YAML (module docstring); :class:`InputError` names the entry."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text()) or {}
+        doc = yaml.load(path.read_text(), Loader=_KeysAsWrittenLoader) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise InputError(path, None, f"cannot read corrections: {exc}") from None
     if not isinstance(doc, dict):
@@ -80,6 +98,12 @@ def read_corrections(path: str | Path) -> Corrections:
             if cls is None:
                 raise InputError(path, f"{where}.class", f"{entry.get('class')!r} is not water, "
                                  "ship, obstacle or ignore")
+            if "relabel_box" in entry:
+                box_index = entry["relabel_box"]
+                if not isinstance(box_index, int) or isinstance(box_index, bool) or box_index < 0:
+                    raise InputError(path, f"{where}.relabel_box", "expected a box number (0 first)")
+                result.box_classes.setdefault(stem, {})[box_index] = cls
+                continue
             if "polygon" in entry:
                 points = np.asarray(entry["polygon"], float)
                 if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3:
@@ -174,7 +198,12 @@ def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Correcti
     if image.shape[:2] != (item.height, item.width):
         return (f"image is {image.shape[1]}x{image.shape[0]}, the boxes were read for "
                 f"{item.width}x{item.height}")
-    proposal = label_from_boxes(image, item.boxes, settings)
+    boxes = list(item.boxes)
+    for box_index, class_id in corrections.box_classes.get(stem, {}).items():
+        if box_index >= len(boxes):
+            return f"corrections: relabel_box {box_index} but the image has {len(boxes)} box(es)"
+        boxes[box_index] = replace(boxes[box_index], class_id=class_id)
+    proposal = label_from_boxes(image, boxes, settings)
     labels = apply_corrections(proposal.labels, corrections.by_stem.get(stem, []))
     result.agreement[stem] = _agreement(proposal.labels, labels)
     result.notes[stem] = proposal.notes
