@@ -254,6 +254,9 @@ def label_from_boxes(image_bgr: np.ndarray, boxes: Sequence,
     """A proposed label mask for one image from its boxes (pixels of the image; each box
     has ``class_id`` 0/1/2/255 and ``x0, y0, x1, y1``). See the module docstring."""
     settings = settings or BoxLabelSettings()
+    # GrabCut starts its colour models by k-means++ on OpenCV's global RNG: seeded here, the
+    # same image and boxes give the same proposal whatever was labelled before
+    cv2.setRNGSeed(0)
     h0, w0 = image_bgr.shape[:2]
     scale = min(1.0, settings.work_long_side_px / max(h0, w0))
     size = (max(1, round(w0 * scale)), max(1, round(h0 * scale)))
