@@ -233,3 +233,81 @@ def label_from_boxes_command(
                   f"proposal vs reviewed agreement {100 * sum(agreement) / len(agreement):.2f}% "
                   f"(mean over images); {len(sheets)} review sheet(s) in "
                   f"{escape(str(review or out / 'review'))}/", highlight=False)
+
+
+@dataset_app.command("label-marina")
+def label_marina_command(
+    inputs: Annotated[list[Path], typer.Argument(
+        metavar="IMAGE_OR_FOLDER...", show_default=False,
+        help="Nadir marina tiles (PNG, JPEG, TIFF) or folders of them.")],
+    out: Annotated[Path, typer.Option(show_default=False, help="Dataset folder to write: new or empty.")],
+    split: Annotated[str | None, typer.Option(help="Split of every frame (default: train).")] = None,
+    split_file: Annotated[Path | None, typer.Option(
+        help="CSV of stem,split lines; every labelled image must be listed.")] = None,
+    corrections: Annotated[Path | None, typer.Option(
+        help="YAML of the reviewer's corrections per image stem (as for label-from-boxes).")] = None,
+    review: Annotated[Path | None, typer.Option(
+        help="Folder for the review sheets (default: OUT/review).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
+) -> None:
+    """Proposed label masks for nadir marina tiles with no annotation at all: water by the
+    colour of the darkest large region, per pixel (the gaps between moored boats are a few
+    pixels wide); long, straight, narrow runs are pontoons (obstacle); wider line-like rows
+    and thin parts are left undecided (255); greener-than-water solid is obstacle; every other
+    solid pixel is ship. Shore with buildings, car parks or rip-rap is taken for ship: look
+    at every review sheet and exclude or correct such tiles. Written like label-from-boxes
+    (images/, labels/, proposals/, review/, dataset.json). Exit code 0 if a tile was
+    labelled, 1 if none, 2 for a bad option."""
+    from harborsight.datasets.box_dataset import read_corrections, write_box_dataset
+    from harborsight.datasets.classmap import read_split_file
+    from harborsight.datasets.marina import label_marina_tile
+    from harborsight.datasets.yolo import ImageBoxes, image_size_hw
+    from harborsight.errors import InputError
+    from harborsight.perception.segment_images import collect_images
+    from harborsight.viz.review_sheet import review_sheets
+
+    unreadable: list[str] = []
+    try:
+        if split is not None and split_file is not None:
+            raise InputError(None, "--split", "give --split or --split-file, not both")
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise InputError(out, None, "exists and is not an empty folder: give a new one")
+        tiles = []
+        for path in collect_images(inputs):
+            try:
+                height, width = image_size_hw(path)
+            except InputError as exc:
+                unreadable.append(str(exc))
+                continue
+            tiles.append(ImageBoxes(path, width, height, ()))
+        fixes = read_corrections(corrections) if corrections else None
+        stems = [t.image_path.stem for t in tiles]
+        if split_file is not None:
+            listed = read_split_file(split_file)
+            missing = [s for s in stems if s not in listed]
+            if missing:
+                raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
+                                 + ", ".join(missing[:10]))
+            splits = {s: listed[s] for s in stems}
+        else:
+            splits = dict.fromkeys(stems, split or "train")
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    with Progress(TextColumn("[bold]labelling"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True,
+                  disable=not progress) as bar:
+        task = bar.add_task("tiles", total=len(tiles))
+        result = write_box_dataset(tiles, out, splits, fixes, on_image=lambda *_: bar.advance(task),
+                                   proposer=lambda image, _boxes: label_marina_tile(image),
+                                   generator="label-marina")
+    _print_issues("image(s) skipped:", "red",
+                  unreadable + [f"{file}: {reason}" for file, reason in result.skipped])
+    if not result.splits:
+        err_console.print(f"no tile labelled; nothing usable in {out}", markup=False, highlight=False)
+        raise typer.Exit(1)
+    sheets = review_sheets(out, review or out / "review", sorted(result.splits), rows_per_sheet=8,
+                           tile_width=256)
+    console.print(f"[green]{len(result.splits)} tile(s) labelled[/] into {escape(str(out))}/; "
+                  f"{len(sheets)} review sheet(s) in {escape(str(review or out / 'review'))}/",
+                  highlight=False)

@@ -37,7 +37,7 @@ import yaml
 
 from harborsight import __version__
 from harborsight.datasets.classmap import TARGET_NAMES, class_of
-from harborsight.datasets.from_boxes import BoxLabelSettings, label_from_boxes
+from harborsight.datasets.from_boxes import BoxLabelResult, BoxLabelSettings, label_from_boxes
 from harborsight.datasets.layout import CLASSES, SCHEMA
 from harborsight.datasets.yolo import ImageBoxes
 from harborsight.errors import InputError
@@ -155,13 +155,23 @@ def _agreement(proposal: np.ndarray, reviewed: np.ndarray) -> float:
     return float((proposal[both] == reviewed[both]).mean()) if both.any() else 1.0
 
 
+#: makes a proposal from an image and its boxes
+Proposer = Callable[[np.ndarray, list], BoxLabelResult]
+
+
 def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dict[str, str],
                       corrections: Corrections | None = None, max_side: int | None = None,
                       settings: BoxLabelSettings | None = None,
-                      on_image: Callable[[str, str | None], None] | None = None) -> BoxDatasetResult:
-    """Label each image from its boxes, apply the corrections, write ``images/``,
-    ``labels/``, ``proposals/`` (the masks before correction) and ``dataset.json``.
-    ``splits`` maps every stem to its split. One image that fails is skipped and listed."""
+                      on_image: Callable[[str, str | None], None] | None = None,
+                      proposer: Proposer | None = None, generator: str = "label-from-boxes"
+                      ) -> BoxDatasetResult:
+    """Propose a mask for each image (``proposer``, by default :func:`label_from_boxes`
+    with ``settings``), apply the corrections, write ``images/``, ``labels/``,
+    ``proposals/`` (the masks before correction) and ``dataset.json``. ``splits`` maps every
+    stem to its split. One image that fails is skipped and listed."""
+    if proposer is None:
+        def proposer(image, boxes):
+            return label_from_boxes(image, boxes, settings)
     out_dir = Path(out_dir)
     corrections = corrections or Corrections()
     result = BoxDatasetResult()
@@ -176,7 +186,7 @@ def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dic
             elif stem not in splits:
                 problem = "no split given for this image"
             else:
-                problem = _write_one(item, stem, out_dir, corrections, max_side, settings, result)
+                problem = _write_one(item, stem, out_dir, corrections, max_side, proposer, result)
             if problem is None:
                 result.splits[stem] = splits[stem]
             else:
@@ -185,13 +195,12 @@ def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dic
                 on_image(stem, problem)
     finally:
         if result.splits:
-            _write_doc(out_dir, images, result, corrections, max_side)
+            _write_doc(out_dir, images, result, corrections, max_side, generator)
     return result
 
 
 def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Corrections,
-               max_side: int | None, settings: BoxLabelSettings | None,
-               result: BoxDatasetResult) -> str | None:
+               max_side: int | None, proposer: Proposer, result: BoxDatasetResult) -> str | None:
     image = cv2.imread(str(item.image_path), cv2.IMREAD_COLOR)
     if image is None:
         return "cannot decode image (missing, corrupt or not an image)"
@@ -203,7 +212,7 @@ def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Correcti
         if box_index >= len(boxes):
             return f"corrections: relabel_box {box_index} but the image has {len(boxes)} box(es)"
         boxes[box_index] = replace(boxes[box_index], class_id=class_id)
-    proposal = label_from_boxes(image, boxes, settings)
+    proposal = proposer(image, boxes)
     labels = apply_corrections(proposal.labels, corrections.by_stem.get(stem, []))
     result.agreement[stem] = _agreement(proposal.labels, labels)
     result.notes[stem] = proposal.notes
@@ -226,7 +235,7 @@ def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Correcti
 
 
 def _write_doc(out_dir: Path, images: list[ImageBoxes], result: BoxDatasetResult,
-               corrections: Corrections, max_side: int | None) -> None:
+               corrections: Corrections, max_side: int | None, generator: str) -> None:
     labels_used = Counter(box.label for item in images for box in item.boxes)
     class_map = {}
     for item in images:
@@ -235,10 +244,10 @@ def _write_doc(out_dir: Path, images: list[ImageBoxes], result: BoxDatasetResult
     agreement = list(result.agreement.values())
     doc = {
         "schema": SCHEMA,
-        "generator": f"harborsight dataset label-from-boxes {__version__}",
+        "generator": f"harborsight dataset {generator} {__version__}",
         "time": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "source": {"format": "yolo-boxes", "images": sorted({str(i.image_path.parent.resolve())
-                                                             for i in images})},
+        "source": {"format": "yolo-boxes" if generator == "label-from-boxes" else "images",
+                   "images": sorted({str(i.image_path.parent.resolve()) for i in images})},
         "classes": CLASSES,
         "ignore_index": IGNORE,
         "class_map": dict(sorted(class_map.items())),
@@ -246,7 +255,7 @@ def _write_doc(out_dir: Path, images: list[ImageBoxes], result: BoxDatasetResult
         "split": dict(sorted(result.splits.items())),
         "frames_without_pose": True,
         "max_side": max_side,
-        "labels": "label-from-boxes proposals with the reviewer's corrections; proposals/ holds "
+        "labels": f"{generator} proposals with the reviewer's corrections; proposals/ holds "
                   "the masks before correction",
         "corrections": {stem: len(items) for stem, items in sorted(corrections.by_stem.items())},
         "proposal_agreement": {

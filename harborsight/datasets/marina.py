@@ -1,0 +1,122 @@
+"""Proposed label masks for nadir marina tiles without any annotation
+(``harborsight dataset label-marina``).
+
+Orthophotos of marinas (rows of moored boats at pontoons, about 0.3 m per pixel) are mostly
+dark open water and bright hulls. At that scale the gaps of water between moored boats are
+a few pixels wide, too narrow for the texture model of :mod:`.from_boxes`, so water is found
+per pixel:
+
+1. **Water colour.** The darkest large region (Otsu threshold on CIELAB lightness, eroded by
+   7 px, largest component) gives the water's mean and spread per channel; a pixel is water
+   when every channel lies within 3 (L*) or 3.5 (a*, b*) spreads of that mean, or when it is
+   darker than the water with the water's hue within 5 spreads (boat shadows on the water).
+   Holes in the solid smaller than 25 px (dark cockpits, covers) are filled.
+2. **Pontoons.** A pontoon is long, straight and narrow: a solid run that survives an opening
+   with a line of ``pontoon_length_px`` at some angle (3-degree steps) but not an opening
+   across it with a line of 13 px. Such runs are ``obstacle`` when their connected region is
+   at most ``pontoon_width_px`` wide on average; a wider region is a dense row of boats whose
+   bows line up, and is left undecided (255), as are solid parts thinner than 4 px (finger
+   piers, bow tips, lines).
+3. **The rest.** Solid pixels greener than the water are ``obstacle`` (lawns and trees on the
+   shore); every other solid pixel is ``ship``. Specks under 6 px and a 1-px band on every
+   class boundary are 255.
+
+Shore with buildings, car parks or rip-rap is taken for ship: review every tile and exclude
+or correct those (:mod:`.box_dataset`'s corrections).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from harborsight.datasets.from_boxes import OBSTACLE, SHIP, WATER, BoxLabelResult
+from harborsight.perception.classes import IGNORE
+
+
+@dataclass(frozen=True)
+class MarinaSettings:
+    """Lengths in pixels of the tile as given (0.3 m per pixel for the UC Merced tiles)."""
+
+    pontoon_length_px: int = 150
+    pontoon_width_px: float = 9.0
+    hole_fill_px: int = 25
+
+
+def _line_kernel(length_px: int, angle_deg: float) -> np.ndarray:
+    half = length_px // 2
+    kernel = np.zeros((2 * half + 1, 2 * half + 1), np.uint8)
+    dx = np.cos(np.radians(angle_deg)) * half
+    dy = np.sin(np.radians(angle_deg)) * half
+    cv2.line(kernel, (round(half - dx), round(half - dy)), (round(half + dx), round(half + dy)), 1, 1)
+    return kernel
+
+
+def _water(lab: np.ndarray) -> np.ndarray | None:
+    lightness = np.clip(lab[..., 0], 0, 255).astype(np.uint8)
+    threshold, _ = cv2.threshold(lightness, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    dark = cv2.erode((lightness < threshold).astype(np.uint8), np.ones((7, 7), np.uint8))
+    count, components, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=4)
+    if count < 2:
+        return None
+    core = components == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    if core.sum() < 200:
+        return None
+    pixels = lab[core]
+    mean, spread = pixels.mean(axis=0), pixels.std(axis=0) + 2.0
+    z = np.abs((lab - mean) / spread)
+    water = (z[..., 0] < 3.0) & (z[..., 1] < 3.5) & (z[..., 2] < 3.5)
+    water |= (lab[..., 0] < mean[0]) & (z[..., 1] < 5) & (z[..., 2] < 5)
+    return water
+
+
+def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, np.ndarray]:
+    """(narrow pontoon runs, wide line-like regions left undecided) as uint8 masks."""
+    runs = np.zeros_like(solid)
+    for angle in range(0, 180, 3):
+        along = cv2.morphologyEx(solid, cv2.MORPH_OPEN, _line_kernel(settings.pontoon_length_px, angle))
+        wide = cv2.morphologyEx(along, cv2.MORPH_OPEN, _line_kernel(13, angle + 90))
+        runs |= along & (1 - wide)
+    narrow, undecided = np.zeros_like(solid), np.zeros_like(solid)
+    count, components, stats, _ = cv2.connectedComponentsWithStats(runs, connectivity=8)
+    for index in range(1, count):
+        region = components == index
+        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
+        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)
+        width = stats[index, cv2.CC_STAT_AREA] / max(side_a, side_b, 1.0)
+        (narrow if width <= settings.pontoon_width_px else undecided)[region] = 1
+    return narrow, undecided
+
+
+def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = None) -> BoxLabelResult:
+    """A proposed mask of one marina tile (module docstring)."""
+    settings = settings or MarinaSettings()
+    lab = cv2.cvtColor(cv2.GaussianBlur(image_bgr, (3, 3), 0), cv2.COLOR_BGR2LAB).astype(np.float32)
+    water = _water(lab)
+    if water is None:
+        return BoxLabelResult(np.full(image_bgr.shape[:2], IGNORE, np.uint8), 0.0,
+                              ["no dark region to take the water's colour from: all undecided"])
+    solid = (~water).astype(np.uint8)
+    count, components, stats, _ = cv2.connectedComponentsWithStats(1 - solid, connectivity=4)
+    hole = np.zeros(count, bool)
+    hole[1:] = stats[1:, cv2.CC_STAT_AREA] < settings.hole_fill_px
+    solid[hole[components]] = 1
+
+    labels = np.where(solid > 0, SHIP, WATER).astype(np.uint8)
+    narrow, undecided = _pontoons(solid, settings)
+    labels[narrow > 0] = OBSTACLE
+    labels[undecided > 0] = IGNORE
+    opened = cv2.morphologyEx(solid, cv2.MORPH_OPEN, np.ones((4, 4), np.uint8))
+    labels[(solid > 0) & (opened == 0) & (narrow == 0)] = IGNORE
+    water_a = float(lab[..., 1][water].mean())
+    labels[(lab[..., 1] < water_a - 6) & (solid > 0)] = OBSTACLE
+    count, components, stats, _ = cv2.connectedComponentsWithStats(solid, connectivity=4)
+    speck = np.zeros(count, bool)
+    speck[1:] = stats[1:, cv2.CC_STAT_AREA] < 6
+    labels[speck[components]] = IGNORE
+    kernel = np.ones((3, 3), np.uint8)
+    labels[cv2.dilate(labels, kernel) != cv2.erode(labels, kernel)] = IGNORE
+    notes = [f"{int(undecided.sum())} px of wide line-like rows left undecided"] if undecided.any() else []
+    return BoxLabelResult(labels, float((labels == WATER).mean()), notes)
