@@ -609,6 +609,24 @@ def _parse_crop(text: str) -> tuple[int, int]:
     return parts[0], parts[1]
 
 
+def _parse_weighted_data(entries: list[Path]) -> tuple[list[str], list[float] | None]:
+    """``DIR`` or ``DIR:W`` entries -> folders and weights (None when no entry has one; an
+    entry without one then weighs 1)."""
+    folders, weights = [], []
+    for entry in entries:
+        text = str(entry)
+        head, _, tail = text.rpartition(":")
+        try:
+            weight = float(tail) if head and not Path(text).is_dir() else None
+        except ValueError:
+            weight = None
+        folders.append(head if weight is not None else text)
+        weights.append(weight)
+    if all(w is None for w in weights):
+        return folders, None
+    return folders, [1.0 if w is None else w for w in weights]
+
+
 @app.command()
 def train(
     out: Annotated[Path, typer.Option(help="Run folder: last.pt, best.pt, train_log.jsonl.")],
@@ -616,7 +634,13 @@ def train(
         help="Network: bisenetv2, fchardnet70, ddrnet23_slim, ddrnet23 (see harborsight models).")
     ] = None,
     data: Annotated[list[Path] | None, typer.Option(
-        help="Dataset folder (dataset.json, images/, labels/); repeat for several.")] = None,
+        help="Dataset folder (dataset.json, images/, labels/); repeat for several. DIR:W gives "
+        "it sampling weight W (e.g. --data sim:0.8 --data real:0.2): each sample comes from a "
+        "dataset with probability proportional to its weight, whatever its size; without "
+        "weights every training frame is drawn equally often.")] = None,
+    val_data: Annotated[list[Path] | None, typer.Option(
+        help="Validate (and pick best.pt) on the val split of these folders only, e.g. the "
+        "real frames of a mixed run (default: every --data folder).")] = None,
     resume: Annotated[bool, typer.Option(
         help="Continue the run in --out from last.pt exactly (other options may only change "
         "--iterations, --val-every, --checkpoint-every, --workers, --threads, --device).")
@@ -692,7 +716,9 @@ def train(
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,
                  "init_from": str(init_from) if init_from else None,
-                 "data_dirs": [str(d) for d in data] if data else None}
+                 "val_dirs": [str(d) for d in val_data] if val_data else None}
+        if data:
+            given["data_dirs"], given["data_weights"] = _parse_weighted_data(data)
         given = {k: v for k, v in given.items() if v is not None}
         if resume:
             stored = load_checkpoint(out / LAST)["config"]

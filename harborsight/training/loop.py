@@ -16,9 +16,13 @@ pixels, and a pixel-averaged loss barely sees them.
 
 Samples are a pure function of ``(seed, sample number)``: training sample ``n = i·B + j`` is
 frame ``perm_e[n mod N]`` of the permutation ``perm_e`` seeded by ``(seed, e)``, ``e = n div N``,
-augmented with a generator seeded by ``(seed, n)``. Together with the model, optimiser and
-torch RNG state saved in ``last.pt``, a resumed run repeats an uninterrupted one exactly
-(same device, same thread count), with or without DataLoader workers. Workers are spawned,
+augmented with a generator seeded by ``(seed, n)``. With dataset weights ``w_k`` (mixed
+training, e.g. simulator and real frames), sample ``n`` instead draws its dataset ``k`` with
+probability ``w_k / Σw`` and a frame of it uniformly, both from a generator seeded by
+``(seed, 2, n)``: each dataset's share of the samples is its weight, whatever its size.
+Together with the model, optimiser and torch RNG state saved in ``last.pt``, a resumed run
+repeats an uninterrupted one exactly (same device, same thread count), with or without
+DataLoader workers. Workers are spawned,
 not forked (OpenCV's thread pool deadlocks in a forked child), so a script that trains with
 workers needs the usual ``if __name__ == "__main__":`` guard.
 
@@ -120,11 +124,17 @@ class TrainConfig:
     num_workers: int | None = None                     # None: 0 on CPU, min(8, cores-1) on CUDA
     threads: int | None = None                         # torch CPU threads (None: torch's default)
     init_from: str | None = None                       # checkpoint whose weights start the run
+    data_weights: list[float] | None = None            # sampling weight per data_dirs entry
+    val_dirs: list[str] | None = None                  # validation datasets (None: data_dirs)
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
         self.out_dir = str(self.out_dir)
         self.init_from = None if self.init_from is None else str(self.init_from)
+        if self.data_weights is not None:
+            self.data_weights = [float(w) for w in self.data_weights]
+        if self.val_dirs is not None:
+            self.val_dirs = [str(d) for d in self.val_dirs]
         self.crop_hw = (int(self.crop_hw[0]), int(self.crop_hw[1]))
         if self.aux_weights is not None:
             self.aux_weights = tuple(float(w) for w in self.aux_weights)
@@ -139,6 +149,14 @@ class TrainConfig:
             raise bad("model", f"unknown network {self.model!r}; choose from {sorted(NETWORKS)}")
         if not self.data_dirs:
             raise bad("data_dirs", "give at least one dataset folder")
+        if self.data_weights is not None:
+            if len(self.data_weights) != len(self.data_dirs):
+                raise bad("data_weights", f"{len(self.data_weights)} weight(s) for "
+                          f"{len(self.data_dirs)} dataset folder(s)")
+            if min(self.data_weights) < 0 or not sum(self.data_weights) > 0:
+                raise bad("data_weights", f"must be >= 0 with a positive sum, got {self.data_weights}")
+        if self.val_dirs is not None and not self.val_dirs:
+            raise bad("val_dirs", "give at least one validation dataset folder, or none at all")
         if self.batch_size < 2:
             raise bad("batch_size", f"must be at least 2, got {self.batch_size}: the networks' "
                       "BatchNorm layers after global pooling (1x1 maps) cannot normalise over a "
@@ -189,8 +207,10 @@ class TrainConfig:
     def command_line(self) -> str:
         """An equivalent ``harborsight train`` command (options that differ from defaults)."""
         parts = ["harborsight", "train", "--model", self.model]
-        for d in self.data_dirs:
-            parts += ["--data", d]
+        for k, d in enumerate(self.data_dirs):
+            parts += ["--data", d if self.data_weights is None else f"{d}:{self.data_weights[k]:g}"]
+        for d in self.val_dirs or []:
+            parts += ["--val-data", d]
         parts += ["--out", self.out_dir]
         defaults = TrainConfig.__dataclass_fields__
         for name, option in _CLI_OPTIONS.items():
@@ -238,9 +258,22 @@ class TrainingSamples(torch.utils.data.Dataset):
     worker or the order of the requests: ``(image, labels, pixel weights)``."""
 
     def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig,
-                 small_object_weight: float = 1.0, small_object_area_px: float = 1000.0) -> None:
+                 small_object_weight: float = 1.0, small_object_area_px: float = 1000.0,
+                 data_weights: list[float] | None = None) -> None:
         self.frames = frames
         self.seed = seed
+        self.groups: list[np.ndarray] = []
+        self.group_p = np.zeros(0)
+        if data_weights is not None:
+            folder = {Path(d): k for k, d in enumerate(frames.data_dirs)}
+            of_frame = np.array([folder[r.dataset_dir] for r in frames.records])
+            kept = [k for k, w in enumerate(data_weights) if w > 0 and (of_frame == k).any()]
+            if not kept:
+                raise InputError(None, "data_weights", "no training frame in a dataset of "
+                                 "positive weight")
+            self.groups = [np.flatnonzero(of_frame == k) for k in kept]
+            weights = np.array([data_weights[k] for k in kept], float)
+            self.group_p = weights / weights.sum()
         self.augmentation = augmentation
         self.small_object_weight = small_object_weight
         self.small_object_area_px = small_object_area_px
@@ -248,6 +281,10 @@ class TrainingSamples(torch.utils.data.Dataset):
         self._perm = np.arange(0)
 
     def frame_index(self, n: int) -> int:
+        if self.groups:
+            rng = np.random.default_rng([self.seed, 2, n])
+            group = self.groups[int(rng.choice(len(self.groups), p=self.group_p))]
+            return int(group[rng.integers(len(group))])
         size = len(self.frames)
         epoch = n // size
         if epoch != self._perm_epoch:
@@ -437,7 +474,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     val_frames = None
     if config.val_every:
         try:
-            val_frames = SegmentationFrames(config.data_dirs, [config.val_split])
+            val_frames = SegmentationFrames(config.val_dirs or config.data_dirs, [config.val_split])
             skipped += val_frames.drop_unreadable()
         except InputError as exc:
             raise InputError(exc.source, exc.field, f"{exc.message} (train without validation "
@@ -509,7 +546,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     augmentation = (AugmentConfig(crop_hw=config.crop_hw) if config.augment
                     else AugmentConfig.geometric_only(config.crop_hw))
     samples = TrainingSamples(train_frames, config.seed, augmentation,
-                              config.small_object_weight, config.small_object_area_px)
+                              config.small_object_weight, config.small_object_area_px,
+                              config.data_weights)
     batch = config.batch_size
     workers = data_workers(config.num_workers, device)
     loader = torch.utils.data.DataLoader(

@@ -1,0 +1,96 @@
+"""Mixed training: dataset sampling weights (--data DIR:W) and a separate validation set."""
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from harborsight.cli.main import _parse_weighted_data
+from harborsight.errors import InputError
+from harborsight.training.augment import AugmentConfig
+from harborsight.training.dataset import SegmentationFrames
+from harborsight.training.loop import TrainConfig, TrainingSamples
+
+
+def make_dataset(root: Path, n: int, value: int) -> Path:
+    """n frames of 8x8 whose image and labels are filled with ``value`` (labels: value % 3)."""
+    (root / "images").mkdir(parents=True)
+    (root / "labels").mkdir()
+    split = {}
+    for k in range(n):
+        stem = f"f{k}"
+        cv2.imwrite(str(root / "images" / f"{stem}.png"), np.full((8, 8, 3), value, np.uint8))
+        cv2.imwrite(str(root / "labels" / f"{stem}.png"), np.full((8, 8), value % 3, np.uint8))
+        split[stem] = "train" if k < n - 1 else "val"
+    (root / "dataset.json").write_text(json.dumps({"split": split}))
+    return root
+
+
+def test_weights_set_each_datasets_share_whatever_its_size(tmp_path):
+    big = make_dataset(tmp_path / "big", 41, 10)      # 40 training frames
+    small = make_dataset(tmp_path / "small", 3, 200)  # 2 training frames
+    frames = SegmentationFrames([big, small], ["train"])
+    samples = TrainingSamples(frames, seed=3, augmentation=AugmentConfig.geometric_only((8, 8)),
+                              data_weights=[0.25, 0.75])
+    drawn = Counter(frames.records[samples.frame_index(n)].dataset_dir.name for n in range(4000))
+    assert abs(drawn["small"] / 4000 - 0.75) < 0.03
+    # a pure function of (seed, n): the same sample number gives the same frame
+    assert [samples.frame_index(n) for n in (5, 77, 5)] == [samples.frame_index(5),
+                                                            samples.frame_index(77),
+                                                            samples.frame_index(5)]
+    # both of the small set's frames are drawn, never a val frame
+    small_stems = {frames.records[samples.frame_index(n)].stem for n in range(200)
+                   if frames.records[samples.frame_index(n)].dataset_dir.name == "small"}
+    assert small_stems == {"f0", "f1"}
+    # without weights, frames are drawn equally often: the small set gets 2/42
+    plain = TrainingSamples(frames, seed=3, augmentation=AugmentConfig.geometric_only((8, 8)))
+    share = sum(frames.records[plain.frame_index(n)].dataset_dir.name == "small"
+                for n in range(4200)) / 4200
+    assert abs(share - 2 / 42) < 0.005
+
+
+def test_a_zero_weight_dataset_is_never_drawn(tmp_path):
+    a = make_dataset(tmp_path / "a", 3, 10)
+    b = make_dataset(tmp_path / "b", 3, 20)
+    frames = SegmentationFrames([a, b], ["train"])
+    samples = TrainingSamples(frames, 0, AugmentConfig.geometric_only((8, 8)), data_weights=[0, 1])
+    assert {frames.records[samples.frame_index(n)].dataset_dir.name for n in range(300)} == {"b"}
+    image, labels, _ = samples[0]
+    assert (image == 20).all() and (labels == 20 % 3).all()
+
+
+def test_weighted_data_options_parse(tmp_path):
+    plain = make_dataset(tmp_path / "plain", 2, 1)
+    odd = make_dataset(tmp_path / "x:2", 2, 1)   # a folder whose name ends like a weight
+    assert _parse_weighted_data([plain]) == ([str(plain)], None)
+    assert _parse_weighted_data([Path(f"{plain}:0.8"), Path(f"{odd}:0.2")]) == (
+        [str(plain), str(odd)], [0.8, 0.2])
+    assert _parse_weighted_data([odd]) == ([str(odd)], None)
+    assert _parse_weighted_data([Path(f"{plain}:3"), odd]) == ([str(plain), str(odd)], [3.0, 1.0])
+
+
+@pytest.mark.parametrize("weights, message", [([1.0], "1 weight"), ([0.0, 0.0], "positive sum"),
+                                              ([-1.0, 2.0], "positive sum")])
+def test_bad_weights_are_refused(tmp_path, weights, message):
+    with pytest.raises(InputError, match=message):
+        TrainConfig(model="ddrnet23_slim", data_dirs=["a", "b"], out_dir=str(tmp_path),
+                    data_weights=weights)
+
+
+def test_validation_can_use_other_folders(tmp_path):
+    from harborsight.training.loop import train as run_training
+
+    sim = make_dataset(tmp_path / "sim", 3, 30)
+    real = make_dataset(tmp_path / "real", 4, 60)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[str(sim), str(real)],
+                         data_weights=[0.5, 0.5], val_dirs=[str(real)], out_dir=str(tmp_path / "run"),
+                         iterations=2, batch_size=2, crop_hw=(8, 8), val_every=2, device="cpu",
+                         checkpoint_every=2, num_workers=0, threads=1)
+    run_training(config, show_progress=False)
+    log = [json.loads(line) for line in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
+    val = [entry for entry in log if entry.get("kind") == "val"]
+    assert val and val[-1]["pixels"] == 64           # the real set's one 8x8 val frame only
+    assert "--val-data" in config.command_line() and f"{sim}:0.5" in config.command_line()
