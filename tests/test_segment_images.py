@@ -236,6 +236,23 @@ def test_options_refuse_tile_settings_in_resize_mode():
         SegmentOptions("tiles", tile_scale=0.0)
 
 
+@pytest.mark.parametrize("width, height, padded", [(256, 256, True), (640, 360, True),
+                                                    (800, 600, False), (700, 300, False)])
+def test_auto_pads_small_frames_and_stretches_large_ones(segmenter, width, height, padded):
+    image = random_image(width, height, seed=5)
+    info: dict = {}
+    labels = segment_labels(segmenter, image, SegmentOptions(SegmentMode.auto), info)
+    as_tiles = segment_labels(segmenter, image, SegmentOptions(SegmentMode.tiles, tile_scale=1.0))
+    stretched = segment_labels(segmenter, image, SegmentOptions(SegmentMode.resize))
+    assert np.array_equal(labels, as_tiles if padded else stretched)
+    assert info["windows"] == 1
+    if padded:  # the frame's own pixels, not a stretched copy: exact labels
+        assert np.array_equal(labels, expected_labels(image))
+    assert SegmentOptions.from_options("auto").to_dict() == {"mode": "auto"}
+    with pytest.raises(InputError, match="--tile-scale is for --mode tiles"):
+        SegmentOptions.from_options("auto", tile_scale=0.5)
+
+
 # --- finding and writing --------------------------------------------------------------------
 
 def test_natural_order_and_suffixes(tmp_path):

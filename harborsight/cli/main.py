@@ -991,8 +991,10 @@ def evaluate_segmentation_command(
         "taken for solid, per kind (simulator datasets) and per size in pixels.")] = False,
     mode: Annotated[SegmentMode, typer.Option(
         help="How an ONNX model meets frames of another size than its input: resize (stretch "
-        "into the input) or tiles (overlapping windows blended), as in harborsight segment "
-        "(see its --help); tiles needs an ONNX model.")] = SegmentMode.resize,
+        "into the input), tiles (overlapping windows blended) or auto (pad frames no larger "
+        "than the input, stretch larger ones: harborsight segment's default), as in "
+        "harborsight segment (see its --help); tiles and auto need an ONNX model.")
+    ] = SegmentMode.resize,
     tile_overlap: Annotated[float | None, typer.Option(
         min=0.0, max=0.9, show_default=False,
         help="tiles: overlap of neighbouring windows, a fraction of a window [0.25].")] = None,

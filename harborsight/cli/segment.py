@@ -15,7 +15,11 @@ from harborsight.perception.segment_images import SegmentMode
 
 #: help of --mode, --tile-overlap, --tile-scale and --max-side, shared with evaluate segmentation
 MODE_HELP = ("How a frame of another size than the model input (640x360 for the default "
-             "model) is segmented. resize: the whole frame is stretched into the model input "
+             "model) is segmented. auto (default): a frame no larger than the input in either "
+             "dimension (a 256x256 orthophoto tile) is padded into one window at its own "
+             "scale, a larger one (a 4000x3000 still, a 2048x1536 photo) is stretched into the "
+             "input as in resize; measured on real val frames this beats either mode alone "
+             "(docs/results.md). resize: the whole frame is stretched into the model input "
              "(one model call) and the logits are resized back bilinearly to the frame before "
              "the argmax. tiles: the frame is scaled by --tile-scale (capped by --max-side), "
              "cut into windows of the model input overlapping by --tile-overlap (the last "
@@ -43,7 +47,7 @@ def segment_command(
     overlay: Annotated[bool, typer.Option(
         help="Also write overlays/<stem>.jpg: the image blended with the class colours (water "
         "blue, ship vermillion, obstacle yellow) and a legend.")] = False,
-    mode: Annotated[SegmentMode, typer.Option(help=MODE_HELP)] = SegmentMode.resize,
+    mode: Annotated[SegmentMode, typer.Option(help=MODE_HELP)] = SegmentMode.auto,
     tile_overlap: Annotated[float | None, typer.Option(
         min=0.0, max=0.9, show_default=False, help=TILE_OVERLAP_HELP)] = None,
     tile_scale: Annotated[float | None, typer.Option(

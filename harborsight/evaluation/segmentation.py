@@ -326,7 +326,7 @@ def evaluate_segmentation(
 
     options = options or SegmentOptions()
     if predictions is not None:
-        if model_path is not None or options.mode != "resize":
+        if model_path is not None or options.mode == "tiles":
             raise InputError(predictions, "--predictions", "scores written masks: give no "
                              "--model and no --mode tiles with it")
         predictions = Path(predictions)
@@ -337,10 +337,10 @@ def evaluate_segmentation(
         mode = {"mode": "predictions", "predictions": str(predictions)}
     else:
         loaded = load_segmenter(model_path, device, threads)
-        if options.mode == "tiles":
+        if options.mode in ("tiles", "auto"):
             if loaded.kind != "onnx":
-                raise InputError(model_path, "--mode", "tiles needs an ONNX model (a fixed "
-                                 "input size to cut the windows to)")
+                raise InputError(model_path, "--mode", f"{options.mode} needs an ONNX model (a "
+                                 "fixed input size to cut the windows to)")
             from harborsight.perception.default_model import load_onnx_segmenter
 
             loaded.segment = segment_function(load_onnx_segmenter(loaded.path, threads), options)
