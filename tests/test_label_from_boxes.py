@@ -487,6 +487,9 @@ def test_command_skips_a_corrupt_image(tmp_path):
     doc = json.loads((out / "dataset.json").read_text())
     assert doc["split"] == {"a": "train"}
     assert [p.name for p in (out / "labels").iterdir()] == ["a.png"]
+    # the image skipped while reading the boxes is recorded too, not only printed
+    assert [Path(s["file"]).name for s in doc["skipped"]] == ["b.txt"]
+    assert "cannot decode image" in doc["skipped"][0]["reason"]
     # all images unreadable: exit 1
     (root / "images" / "a.png").write_bytes(b"")
     result = label_from_boxes_cli(root, tmp_path / "ds2")

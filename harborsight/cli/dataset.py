@@ -221,8 +221,8 @@ def label_from_boxes_command(
                   disable=not progress) as bar:
         task = bar.add_task("images", total=len(found))
         result = write_box_dataset(found, out, splits, fixes, max_side,
-                                   on_image=lambda *_: bar.advance(task))
-    problems = [f"{file}: {reason}" for file, reason in [*skipped, *result.skipped]]
+                                   on_image=lambda *_: bar.advance(task), skipped_before=skipped)
+    problems = [f"{file}: {reason}" for file, reason in result.skipped]
     _print_issues("image(s) skipped:", "red", problems)
     if not result.splits:
         err_console.print(f"no image labelled; nothing usable in {out}", markup=False, highlight=False)
@@ -266,7 +266,7 @@ def label_marina_command(
     from harborsight.perception.segment_images import collect_images
     from harborsight.viz.review_sheet import review_sheets
 
-    unreadable: list[str] = []
+    unreadable: list[tuple[str, str]] = []
     try:
         if split is not None and split_file is not None:
             raise InputError(None, "--split", "give --split or --split-file, not both")
@@ -277,7 +277,7 @@ def label_marina_command(
             try:
                 height, width = image_size_hw(path)
             except InputError as exc:
-                unreadable.append(str(exc))
+                unreadable.append((str(path), str(exc)))
                 continue
             tiles.append(ImageBoxes(path, width, height, ()))
         fixes = read_corrections(corrections) if corrections else None
@@ -300,9 +300,8 @@ def label_marina_command(
         task = bar.add_task("tiles", total=len(tiles))
         result = write_box_dataset(tiles, out, splits, fixes, on_image=lambda *_: bar.advance(task),
                                    proposer=lambda image, _boxes: label_marina_tile(image),
-                                   generator="label-marina")
-    _print_issues("image(s) skipped:", "red",
-                  unreadable + [f"{file}: {reason}" for file, reason in result.skipped])
+                                   generator="label-marina", skipped_before=unreadable)
+    _print_issues("image(s) skipped:", "red", [f"{file}: {reason}" for file, reason in result.skipped])
     if not result.splits:
         err_console.print(f"no tile labelled; nothing usable in {out}", markup=False, highlight=False)
         raise typer.Exit(1)

@@ -163,18 +163,19 @@ def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dic
                       corrections: Corrections | None = None, max_side: int | None = None,
                       settings: BoxLabelSettings | None = None,
                       on_image: Callable[[str, str | None], None] | None = None,
-                      proposer: Proposer | None = None, generator: str = "label-from-boxes"
-                      ) -> BoxDatasetResult:
+                      proposer: Proposer | None = None, generator: str = "label-from-boxes",
+                      skipped_before: list[tuple[str, str]] | None = None) -> BoxDatasetResult:
     """Propose a mask for each image (``proposer``, by default :func:`label_from_boxes`
     with ``settings``), apply the corrections, write ``images/``, ``labels/``,
     ``proposals/`` (the masks before correction) and ``dataset.json``. ``splits`` maps every
-    stem to its split. One image that fails is skipped and listed."""
+    stem to its split. One image that fails is skipped and listed, with ``skipped_before``
+    (``(file, reason)`` of inputs left out while reading them) in ``dataset.json``."""
     if proposer is None:
         def proposer(image, boxes):
             return label_from_boxes(image, boxes, settings)
     out_dir = Path(out_dir)
     corrections = corrections or Corrections()
-    result = BoxDatasetResult()
+    result = BoxDatasetResult(skipped=list(skipped_before or []))
     for sub in ("images", "labels", "proposals"):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
     try:

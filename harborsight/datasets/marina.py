@@ -21,8 +21,9 @@ per pixel:
    shore); every other solid pixel is ``ship``. Specks under 6 px and a 1-px band on every
    class boundary are 255.
 
-Shore with buildings, car parks or rip-rap is taken for ship: review every tile and exclude
-or correct those (:mod:`.box_dataset`'s corrections).
+Known limits: shore with buildings, car parks or rip-rap is taken for ship, and so is a
+pontoon that the boats' decks bridge into one band more than 13 px wide; review every tile
+and exclude or correct those (:mod:`.box_dataset`'s corrections).
 """
 
 from __future__ import annotations
@@ -84,8 +85,8 @@ def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, 
     for index in range(1, count):
         region = components == index
         points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
-        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)
-        width = stats[index, cv2.CC_STAT_AREA] / max(side_a, side_b, 1.0)
+        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)  # through pixel centres
+        width = stats[index, cv2.CC_STAT_AREA] / (max(side_a, side_b) + 1.0)
         (narrow if width <= settings.pontoon_width_px else undecided)[region] = 1
     return narrow, undecided
 
