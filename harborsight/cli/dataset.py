@@ -178,20 +178,16 @@ def label_from_boxes_command(
     proposal | reviewed) to OUT/review/ and dataset.json records the agreement between
     proposals and reviewed masks. These are proposals: look at every review sheet. Exit code
     0 if an image was labelled, 1 if none, 2 for a bad option or class name."""
-    from harborsight.datasets.box_dataset import read_corrections, write_box_dataset
+    from harborsight.datasets.box_dataset import read_corrections
     from harborsight.datasets.classmap import (
         find_class_names_file,
         parse_class_map,
         read_class_names,
-        read_split_file,
     )
     from harborsight.datasets.yolo import default_images_dir, read_yolo_boxes
     from harborsight.errors import InputError
-    from harborsight.viz.review_sheet import review_sheets
 
     try:
-        if split is not None and split_file is not None:
-            raise InputError(None, "--split", "give --split or --split-file, not both")
         if not labels_dir.is_dir():
             raise InputError(labels_dir, None, "boxes folder not found")
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -203,36 +199,12 @@ def label_from_boxes_command(
         found, skipped = read_yolo_boxes(labels_dir, images_dir, read_class_names(names_file),
                                          parse_class_map(map_ or []))
         fixes = read_corrections(corrections) if corrections else None
-        stems = [item.image_path.stem for item in found]
-        if split_file is not None:
-            listed = read_split_file(split_file)
-            missing = [s for s in stems if s not in listed]
-            if missing:
-                raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
-                                 + ", ".join(missing[:10]))
-            splits = {s: listed[s] for s in stems}
-        else:
-            splits = dict.fromkeys(stems, split or "train")
+        splits = splits_of([item.image_path.stem for item in found], split, split_file)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    with Progress(TextColumn("[bold]labelling"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True,
-                  disable=not progress) as bar:
-        task = bar.add_task("images", total=len(found))
-        result = write_box_dataset(found, out, splits, fixes, max_side,
-                                   on_image=lambda *_: bar.advance(task), skipped_before=skipped)
-    problems = [f"{file}: {reason}" for file, reason in result.skipped]
-    _print_issues("image(s) skipped:", "red", problems)
-    if not result.splits:
-        err_console.print(f"no image labelled; nothing usable in {out}", markup=False, highlight=False)
-        raise typer.Exit(1)
-    sheets = review_sheets(out, review or out / "review", sorted(result.splits))
-    agreement = list(result.agreement.values())
-    console.print(f"[green]{len(result.splits)} image(s) labelled[/] into {escape(str(out))}/; "
-                  f"proposal vs reviewed agreement {100 * sum(agreement) / len(agreement):.2f}% "
-                  f"(mean over images); {len(sheets)} review sheet(s) in "
-                  f"{escape(str(review or out / 'review'))}/", highlight=False)
+    _label_and_review(found, out, splits, review, progress, dict(
+        corrections=fixes, max_side=max_side, skipped_before=skipped))
 
 
 @dataset_app.command("label-marina")
@@ -258,18 +230,14 @@ def label_marina_command(
     at every review sheet and exclude or correct such tiles. Written like label-from-boxes
     (images/, labels/, proposals/, review/, dataset.json). Exit code 0 if a tile was
     labelled, 1 if none, 2 for a bad option."""
-    from harborsight.datasets.box_dataset import read_corrections, write_box_dataset
-    from harborsight.datasets.classmap import read_split_file
+    from harborsight.datasets.box_dataset import read_corrections
     from harborsight.datasets.marina import label_marina_tile
     from harborsight.datasets.yolo import ImageBoxes, image_size_hw
     from harborsight.errors import InputError
     from harborsight.perception.segment_images import collect_images
-    from harborsight.viz.review_sheet import review_sheets
 
     unreadable: list[tuple[str, str]] = []
     try:
-        if split is not None and split_file is not None:
-            raise InputError(None, "--split", "give --split or --split-file, not both")
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
             raise InputError(out, None, "exists and is not an empty folder: give a new one")
         tiles = []
@@ -281,32 +249,56 @@ def label_marina_command(
                 continue
             tiles.append(ImageBoxes(path, width, height, ()))
         fixes = read_corrections(corrections) if corrections else None
-        stems = [t.image_path.stem for t in tiles]
-        if split_file is not None:
-            listed = read_split_file(split_file)
-            missing = [s for s in stems if s not in listed]
-            if missing:
-                raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
-                                 + ", ".join(missing[:10]))
-            splits = {s: listed[s] for s in stems}
-        else:
-            splits = dict.fromkeys(stems, split or "train")
+        splits = splits_of([t.image_path.stem for t in tiles], split, split_file)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
+    _label_and_review(tiles, out, splits, review, progress, dict(
+        corrections=fixes, skipped_before=unreadable, generator="label-marina",
+        proposer=lambda image, _boxes: label_marina_tile(image)), rows_per_sheet=8, tile_width=256)
+
+
+def splits_of(stems: list[str], split: str | None, split_file: Path | None) -> dict[str, str]:
+    """Each stem's split: ``split`` (default train) for all, or the ``split_file`` CSV, which
+    must list every stem."""
+    from harborsight.datasets.classmap import read_split_file
+    from harborsight.errors import InputError
+
+    if split is not None and split_file is not None:
+        raise InputError(None, "--split", "give --split or --split-file, not both")
+    if split_file is None:
+        return dict.fromkeys(stems, split or "train")
+    listed = read_split_file(split_file)
+    missing = [s for s in stems if s not in listed]
+    if missing:
+        raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
+                         + ", ".join(missing[:10]))
+    return {s: listed[s] for s in stems}
+
+
+def _label_and_review(items: list, out: Path, splits: dict[str, str], review: Path | None,
+                      progress: bool, writer_options: dict, rows_per_sheet: int = 4,
+                      tile_width: int = 384) -> None:
+    """Propose, correct and write every image with a progress bar, list what was skipped,
+    write the review sheets and say how much the review changed (exit 1 if nothing was
+    labelled)."""
+    from harborsight.datasets.box_dataset import write_box_dataset
+    from harborsight.viz.review_sheet import review_sheets
+
     with Progress(TextColumn("[bold]labelling"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True,
                   disable=not progress) as bar:
-        task = bar.add_task("tiles", total=len(tiles))
-        result = write_box_dataset(tiles, out, splits, fixes, on_image=lambda *_: bar.advance(task),
-                                   proposer=lambda image, _boxes: label_marina_tile(image),
-                                   generator="label-marina", skipped_before=unreadable)
+        task = bar.add_task("images", total=len(items))
+        result = write_box_dataset(items, out, splits, on_image=lambda *_: bar.advance(task),
+                                   **writer_options)
     _print_issues("image(s) skipped:", "red", [f"{file}: {reason}" for file, reason in result.skipped])
     if not result.splits:
-        err_console.print(f"no tile labelled; nothing usable in {out}", markup=False, highlight=False)
+        err_console.print(f"no image labelled; nothing usable in {out}", markup=False, highlight=False)
         raise typer.Exit(1)
-    sheets = review_sheets(out, review or out / "review", sorted(result.splits), rows_per_sheet=8,
-                           tile_width=256)
-    console.print(f"[green]{len(result.splits)} tile(s) labelled[/] into {escape(str(out))}/; "
-                  f"{len(sheets)} review sheet(s) in {escape(str(review or out / 'review'))}/",
+    sheets_dir = review or out / "review"
+    sheets = review_sheets(out, sheets_dir, sorted(result.splits), rows_per_sheet, tile_width)
+    agreement = list(result.agreement.values())
+    console.print(f"[green]{len(result.splits)} image(s) labelled[/] into {escape(str(out))}/; "
+                  f"proposal vs reviewed agreement {100 * sum(agreement) / len(agreement):.2f}% "
+                  f"(mean over images); {len(sheets)} review sheet(s) in {escape(str(sheets_dir))}/",
                   highlight=False)
