@@ -26,6 +26,7 @@ from harborsight.clearance.report import ClearanceReport
 from harborsight.errors import HarborsightError, InputError
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.images import check_image_file
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
 
@@ -58,6 +59,9 @@ def read_image(path: Path) -> np.ndarray:
     """BGR image; a clear error for a missing or unreadable file."""
     if not path.is_file():
         raise InputError(path, None, "image file not found")
+    reason = check_image_file(path)  # libjpeg fills a cut JPEG with grey and says nothing
+    if reason:
+        raise InputError(path, None, reason)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise InputError(path, None, "cannot decode image (corrupt or not an image)")
@@ -68,6 +72,9 @@ def read_mask(path: Path) -> np.ndarray:
     """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
     if not path.is_file():
         raise InputError(path, "mask", "mask file not found")
+    reason = check_image_file(path)
+    if reason:
+        raise InputError(path, "mask", reason)
     mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if mask is None:
         raise InputError(path, "mask", "cannot decode mask (corrupt or not an image)")

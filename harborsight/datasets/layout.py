@@ -41,6 +41,7 @@ from harborsight.datasets.classmap import TARGET_NAMES, class_of, read_split_fil
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
 from harborsight.errors import InputError
 from harborsight.files import write_bytes_atomic, write_text_atomic
+from harborsight.images import incomplete_reason
 from harborsight.perception.classes import IGNORE, WATER
 
 SCHEMA = "harborsight.dataset/1"
@@ -229,6 +230,9 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
     except OSError as exc:
         return Issue(frame.source, image_field, f"cannot read {frame.image_path}: "
                      f"{exc.strerror or exc}"), [], None
+    incomplete = incomplete_reason(data) if data else None
+    if incomplete:
+        return Issue(frame.source, image_field, f"{incomplete} ({frame.image_path})"), [], None
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
     if image is None:
         return Issue(frame.source, image_field, f"cannot decode image {frame.image_path} (corrupt "

@@ -1,0 +1,98 @@
+"""Images cut short or corrupted are refused, not measured: libjpeg fills a truncated JPEG
+with grey, which a segmenter calls obstacle (issue #30: a 3.15 m section read 0.43 m)."""
+
+import io
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.images import incomplete_reason
+from harborsight.pipeline import read_image, read_mask
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+runner = CliRunner()
+
+
+def picture() -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return cv2.GaussianBlur(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8), (5, 5), 0)
+
+
+def encoded(suffix: str) -> bytes:
+    if suffix == ".tif":
+        buffer = io.BytesIO()
+        Image.fromarray(picture()).save(buffer, format="TIFF")
+        return buffer.getvalue()
+    ok, data = cv2.imencode(suffix, picture())
+    assert ok
+    return data.tobytes()
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif"])
+def test_whole_images_pass_and_cut_ones_are_refused(tmp_path, suffix):
+    data = encoded(suffix)
+    whole = tmp_path / f"whole{suffix}"
+    whole.write_bytes(data)
+    assert incomplete_reason(data) is None
+    assert read_image(whole).shape == (120, 160, 3)
+    cut = tmp_path / f"cut{suffix}"
+    cut.write_bytes(data[: len(data) // 2])
+    decoded = cv2.imread(str(cut), cv2.IMREAD_COLOR)
+    if suffix == ".jpg":  # the trap: OpenCV hands back a full-size, partly grey picture
+        assert decoded is not None and decoded.shape == (120, 160, 3)
+    with pytest.raises(InputError) as caught:
+        read_image(cut)
+    message = str(caught.value)
+    assert str(cut) in message and ("cut short" in message or "incomplete" in message
+                                    or "cannot decode" in message)
+
+
+def test_jpeg_padding_after_the_end_marker_is_accepted():
+    assert incomplete_reason(encoded(".jpg") + b"\x00" * 16) is None
+
+
+def test_a_png_with_a_flipped_byte_is_refused_naming_the_chunk(tmp_path):
+    data = bytearray(encoded(".png"))
+    data[60] ^= 0x55                                   # inside the first IDAT's data
+    path = tmp_path / "mask.png"
+    path.write_bytes(bytes(data))
+    reason = incomplete_reason(bytes(data))
+    assert reason is not None and "CRC" in reason
+    with pytest.raises(InputError, match="mask: cannot decode image: PNG corrupt"):
+        read_mask(path)
+
+
+def test_a_batch_skips_a_cut_image_and_measures_the_rest(tmp_path):
+    dataset = tmp_path / "flight"
+    shutil.copytree(SAMPLES, dataset)
+    image = dataset / "images" / "000001.png"
+    data = image.read_bytes()
+    image.write_bytes(data[: int(len(data) * 0.6)])
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["measure", str(dataset), "--out", str(out), "--no-tables"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.glob("*.json")) == ["000000.json", "000002.json",
+                                                          "000003.json", "000004.json"]
+    assert "000001.png: cannot decode image: PNG cut short" in result.output.replace("\n", " ")
+
+
+def test_segment_lists_a_cut_jpeg_and_writes_the_others(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    data = encoded(".jpg")
+    (folder / "a.jpg").write_bytes(data)
+    (folder / "b.jpg").write_bytes(data[: len(data) // 2])
+    out = tmp_path / "masks"
+    result = runner.invoke(app, ["segment", str(folder), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert (out / "a.png").is_file() and not (out / "b.png").exists()
+    summary = json.loads((out / "segment.json").read_text())
+    assert "JPEG cut short" in json.dumps(summary)
