@@ -1,7 +1,9 @@
-"""Writing files so that a reader never sees half of one."""
+"""Writing files so that a reader never sees half of one, and JSON that strict parsers read."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 from pathlib import Path
 
@@ -37,3 +39,24 @@ def write_image(path: str | Path, image) -> bool:
         return bool(cv2.imwrite(str(path), image))
     except cv2.error:
         return False
+
+
+def finite_or_none(value):
+    """``value`` with every non-finite float (NaN, ±inf), however deeply nested in dicts,
+    lists and tuples, replaced by None: JSON has no NaN, and ``json.dumps`` would write a
+    bare ``NaN`` that strict parsers reject."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite_or_none(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_or_none(item) for item in value]
+    if hasattr(value, "dtype") and hasattr(value, "tolist"):  # numpy scalars and arrays
+        return finite_or_none(value.tolist())
+    return value
+
+
+def strict_json(value, **dumps_options) -> str:
+    """``json.dumps`` of :func:`finite_or_none` (``value``), refusing anything else that is
+    not strict JSON."""
+    return json.dumps(finite_or_none(value), allow_nan=False, **dumps_options)

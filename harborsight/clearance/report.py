@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from harborsight.files import write_text_atomic
+from harborsight.files import strict_json, write_text_atomic
 
 REPORT_SCHEMA = "harborsight.report/1"
 
@@ -94,4 +93,4 @@ class ClearanceReport:
         }
 
     def write(self, path: str | Path) -> None:
-        write_text_atomic(path, json.dumps(self.to_dict(), indent=2) + "\n")
+        write_text_atomic(path, strict_json(self.to_dict(), indent=2) + "\n")

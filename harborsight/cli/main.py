@@ -20,7 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import write_image
+from harborsight.files import strict_json, write_image
 from harborsight.perception.segment_images import SegmentMode
 
 if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
@@ -826,7 +826,7 @@ def telemetry_show(
         console.print(table)
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(summaries, indent=2) + "\n")
+        json_out.write_text(strict_json(summaries, indent=2) + "\n")
     raise typer.Exit(1 if failed else 0)
 
 
@@ -944,7 +944,7 @@ def telemetry_video(
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("".join(json.dumps(frame) + "\n" for frame in result.frames))
+    out.write_text("".join(strict_json(frame) + "\n" for frame in result.frames))
     for track in (drone, vessel):
         for note in track.notes:
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
@@ -1060,7 +1060,7 @@ def evaluate_segmentation_command(
                       f"{result.model.params or 0:,} parameters")
     if json_out:
         json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(result.to_dict(), indent=2) + "\n")
+        json_out.write_text(strict_json(result.to_dict(), indent=2) + "\n")
         console.print(f"JSON: {json_out}")
     if markdown:
         markdown.parent.mkdir(parents=True, exist_ok=True)

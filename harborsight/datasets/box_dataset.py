@@ -24,7 +24,6 @@ list leaves the image out of the dataset, with the reason recorded in ``dataset.
 
 from __future__ import annotations
 
-import json
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -41,7 +40,7 @@ from harborsight.datasets.from_boxes import BoxLabelResult, BoxLabelSettings, la
 from harborsight.datasets.layout import CLASSES, SCHEMA
 from harborsight.datasets.yolo import ImageBoxes
 from harborsight.errors import InputError
-from harborsight.files import write_bytes_atomic, write_text_atomic
+from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.images import check_image_file
 from harborsight.perception.classes import IGNORE
 
@@ -272,4 +271,4 @@ def _write_doc(out_dir: Path, images: list[ImageBoxes], result: BoxDatasetResult
         "notes": {s: n for s, n in sorted(result.notes.items()) if n},
         "skipped": [{"file": f, "reason": r} for f, r in result.skipped],
     }
-    write_text_atomic(out_dir / "dataset.json", json.dumps(doc, indent=1) + "\n")
+    write_text_atomic(out_dir / "dataset.json", strict_json(doc, indent=1) + "\n")

@@ -40,7 +40,7 @@ from harborsight.datasets.annotations import AnnotationSet, CocoRle, FrameAnnota
 from harborsight.datasets.classmap import TARGET_NAMES, class_of, read_split_file
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
 from harborsight.errors import InputError
-from harborsight.files import write_bytes_atomic, write_text_atomic
+from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.images import incomplete_reason
 from harborsight.perception.classes import IGNORE, WATER
 
@@ -334,7 +334,7 @@ def run_import(plan: ImportPlan, on_frame: Callable[[str, Issue | None], None] |
         result.pixels = {int(v): int(pixels[v]) for v in np.flatnonzero(pixels)}
         if result.splits:
             write_text_atomic(out_dir / "dataset.json",
-                              json.dumps(_dataset_doc(plan, result), indent=1) + "\n")
+                              strict_json(_dataset_doc(plan, result), indent=1) + "\n")
             result.written_json = True
     return result
 

@@ -45,6 +45,7 @@ import numpy as np
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import strict_json
 from harborsight.frame import parse_frame_metadata
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
@@ -718,23 +719,23 @@ def write_outputs(results: list[SectionResult], out_dir: Path) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = summarise(results)
     write_csv(results, out_dir / "sections.csv")
-    (out_dir / "summary.json").write_text(json.dumps([asdict(r) for r in rows], indent=1) + "\n")
+    (out_dir / "summary.json").write_text(strict_json([asdict(r) for r in rows], indent=1) + "\n")
     (out_dir / "summary.md").write_text(markdown_table(rows))
     plots = plot_errors(results, rows, out_dir) if results else []
     by_obstacle = summarise_by_obstacle(results)
     if by_obstacle:
         (out_dir / "by_obstacle.json").write_text(
-            json.dumps([asdict(r) for r in by_obstacle], indent=1) + "\n")
+            strict_json([asdict(r) for r in by_obstacle], indent=1) + "\n")
         (out_dir / "by_obstacle.md").write_text(markdown_obstacle_table(by_obstacle))
     budget = summarise_error_budget(results)
     if budget:
         (out_dir / "error_budget.json").write_text(
-            json.dumps([asdict(r) for r in budget], indent=1) + "\n")
+            strict_json([asdict(r) for r in budget], indent=1) + "\n")
         (out_dir / "error_budget.md").write_text(markdown_error_budget_table(budget))
     sources = summarise_error_sources(results)
     if sources:
         (out_dir / "error_sources.json").write_text(
-            json.dumps([asdict(r) for r in sources], indent=1) + "\n")
+            strict_json([asdict(r) for r in sources], indent=1) + "\n")
         (out_dir / "error_sources.md").write_text(markdown_error_source_table(sources))
     return {"rows": rows, "plots": plots, "by_obstacle": by_obstacle, "error_sources": sources,
             "error_budget": budget}

@@ -30,7 +30,6 @@ warning, and the run goes on.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -42,7 +41,7 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import write_image, write_text_atomic
+from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels
@@ -350,7 +349,7 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "model": str(segmenter.path) if segmenter is not None else None},
               **summary.to_dict()}
     write_text_atomic(out_dir / "run.json",
-                      json.dumps(record, indent=2, default=_json_default) + "\n")
+                      strict_json(record, indent=2, default=_json_default) + "\n")
 
 
 def _short(text: str, limit: int = 90) -> str:

@@ -35,7 +35,6 @@ The masks are single-channel uint8 PNGs at each image's own size: 0 water, 1 shi
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import time
@@ -49,7 +48,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import write_bytes_atomic, write_text_atomic
+from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES, OBSTACLE, SHIP, WATER
 
 if TYPE_CHECKING:  # onnxruntime is imported by the commands that run a model
@@ -508,7 +507,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
         "images": [image.to_dict() for image in run.images],
         "skipped": [{"input": path, "reason": reason} for path, reason in run.skipped],
     }
-    write_text_atomic(run.json_path, json.dumps(document, indent=2) + "\n")
+    write_text_atomic(run.json_path, strict_json(document, indent=2) + "\n")
     return run
 
 
