@@ -140,3 +140,31 @@ def test_submerged_hull_does_not_hide_an_obstacle_beside_the_vessel():
     report = measure_clearance(labels, geometry, spec, ClearanceSettings())
     assert report.min_distance_m == pytest.approx(0.5, abs=0.15)
     assert not any(s.contact for s in report.sections if s.status == "ok")
+
+
+def _write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in vertices]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_a_mesh_with_non_finite_vertices_is_refused(tmp_path):
+    """trimesh drops the faces of NaN vertices silently when it processes a mesh: the hull
+    lost a corner and a 0.71 m clearance read 0.22 m (issue #30)."""
+    box = trimesh.creation.box(extents=(20, 6, 5))
+    vertices = box.vertices.copy()
+    vertices[0] = (np.nan, 0.0, 0.0)
+    _write_obj(tmp_path / "hull.obj", vertices, box.faces)
+    path = write_spec(tmp_path, "hull_mesh: hull.obj\nmesh_axes: [bow, port, up]\n"
+                      "gps_antenna: [0, 0, 0]\nsections: 4\n")
+    with pytest.raises(InputError, match=r"hull_mesh: hull\.obj: 1 of 8 vertices are not finite"):
+        load_vessel_spec(path)
+
+
+def test_a_flat_line_of_a_mesh_is_refused(tmp_path):
+    vertices = np.array([[0.0, 0, 0], [10.0, 0, 0], [20.0, 0, 0], [5.0, 0, 0]])
+    _write_obj(tmp_path / "line.obj", vertices, np.array([[0, 1, 2], [0, 2, 3]]))
+    path = write_spec(tmp_path, "hull_mesh: line.obj\nmesh_axes: [bow, port, up]\n"
+                      "gps_antenna: [0, 0, 0]\nsections: 4\n")
+    with pytest.raises(InputError, match=r"hull_mesh: line\.obj is degenerate"):
+        load_vessel_spec(path)

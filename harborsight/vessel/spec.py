@@ -74,11 +74,23 @@ def _load_mesh(mesh_path: Path, spec_path: Path) -> trimesh.Trimesh:
     if not mesh_path.is_file():
         raise InputError(spec_path, "hull_mesh", f"file not found: {mesh_path}")
     try:
-        mesh = trimesh.load(mesh_path, force="mesh")
+        # unprocessed first: processing drops the faces of NaN vertices without a word, and a
+        # hull with faces missing gives clearances too small (issue #30: 0.71 m read 0.22 m)
+        mesh = trimesh.load(mesh_path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise InputError(spec_path, "hull_mesh", f"cannot load {mesh_path.name}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(spec_path, "hull_mesh", f"{mesh_path.name} holds no triangles")
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+    if bad:
+        raise InputError(spec_path, "hull_mesh", f"{mesh_path.name}: {bad} of {len(vertices)} "
+                         "vertices are not finite (NaN or infinity)")
+    extent = np.ptp(vertices[np.unique(mesh.faces)], axis=0)
+    if (extent > 1e-6).sum() < 2:
+        raise InputError(spec_path, "hull_mesh", f"{mesh_path.name} is degenerate: its triangles "
+                         f"span {extent.round(6).tolist()} m (a line or a point, not a hull)")
+    mesh.merge_vertices()
     return mesh
 
 
