@@ -546,9 +546,11 @@ def test_srt_damage_is_noted_not_fatal(tmp_path):
     text = (DJI / "p4_rtk.SRT").read_text(encoding="utf-8")
     cut = tmp_path / "cut.SRT"                    # recording stopped inside the last block
     cut.write_text(text[:text.rindex("F.PRY")], encoding="utf-8")
-    track = read_dji_srt(cut)
-    assert track.attitude_of == "gimbal" and np.isnan(track.yaw_deg[-1]) and track.yaw_deg[0] == 110.4
-    assert "1 block(s) without gimbal" in track.notes
+    track = read_dji_srt(cut)                     # the torn block is left out with a note
+    whole = read_dji_srt(DJI / "p4_rtk.SRT")
+    assert len(track) == len(whole) - 1 and track.attitude_of == "gimbal"
+    assert not np.isnan(track.yaw_deg).any() and track.yaw_deg[0] == 110.4
+    assert any("cut short at the end of the file left out" in note for note in track.notes)
     legacy = tmp_path / "cp1252.SRT"              # the degree sign as one cp1252 byte
     legacy.write_bytes(text.encode("cp1252"))
     assert list(read_dji_srt(legacy).pitch_deg[:2]) == [-24.4, -24.4]
@@ -561,6 +563,23 @@ def test_srt_damage_is_noted_not_fatal(tmp_path):
     assert len(track) == 2 and track.lat_deg[0] == -20.2
     assert "1 block(s) with a position outside ±90°/±180° skipped (line 6)" in track.notes
     assert "1 block(s) with an impossible date line (date ignored) (line 1)" in track.notes
+
+
+@pytest.mark.parametrize("digits", [0, 2, 5])
+def test_an_srt_cut_inside_its_last_value_drops_that_block(tmp_path, digits):
+    """[altitude: 117.100000] cut to [altitude: 11 was read as 11 m (issue #30)."""
+    text = (DJI / "air2s.srt").read_text(encoding="utf-8")
+    value = text.rindex("[altitude: ") + len("[altitude: ")
+    cut = tmp_path / "cut.srt"
+    cut.write_text(text[:value + digits], encoding="utf-8")      # "", "11", "117.1"
+    track, whole = read_dji_srt(cut), read_dji_srt(DJI / "air2s.srt")
+    assert len(track) == len(whole) - 1
+    assert np.array_equal(track.alt_m, whole.alt_m[:-1])
+    assert any("cut short" in note for note in track.notes)
+    # a whole file saved without its final newline keeps every block
+    plain = tmp_path / "plain.srt"
+    plain.write_text(text.rstrip("\n"), encoding="utf-8")
+    assert len(read_dji_srt(plain)) == len(whole)
 
 
 def test_nmea_headings_between_fixes_and_midnight(tmp_path):

@@ -134,7 +134,19 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
     skipped: list[int] = []
     out_of_range: list[int] = []
     bad_dates: list[int] = []
-    for line_number, lines in _blocks(text):
+    blocks = _blocks(text)
+    # a file cut inside its last line (a copy interrupted, a card pulled): its last field may
+    # be cut too, and "[altitude: 117.0" cut to "[altitude: 11" reads 11 m. Files saved
+    # without a final newline are common, so a missing newline alone is no proof: the last
+    # block must also be shorter than the one before it (fewer lines, or a last line more
+    # than 3 characters shorter: digits lost, not just a rounding width)
+    torn: list[int] = []
+    if len(blocks) >= 2 and not text.rstrip("\x00").endswith(("\n", "\r")):
+        last, before = blocks[-1][1], blocks[-2][1]
+        if len(last) < len(before) or len(last[-1]) < len(before[-1]) - 3:
+            torn.append(blocks[-1][0])
+            blocks = blocks[:-1]
+    for line_number, lines in blocks:
         row: dict = {"line": line_number}
         body = []
         for line in lines:
@@ -178,6 +190,11 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
             out_of_range.append(line_number)
         else:
             rows.append(row)
+    if len(rows) >= 3:
+        # cut at a line end inside the last block: it lacks fields every other block has
+        common = set.intersection(*(set(r) for r in rows[:-1]))
+        if not common <= set(rows[-1]):
+            torn.append(rows.pop()["line"])
     if out_of_range and not rows:
         raise InputError(path, f"line {out_of_range[0]}", "position outside ±90° latitude / "
                          "±180° longitude: not a DJI GPS field this reader knows")
@@ -233,6 +250,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (out_of_range, "with a position outside ±90°/±180° skipped"),
         (without_clock, "without the file's clock (timecode or date) skipped"),
         (bad_dates, "with an impossible date line (date ignored)"),
+        (torn, "cut short at the end of the file left out"),
     ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
     utc_start = None
     local_start = _local_time_at_zero(rows, t_s)
