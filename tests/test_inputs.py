@@ -109,6 +109,15 @@ def test_gsd_method_and_section_override(dataset):
     (lambda d: edit_frame(d / "frames" / "000000.json",
                           lambda f: f["vessel"].update(lat=f["vessel"]["lat"] + 0.01)),
      "000000.json: vessel: no part of the hull outline is in the image"),
+    # issue #30: these gave "ok" sections (-14.6 m at 180 km; kilometres with absurd optics)
+    (lambda d: edit_frame(d / "frames" / "000000.json",
+                          lambda f: f["uav"].update(lat=f["uav"]["lat"] + 1.62)),
+     "000000.json: vessel.lat: the vessel is 180.4 km from the drone"),
+    (lambda d: edit_frame(d / "frames" / "000000.json", lambda f: f["uav"].update(alt_m=1e6)),
+     "000000.json: uav.alt_m: 1000000 m above the water"),
+    (lambda d: edit_frame(d / "frames" / "000000.json",
+                          lambda f: f["camera"].update(fx=0.01, fy=0.01)),
+     "000000.json: vessel: the hull spans 0.0 px in the image"),
 ])
 def test_single_frame_errors_exit_nonzero_with_one_line(dataset, breakage, expected):
     breakage(dataset)

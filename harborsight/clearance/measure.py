@@ -277,6 +277,11 @@ def _band_edge_pixels(
     )
 
 
+#: a hull smaller than this in the image (pixels, longest extent) cannot be measured: the
+#: frame's height or focal length is wrong, or the vessel is a speck
+MIN_HULL_SPAN_PX = 8.0
+
+
 def measure_clearance(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(),
@@ -303,6 +308,14 @@ def measure_clearance(
         )
 
     vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
+    finite = vessel_outline_px[np.isfinite(vessel_outline_px).all(axis=1)]
+    span_px = float(np.ptp(finite, axis=0).max()) if len(finite) else 0.0
+    if span_px < MIN_HULL_SPAN_PX:
+        raise InputError(
+            geometry.source, "vessel",
+            f"the hull spans {span_px:.1f} px in the image, too few to measure clearances "
+            f"(at {height_m:.0f} m above the water with fx {intr.fx:.3g} px: check uav.alt_m, "
+            "water_level_m and the camera's focal length)")
     own = own_vessel_region(vessel_outline_px, labels.shape, settings.pose_margin_px)
     contours = obstacle_contours(labels, own, settings.own_rim_px)
     points_px = contours.points_px.astype(float)
