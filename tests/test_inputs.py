@@ -208,3 +208,10 @@ def test_cli_defaults_match_the_measurement_settings():
     assert ClearanceSettings().own_rim_px == cli.OWN_RIM_PX
     with pytest.raises(ValueError, match="own_rim_px"):
         ClearanceSettings(own_rim_px=-1)
+
+
+def test_a_sections_option_asking_for_millions_of_sections_is_one_line(dataset):
+    result = runner.invoke(app, [*measure_args(dataset), "--sections", "80000000"])
+    assert result.exit_code == 2, result.output
+    assert "--sections" in result.output and "more than 1000" in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)

@@ -168,3 +168,17 @@ def test_a_flat_line_of_a_mesh_is_refused(tmp_path):
                       "gps_antenna: [0, 0, 0]\nsections: 4\n")
     with pytest.raises(InputError, match=r"hull_mesh: line\.obj is degenerate"):
         load_vessel_spec(path)
+
+
+def test_a_section_length_that_asks_for_millions_of_sections_is_refused(tmp_path):
+    """0.000001 m on a 40 m hull asked for 80 million sections and ran out of memory."""
+    path = write_spec(tmp_path, "dimensions: {to_bow: 30, to_stern: 10, to_port: 5, "
+                      "to_starboard: 5}\nsection_length_m: 0.000001\n")
+    with pytest.raises(InputError, match=r"section_length_m: .* more than 1000"):
+        load_vessel_spec(path)
+    path = write_spec(tmp_path, "dimensions: {to_bow: 30, to_stern: 10, to_port: 5, "
+                      "to_starboard: 5}\nsections: 5000\n")
+    with pytest.raises(InputError, match=r"sections: 5000 sections .* more than 1000"):
+        load_vessel_spec(path)
+    assert load_vessel_spec(write_spec(tmp_path, "dimensions: {to_bow: 30, to_stern: 10, "
+                                       "to_port: 5, to_starboard: 5}\nsections: 1000\n"))

@@ -292,7 +292,11 @@ def measure_clearance(
     intr = camera.intrinsics
     height_m = float(camera.position_enu[2])
     gsd = nadir_gsd_m_per_px(height_m, intr.fx, intr.fy)
-    sections_v = vessel.sections(settings.n_sections, settings.section_length_m)
+    try:
+        sections_v = vessel.sections(settings.n_sections, settings.section_length_m)
+    except ValueError as exc:  # a section count or length from the command line
+        option = "--section-length-m" if settings.section_length_m else "--sections"
+        raise InputError(None, option, str(exc)) from None
     n = sections_v.n_sections
 
     def vessel_to_px(points_v: np.ndarray) -> np.ndarray:

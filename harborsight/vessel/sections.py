@@ -30,6 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: more sections than this is a mistake (a section length in the wrong unit), not a request:
+#: 0.000001 m on a 40 m hull asked for 80 million and ran out of memory (issue #30)
+MAX_SECTIONS = 1000
+
 
 def _signed_area(vertices: np.ndarray) -> float:
     x, y = vertices[:, 0], vertices[:, 1]
@@ -128,6 +132,9 @@ class SectionedOutline:
             n_sections = max(1, round(perimeter / section_length))
         if n_sections < 1:
             raise ValueError(f"n_sections must be at least 1, got {n_sections}")
+        if n_sections > MAX_SECTIONS:
+            raise ValueError(f"{n_sections} sections of {perimeter / n_sections:.3g} m on a "
+                             f"{perimeter:.1f} m outline: more than {MAX_SECTIONS}")
         offsets = np.concatenate(([0.0], np.cumsum(lengths)))
         positions = np.arange(n_sections) * perimeter / n_sections
         edges = np.clip(np.searchsorted(offsets, positions, side="right") - 1, 0, len(vertices) - 1)

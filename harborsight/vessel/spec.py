@@ -152,7 +152,12 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise InputError(path, "sections", f"expected a positive whole number, got {n!r}")
         n_sections = n
-    return VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
+    spec = VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
+    try:
+        spec.sections()
+    except ValueError as exc:
+        raise InputError(path, "section_length_m" if section_length else "sections", str(exc)) from None
+    return spec
 
 
 def above_water_hull_points(mesh_v) -> np.ndarray:
