@@ -13,3 +13,6 @@ from harborsight.cli import (
     dataset,  # noqa: F401
     segment,  # noqa: F401
 )
+from harborsight.cli.numbers import refuse_non_finite_numbers
+
+refuse_non_finite_numbers(app)

@@ -1,0 +1,60 @@
+"""Non-finite numbers on the command line are usage errors naming the option (issue #30:
+--water-level-m nan, --camera-yaw-deg inf, --vessel-offset-s nan flowed into the geometry)."""
+
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.cli.numbers import finite_numbers
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "harborsight" / "data" / "samples"
+TELEMETRY = ROOT.parent / "shared" / "data" / "telemetry"
+runner = CliRunner()
+
+
+def telemetry_video(tmp_path, option: str, value: str) -> list[str]:
+    track = tmp_path / "vessel.csv"
+    track.write_text("time_s,lat,lon,heading_deg\n0,41.42,2.23,90\n10,41.42,2.23,90\n")
+    return ["telemetry", "video", str(TELEMETRY / "dji" / "air2s.srt"), "--vessel-track", str(track),
+            "--camera", "dji-air2s", "--water-level-m", "0", "--out", str(tmp_path / "f.jsonl"),
+            "--frames", "5", "--fps", "30", option, value]
+
+
+@pytest.mark.parametrize("option, value", [("--water-level-m", "nan"), ("--camera-yaw-deg", "inf"),
+                                           ("--vessel-offset-s", "nan"), ("--utc-offset-h", "-inf")])
+def test_telemetry_video_refuses_non_finite_numbers(tmp_path, option, value):
+    args = telemetry_video(tmp_path, option, value)
+    if option == "--water-level-m":
+        args = args[:args.index("--water-level-m")] + args[args.index("--water-level-m") + 2:]
+    result = runner.invoke(app, args, terminal_width=200)
+    assert result.exit_code == 2, result.output
+    assert f"Invalid value for '{option}': must be a finite number" in result.output
+    assert not (tmp_path / "f.jsonl").exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["run", str(SAMPLES / "flight"), "--window-s", "inf"],
+    ["train", "--model", "ddrnet23_slim", "--data", str(SAMPLES), "--lr", "nan"],
+    ["evaluate", "segmentation", "--data", str(SAMPLES), "--model", "m.onnx", "--fps-seconds", "nan"],
+])
+def test_commands_and_groups_refuse_non_finite_numbers(tmp_path, args):
+    result = runner.invoke(app, [*args, "--out" if args[0] != "evaluate" else "--json",
+                                 str(tmp_path / "out")], terminal_width=200)
+    assert result.exit_code == 2, result.output
+    assert "must be a finite number" in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_guard_checks_lists_and_wraps_once():
+    calls = []
+    guarded = finite_numbers(lambda weights=(1.0,), name="x": calls.append(weights))
+    guarded(weights=[1.0, 2.0])
+    assert calls == [[1.0, 2.0]]
+    with pytest.raises(typer.BadParameter, match="finite") as caught:
+        guarded(weights=[1.0, float("nan")])
+    assert caught.value.param_hint == "'--weights'"
+    assert finite_numbers(guarded) is guarded
