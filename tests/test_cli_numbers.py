@@ -58,3 +58,11 @@ def test_the_guard_checks_lists_and_wraps_once():
         guarded(weights=[1.0, float("nan")])
     assert caught.value.param_hint == "'--weights'"
     assert finite_numbers(guarded) is guarded
+
+
+def test_help_shows_bracketed_defaults():
+    """Rich markup took "[test]" for a tag and printed nothing (issue #30)."""
+    result = runner.invoke(app, ["evaluate", "segmentation", "--help"], terminal_width=200)
+    assert "one table row each [test]" in result.output
+    result = runner.invoke(app, ["train", "--help"], terminal_width=200)
+    assert "Split to train on [train]" in result.output and "cuda[:N] [auto]" in result.output

@@ -15,8 +15,9 @@ from rich.table import Table
 from harborsight.cli.main import app, console, err_console
 from harborsight.errors import HarborsightError
 
-dataset_app = typer.Typer(no_args_is_help=True, help="Labelled datasets: import annotations made "
-                          "with COCO, LabelMe, CVAT or YOLO tools.")
+dataset_app = typer.Typer(rich_markup_mode=None, no_args_is_help=True,
+                          help="Labelled datasets: import annotations made with COCO, LabelMe, "
+                          "CVAT or YOLO tools; masks proposed from boxes or for marina tiles.")
 app.add_typer(dataset_app, name="dataset")
 
 #: issues printed one per line; the rest are counted (all are in dataset.json)

@@ -28,6 +28,7 @@ if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
     from harborsight.pipeline import FrameOutcome, VesselCache
 
 app = typer.Typer(
+    rich_markup_mode=None,  # help as written: "[test]" is a default, not a Rich tag
     add_completion=False, no_args_is_help=True,
     help="Per-section hull clearance of a vessel, measured from a companion drone's camera.",
 )
@@ -767,7 +768,7 @@ def average_weights(
                   highlight=False)
 
 
-telemetry_app = typer.Typer(
+telemetry_app = typer.Typer(rich_markup_mode=None,
     no_args_is_help=True,
     help="Real flight logs (DJI SRT, PX4 ULog, ArduPilot BIN) and vessel tracks (NMEA 0183, "
     "CSV): inspect them, and write a video's per-frame metadata for `run`.")
@@ -959,7 +960,8 @@ def telemetry_video(
     raise typer.Exit(1 if not result.frames else 0)
 
 
-evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate models against labelled data.")
+evaluate_app = typer.Typer(rich_markup_mode=None, no_args_is_help=True,
+                           help="Evaluate models against labelled data.")
 app.add_typer(evaluate_app, name="evaluate")
 
 
