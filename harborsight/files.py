@@ -1,10 +1,12 @@
-"""Writing files so that a reader never sees half of one, and JSON that strict parsers read."""
+"""Writing files so that a reader never sees half of one, JSON that strict parsers read,
+and the natural order of file names."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 
@@ -60,3 +62,10 @@ def strict_json(value, **dumps_options) -> str:
     """``json.dumps`` of :func:`finite_or_none` (``value``), refusing anything else that is
     not strict JSON."""
     return json.dumps(finite_or_none(value), allow_nan=False, **dumps_options)
+
+
+def natural_key(name: str) -> list:
+    """Sort key for file names that orders runs of digits by value: ``frame_2`` before
+    ``frame_10`` (letter case ignored, then the name itself breaks ties)."""
+    parts = re.split(r"(\d+)", name)
+    return [int(p) if i % 2 else p.casefold() for i, p in enumerate(parts)] + [name]

@@ -15,6 +15,9 @@ import struct
 import zlib
 from pathlib import Path
 
+import cv2
+import numpy as np
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -70,11 +73,17 @@ def _tiff_reason(data: bytes) -> str | None:
     return None
 
 
-def check_image_file(path: Path) -> str | None:
-    """:func:`incomplete_reason` of the file at ``path`` (None if it cannot be read: the
-    decoder then reports that)."""
+def decode_image_file(path: Path, flags: int) -> tuple[np.ndarray | None, str | None]:
+    """The file at ``path`` read once, checked by :func:`incomplete_reason`, then decoded
+    by OpenCV with ``flags`` (EXIF orientation applied as ``cv2.imread`` does). Returns
+    ``(image, None)``, ``(None, reason)`` for an incomplete file, or ``(None, None)`` when
+    it cannot be read or decoded."""
     try:
         data = Path(path).read_bytes()
     except OSError:
-        return None
-    return incomplete_reason(data)
+        return None, None
+    reason = incomplete_reason(data)
+    if reason:
+        return None, reason
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    return image, None

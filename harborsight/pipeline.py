@@ -11,7 +11,6 @@ A frame may name its vessel with a ``vessel_spec`` key (path relative to the dat
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from glob import escape as glob_escape
@@ -24,9 +23,10 @@ import numpy as np
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.report import ClearanceReport
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.images import check_image_file
+from harborsight.images import decode_image_file
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
 
@@ -59,10 +59,9 @@ def read_image(path: Path) -> np.ndarray:
     """BGR image; a clear error for a missing or unreadable file."""
     if not path.is_file():
         raise InputError(path, None, "image file not found")
-    reason = check_image_file(path)  # libjpeg fills a cut JPEG with grey and says nothing
+    image, reason = decode_image_file(path, cv2.IMREAD_COLOR)  # a cut JPEG decodes half grey
     if reason:
         raise InputError(path, None, reason)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise InputError(path, None, "cannot decode image (corrupt or not an image)")
     return image
@@ -72,10 +71,9 @@ def read_mask(path: Path) -> np.ndarray:
     """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
     if not path.is_file():
         raise InputError(path, "mask", "mask file not found")
-    reason = check_image_file(path)
+    mask, reason = decode_image_file(path, cv2.IMREAD_UNCHANGED)
     if reason:
         raise InputError(path, "mask", reason)
-    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if mask is None:
         raise InputError(path, "mask", "cannot decode mask (corrupt or not an image)")
     if mask.ndim == 3:
@@ -172,11 +170,6 @@ def measure_job(
 
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-
-
-def natural_key(name: str) -> list:
-    """Sort key that orders the numbers inside names by value: frame_2 before frame_10."""
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
 def image_folders(meta_path: Path) -> list[Path]:

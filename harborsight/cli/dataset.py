@@ -184,6 +184,7 @@ def label_from_boxes_command(
         find_class_names_file,
         parse_class_map,
         read_class_names,
+        splits_of,
     )
     from harborsight.datasets.yolo import default_images_dir, read_yolo_boxes
     from harborsight.errors import InputError
@@ -232,6 +233,7 @@ def label_marina_command(
     (images/, labels/, proposals/, review/, dataset.json). Exit code 0 if a tile was
     labelled, 1 if none, 2 for a bad option."""
     from harborsight.datasets.box_dataset import read_corrections
+    from harborsight.datasets.classmap import splits_of
     from harborsight.datasets.marina import label_marina_tile
     from harborsight.datasets.yolo import ImageBoxes, image_size_hw
     from harborsight.errors import InputError
@@ -257,24 +259,6 @@ def label_marina_command(
     _label_and_review(tiles, out, splits, review, progress, dict(
         corrections=fixes, skipped_before=unreadable, generator="label-marina",
         proposer=lambda image, _boxes: label_marina_tile(image)), rows_per_sheet=8, tile_width=256)
-
-
-def splits_of(stems: list[str], split: str | None, split_file: Path | None) -> dict[str, str]:
-    """Each stem's split: ``split`` (default train) for all, or the ``split_file`` CSV, which
-    must list every stem."""
-    from harborsight.datasets.classmap import read_split_file
-    from harborsight.errors import InputError
-
-    if split is not None and split_file is not None:
-        raise InputError(None, "--split", "give --split or --split-file, not both")
-    if split_file is None:
-        return dict.fromkeys(stems, split or "train")
-    listed = read_split_file(split_file)
-    missing = [s for s in stems if s not in listed]
-    if missing:
-        raise InputError(split_file, "stem", f"{len(missing)} image(s) not listed: "
-                         + ", ".join(missing[:10]))
-    return {s: listed[s] for s in stems}
 
 
 def _label_and_review(items: list, out: Path, splits: dict[str, str], review: Path | None,

@@ -41,7 +41,7 @@ from harborsight.datasets.layout import CLASSES, SCHEMA
 from harborsight.datasets.yolo import ImageBoxes
 from harborsight.errors import InputError
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
-from harborsight.images import check_image_file
+from harborsight.images import decode_image_file
 from harborsight.perception.classes import IGNORE
 
 
@@ -202,10 +202,9 @@ def write_box_dataset(images: list[ImageBoxes], out_dir: str | Path, splits: dic
 
 def _write_one(item: ImageBoxes, stem: str, out_dir: Path, corrections: Corrections,
                max_side: int | None, proposer: Proposer, result: BoxDatasetResult) -> str | None:
-    incomplete = check_image_file(item.image_path)
+    image, incomplete = decode_image_file(item.image_path, cv2.IMREAD_COLOR)
     if incomplete:
         return incomplete
-    image = cv2.imread(str(item.image_path), cv2.IMREAD_COLOR)
     if image is None:
         return "cannot decode image (missing, corrupt or not an image)"
     if image.shape[:2] != (item.height, item.width):

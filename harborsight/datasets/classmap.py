@@ -141,6 +141,22 @@ def read_split_file(path: str | Path) -> dict[str, str]:
     return splits
 
 
+def splits_of(stems: list[str], split: str | None, split_file: str | Path | None,
+              what: str = "image") -> dict[str, str]:
+    """Each stem's split: ``split`` (default train) for all, or the ``split_file`` CSV
+    (:func:`read_split_file`), which must list every stem (``what`` names them in the error)."""
+    if split is not None and split_file is not None:
+        raise InputError(None, "--split", "give --split or --split-file, not both")
+    if split_file is None:
+        return dict.fromkeys(stems, split or "train")
+    listed = read_split_file(split_file)
+    missing = [stem for stem in stems if stem not in listed]
+    if missing:
+        raise InputError(split_file, "stem", f"{len(missing)} {what}(s) not listed: "
+                         + ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
+    return {stem: listed[stem] for stem in stems}
+
+
 def unknown_labels_error(source: str, unknown: dict[str, int], first_file: dict[str, str]
                          ) -> InputError:
     """The error for class names that have no harborsight class: every such name with its

@@ -37,7 +37,7 @@ import numpy as np
 
 from harborsight import __version__
 from harborsight.datasets.annotations import AnnotationSet, CocoRle, FrameAnnotation, Issue, paint_labels
-from harborsight.datasets.classmap import TARGET_NAMES, class_of, read_split_file
+from harborsight.datasets.classmap import TARGET_NAMES, class_of, splits_of
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
 from harborsight.errors import InputError
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
@@ -185,15 +185,10 @@ def plan_import(options: ImportOptions) -> ImportPlan:
         raise InputError(out_dir, "split", f"{len(taken)} frame(s) already in the dataset: "
                          + ", ".join(taken[:10]) + (" ..." if len(taken) > 10 else ""))
     if options.split_file is not None:
-        listed = read_split_file(options.split_file)
-        missing = [stem for stem in by_stem if stem not in listed]
-        if missing:
-            raise InputError(options.split_file, "stem", f"{len(missing)} imported frame(s) not "
-                             "listed: " + ", ".join(missing[:10]) + (" ..." if len(missing) > 10 else ""))
-        bad = sorted({listed[s] for s in by_stem if not SPLIT_NAME.fullmatch(listed[s])})
+        splits = splits_of(list(by_stem), None, options.split_file, what="imported frame")
+        bad = sorted({name for name in splits.values() if not SPLIT_NAME.fullmatch(name)})
         if bad:
             raise InputError(options.split_file, "split", f"not a split name: {bad[0]!r}")
-        splits = {stem: listed[stem] for stem in by_stem}
     else:
         splits = dict.fromkeys(by_stem, options.split)
     return ImportPlan(options, annotations, frames, splits, skipped, warnings, label_counts, existing)

@@ -22,7 +22,7 @@ import numpy as np
 from harborsight.datasets.annotations import AnnotationSet, FrameAnnotation, Issue, Polygons, Shape
 from harborsight.datasets.classmap import class_of, unknown_labels_error
 from harborsight.errors import InputError
-from harborsight.images import check_image_file
+from harborsight.images import decode_image_file
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 #: files in a labels folder that are not label files
@@ -177,10 +177,9 @@ def read_yolo_seg(sources: list[Path], images_dir: Path | None, class_names: lis
 def image_size_hw(path: Path) -> tuple[int, int]:
     """(height, width) of an image as harborsight reads it (OpenCV, EXIF orientation applied);
     :class:`InputError` for a missing or undecodable file."""
-    reason = check_image_file(path)
+    image, reason = decode_image_file(path, cv2.IMREAD_COLOR)
     if reason:
         raise InputError(path, None, reason)
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise InputError(path, None, "cannot decode image (missing, corrupt or not an image)")
     return image.shape[:2]

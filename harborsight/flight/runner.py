@@ -30,7 +30,6 @@ warning, and the run goes on.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -349,14 +348,8 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "model": str(segmenter.path) if segmenter is not None else None},
               **summary.to_dict()}
     write_text_atomic(out_dir / "run.json",
-                      strict_json(record, indent=2, default=_json_default) + "\n")
+                      strict_json(record, indent=2, default=str) + "\n")
 
 
 def _short(text: str, limit: int = 90) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _json_default(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return str(value)

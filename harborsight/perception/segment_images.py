@@ -36,7 +36,6 @@ The masks are single-channel uint8 PNGs at each image's own size: 0 water, 1 shi
 from __future__ import annotations
 
 import math
-import re
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -48,7 +47,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
+from harborsight.files import natural_key, strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES, OBSTACLE, SHIP, WATER
 
 if TYPE_CHECKING:  # onnxruntime is imported by the commands that run a model
@@ -136,13 +135,6 @@ class SegmentOptions:
 
 
 # --- finding images -------------------------------------------------------------------------
-
-def natural_key(name: str) -> list:
-    """Sort key that orders runs of digits by value: ``frame_2`` before ``frame_10``
-    (letter case ignored, then the name itself breaks ties)."""
-    parts = re.split(r"(\d+)", name)
-    return [int(p) if i % 2 else p.casefold() for i, p in enumerate(parts)] + [name]
-
 
 def collect_images(inputs: Sequence[str | Path], recursive: bool = False) -> list[Path]:
     """The image files named or found in ``inputs``, in the order given; a folder adds its
