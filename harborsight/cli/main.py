@@ -597,8 +597,8 @@ def _need_torch() -> None:
         raise typer.Exit(2) from None
 
 
-def _parse_crop(text: str) -> tuple[int, int]:
-    """``HxW`` (rows x columns) or ``N`` for a square crop."""
+def _parse_crop(text: str, option: str = "crop") -> tuple[int, int]:
+    """``HxW`` (rows x columns) or ``N`` for a square size."""
     try:
         parts = [int(p) for p in text.lower().split("x")]
     except ValueError:
@@ -606,7 +606,7 @@ def _parse_crop(text: str) -> tuple[int, int]:
     if len(parts) == 1:
         parts *= 2
     if len(parts) != 2 or min(parts) < 1:
-        raise InputError(None, "crop", f"expected HEIGHTxWIDTH or N, got {text!r}")
+        raise InputError(None, option, f"expected HEIGHTxWIDTH or N, got {text!r}")
     return parts[0], parts[1]
 
 
@@ -650,6 +650,10 @@ def train(
     batch_size: Annotated[int | None, typer.Option(help="Images per step, at least 2 [8].")] = None,
     crop: Annotated[str | None, typer.Option(
         help="Training crop HEIGHTxWIDTH in pixels, or N for NxN [360x360].")] = None,
+    fit_large: Annotated[str | None, typer.Option(
+        help="HEIGHTxWIDTH, e.g. 360x640 (the model input): frames larger than this are "
+        "stretched to it before cropping and validation, smaller ones keep their scale; what "
+        "`segment --mode auto` does, so a model trains at the scale it will see [off].")] = None,
     lr: Annotated[float | None, typer.Option(help="Initial learning rate [0.01].")] = None,
     momentum: Annotated[float | None, typer.Option(help="SGD momentum [0.9].")] = None,
     weight_decay: Annotated[float | None, typer.Option(
@@ -692,8 +696,10 @@ def train(
         help="torch CPU threads; on a shared machine fewer threads than cores can be much "
         "faster [torch's default].")] = None,
     init_from: Annotated[Path | None, typer.Option(
-        help="Warm start: begin from this checkpoint's weights (same network; optimiser and "
-        "schedule start afresh), e.g. to fine-tune a synthetic model on real frames.")] = None,
+        help="Warm start: begin from this checkpoint's weights, or from an ONNX model written "
+        "by `harborsight export` (the shipped default among them; its weights are recovered "
+        "and checked against it); same network; optimiser and schedule start afresh. E.g. to "
+        "fine-tune the default model on real frames.")] = None,
     progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
 ) -> None:
     """Train a segmentation network on simulator-layout datasets (needs torch)."""
@@ -707,6 +713,7 @@ def train(
                  "momentum": momentum, "weight_decay": weight_decay, "poly_power": poly_power,
                  "warmup_iterations": warmup, "warmup_ratio": warmup_ratio,
                  "crop_hw": _parse_crop(crop) if crop else None,
+                 "fit_large_hw": _parse_crop(fit_large, "fit_large") if fit_large else None,
                  "aux_weights": tuple(aux_weight) if aux_weight else None,
                  "bootstrap_start_iteration": bootstrap_start,
                  "bootstrap_end_iteration": bootstrap_end,

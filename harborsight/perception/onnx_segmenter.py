@@ -65,12 +65,12 @@ class OnnxSegmenter:
 
     def logits(self, image_bgr: np.ndarray) -> np.ndarray:
         """Float logits (C, H, W) at the model's input size."""
-        return self.session.run(["logits"], {"image": self._fit(image_bgr)[None]})[0][0]
+        return self.session.run(["logits"], {"image": self.fit(image_bgr)[None]})[0][0]
 
     def segment(self, image_bgr: np.ndarray) -> np.ndarray:
         """uint8 class labels (H, W) at the frame's own size."""
         h, w = image_bgr.shape[:2]
-        image = self._fit(image_bgr)[None]
+        image = self.fit(image_bgr)[None]
         if (h, w) == (self.input_height, self.input_width):
             return self.session.run(["labels"], {"image": image})[0][0]
         logits = self.session.run(["logits"], {"image": image})[0][0]
@@ -79,7 +79,7 @@ class OnnxSegmenter:
                                interpolation=cv2.INTER_LINEAR)
         return upsampled.reshape(h, w, -1).argmax(axis=2).astype(np.uint8)
 
-    def _fit(self, image_bgr: np.ndarray) -> np.ndarray:
+    def fit(self, image_bgr: np.ndarray) -> np.ndarray:
         """The frame resized to the model's input."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a uint8 BGR image (H, W, 3), got {image_bgr.shape} "

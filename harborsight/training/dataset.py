@@ -16,6 +16,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from harborsight.errors import InputError
@@ -159,18 +160,32 @@ def small_object_weights(instances: np.ndarray, labels: np.ndarray, area_ref_px:
 
 
 class SegmentationFrames(Sequence):
-    """Labelled frames of some splits of one or more datasets; ``frames[i] -> (image, labels)``."""
+    """Labelled frames of some splits of one or more datasets; ``frames[i] -> (image, labels)``.
 
-    def __init__(self, data_dirs: Iterable[str | Path], splits: Sequence[str] | None = None) -> None:
+    With ``fit_large_hw = (H, W)``, a frame larger than H or W is stretched to exactly H x W
+    (image with area filter, labels nearest-neighbour) and smaller ones keep their size: the
+    view ``harborsight segment --mode auto`` gives a model with input H x W, so that a model
+    trains and validates at the scale it will see (a 1024x768 photo is seen at 640x360, a
+    256x256 marina tile at its own scale)."""
+
+    def __init__(self, data_dirs: Iterable[str | Path], splits: Sequence[str] | None = None,
+                 fit_large_hw: tuple[int, int] | None = None) -> None:
         self.data_dirs = [Path(d) for d in data_dirs]
         self.splits = None if splits is None else tuple(splits)
         self.records = list_frames(self.data_dirs, self.splits)
+        self.fit_large_hw = fit_large_hw
 
     def __len__(self) -> int:
         return len(self.records)
 
     def __getitem__(self, index):  # Sequence protocol; slices are not needed
-        return read_labelled_frame(self.records[index])
+        image, labels = read_labelled_frame(self.records[index])
+        if self.fit_large_hw is not None:
+            height, width = self.fit_large_hw
+            if image.shape[0] > height or image.shape[1] > width:
+                image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+                labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
+        return image, labels
 
     def drop_unreadable(self, instances: bool = False) -> list[tuple[str, str]]:
         """Read every frame once (with ``instances``, its instance mask too) and leave out
@@ -201,8 +216,16 @@ class SegmentationFrames(Sequence):
         return hashlib.sha1(names.encode()).hexdigest()
 
     def instances(self, index: int, labels_hw: tuple[int, int]) -> np.ndarray:
-        """uint16 object ids of frame ``index`` (:func:`read_instances`)."""
-        return read_instances(self.records[index], labels_hw)
+        """uint16 object ids of frame ``index`` (:func:`read_instances`), in the same view as
+        ``frames[index]`` (stretched like it under ``fit_large_hw``)."""
+        record = self.records[index]
+        if self.fit_large_hw is None:
+            return read_instances(record, labels_hw)
+        instances = read_instances(record, _image_size_hw(record.image_path))
+        if instances.shape != labels_hw:
+            instances = cv2.resize(instances, (labels_hw[1], labels_hw[0]),
+                                   interpolation=cv2.INTER_NEAREST)
+        return instances
 
     def common_size_hw(self) -> tuple[int, int]:
         """The most frequent (height, width) among the images (reads headers only for PNG)."""

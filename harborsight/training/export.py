@@ -34,7 +34,7 @@ from harborsight.perception.export import (
 )
 from harborsight.perception.networks import inference_parameter_count
 from harborsight.perception.onnx_segmenter import OnnxSegmenter
-from harborsight.training.checkpoint import load_checkpoint, model_from_checkpoint
+from harborsight.training.checkpoint import load_checkpoint, model_from_checkpoint, network_options
 from harborsight.training.dataset import SegmentationFrames
 
 SIDECAR_SCHEMA = "harborsight.model/1"
@@ -136,7 +136,8 @@ def _export(
     height, width = int(height or frame_hw[0]), int(width or frame_hw[1])
     config = payload.get("config", {})
     params = inference_parameter_count(model.network)
-    metadata = {"network": payload["network"], "classes": list(CLASS_NAMES), "params": params,
+    metadata = {"network": payload["network"], "network_options": network_options(payload),
+                "classes": list(CLASS_NAMES), "params": params,
                 "iteration": payload.get("iteration"), "val_miou": payload.get("val_miou")}
     export_onnx(model, out_path, height, width, metadata)
 

@@ -26,8 +26,10 @@ DataLoader workers. Workers are spawned,
 not forked (OpenCV's thread pool deadlocks in a forked child), so a script that trains with
 workers needs the usual ``if __name__ == "__main__":`` guard.
 
-A warm start (``init_from``, a checkpoint of the same network) only replaces the initial
-weights: optimiser, schedule and sampling start at iteration 0, as in a fresh run.
+A warm start (``init_from``, a checkpoint of the same network, or an ONNX model written by
+``harborsight export`` such as the shipped default) only replaces the initial weights and
+takes the source's network options: optimiser, schedule and sampling start at iteration 0,
+as in a fresh run.
 
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
@@ -126,6 +128,7 @@ class TrainConfig:
     init_from: str | None = None                       # checkpoint whose weights start the run
     data_weights: list[float] | None = None            # sampling weight per data_dirs entry
     val_dirs: list[str] | None = None                  # validation datasets (None: data_dirs)
+    fit_large_hw: tuple[int, int] | None = None        # stretch larger frames to this (H, W)
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -136,6 +139,8 @@ class TrainConfig:
         if self.val_dirs is not None:
             self.val_dirs = [str(d) for d in self.val_dirs]
         self.crop_hw = (int(self.crop_hw[0]), int(self.crop_hw[1]))
+        if self.fit_large_hw is not None:
+            self.fit_large_hw = (int(self.fit_large_hw[0]), int(self.fit_large_hw[1]))
         if self.aux_weights is not None:
             self.aux_weights = tuple(float(w) for w in self.aux_weights)
         self.validate()
@@ -173,6 +178,8 @@ class TrainConfig:
             raise bad("warmup_ratio", f"must be in (0, 1], got {self.warmup_ratio}")
         if min(self.crop_hw) < 1:
             raise bad("crop_hw", f"must be positive, got {self.crop_hw}")
+        if self.fit_large_hw is not None and min(self.fit_large_hw) < 1:
+            raise bad("fit_large_hw", f"must be positive, got {self.fit_large_hw}")
         if self.lr <= 0:
             raise bad("lr", f"must be positive, got {self.lr}")
         if not 0.0 < self.bootstrap_end_fraction <= 1.0:
@@ -196,6 +203,7 @@ class TrainConfig:
     def to_dict(self) -> dict:
         data = dataclasses.asdict(self)
         data["crop_hw"] = list(self.crop_hw)
+        data["fit_large_hw"] = None if self.fit_large_hw is None else list(self.fit_large_hw)
         data["aux_weights"] = None if self.aux_weights is None else list(self.aux_weights)
         return data
 
@@ -219,8 +227,8 @@ class TrainConfig:
                 continue
             if isinstance(value, bool):
                 parts.append(f"--{option}" if value else f"--no-{option}")
-            elif name == "crop_hw":
-                parts += ["--crop", f"{value[0]}x{value[1]}"]
+            elif name in ("crop_hw", "fit_large_hw"):
+                parts += [f"--{option}", f"{value[0]}x{value[1]}"]
             elif name == "aux_weights":
                 for w in value:
                     parts += ["--aux-weight", f"{w:g}"]
@@ -240,7 +248,7 @@ _CLI_OPTIONS = {
     "augment": "augment", "train_split": "train-split", "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
-    "init_from": "init-from",
+    "init_from": "init-from", "fit_large_hw": "fit-large",
 }
 
 
@@ -372,12 +380,38 @@ def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch
         model.train(was_training)
 
 
-def load_initial_weights(model: SegmentationModel, config: TrainConfig) -> dict:
-    """Start ``model`` from the weights of checkpoint ``config.init_from`` (a warm start:
-    optimiser, schedule and sampling still start at iteration 0). The checkpoint must hold
-    the same network and classes; auxiliary heads it lacks keep their fresh initialisation.
-    Returns its provenance (path, iteration, command) for the new run's checkpoints."""
+@dataclasses.dataclass
+class InitialWeights:
+    """Where a warm start begins: the weights, the network options they were trained with,
+    and their provenance (recorded in the new run's checkpoints as ``init_from``)."""
+    state: dict
+    options: dict
+    provenance: dict
+
+
+#: Training frames whose statistics rebuild the folded BatchNorms of an ONNX warm start.
+ONNX_CALIBRATION_FRAMES = 32
+
+
+def load_initial_weights(config: TrainConfig, train_frames: SegmentationFrames) -> InitialWeights:
+    """The weights ``config.init_from`` names: a checkpoint of the same network and classes,
+    or an ONNX model written by ``harborsight export`` (the shipped default model among
+    them), whose weights are recovered with :mod:`harborsight.training.from_onnx` using a few
+    training frames. Auxiliary heads the source lacks keep their fresh initialisation.
+    Optimiser, schedule and sampling still start at iteration 0."""
     path = Path(config.init_from)
+    if path.suffix.lower() == ".onnx":
+        from harborsight.training.from_onnx import checkpoint_state, recover_model
+        picks = np.rint(np.linspace(0, len(train_frames) - 1,
+                                    min(len(train_frames), ONNX_CALIBRATION_FRAMES))).astype(int)
+        recovered = recover_model(path, [train_frames[int(i)][0] for i in sorted(set(picks))],
+                                  expect_network=config.model)
+        return InitialWeights(checkpoint_state(recovered), recovered.network_options, {
+            "path": str(path), "iteration": None, "command": None, "onnx": {
+                "label_agreement": round(recovered.label_agreement, 5),
+                "max_abs_logit_difference": round(recovered.max_abs_logit_difference, 4),
+                "folded_batchnorms": recovered.folded_batchnorms,
+                "calibration_frames": recovered.calibration_frames}})
     source = load_checkpoint(path)
     if source["network"] != config.model:
         raise InputError(path, "network", f"holds {source['network']}, but this run trains "
@@ -385,12 +419,16 @@ def load_initial_weights(model: SegmentationModel, config: TrainConfig) -> dict:
     if int(source["num_classes"]) != NUM_CLASSES or list(source["class_names"]) != list(CLASS_NAMES):
         raise InputError(path, "class_names", f"holds classes {source['class_names']}, this run "
                          f"trains {list(CLASS_NAMES)}")
-    missing, unexpected = model.load_state_dict(source["model"], strict=False)
+    return InitialWeights(source["model"], network_options(source), {
+        "path": str(path), "iteration": int(source["iteration"]),
+        "command": source.get("command")})
+
+
+def _apply_initial_weights(model: SegmentationModel, initial: InitialWeights, path: str) -> None:
+    missing, unexpected = model.load_state_dict(initial.state, strict=False)
     wrong = [k for k in missing if not k.startswith(AUX_STATE_PREFIX)] + list(unexpected)
     if wrong:
-        raise InputError(path, "model", f"weights do not fit {config.model}: {wrong[:5]}")
-    return {"path": str(path), "iteration": int(source["iteration"]),
-            "command": source.get("command")}
+        raise InputError(path, "model", f"weights do not fit this network: {wrong[:5]}")
 
 
 def _best_so_far(best_miou: float | None, best_path: Path) -> float | None:
@@ -469,12 +507,13 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         raise InputError(last_path, None, "a run already lives here: resume it (--resume) or "
                          "choose another --out")
 
-    train_frames = SegmentationFrames(config.data_dirs, [config.train_split])
+    train_frames = SegmentationFrames(config.data_dirs, [config.train_split], config.fit_large_hw)
     skipped = train_frames.drop_unreadable(instances=config.small_object_weight > 1.0)
     val_frames = None
     if config.val_every:
         try:
-            val_frames = SegmentationFrames(config.val_dirs or config.data_dirs, [config.val_split])
+            val_frames = SegmentationFrames(config.val_dirs or config.data_dirs, [config.val_split],
+                                            config.fit_large_hw)
             skipped += val_frames.drop_unreadable()
         except InputError as exc:
             raise InputError(exc.source, exc.field, f"{exc.message} (train without validation "
@@ -489,9 +528,18 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                          "order would change; train the new set as a new run (--init-from)")
 
     torch.manual_seed(config.seed)
-    # a resumed run keeps the architecture it began with; a new one takes the current
-    options = (network_options(checkpoint) if checkpoint is not None
-               else CURRENT_NETWORK_OPTIONS.get(config.model, {}))
+    # a resumed run keeps the architecture it began with, a warm start its source's, a new
+    # one takes the current
+    initial = None
+    if checkpoint is None and config.init_from:
+        initial = load_initial_weights(config, train_frames)
+        torch.manual_seed(config.seed)  # the recovery may draw random numbers
+    if checkpoint is not None:
+        options = network_options(checkpoint)
+    elif initial is not None:
+        options = initial.options
+    else:
+        options = CURRENT_NETWORK_OPTIONS.get(config.model, {})
     model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True,
                                              **options)).to(device)
     model.train()
@@ -513,8 +561,9 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         best_miou, val_miou = checkpoint.get("best_val_miou"), checkpoint.get("val_miou")
         best_miou = _best_so_far(best_miou, best_path)
         _truncate_log(log_path, start)
-    elif config.init_from:
-        initial_weights = load_initial_weights(model, config)
+    elif initial is not None:
+        _apply_initial_weights(model, initial, config.init_from)
+        initial_weights = initial.provenance
     out_dir.mkdir(parents=True, exist_ok=True)
     if checkpoint is None:  # a fresh run: nothing of an earlier, unfinished one may survive
         log_path.unlink(missing_ok=True)
