@@ -27,6 +27,10 @@ if TYPE_CHECKING:  # the commands import what they use: `simulate` starts faster
     from harborsight.clearance.measure import ClearanceSettings
     from harborsight.pipeline import FrameOutcome, VesselCache
 
+#: Bounds of frame counts and rates (telemetry video, run): ten hours at 240 frames per second.
+MAX_VIDEO_FRAMES = 10_000_000
+MAX_VIDEO_FPS = 1000.0
+
 app = typer.Typer(
     rich_markup_mode=None,  # help as written: "[test]" is a default, not a Rich tag
     add_completion=False, no_args_is_help=True,
@@ -264,10 +268,11 @@ def run_command(
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
     fps: Annotated[float | None, typer.Option(
-        min=0.1, help="Frame rate of annotated.mp4. Default: the input video's, else from the "
-        "frames' timestamps, else 5.")] = None,
+        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate of annotated.mp4. Default: the input "
+        "video's, else from the frames' timestamps, else 5.")] = None,
     window_s: Annotated[float, typer.Option(
-        min=0.1, help="Closing speed: least-squares fit over this many seconds.")] = 2.0,
+        min=0.1, max=3600.0, help="Closing speed: least-squares fit over this many seconds.")
+    ] = 2.0,
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
@@ -789,7 +794,8 @@ _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of
 def telemetry_show(
     logs: Annotated[list[Path], typer.Argument(
         help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, .csv).")],
-    utc_offset_h: Annotated[float | None, typer.Option(help=_UTC_OFFSET_HELP)] = None,
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
     json_out: Annotated[Path | None, typer.Option(
         "--json", help="Also write the summaries as JSON.")] = None,
 ) -> None:
@@ -873,33 +879,37 @@ def telemetry_video(
         help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
         "(OpenCV YAML/XML or ROS camera_info).")],
     water_level_m: Annotated[float, typer.Option(
-        help="The water surface in the drone altitude's datum (see `telemetry show`): e.g. "
-        "-3.5 for a DJI take-off from a deck 3.5 m above the water.")],
+        min=-1000.0, max=1000.0, help="The water surface in the drone altitude's datum (see "
+        "`telemetry show`): e.g. -3.5 for a DJI take-off from a deck 3.5 m above the water.")],
     out: Annotated[Path, typer.Option(help="JSON lines to write, one object per frame.")],
     video: Annotated[Path | None, typer.Option(
         help="The video: its frame count, rate and size.")] = None,
-    frames: Annotated[int | None, typer.Option(min=1, help="Frame count, without --video.")] = None,
-    fps: Annotated[float | None, typer.Option(min=0.1, help="Frame rate, without --video.")] = None,
+    frames: Annotated[int | None, typer.Option(
+        min=1, max=MAX_VIDEO_FRAMES, help="Frame count, without --video.")] = None,
+    fps: Annotated[float | None, typer.Option(
+        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate, without --video.")] = None,
     image_size: Annotated[str | None, typer.Option(
         help="WIDTHxHEIGHT of the frames, without --video.")] = None,
     video_start: Annotated[str | None, typer.Option(
         help="UTC time of the video's first frame, ISO 8601 (needed for autopilot logs, and "
         "for SRTs without date lines).")] = None,
-    utc_offset_h: Annotated[float | None, typer.Option(help=_UTC_OFFSET_HELP)] = None,
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
     mount: Annotated[str, typer.Option(
         help="auto (the log's gimbal attitude where it has one, else stabilised), gimbal, "
         "stabilised (pointing at --camera-pitch-deg, no roll, the airframe's yaw), or rigid "
         "(fixed to the airframe).")] = "auto",
     camera_pitch_deg: Annotated[float, typer.Option(
-        help="Stabilised or rigid mount: the camera's pitch (-90: straight down).")] = -90.0,
+        min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch (-90: "
+        "straight down, 0: at the horizon).")] = -90.0,
     camera_yaw_deg: Annotated[float | None, typer.Option(
         help="A fixed camera yaw (degrees clockwise from true north) for logs without "
         "attitude.")] = None,
     vessel_offset_s: Annotated[float, typer.Option(
-        help="Seconds added to each frame's UTC time before reading the vessel track: -5 if "
-        "the vessel's clock runs 5 s behind.")] = 0.0,
+        min=-86400.0, max=86400.0, help="Seconds added to each frame's UTC time before "
+        "reading the vessel track: -5 if the vessel's clock runs 5 s behind.")] = 0.0,
     max_gap_s: Annotated[float, typer.Option(
-        min=0.01, help="Longest gap in a track bridged by interpolation.")] = 1.0,
+        min=0.01, max=3600.0, help="Longest gap in a track bridged by interpolation.")] = 1.0,
 ) -> None:
     """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
     vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
@@ -926,6 +936,9 @@ def telemetry_video(
             if frames <= 0 or not fps or fps <= 0:
                 raise InputError(video, None, "could not read the frame count and rate: give "
                                  "--frames and --fps")
+            if frames > MAX_VIDEO_FRAMES or fps > MAX_VIDEO_FPS:
+                raise InputError(video, None, f"implausible frame count {frames} or rate "
+                                 f"{fps:g}/s in the container: give --frames and --fps")
         if image_size:
             size = re.fullmatch(r"(\d+)x(\d+)", image_size.strip().lower())
             if size is None or min(int(size[1]), int(size[2])) < 1:
