@@ -3,12 +3,14 @@
 Usage::
 
     python scripts/ship_default_model.py RUN/model.onnx --heldout SEG.json [--int8] \
-        --reproduce STEPS.txt [--target-miou 0.95]
+        --reproduce STEPS.txt [--target-miou 0.95] [--real SEG.json ...]
 
 * ``RUN/model.onnx`` and its sidecar ``RUN/model.json`` come from ``harborsight export``;
   ``--int8`` ships the quantised copy the sidecar names instead of the fp32 graph.
 * ``SEG.json`` is ``harborsight evaluate segmentation --json`` of *that same file* on held-out
   frames; its mIoU, per-class IoU, FPS and per-height mIoU go into ``default.json``.
+* ``--real SEG.json`` (repeatable): the same file evaluated on a real val split
+  (``evaluate segmentation --mode auto``); each goes into ``default.json``'s ``real_val``.
 * ``STEPS.txt`` holds the commands that rebuild the model from nothing, one per line
   (simulate, train, ..., export), recorded verbatim.
 
@@ -43,6 +45,15 @@ def heldout_summary(evaluation: dict, shipped_file: Path) -> dict:
     }
 
 
+def real_summary(evaluation: dict, shipped_file: Path) -> dict:
+    """One ``real_val`` entry of ``default.json``: scores of the shipped file on a real split."""
+    if Path(evaluation["model"]).resolve() != shipped_file.resolve():
+        sys.exit(f"error: {evaluation['model']} was evaluated, but {shipped_file} is shipped")
+    (split, scores), = evaluation["splits"].items()
+    return {"data": evaluation["data"], "split": split, "frames": scores["frames"],
+            "mode": evaluation.get("mode"), "miou": scores["miou"], "iou": scores["iou"]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("model", type=Path, help="model.onnx written by harborsight export")
@@ -51,6 +62,8 @@ def main() -> None:
     parser.add_argument("--reproduce", type=Path, required=True,
                         help="text file: the commands that rebuild the model, one per line")
     parser.add_argument("--int8", action="store_true", help="ship the int8 copy")
+    parser.add_argument("--real", type=Path, action="append", default=[],
+                        help="evaluate segmentation --json of the shipped file on a real val split")
     parser.add_argument("--target-miou", type=float, default=0.95)
     args = parser.parse_args()
 
@@ -68,6 +81,7 @@ def main() -> None:
         "onnx": "default.onnx", "onnx_int8": None,
         "precision": "int8" if args.int8 else "fp32",
         "heldout": heldout,
+        "real_val": [real_summary(json.loads(path.read_text()), shipped_file) for path in args.real],
         "target_miou": args.target_miou,
         "meets_target": heldout["miou"] >= args.target_miou,
         "reproduce": steps,

@@ -15,8 +15,9 @@ from harborsight.training.dataset import SegmentationFrames
 from harborsight.training.loop import TrainConfig, TrainingSamples
 
 
-def make_dataset(root: Path, n: int, value: int) -> Path:
-    """n frames of 8x8 whose image and labels are filled with ``value`` (labels: value % 3)."""
+def make_dataset(root: Path, n: int, value: int, val: int = 1) -> Path:
+    """n frames of 8x8 whose image and labels are filled with ``value`` (labels: value % 3);
+    the last ``val`` of them in the val split."""
     (root / "images").mkdir(parents=True)
     (root / "labels").mkdir()
     split = {}
@@ -24,7 +25,7 @@ def make_dataset(root: Path, n: int, value: int) -> Path:
         stem = f"f{k}"
         cv2.imwrite(str(root / "images" / f"{stem}.png"), np.full((8, 8, 3), value, np.uint8))
         cv2.imwrite(str(root / "labels" / f"{stem}.png"), np.full((8, 8), value % 3, np.uint8))
-        split[stem] = "train" if k < n - 1 else "val"
+        split[stem] = "train" if k < n - val else "val"
     (root / "dataset.json").write_text(json.dumps({"split": split}))
     return root
 
@@ -94,3 +95,41 @@ def test_validation_can_use_other_folders(tmp_path):
     val = [entry for entry in log if entry.get("kind") == "val"]
     assert val and val[-1]["pixels"] == 64           # the real set's one 8x8 val frame only
     assert "--val-data" in config.command_line() and f"{sim}:0.5" in config.command_line()
+
+
+def test_several_validation_sets_count_equally(tmp_path):
+    """Two val sets of very different sizes: best.pt is picked on the mean of their mIoUs,
+    not on pooled pixels (where the larger set would decide alone); both are logged."""
+    from harborsight.training.loop import train as run_training
+
+    big = make_dataset(tmp_path / "big", 6, 30, val=2)
+    small = make_dataset(tmp_path / "small", 4, 60)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[str(big), str(small)],
+                         val_dirs=[str(big), str(small)], out_dir=str(tmp_path / "run"),
+                         iterations=2, batch_size=2, crop_hw=(8, 8), val_every=2, device="cpu",
+                         checkpoint_every=2, num_workers=0, threads=1)
+    run_training(config, show_progress=False)
+    log = [json.loads(line) for line in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
+    [val] = [entry for entry in log if entry.get("kind") == "val"]
+    per_set = val["per_dataset"]
+    assert set(per_set) == {str(big), str(small)}
+    mean = (per_set[str(big)]["miou"] + per_set[str(small)]["miou"]) / 2
+    assert val["miou"] == pytest.approx(mean) and val["selection"] == "mean of per-dataset mIoU"
+    assert val["pixels"] == 64 * 2 + 64                  # pooled: big's two val frames, small's one
+    assert "pooled_miou" in val
+
+
+def test_a_training_folder_without_val_frames_is_left_out_of_validation(tmp_path):
+    """Default validation (every --data folder): a folder with no val split (an imported
+    real set with train frames only) is passed over, not an error."""
+    from harborsight.training.loop import train as run_training
+
+    with_val = make_dataset(tmp_path / "a", 4, 30)
+    train_only = make_dataset(tmp_path / "b", 4, 60, val=0)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[str(with_val), str(train_only)],
+                         out_dir=str(tmp_path / "run"), iterations=2, batch_size=2, crop_hw=(8, 8),
+                         val_every=2, device="cpu", checkpoint_every=2, num_workers=0, threads=1)
+    run_training(config, show_progress=False)
+    log = [json.loads(line) for line in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
+    [val] = [entry for entry in log if entry.get("kind") == "val"]
+    assert "per_dataset" not in val and val["pixels"] == 64

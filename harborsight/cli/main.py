@@ -646,7 +646,9 @@ def train(
         "weights every training frame is drawn equally often.")] = None,
     val_data: Annotated[list[Path] | None, typer.Option(
         help="Validate (and pick best.pt) on the val split of these folders only, e.g. the "
-        "real frames of a mixed run (default: every --data folder).")] = None,
+        "real frames of a mixed run (default: every --data folder that has a val split). With "
+        "several, each is scored on its own and best.pt goes to the highest mean of their "
+        "mIoUs, so that a small real set counts as much as a large simulator set.")] = None,
     resume: Annotated[bool, typer.Option(
         help="Continue the run in --out from last.pt exactly (other options may only change "
         "--iterations, --val-every, --checkpoint-every, --workers, --threads, --device).")

@@ -380,6 +380,25 @@ def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch
         model.train(was_training)
 
 
+def validate_sets(model: SegmentationModel, val_sets: list[tuple[str, SegmentationFrames]],
+                  device: torch.device, amp: bool = False) -> tuple[float, dict]:
+    """Validation over one or more datasets, and the mIoU that picks ``best.pt``.
+
+    One dataset: its mIoU. Several: the mean of their mIoUs, each scored on its own, so that
+    a small real set counts as much as a large simulator set (pooling pixels would let the
+    larger set decide alone). The record holds the pooled scores too, and each set's."""
+    per_set = {name: validate(model, frames, device, amp) for name, frames in val_sets}
+    pooled = SegmentationScores(sum(s.confusion for s in per_set.values()))
+    scores = {k: v for k, v in pooled.to_dict().items() if k != "confusion"}
+    if len(per_set) == 1:
+        return pooled.miou, scores
+    selection_miou = float(np.mean([s.miou for s in per_set.values()]))
+    return selection_miou, {**scores, "pooled_miou": scores["miou"], "miou": selection_miou,
+                            "selection": "mean of per-dataset mIoU",
+                            "per_dataset": {name: {"miou": s.miou, "iou": s.to_dict()["iou"]}
+                                            for name, s in per_set.items()}}
+
+
 @dataclasses.dataclass
 class InitialWeights:
     """Where a warm start begins: the weights, the network options they were trained with,
@@ -509,12 +528,20 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
 
     train_frames = SegmentationFrames(config.data_dirs, [config.train_split], config.fit_large_hw)
     skipped = train_frames.drop_unreadable(instances=config.small_object_weight > 1.0)
-    val_frames = None
+    val_sets: list[tuple[str, SegmentationFrames]] = []
     if config.val_every:
         try:
-            val_frames = SegmentationFrames(config.val_dirs or config.data_dirs, [config.val_split],
-                                            config.fit_large_hw)
-            skipped += val_frames.drop_unreadable()
+            for val_dir in config.val_dirs or config.data_dirs:
+                try:
+                    frames = SegmentationFrames([val_dir], [config.val_split], config.fit_large_hw)
+                except InputError:
+                    if config.val_dirs is not None:     # a folder named for validation must
+                        raise                           # have val frames; a --data folder need not
+                    continue
+                skipped += frames.drop_unreadable()
+                val_sets.append((str(val_dir), frames))
+            if not val_sets:                            # the error of the folders taken together
+                SegmentationFrames(config.data_dirs, [config.val_split]).drop_unreadable()
         except InputError as exc:
             raise InputError(exc.source, exc.field, f"{exc.message} (train without validation "
                              "with --val-every 0)") from None
@@ -651,13 +678,9 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                   "loss_main": float(main_loss.detach()), "lr": lr,
                                   "keep_fraction": keep,
                                   "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
-            if val_frames is not None and (iteration % config.val_every == 0
-                                           or iteration == config.iterations):
-                scores = validate(model, val_frames, device, use_amp)
-                val_miou = scores.miou
-                log.write(json.dumps({"iteration": iteration, "kind": "val",
-                                      **{k: v for k, v in scores.to_dict().items()
-                                         if k != "confusion"}}) + "\n")
+            if val_sets and (iteration % config.val_every == 0 or iteration == config.iterations):
+                val_miou, record = validate_sets(model, val_sets, device, use_amp)
+                log.write(json.dumps({"iteration": iteration, "kind": "val", **record}) + "\n")
                 if math.isfinite(val_miou) and (best_miou is None or val_miou > best_miou):
                     best_miou = val_miou
                     save_checkpoint(best_path, payload(iteration, full=False))
