@@ -101,3 +101,17 @@ def test_command_writes_a_reviewed_dataset(tmp_path):
     assert (labels[:41, :41] == 255).all() and np.array_equal(labels[41:], proposal[41:])
     assert doc["proposal_agreement"]["per_image"]["harbor00"] == 1.0
     assert list((out / "review").glob("review_*.jpg"))
+
+
+def test_a_pontoon_inside_a_row_of_bows_is_found_by_its_uniform_deck():
+    """Bows lined up against both sides of the pontoon (2-px strips of alternating white hull
+    and blue cover) make one straight band 11 px wide: too wide on average for a narrow run,
+    so the whole band used to be left undecided. The deck is uniform along its length, the
+    bows are not: the deck is obstacle, the bows are not."""
+    image = synthetic_marina()[0]
+    stripes = np.where((np.arange(256) // 8) % 2 == 0, 0, 1)
+    for columns in (slice(94, 96), slice(103, 105)):
+        image[:, columns] = np.array([(235, 235, 235), (150, 90, 40)], np.uint8)[stripes][:, None]
+    labels = label_marina_tile(image).labels
+    assert (labels[:, 98:101] == 2).mean() > 0.9
+    assert not (labels[:, 94:96] == 2).any() and not (labels[:, 103:105] == 2).any()

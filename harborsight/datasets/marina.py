@@ -17,6 +17,13 @@ per pixel:
    at most ``pontoon_width_px`` wide on average; a wider region is a dense row of boats whose
    bows line up, and is left undecided (255), as are solid parts thinner than 4 px (finger
    piers, bow tips, lines).
+   **A pontoon inside such a row** is found by its uniformity along its length: with the
+   row's direction from its minimum-area rectangle, the standard deviation of L* along a
+   line of ``row_line_px`` (mean filter m = k * L, m2 = k * L², sigma = sqrt(m2 - m²)) is
+   at most ``row_std_max`` where the deck runs on (the boats beside it alternate hull,
+   shadow and water along that line), and every pixel of the line is solid; such pixels,
+   in straight runs at least ``row_min_length_px`` long and at most ``pontoon_width_px``
+   wide, are ``obstacle``. The rest of the row stays undecided.
 3. **The rest.** Solid pixels greener than the water are ``obstacle`` (lawns and trees on the
    shore); every other solid pixel is ``ship``. Specks under 6 px and a 1-px band on every
    class boundary are 255.
@@ -44,6 +51,9 @@ class MarinaSettings:
     pontoon_length_px: int = 150
     pontoon_width_px: float = 9.0
     hole_fill_px: int = 25
+    row_line_px: int = 41
+    row_std_max: float = 16.0
+    row_min_length_px: int = 80
 
 
 def _line_kernel(length_px: int, angle_deg: float) -> np.ndarray:
@@ -91,6 +101,42 @@ def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, 
     return narrow, undecided
 
 
+def _straight_runs(mask: np.ndarray, min_length_px: float, max_width_px: float) -> np.ndarray:
+    """The connected parts of ``mask`` at least ``min_length_px`` long and at most
+    ``max_width_px`` wide on average (area over the length of their minimum-area rectangle)."""
+    kept = np.zeros_like(mask)
+    count, components, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    for index in range(1, count):
+        region = components == index
+        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
+        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)
+        length = max(side_a, side_b) + 1.0
+        if length >= min_length_px and stats[index, cv2.CC_STAT_AREA] / length <= max_width_px:
+            kept[region] = 1
+    return kept
+
+
+def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray,
+                      settings: MarinaSettings) -> np.ndarray:
+    """Pontoon decks inside wide rows of boats (module docstring, step 2) as a uint8 mask."""
+    found = np.zeros_like(solid)
+    count, components, _, _ = cv2.connectedComponentsWithStats(rows, connectivity=8)
+    for index in range(1, count):
+        region = components == index
+        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
+        (_, _), (side_a, side_b), angle_deg = cv2.minAreaRect(points)
+        along_deg = angle_deg if side_a >= side_b else angle_deg + 90.0
+        kernel = _line_kernel(settings.row_line_px, along_deg).astype(np.float32)
+        kernel /= kernel.sum()
+        mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        mean_sq = cv2.filter2D(lightness * lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+        solid_share = cv2.filter2D(solid.astype(np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT)
+        deck = (region & (sigma <= settings.row_std_max) & (solid_share > 0.97)).astype(np.uint8)
+        found |= _straight_runs(deck, settings.row_min_length_px, settings.pontoon_width_px)
+    return found
+
+
 def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = None) -> BoxLabelResult:
     """A proposed mask of one marina tile (module docstring)."""
     settings = settings or MarinaSettings()
@@ -109,6 +155,9 @@ def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = N
     narrow, undecided = _pontoons(solid, settings)
     labels[narrow > 0] = OBSTACLE
     labels[undecided > 0] = IGNORE
+    in_rows = _pontoons_in_rows(np.ascontiguousarray(lab[..., 0]), solid, undecided, settings)
+    labels[in_rows > 0] = OBSTACLE
+    narrow |= in_rows
     opened = cv2.morphologyEx(solid, cv2.MORPH_OPEN, np.ones((4, 4), np.uint8))
     labels[(solid > 0) & (opened == 0) & (narrow == 0)] = IGNORE
     water_a = float(lab[..., 1][water].mean())
@@ -119,5 +168,6 @@ def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = N
     labels[speck[components]] = IGNORE
     kernel = np.ones((3, 3), np.uint8)
     labels[cv2.dilate(labels, kernel) != cv2.erode(labels, kernel)] = IGNORE
-    notes = [f"{int(undecided.sum())} px of wide line-like rows left undecided"] if undecided.any() else []
+    notes = ([f"{int(undecided.sum() - in_rows.sum())} px of wide line-like rows left undecided, "
+              f"{int(in_rows.sum())} px of pontoon found inside them"] if undecided.any() else [])
     return BoxLabelResult(labels, float((labels == WATER).mean()), notes)
