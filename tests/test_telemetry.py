@@ -643,3 +643,19 @@ def test_cli_video_refuses_bad_sizes_and_unknown_cameras(tmp_path):
                          terminal_width=200)
     assert typo.exit_code == 2 and "neither a camera preset (dji-mavic3" in typo.output
     assert not (tmp_path / "f.jsonl").exists()
+
+
+def test_random_bytes_as_a_dataflash_log_are_one_line(tmp_path, capfd):
+    """20 kB of random bytes named .BIN: pymavlink's Cython indexer prints a line per bad
+    header straight to the C stderr (thousands of them); we say it in one line."""
+    junk = tmp_path / "junk.BIN"
+    junk.write_bytes(np.random.default_rng(0).integers(0, 256, 20_000, dtype=np.uint8).tobytes())
+    with pytest.raises(InputError, match="not an ArduPilot DataFlash log") as caught:
+        read_drone_log(junk)
+    assert "junk.BIN" in str(caught.value)
+    captured = capfd.readouterr()
+    assert "bad header" not in captured.out + captured.err
+    result = CliRunner().invoke(app, ["telemetry", "show", str(junk)])
+    assert result.exit_code == 1
+    captured = capfd.readouterr()
+    assert "bad header" not in result.output + captured.out + captured.err

@@ -34,7 +34,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import struct
+import sys
+import tempfile
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -201,6 +204,30 @@ def read_px4_ulog(path: str | Path) -> Track:
     )
 
 
+@contextlib.contextmanager
+def _captured_output(sink: io.StringIO):
+    """Everything written to stdout and stderr inside the block, Python's and C's alike
+    (pymavlink's Cython indexer prints a line per bad header with C stdio), goes to ``sink``
+    instead of the terminal."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
+    with tempfile.TemporaryFile(mode="w+b") as spool:
+        try:
+            for fd in saved:
+                os.dup2(spool.fileno(), fd)
+            with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+                yield sink
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in saved.items():
+                os.dup2(copy, fd)
+                os.close(copy)
+            spool.seek(0)
+            sink.write(spool.read().decode("utf-8", "replace"))
+
+
 def read_ardupilot_bin(path: str | Path) -> Track:
     """An ArduPilot DataFlash ``.bin`` log's GPS track with ``ATT`` attitude at each sample."""
     from pymavlink import DFReader
@@ -208,12 +235,12 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     path = Path(path)
     noise = io.StringIO()        # pymavlink prints a line per bad header on foreign files
     try:
-        with contextlib.redirect_stdout(noise):
+        with _captured_output(noise):
             log = DFReader.DFReader_binary(str(path), zero_time_base=False)
     except Exception as exc:  # DFReader raises assorted errors on foreign files
         raise InputError(path, None, f"not a readable ArduPilot DataFlash log: {exc}") from None
     gps_rows, att_rows, pos_rows, unfixed, other_instances = [], [], [], 0, 0
-    with contextlib.redirect_stdout(noise):
+    with _captured_output(noise):
         while True:
             try:
                 message = log.recv_match(type=["GPS", "ATT", "POS"])
@@ -241,6 +268,10 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                 raise InputError(path, message.get_type(), f"unsupported (older) DataFlash "
                                  f"format: {exc}") from None
     if not gps_rows:
+        bad_headers = noise.getvalue().count("bad header")
+        if bad_headers and not (att_rows or pos_rows or unfixed or other_instances):
+            raise InputError(path, None, f"not an ArduPilot DataFlash log: no GPS, ATT or POS "
+                             f"record, {bad_headers} unreadable record header(s)")
         raise InputError(path, "GPS", "the log has no GPS message with a 3-D fix")
     gps = np.array(gps_rows, dtype=float)
     notes = [f"{unfixed} GPS sample(s) without a 3-D fix skipped"] if unfixed else []
