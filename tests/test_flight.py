@@ -544,3 +544,15 @@ def test_metadata_past_the_video_end_is_reported_not_counted(tmp_path, untrained
     errors = [item["error"] for item in record["skipped_frames"]]
     assert len(errors) == 2 and all("past the video's end (3 frames)" in e for e in errors)
     assert f"{metadata}:4:" in errors[0] and f"{metadata}:5:" in errors[1]
+
+
+@pytest.mark.parametrize("command", ["run", "measure"])
+def test_a_missing_masks_folder_is_one_error(tmp_path, command):
+    """A --masks folder that is not there: one line naming it, exit 2, nothing measured
+    (it used to be one 'mask file not found' per frame)."""
+    missing = tmp_path / "no-such-masks"
+    result = runner.invoke(app, [command, str(SAMPLES), "--masks", str(missing),
+                                 "--out", str(tmp_path / "out")], terminal_width=200)
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert lines == [f"error: {missing}: --masks: no such folder"]

@@ -86,6 +86,12 @@ def print_report_table(outcome: FrameOutcome) -> None:
                   if md is not None else "no obstacle in view")
 
 
+def _check_masks_folder(masks: Path | None) -> None:
+    """One error for a --masks folder that is not there, rather than one per frame."""
+    if masks is not None and not masks.is_dir():
+        raise InputError(masks, "--masks", "not a folder" if masks.exists() else "no such folder")
+
+
 def _settings(method: Method, sections: int | None, section_length_m: float | None,
               pose_margin_px: float, own_rim_px: int) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
@@ -197,6 +203,7 @@ def measure(
                 if given is not None:
                     raise InputError(given, name, f"{name} is for a single image; a folder's "
                                      "frames carry their own JSON files (and masks: --masks)")
+            _check_masks_folder(masks)
             raise typer.Exit(_run_folder(input_path, masks, vessels, settings, out, intrinsics,
                                          tables, model))
         if masks is not None:
@@ -292,6 +299,7 @@ def run_command(
                                  "carry their own JSON files")
             if model is not None and masks is not None:
                 raise InputError(model, "model", "give either --model or --masks, not both")
+            _check_masks_folder(masks)
             source = FolderSource(input_path, masks, use_masks=masks is not None,
                                   camera=intrinsics)
             segmenter = None if masks is not None else _segmenter(model)
