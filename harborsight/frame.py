@@ -218,13 +218,32 @@ def load_frame_metadata(
 ) -> FrameMetadata:
     """Read and validate one frame JSON file."""
     path = Path(path)
+    return parse_frame_metadata(read_frame_json(path), path, camera=camera, base_dir=path.parent)
+
+
+def read_frame_json(path: Path) -> object:
+    """The JSON value of a frame file, unvalidated."""
     try:
-        data = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except FileNotFoundError as exc:
         raise InputError(path, None, "frame metadata file not found") from exc
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, None, f"not valid JSON: {exc}") from exc
-    return parse_frame_metadata(data, path, camera=camera, base_dir=path.parent)
+
+
+def parse_frame_metadata_untimed_on_error(
+    data: object, source: str | Path, **options
+) -> tuple[FrameMetadata, str | None]:
+    """:func:`parse_frame_metadata`, but a frame whose only fault is its ``timestamp`` is
+    returned without one, with the error as the second value: a flight run measures such a
+    frame (its distances do not depend on the time) and leaves it out of the closing speeds."""
+    try:
+        return parse_frame_metadata(data, source, **options), None
+    except InputError as exc:
+        if exc.field != "timestamp" or not isinstance(data, dict):
+            raise
+        untimed = {key: value for key, value in data.items() if key != "timestamp"}
+        return parse_frame_metadata(untimed, source, **options), str(exc)
 
 
 @dataclass(frozen=True)

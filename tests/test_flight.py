@@ -502,7 +502,7 @@ def test_explicit_frame_indices(tmp_path):
         "{broken",
         json.dumps({**meta, "frame_index": 7, "uav": {"lat": 56.0}}),   # bad record
     ]))
-    by_frame, orphans, line_of = read_metadata_lines(path, "v")
+    by_frame, orphans, line_of, _ = read_metadata_lines(path, "v")
     assert set(by_frame) == {3, 7}
     assert by_frame[3].image == "000000.png"
     assert line_of == {3: 1, 7: 5}
@@ -556,3 +556,28 @@ def test_a_missing_masks_folder_is_one_error(tmp_path, command):
     assert result.exit_code == 2, result.output
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert lines == [f"error: {missing}: --masks: no such folder"]
+
+
+def test_an_unreadable_timestamp_is_measured_untimed_in_a_folder(tmp_path):
+    """As the runner's doc says: a frame whose timestamp cannot be read is measured (its
+    distances do not depend on the time), left out of the closing speeds and warned about;
+    it used to be skipped."""
+    _, out = _run_with_a_frame_edited(tmp_path, lambda m: m.update(timestamp="not a time"))
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 5 and record["skipped_frames"] == []
+    [warning] = record["warnings"]
+    assert warning["frame"] == 2 and "000002.json: timestamp: expected an ISO 8601 time" in \
+        warning["warning"] and "left out of the closing speeds" in warning["warning"]
+    rows = [r for r in csv.DictReader((out / "sections.csv").open()) if r["frame"] == "2"]
+    assert rows and {r["time_s"] for r in rows} == {""}
+    assert (out / "reports" / "000002.json").is_file()
+
+
+def test_an_unreadable_timestamp_is_measured_untimed_in_json_lines(tmp_path):
+    meta = json.loads((SAMPLES / "frames" / "000000.json").read_text())
+    path = tmp_path / "m.jsonl"
+    path.write_text("\n".join([json.dumps({**meta, "timestamp": "2026-05-01T12:00:00Z"}),
+                               json.dumps({**meta, "timestamp": "yesterday"})]) + "\n")
+    by_frame, orphans, _, time_errors = read_metadata_lines(path, "v")
+    assert orphans == [] and by_frame[1].timestamp is None
+    assert list(time_errors) == [1] and f"{path}:2: timestamp" in time_errors[1]

@@ -117,9 +117,9 @@ class _VideoWriter:
 
 class FlightClock:
     """One time base for a run, fixed by the first frame that has a time: ``timestamp`` when
-    that frame has one (a later frame without one, or with an unreadable one, raises: mixing
-    clocks would corrupt the closing-speed fits, so the runner measures it untimed), else the
-    video position. Until then every time is None.
+    that frame has one (a later frame without one raises: mixing clocks would corrupt the
+    closing-speed fits, so the runner measures it untimed, as it does a frame whose timestamp
+    cannot be read), else the video position. Until then every time is None.
 
     Timestamps count from the first timestamped frame; video positions from the video's
     start, so that ``time_s`` of a video run is the time in the video."""
@@ -252,11 +252,15 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
     measured. Returns the annotated picture for the video."""
     warnings = []
     try:
-        try:
-            time_s = clock.seconds(frame)
-        except InputError as exc:          # a bad time costs the closing speeds, not the frame
+        if frame.time_error is not None:   # a bad time costs the closing speeds, not the frame
             time_s = None
-            warnings.append(f"{exc}: measured, but left out of the closing speeds")
+            warnings.append(f"{frame.time_error}: measured, but left out of the closing speeds")
+        else:
+            try:
+                time_s = clock.seconds(frame)
+            except InputError as exc:
+                time_s = None
+                warnings.append(f"{exc}: measured, but left out of the closing speeds")
         labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
                                            frame.source)
         vessel = vessels.for_frame(frame.meta, frame.meta_path)

@@ -28,7 +28,7 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds, timestamp_seconds
-from harborsight.frame import FrameMetadata, load_frame_metadata, parse_frame_metadata
+from harborsight.frame import FrameMetadata, parse_frame_metadata_untimed_on_error, read_frame_json
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.pipeline import (
     check_image_size,
@@ -53,6 +53,7 @@ class FlightFrame:
     meta_path: Path | None = None      # the file vessel_spec paths are relative to
     video_time_s: float | None = None  # position in the video, when the source is one
     error: str | None = None
+    time_error: str | None = None      # an unreadable timestamp: measured, but untimed
     is_frame: bool = True              # False: a metadata line with no picture (reported only)
 
     @property
@@ -81,7 +82,9 @@ class FolderSource:
             frame = FlightFrame(index, str(job.meta_path), mask_path=job.mask_path,
                                 meta_path=job.meta_path)
             try:
-                frame.meta = load_frame_metadata(job.meta_path, camera=self.camera)
+                frame.meta, frame.time_error = parse_frame_metadata_untimed_on_error(
+                    read_frame_json(job.meta_path), job.meta_path, camera=self.camera,
+                    base_dir=job.meta_path.parent)
                 image_path = frame_image_path(job, frame.meta)
                 frame.image = read_image(image_path)
                 check_image_size(frame.image, frame.meta, image_path)
@@ -131,10 +134,12 @@ def fps_from_timestamps(times_s: Iterable[float | None]) -> float | None:
 
 
 def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | None = None
-                        ) -> tuple[dict[int, FrameMetadata | str], list[str], dict[int, int]]:
+                        ) -> tuple[dict[int, FrameMetadata | str], list[str], dict[int, int],
+                                   dict[int, str]]:
     """Parse a JSON-lines metadata file: ``{video frame index: metadata or error}``, the
-    errors of lines that name no frame (a broken line when indices are explicit), and
-    ``{video frame index: line number}``."""
+    errors of lines that name no frame (a broken line when indices are explicit),
+    ``{video frame index: line number}`` and ``{video frame index: timestamp error}`` of
+    lines whose only fault is an unreadable timestamp (parsed without it)."""
     if not path.is_file():
         raise InputError(path, None, "metadata file not found")
     lines = [(n, line) for n, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
@@ -144,6 +149,7 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
     by_frame: dict[int, FrameMetadata | str] = {}
     orphans: list[str] = []
     line_of: dict[int, int] = {}
+    time_errors: dict[int, str] = {}
     for order, (line_no, line) in enumerate(lines):
         where = f"{path}:{line_no}"
         try:
@@ -170,13 +176,15 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
         try:
             if isinstance(record, dict):
                 record.setdefault("image", f"{video_stem}-{index:06d}.png")
-            by_frame[index] = parse_frame_metadata(record, where, camera=camera,
-                                                   base_dir=path.parent)
+            by_frame[index], time_error = parse_frame_metadata_untimed_on_error(
+                record, where, camera=camera, base_dir=path.parent)
+            if time_error is not None:
+                time_errors[index] = time_error
         except InputError as exc:
             by_frame[index] = str(exc)
         except Exception as exc:  # one bad line must not end the run
             by_frame[index] = f"{where}: unexpected {type(exc).__name__}: {exc}"
-    return by_frame, orphans, line_of
+    return by_frame, orphans, line_of, time_errors
 
 
 class VideoSource:
@@ -194,8 +202,8 @@ class VideoSource:
         count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0
         capture.release()
-        self.by_frame, self.orphans, self.line_of = read_metadata_lines(metadata, video.stem,
-                                                                        camera)
+        self.by_frame, self.orphans, self.line_of, self.time_errors = read_metadata_lines(
+            metadata, video.stem, camera)
         # the annotated video's rate: the container's, else the metadata's timestamps
         self.fps = self.container_fps or fps_from_timestamps(
             _meta_timestamp_s(entry) for entry in self.by_frame.values())
@@ -223,7 +231,7 @@ class VideoSource:
                 elif isinstance(entry, str):
                     frame.error = entry
                 else:
-                    frame.meta = entry
+                    frame.meta, frame.time_error = entry, self.time_errors.get(index)
                     try:
                         check_image_size(image, entry, f"{self.metadata}:{self.line_of[index]} "
                                                        f"(video frame {index})")
