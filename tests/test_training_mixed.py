@@ -133,3 +133,24 @@ def test_a_training_folder_without_val_frames_is_left_out_of_validation(tmp_path
     log = [json.loads(line) for line in (tmp_path / "run" / "train_log.jsonl").read_text().splitlines()]
     [val] = [entry for entry in log if entry.get("kind") == "val"]
     assert "per_dataset" not in val and val["pixels"] == 64
+
+
+@pytest.mark.parametrize("freeze", [False, True])
+def test_freeze_batchnorm_keeps_the_running_statistics(tmp_path, freeze):
+    """--freeze-batchnorm: the BatchNorm running statistics are what the run began with
+    (here the fresh 0 / 1), while the weights, BatchNorm scales among them, still learn;
+    without it the statistics follow the training batches."""
+    from harborsight.training.checkpoint import load_checkpoint
+    from harborsight.training.loop import train as run_training
+
+    data = make_dataset(tmp_path / "d", 4, 90)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[str(data)], out_dir=str(tmp_path / "run"),
+                         iterations=2, batch_size=2, crop_hw=(8, 8), val_every=2, device="cpu",
+                         checkpoint_every=2, num_workers=0, threads=1, freeze_batchnorm=freeze)
+    run_training(config, show_progress=False)
+    state = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
+    means = [v for k, v in state.items() if k.endswith("running_mean")]
+    scales = [v for k, v in state.items() if k.endswith(".weight") and v.ndim == 1]
+    assert means and all((m == 0).all() for m in means) == freeze
+    assert any((s != 1).any() for s in scales)               # BatchNorm scales learnt either way
+    assert ("--freeze-batchnorm" in config.command_line()) == freeze

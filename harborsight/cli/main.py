@@ -669,6 +669,11 @@ def train(
         help="HEIGHTxWIDTH, e.g. 360x640 (the model input): frames larger than this are "
         "stretched to it before cropping and validation, smaller ones keep their scale; what "
         "`segment --mode auto` does, so a model trains at the scale it will see [off].")] = None,
+    freeze_batchnorm: Annotated[bool | None, typer.Option(
+        help="Keep every BatchNorm's running statistics as --init-from left them (BatchNorm "
+        "layers in eval mode; their scale and shift still learn): a fine-tune on new data "
+        "then does not shift the statistics the model's earlier data was normalised with "
+        "[off].")] = None,
     lr: Annotated[float | None, typer.Option(help="Initial learning rate [0.01].")] = None,
     momentum: Annotated[float | None, typer.Option(help="SGD momentum [0.9].")] = None,
     weight_decay: Annotated[float | None, typer.Option(
@@ -729,6 +734,7 @@ def train(
                  "warmup_iterations": warmup, "warmup_ratio": warmup_ratio,
                  "crop_hw": _parse_crop(crop) if crop else None,
                  "fit_large_hw": _parse_crop(fit_large, "fit_large") if fit_large else None,
+                 "freeze_batchnorm": freeze_batchnorm,
                  "aux_weights": tuple(aux_weight) if aux_weight else None,
                  "bootstrap_start_iteration": bootstrap_start,
                  "bootstrap_end_iteration": bootstrap_end,

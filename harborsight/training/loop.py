@@ -129,6 +129,7 @@ class TrainConfig:
     data_weights: list[float] | None = None            # sampling weight per data_dirs entry
     val_dirs: list[str] | None = None                  # validation datasets (None: data_dirs)
     fit_large_hw: tuple[int, int] | None = None        # stretch larger frames to this (H, W)
+    freeze_batchnorm: bool = False                     # BatchNorm running statistics kept
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -248,7 +249,7 @@ _CLI_OPTIONS = {
     "augment": "augment", "train_split": "train-split", "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
-    "init_from": "init-from", "fit_large_hw": "fit-large",
+    "init_from": "init-from", "fit_large_hw": "fit-large", "freeze_batchnorm": "freeze-batchnorm",
 }
 
 
@@ -378,6 +379,17 @@ def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch
         return score_frames(TorchSegmenter(model, device, amp).segment, frames)
     finally:
         model.train(was_training)
+
+
+def training_mode(model: torch.nn.Module, freeze_batchnorm: bool = False) -> None:
+    """The model in training mode; with ``freeze_batchnorm`` its BatchNorm layers stay in
+    eval mode: they normalise with their running statistics and do not update them (their
+    affine scale and shift still receive gradients)."""
+    model.train()
+    if freeze_batchnorm:
+        for module in model.modules():
+            if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+                module.eval()
 
 
 def validate_sets(model: SegmentationModel, val_sets: list[tuple[str, SegmentationFrames]],
@@ -569,7 +581,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         options = CURRENT_NETWORK_OPTIONS.get(config.model, {})
     model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True,
                                              **options)).to(device)
-    model.train()
+    training_mode(model, config.freeze_batchnorm)
     optimizer = torch.optim.SGD(parameter_groups(model, config.weight_decay), lr=config.lr,
                                 momentum=config.momentum)
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
@@ -680,6 +692,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                   "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
             if val_sets and (iteration % config.val_every == 0 or iteration == config.iterations):
                 val_miou, record = validate_sets(model, val_sets, device, use_amp)
+                training_mode(model, config.freeze_batchnorm)
                 log.write(json.dumps({"iteration": iteration, "kind": "val", **record}) + "\n")
                 if math.isfinite(val_miou) and (best_miou is None or val_miou > best_miou):
                     best_miou = val_miou
