@@ -30,11 +30,18 @@ from pathlib import Path
 MODELS_DIR = Path(__file__).resolve().parent.parent / "harborsight" / "data" / "models"
 
 
-def heldout_summary(evaluation: dict, shipped_file: Path) -> dict:
-    """The held-out block of ``default.json`` from an ``evaluate segmentation`` JSON."""
+def _split_scores(evaluation: dict, shipped_file: Path) -> tuple[str, dict]:
+    """(split, scores) of an ``evaluate segmentation`` JSON of one split, which must be an
+    evaluation of the file being shipped."""
     if Path(evaluation["model"]).resolve() != shipped_file.resolve():
         sys.exit(f"error: {evaluation['model']} was evaluated, but {shipped_file} is shipped")
     (split, scores), = evaluation["splits"].items()
+    return split, scores
+
+
+def heldout_summary(evaluation: dict, shipped_file: Path) -> dict:
+    """The held-out block of ``default.json`` from an ``evaluate segmentation`` JSON."""
+    split, scores = _split_scores(evaluation, shipped_file)
     return {
         "data": evaluation["data"], "split": split, "frames": scores["frames"],
         "miou": scores["miou"], "mean_accuracy": scores["mean_accuracy"], "iou": scores["iou"],
@@ -47,9 +54,7 @@ def heldout_summary(evaluation: dict, shipped_file: Path) -> dict:
 
 def real_summary(evaluation: dict, shipped_file: Path) -> dict:
     """One ``real_val`` entry of ``default.json``: scores of the shipped file on a real split."""
-    if Path(evaluation["model"]).resolve() != shipped_file.resolve():
-        sys.exit(f"error: {evaluation['model']} was evaluated, but {shipped_file} is shipped")
-    (split, scores), = evaluation["splits"].items()
+    split, scores = _split_scores(evaluation, shipped_file)
     return {"data": evaluation["data"], "split": split, "frames": scores["frames"],
             "mode": evaluation.get("mode"), "miou": scores["miou"], "iou": scores["iou"]}
 

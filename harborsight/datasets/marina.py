@@ -83,6 +83,20 @@ def _water(lab: np.ndarray) -> np.ndarray | None:
     return water
 
 
+def _elongated_parts(mask: np.ndarray):
+    """Each 8-connected part of ``mask``: (its pixels, length and mean width in pixels, the
+    direction of its length in degrees), from its minimum-area rectangle through the pixel
+    centres (length = long side + 1, width = area / length)."""
+    count, components, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    for index in range(1, count):
+        region = components == index
+        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
+        (_, _), (side_a, side_b), angle_deg = cv2.minAreaRect(points)
+        length = max(side_a, side_b) + 1.0
+        along_deg = angle_deg if side_a >= side_b else angle_deg + 90.0
+        yield region, length, stats[index, cv2.CC_STAT_AREA] / length, along_deg
+
+
 def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, np.ndarray]:
     """(narrow pontoon runs, wide line-like regions left undecided) as uint8 masks."""
     runs = np.zeros_like(solid)
@@ -91,41 +105,16 @@ def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, 
         wide = cv2.morphologyEx(along, cv2.MORPH_OPEN, _line_kernel(13, angle + 90))
         runs |= along & (1 - wide)
     narrow, undecided = np.zeros_like(solid), np.zeros_like(solid)
-    count, components, stats, _ = cv2.connectedComponentsWithStats(runs, connectivity=8)
-    for index in range(1, count):
-        region = components == index
-        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
-        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)  # through pixel centres
-        width = stats[index, cv2.CC_STAT_AREA] / (max(side_a, side_b) + 1.0)
+    for region, _, width, _ in _elongated_parts(runs):
         (narrow if width <= settings.pontoon_width_px else undecided)[region] = 1
     return narrow, undecided
-
-
-def _straight_runs(mask: np.ndarray, min_length_px: float, max_width_px: float) -> np.ndarray:
-    """The connected parts of ``mask`` at least ``min_length_px`` long and at most
-    ``max_width_px`` wide on average (area over the length of their minimum-area rectangle)."""
-    kept = np.zeros_like(mask)
-    count, components, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    for index in range(1, count):
-        region = components == index
-        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
-        (_, _), (side_a, side_b), _ = cv2.minAreaRect(points)
-        length = max(side_a, side_b) + 1.0
-        if length >= min_length_px and stats[index, cv2.CC_STAT_AREA] / length <= max_width_px:
-            kept[region] = 1
-    return kept
 
 
 def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray,
                       settings: MarinaSettings) -> np.ndarray:
     """Pontoon decks inside wide rows of boats (module docstring, step 2) as a uint8 mask."""
     found = np.zeros_like(solid)
-    count, components, _, _ = cv2.connectedComponentsWithStats(rows, connectivity=8)
-    for index in range(1, count):
-        region = components == index
-        points = np.column_stack(np.nonzero(region)[::-1]).astype(np.float32)
-        (_, _), (side_a, side_b), angle_deg = cv2.minAreaRect(points)
-        along_deg = angle_deg if side_a >= side_b else angle_deg + 90.0
+    for region, _, _, along_deg in _elongated_parts(rows):
         kernel = _line_kernel(settings.row_line_px, along_deg).astype(np.float32)
         kernel /= kernel.sum()
         mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
@@ -133,7 +122,9 @@ def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray
         sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
         solid_share = cv2.filter2D(solid.astype(np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT)
         deck = (region & (sigma <= settings.row_std_max) & (solid_share > 0.97)).astype(np.uint8)
-        found |= _straight_runs(deck, settings.row_min_length_px, settings.pontoon_width_px)
+        for part, length, width, _ in _elongated_parts(deck):
+            if length >= settings.row_min_length_px and width <= settings.pontoon_width_px:
+                found[part] = 1
     return found
 
 
