@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from harborsight.cli.main import _parse_weighted_data
+from harborsight.cli.training import parse_weighted_data
 from harborsight.errors import InputError
 from harborsight.training.augment import AugmentConfig
 from harborsight.training.dataset import SegmentationFrames
@@ -66,11 +66,11 @@ def test_a_zero_weight_dataset_is_never_drawn(tmp_path):
 def test_weighted_data_options_parse(tmp_path):
     plain = make_dataset(tmp_path / "plain", 2, 1)
     odd = make_dataset(tmp_path / "x:2", 2, 1)   # a folder whose name ends like a weight
-    assert _parse_weighted_data([plain]) == ([str(plain)], None)
-    assert _parse_weighted_data([Path(f"{plain}:0.8"), Path(f"{odd}:0.2")]) == (
+    assert parse_weighted_data([plain]) == ([str(plain)], None)
+    assert parse_weighted_data([Path(f"{plain}:0.8"), Path(f"{odd}:0.2")]) == (
         [str(plain), str(odd)], [0.8, 0.2])
-    assert _parse_weighted_data([odd]) == ([str(odd)], None)
-    assert _parse_weighted_data([Path(f"{plain}:3"), odd]) == ([str(plain), str(odd)], [3.0, 1.0])
+    assert parse_weighted_data([odd]) == ([str(odd)], None)
+    assert parse_weighted_data([Path(f"{plain}:3"), odd]) == ([str(plain), str(odd)], [3.0, 1.0])
 
 
 @pytest.mark.parametrize("weights, message", [([1.0], "1 weight"), ([0.0, 0.0], "positive sum"),

@@ -12,7 +12,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from harborsight.cli.main import app, console, err_console
+from harborsight.cli.app import app, console, err_console
 from harborsight.errors import HarborsightError
 
 dataset_app = typer.Typer(rich_markup_mode=None, no_args_is_help=True,

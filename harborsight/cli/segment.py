@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from harborsight.cli.main import _segmenter, app, console, err_console
+from harborsight.cli.app import app, console, err_console, load_segmenter
 from harborsight.errors import HarborsightError
 from harborsight.perception.segment_images import SegmentMode
 
@@ -77,7 +77,7 @@ def segment_command(
     try:
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         paths = collect_images(inputs, recursive)
-        segmenter = _segmenter(model)
+        segmenter = load_segmenter(model)
         console.print(f"mode: {options.describe()}; {len(paths)} image(s)", markup=False,
                       highlight=False)
         with Progress(TextColumn("[bold]segmenting"), BarColumn(), MofNCompleteColumn(),

@@ -1,0 +1,116 @@
+"""The ``harborsight`` app, its consoles, and what several command modules share (options'
+defaults, settings, the segmenter, numeric and size parsing)."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+from rich.console import Console
+
+from harborsight.errors import InputError
+
+if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts faster
+    from harborsight.clearance.measure import ClearanceSettings
+
+
+#: Bounds of frame counts and rates (telemetry video, run): ten hours at 240 frames per second.
+MAX_VIDEO_FRAMES = 10_000_000
+
+
+MAX_VIDEO_FPS = 1000.0
+
+
+app = typer.Typer(
+    rich_markup_mode=None,  # help as written: "[test]" is a default, not a Rich tag
+    add_completion=False, no_args_is_help=True,
+    help="Per-section hull clearance of a vessel, measured from a companion drone's camera.",
+)
+
+
+console = Console()
+
+
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+class Method(StrEnum):
+    ground_plane = "ground_plane"
+    gsd = "gsd"
+
+
+def fmt_number(value: float | None, digits: int) -> str:
+    """A number to ``digits`` decimals; "—" for None or NaN (a class absent from a split)."""
+    return "—" if value is None or value != value else f"{value:.{digits}f}"
+
+
+def check_masks_folder(masks: Path | None) -> None:
+    """One error for a --masks folder that is not there, rather than one per frame."""
+    if masks is not None and not masks.is_dir():
+        raise InputError(masks, "--masks", "not a folder" if masks.exists() else "no such folder")
+
+
+def clearance_settings(method: Method, sections: int | None, section_length_m: float | None,
+              pose_margin_px: float, own_rim_px: int) -> ClearanceSettings:
+    from harborsight.clearance.measure import ClearanceSettings
+
+    if sections is not None and section_length_m is not None:
+        raise InputError(None, "--section-length-m", "give either --sections or "
+                         "--section-length-m, not both")
+    return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
+                             own_rim_px=own_rim_px, n_sections=sections,
+                             section_length_m=section_length_m)
+
+
+#: defaults of --pose-margin-px and --own-rim-px: ClearanceSettings.pose_margin_px and
+#: .own_rim_px (kept here: the CLI starts without importing the measurement code)
+POSE_MARGIN_PX = 2.0
+
+
+OWN_RIM_PX = 4
+
+
+#: help of --own-rim-px, shared by measure, run and evaluate distance
+OWN_RIM_HELP = ("Ship-class slivers up to this many pixels thick hugging the vessel's own "
+                 "region count as the vessel (a segmenter draws the vessel a few pixels too "
+                 "wide, onto its shadow); thicker neighbours are kept whole. 0: off.")
+
+
+def load_segmenter(model: Path | None):
+    """The ONNX model at ``model``, or the packaged default model (clear error if absent)."""
+    from harborsight.perception.default_model import describe, load_default_segmenter
+
+    segmenter = load_default_segmenter(model)
+    console.print(f"segmenting with {describe(segmenter)}", markup=False)
+    return segmenter
+
+
+def need_torch() -> None:
+    try:
+        import torch  # noqa: F401
+    except ImportError as exc:
+        err_console.print(f"error: training needs torch (pip install -e '.[train]'): {exc}")
+        raise typer.Exit(2) from None
+
+
+def parse_crop(text: str, option: str = "crop") -> tuple[int, int]:
+    """``HxW`` (rows x columns) or ``N`` for a square size."""
+    try:
+        parts = [int(p) for p in text.lower().split("x")]
+    except ValueError:
+        parts = []
+    if len(parts) == 1:
+        parts *= 2
+    if len(parts) != 2 or min(parts) < 1:
+        raise InputError(None, option, f"expected HEIGHTxWIDTH or N, got {text!r}")
+    return parts[0], parts[1]
+
+
+def main() -> None:
+    try:
+        app()
+    except InputError as exc:  # pragma: no cover - commands catch their own
+        err_console.print(f"error: {exc}", markup=False)
+        raise SystemExit(2) from None

@@ -1,0 +1,147 @@
+"""The ``run`` command: a whole flight (a folder of frames or a video with its metadata)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from harborsight.cli.app import (
+    MAX_VIDEO_FPS,
+    OWN_RIM_HELP,
+    OWN_RIM_PX,
+    POSE_MARGIN_PX,
+    Method,
+    app,
+    check_masks_folder,
+    clearance_settings,
+    console,
+    err_console,
+    load_segmenter,
+)
+from harborsight.errors import HarborsightError, InputError
+
+
+def run_flight_with_progress(source, out: Path, vessels, segmenter, options, inputs: dict):
+    """:func:`harborsight.flight.run_flight` over ``source`` (a Folder- or VideoSource) with a
+    progress bar that flags skipped frames."""
+    from harborsight.flight import run_flight
+
+    with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
+                  console=console, transient=True) as progress:
+        task = progress.add_task("frames", total=source.frame_count or None, status="")
+
+        from harborsight.flight.sources import NO_METADATA
+
+        def advance(frame) -> None:
+            if frame.is_frame:          # not a metadata line without a picture
+                skipped = frame.error not in (None, NO_METADATA)
+                progress.update(task, advance=1, status="[red]skipped one" if skipped else "")
+
+        return run_flight(source.frames(), out, vessels, segmenter, options,
+                          source_fps=source.fps, inputs=inputs, on_frame=advance)
+
+
+@app.command("run")
+def run_command(
+    input_path: Annotated[Path, typer.Argument(
+        metavar="INPUT", help="A folder of frames (frames/*.json + images/, or frame JSONs "
+        "beside their images), or a video file with --metadata.")],
+    metadata: Annotated[Path | None, typer.Option(
+        help="Video only: JSON lines, one harborsight.frame/1 object per frame (a "
+        "frame_index key names the video frame; without it, line n is frame n).")] = None,
+    model: Annotated[Path | None, typer.Option(
+        help="ONNX segmentation model (harborsight export). Default: the packaged model.")] = None,
+    masks: Annotated[Path | None, typer.Option(
+        help="Folders only: label masks named like the frames, used instead of a model "
+        "(e.g. a simulator dataset's labels/ for oracle runs).")] = None,
+    vessel: Annotated[Path | None, typer.Option(
+        help="Vessel spec (vessel.yaml). Default: each frame's vessel_spec key.")] = None,
+    out: Annotated[Path, typer.Option(
+        help="Where reports/, overlays/, annotated.mp4, sections.csv, timeline.png and "
+        "run.json go.")] = Path("out/run"),
+    method: Annotated[Method, typer.Option(help="Distance method.")] = Method.ground_plane,
+    sections: Annotated[int | None, typer.Option(
+        min=1, help="Number of hull sections (overrides the vessel spec).")] = None,
+    section_length_m: Annotated[float | None, typer.Option(
+        min=0.1, help="Section length in metres (overrides the vessel spec).")] = None,
+    camera: Annotated[Path | None, typer.Option(
+        help="Camera calibration (OpenCV YAML/XML or ROS camera_info) replacing the frames' "
+        "intrinsics.")] = None,
+    pose_margin_px: Annotated[float, typer.Option(
+        min=0.0, help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
+    own_rim_px: Annotated[int, typer.Option(min=0, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
+    video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
+    fps: Annotated[float | None, typer.Option(
+        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate of annotated.mp4. Default: the input "
+        "video's, else from the frames' timestamps, else 5.")] = None,
+    window_s: Annotated[float, typer.Option(
+        min=0.1, max=3600.0, help="Closing speed: least-squares fit over this many seconds.")
+    ] = 2.0,
+) -> None:
+    """Measure a whole flight: every frame segmented, measured and annotated; distances and
+    closing speeds per section over time. A bad frame is reported and skipped."""
+    from harborsight.flight import FolderSource, RunOptions, VideoSource
+    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.pipeline import VesselCache
+    from harborsight.vessel.spec import load_vessel_spec
+
+    try:
+        if not input_path.exists():
+            raise InputError(input_path, None, "not found (give a folder of frames, or a video "
+                             "with --metadata)")
+        intrinsics = load_camera_calibration(camera) if camera else None
+        if input_path.is_dir():
+            if metadata is not None:
+                raise InputError(metadata, None, "--metadata is for videos; a folder's frames "
+                                 "carry their own JSON files")
+            if model is not None and masks is not None:
+                raise InputError(model, "model", "give either --model or --masks, not both")
+            check_masks_folder(masks)
+            source = FolderSource(input_path, masks, use_masks=masks is not None,
+                                  camera=intrinsics)
+            segmenter = None if masks is not None else load_segmenter(model)
+        else:
+            if metadata is None:
+                raise InputError(input_path, None, "a video needs --metadata FLIGHT.jsonl "
+                                 "(one harborsight.frame/1 object per frame)")
+            if masks is not None:
+                raise InputError(masks, None, "--masks is for folders of frames")
+            source = VideoSource(input_path, metadata, camera=intrinsics)
+            segmenter = load_segmenter(model)
+        options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
+                                                pose_margin_px, own_rim_px),
+                             overlays=overlays, video=video, video_fps=fps, window_s=window_s)
+        vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
+        inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
+                  "masks": str(masks) if masks else None}
+        summary = run_flight_with_progress(source, out, vessels, segmenter, options, inputs)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    md = summary.min_distance_m
+    console.print(
+        f"[green]{summary.measured} of {summary.frames} frame(s) measured[/] in "
+        f"{summary.seconds:.1f} s"
+        + (f"; closest approach {md:.2f} m (frame {summary.min_distance_frame})"
+           if md is not None else "; no obstacle in view"))
+    if summary.without_metadata:
+        console.print(f"{summary.without_metadata} video frame(s) had no metadata line "
+                      "(in the video, not measured)")
+    for name, path in summary.outputs.items():
+        console.print(f"  {name}: {path}", markup=False, highlight=False)
+    if summary.skipped:
+        err_console.print(f"[red]{len(summary.skipped)} frame(s) skipped[/] (also in "
+                          f"{out / 'run.json'}):")
+        for item in summary.skipped:
+            err_console.print(f"  {item['error']}", markup=False, highlight=False)
+    if summary.warnings:
+        err_console.print(f"[yellow]{len(summary.warnings)} warning(s)[/] (frames measured; also "
+                          f"in {out / 'run.json'}):")
+        for item in summary.warnings:
+            err_console.print(f"  {item['warning']}", markup=False, highlight=False)
+    raise typer.Exit(1 if summary.skipped and not summary.measured else 0)

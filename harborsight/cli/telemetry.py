@@ -1,0 +1,224 @@
+"""``harborsight telemetry``: real flight logs and vessel tracks (``show``, ``video``)."""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Annotated
+
+import cv2
+import typer
+from rich.table import Table
+
+from harborsight.cli.app import (
+    MAX_VIDEO_FPS,
+    MAX_VIDEO_FRAMES,
+    app,
+    console,
+    err_console,
+)
+from harborsight.errors import HarborsightError, InputError
+from harborsight.files import strict_json
+
+telemetry_app = typer.Typer(rich_markup_mode=None,
+    no_args_is_help=True,
+    help="Real flight logs (DJI SRT, PX4 ULog, ArduPilot BIN) and vessel tracks (NMEA 0183, "
+    "CSV): inspect them, and write a video's per-frame metadata for `run`.")
+
+
+app.add_typer(telemetry_app, name="telemetry")
+
+
+_UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of UTC (e.g. 2 "
+                    "for CEST), to place them in UTC.")
+
+
+@telemetry_app.command("show")
+def telemetry_show(
+    logs: Annotated[list[Path], typer.Argument(
+        help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, .csv).")],
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
+    json_out: Annotated[Path | None, typer.Option(
+        "--json", help="Also write the summaries as JSON.")] = None,
+) -> None:
+    """What each log holds: samples, rate, duration, UTC start, extent, altitude datum,
+    attitude, and what was skipped. Exit code 1 if any log could not be read."""
+    from harborsight.telemetry import DRONE_LOG_SUFFIXES, read_drone_log
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    summaries, failed = [], 0
+    for path in logs:
+        try:
+            track = (read_drone_log(path, utc_offset_h) if path.suffix.lower() in DRONE_LOG_SUFFIXES
+                     else read_vessel_track(path))
+        except HarborsightError as exc:
+            err_console.print(f"error: {exc}", markup=False, highlight=False)
+            failed += 1
+            continue
+        summary = track.summary()
+        summaries.append(summary)
+        table = Table(title=f"{path} ({summary['kind']})", title_justify="left", show_header=False)
+        table.add_column("what")
+        table.add_column("value")
+
+        def span(values, digits, unit=""):
+            return "—" if values is None else f"{values[0]:.{digits}f} to {values[1]:.{digits}f}{unit}"
+
+        rate = summary["rate_hz"]
+        table.add_row("samples", f"{summary['samples']} over {summary['duration_s']:.1f} s"
+                      + (f" ({rate:.1f} Hz)" if rate else ""))
+        table.add_row("clock", summary["clock"])
+        table.add_row("UTC at t = 0", summary["utc_start"] or "unknown")
+        table.add_row("latitude", span(summary["lat_deg"], 6, "°"))
+        table.add_row("longitude", span(summary["lon_deg"], 6, "°"))
+        table.add_row("altitude", span(summary["alt_m"], 1, " m")
+                      + (f" ({summary['alt_reference']})" if summary["alt_reference"] else ""))
+        table.add_row("attitude", {"gimbal": "gimbal (camera)", "vehicle": "airframe"}.get(
+            summary["attitude"], "none"))
+        if summary["heading"]:
+            table.add_row("heading", "true heading")
+        for note in summary["notes"]:
+            table.add_row("note", note)
+        console.print(table)
+    if json_out:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(strict_json(summaries, indent=2) + "\n")
+    raise typer.Exit(1 if failed else 0)
+
+
+def _telemetry_camera(camera: str, width: int | None, height: int | None, source: Path) -> dict:
+    """A frame/1 camera block from a preset name (with the video's size) or a calibration."""
+    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.sim.cameras import CAMERA_PRESETS
+
+    if camera in CAMERA_PRESETS:
+        if not width or not height:
+            raise InputError(source, "size", f"camera preset {camera!r} needs the image size: "
+                             "give --video or --image-size")
+        intrinsics = CAMERA_PRESETS[camera].intrinsics(width, height)
+    else:
+        if not Path(camera).is_file():
+            raise InputError(camera, "--camera", "neither a camera preset ("
+                             + ", ".join(CAMERA_PRESETS) + ") nor a calibration file")
+        intrinsics = load_camera_calibration(Path(camera))
+        if width and height and (intrinsics.width, intrinsics.height) != (width, height):
+            raise InputError(camera, "calibration", f"calibrated for {intrinsics.width}x"
+                             f"{intrinsics.height}, the video is {width}x{height}")
+    return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
+            "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
+            "distortion": list(intrinsics.distortion)}
+
+
+@telemetry_app.command("video")
+def telemetry_video(
+    drone_log: Annotated[Path, typer.Argument(help="The drone's log: DJI .srt (video clock), "
+                                              "PX4 .ulg or ArduPilot .bin.")],
+    vessel_track: Annotated[Path, typer.Option(
+        help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, "
+        "magnetic made true with the WMM) or CSV (time, lat, lon, heading_deg or "
+        "heading_mag_deg).")],
+    camera: Annotated[str, typer.Option(
+        help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
+        "(OpenCV YAML/XML or ROS camera_info).")],
+    water_level_m: Annotated[float, typer.Option(
+        min=-1000.0, max=1000.0, help="The water surface in the drone altitude's datum (see "
+        "`telemetry show`): e.g. -3.5 for a DJI take-off from a deck 3.5 m above the water.")],
+    out: Annotated[Path, typer.Option(help="JSON lines to write, one object per frame.")],
+    video: Annotated[Path | None, typer.Option(
+        help="The video: its frame count, rate and size.")] = None,
+    frames: Annotated[int | None, typer.Option(
+        min=1, max=MAX_VIDEO_FRAMES, help="Frame count, without --video.")] = None,
+    fps: Annotated[float | None, typer.Option(
+        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate, without --video.")] = None,
+    image_size: Annotated[str | None, typer.Option(
+        help="WIDTHxHEIGHT of the frames, without --video.")] = None,
+    video_start: Annotated[str | None, typer.Option(
+        help="UTC time of the video's first frame, ISO 8601 (needed for autopilot logs, and "
+        "for SRTs without date lines).")] = None,
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
+    mount: Annotated[str, typer.Option(
+        help="auto (the log's gimbal attitude where it has one, else stabilised), gimbal, "
+        "stabilised (pointing at --camera-pitch-deg, no roll, the airframe's yaw), or rigid "
+        "(fixed to the airframe).")] = "auto",
+    camera_pitch_deg: Annotated[float, typer.Option(
+        min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch (-90: "
+        "straight down, 0: at the horizon).")] = -90.0,
+    camera_yaw_deg: Annotated[float | None, typer.Option(
+        help="A fixed camera yaw (degrees clockwise from true north) for logs without "
+        "attitude.")] = None,
+    vessel_offset_s: Annotated[float, typer.Option(
+        min=-86400.0, max=86400.0, help="Seconds added to each frame's UTC time before "
+        "reading the vessel track: -5 if the vessel's clock runs 5 s behind.")] = 0.0,
+    max_gap_s: Annotated[float, typer.Option(
+        min=0.01, max=3600.0, help="Longest gap in a track bridged by interpolation.")] = 1.0,
+) -> None:
+    """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
+    vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
+    a gap, are left out and listed."""
+    from datetime import UTC, datetime
+
+    from harborsight.telemetry import read_drone_log
+    from harborsight.telemetry.metadata import MOUNTS, CameraMount, build_video_metadata
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    try:
+        if mount not in MOUNTS:
+            raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
+        width = height = None
+        if video is not None:
+            capture = cv2.VideoCapture(str(video))
+            if not capture.isOpened():
+                raise InputError(video, None, "cannot open the video")
+            frames = frames or int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+            fps = fps or float(capture.get(cv2.CAP_PROP_FPS))
+            width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
+            height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+            capture.release()
+            if frames <= 0 or not fps or fps <= 0:
+                raise InputError(video, None, "could not read the frame count and rate: give "
+                                 "--frames and --fps")
+            if frames > MAX_VIDEO_FRAMES or fps > MAX_VIDEO_FPS:
+                raise InputError(video, None, f"implausible frame count {frames} or rate "
+                                 f"{fps:g}/s in the container: give --frames and --fps")
+        if image_size:
+            size = re.fullmatch(r"(\d+)x(\d+)", image_size.strip().lower())
+            if size is None or min(int(size[1]), int(size[2])) < 1:
+                raise InputError(None, "--image-size",
+                                 f"expected WIDTHxHEIGHT in pixels, got {image_size!r}")
+            width, height = int(size[1]), int(size[2])
+        if not frames or not fps:
+            raise InputError(None, "--frames", "give --video, or --frames and --fps")
+        start = None
+        if video_start:
+            try:
+                start = datetime.fromisoformat(video_start.replace("Z", "+00:00"))
+            except ValueError:
+                raise InputError(None, "--video-start", f"not ISO 8601: {video_start!r}") from None
+            start = start.replace(tzinfo=UTC) if start.tzinfo is None else start.astimezone(UTC)
+        drone = read_drone_log(drone_log, utc_offset_h)
+        vessel = read_vessel_track(vessel_track)
+        camera_block = _telemetry_camera(camera, width, height, drone_log)
+        result = build_video_metadata(
+            drone, vessel, camera_block, frames, fps, water_level_m=water_level_m,
+            mount=CameraMount(mount, camera_pitch_deg, camera_yaw_deg), video_start_utc=start,
+            vessel_offset_s=vessel_offset_s, max_gap_s=max_gap_s)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("".join(strict_json(frame) + "\n" for frame in result.frames))
+    for track in (drone, vessel):
+        for note in track.notes:
+            err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
+    console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
+                  f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
+    if result.skipped:
+        reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
+        err_console.print(f"[red]{len(result.skipped)} frame(s) left out[/] (frames "
+                          f"{result.skipped[0][0]}..{result.skipped[-1][0]}):")
+        for reason, count in reasons.most_common():
+            err_console.print(f"  {count} x {reason}", markup=False, highlight=False)
+    raise typer.Exit(1 if not result.frames else 0)
