@@ -15,7 +15,7 @@ from harborsight.perception.classes import CLASS_NAMES
 from harborsight.perception.export import METADATA_KEY, export_onnx, quantize_int8
 from harborsight.perception.model import SegmentationModel
 from harborsight.perception.networks import create_network
-from harborsight.training.checkpoint import load_checkpoint
+from harborsight.training.checkpoint import average_checkpoints, load_checkpoint
 from harborsight.training.dataset import SegmentationFrames
 from harborsight.training.from_onnx import _module_path, recover_model
 from harborsight.training.loop import TrainConfig, train
@@ -166,6 +166,26 @@ def test_training_warm_starts_from_an_onnx_model(tiny_dataset, tmp_path):
     original = model.state_dict()
     key = "network.head.classify.2.weight"
     assert torch.allclose(state["model"][key], original[key], atol=1e-5)
+
+
+def test_an_onnx_warm_start_keeps_its_starting_weights_for_interpolation(tiny_dataset, tmp_path):
+    """start.pt holds the recovered weights at iteration 0, so that average-weights can
+    interpolate between them and the fine-tuned ones (WiSE-FT)."""
+    model = _model_with_statistics(layer5_relu=False)
+    path = _export(model, tmp_path / "m.onnx", network_options={"layer5_relu": False})
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "run",
+                         iterations=2, batch_size=2, crop_hw=(48, 64), augment=False,
+                         val_every=0, num_workers=0, seed=2, threads=1, lr=0.05,
+                         init_from=path)
+    result = train(config, show_progress=False)
+    start = load_checkpoint(tmp_path / "run" / "start.pt")
+    last = load_checkpoint(result.last_checkpoint)
+    key = "network.head.classify.2.weight"
+    assert start["iteration"] == 0 and last["iteration"] == 2
+    assert torch.allclose(start["model"][key], model.state_dict()[key], atol=1e-5)
+    assert not torch.allclose(last["model"][key], start["model"][key], atol=1e-5)
+    halfway = average_checkpoints([tmp_path / "run" / "start.pt", result.last_checkpoint])
+    assert torch.allclose(halfway["model"][key], (start["model"][key] + last["model"][key]) / 2)
 
 
 def test_fit_large_stretches_only_larger_frames(tiny_dataset, tmp_path):

@@ -215,7 +215,10 @@ def average_weights(
         help="Weight of each --checkpoint, in order [all equal].")] = None,
 ) -> None:
     """Average the weights of checkpoints of one lineage ("model soup") into a new checkpoint,
-    to export or evaluate like any other."""
+    to export or evaluate like any other. With a fine-tune's start.pt (written by a run
+    warm-started from an ONNX model) and its best.pt, the weights interpolate between the
+    model before and after fine-tuning (WiSE-FT): e.g. --weight 0.5 --weight 0.5 keeps most
+    of what the old model knew and much of what the new data taught."""
     need_torch()
     from harborsight.training.checkpoint import average_checkpoints, save_checkpoint
 

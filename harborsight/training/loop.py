@@ -33,7 +33,9 @@ as in a fresh run.
 
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
-and per validation, written line by line).
+and per validation, written line by line), and for a warm start from an ONNX model
+``start.pt``: the recovered weights at iteration 0, the other end of a weight-space
+interpolation (``average-weights --checkpoint start.pt --checkpoint best.pt``, WiSE-FT).
 """
 
 from __future__ import annotations
@@ -86,7 +88,7 @@ DEFAULT_AUX_WEIGHTS: dict[str, tuple[float, ...]] = {
 RESUMABLE_CHANGES = frozenset({"out_dir", "iterations", "val_every", "checkpoint_every",
                                "num_workers", "threads", "device"})
 
-LAST, BEST, LOG = "last.pt", "best.pt", "train_log.jsonl"
+LAST, BEST, LOG, START = "last.pt", "best.pt", "train_log.jsonl", "start.pt"
 
 
 class TrainingDivergedError(HarborsightError):
@@ -607,6 +609,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     if checkpoint is None:  # a fresh run: nothing of an earlier, unfinished one may survive
         log_path.unlink(missing_ok=True)
         best_path.unlink(missing_ok=True)
+        (out_dir / START).unlink(missing_ok=True)
     if device.type == "cuda":
         # fastest kernels; their choice may vary between runs, so a CUDA resume is exact only
         # up to floating-point summation order (a CPU resume is bit-exact)
@@ -630,6 +633,11 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             data["rng"] = {"torch": torch.get_rng_state(),
                            "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None}
         return data
+
+    if initial is not None and initial.provenance.get("onnx"):
+        # recovered from ONNX: no checkpoint file holds these weights, and an interpolation
+        # with the fine-tuned ones needs exactly them (same rebuilt BatchNorm statistics)
+        save_checkpoint(out_dir / START, payload(0, full=False))
 
     augmentation = (AugmentConfig(crop_hw=config.crop_hw) if config.augment
                     else AugmentConfig.geometric_only(config.crop_hw))
