@@ -26,6 +26,7 @@ from harborsight.telemetry.vessel_track import read_vessel_track
 
 TELEMETRY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "telemetry"
 DJI = TELEMETRY / "dji"
+FLIGHT = Path(__file__).resolve().parent.parent / "harborsight" / "data" / "samples" / "flight"
 runner = CliRunner()
 
 
@@ -491,42 +492,20 @@ def test_cli_show_lists_every_log_and_fails_on_a_bad_one(tmp_path):
     assert summary["kind"] == "dji-srt" and summary["samples"] == 55
 
 
-def _srt_time(seconds: float) -> str:
-    millis = round(seconds * 1000)
-    return f"{millis // 3600000:02d}:{millis // 60000 % 60:02d}:{millis // 1000 % 60:02d},{millis % 1000:03d}"
-
-
 def test_bundled_flight_round_trips_through_an_srt_and_nmea(tmp_path):
     """The bundled 48-frame flight written out as a P4 RTK style SRT (its precision: 1e-6 deg,
     0.01 m, 0.1 deg) and an NMEA feed (RMC + HDT), then read back into frame metadata: every
     frame within the formats' rounding of the original."""
-    from importlib import resources
-
     from harborsight.frame import load_frame_metadata
+    from harborsight.telemetry.writers import write_flight_logs
 
-    flight = Path(str(resources.files("harborsight") / "data" / "samples" / "flight"))
-    metas = [load_frame_metadata(p) for p in sorted((flight / "frames").glob("*.json"))]
-    times = [datetime.fromisoformat(m.timestamp.replace("Z", "+00:00")) for m in metas]
-    fps = 1.0 / (times[1] - times[0]).total_seconds()
-    srt, nmea = [], []
-    for i, (m, when) in enumerate(zip(metas, times, strict=True)):
-        video_s = (when - times[0]).total_seconds()
-        srt += [str(i + 1), f"{_srt_time(video_s)} --> {_srt_time(video_s + 1 / fps)}",
-                f"F/5.6, SS 400, ISO 100, EV 0, GPS ({m.uav_lon_deg:.6f}, {m.uav_lat_deg:.6f}, 15), "
-                f"D 10.00m, H {m.uav_alt_m:.2f}m, H.S 0.00m/s, V.S 0.00m/s, "
-                f"G.PRY ({m.pitch_deg:.1f}°, {m.roll_deg:.1f}°, {m.yaw_deg:.1f}°)", ""]
-        lat, lon = abs(m.vessel_lat_deg), abs(m.vessel_lon_deg)
-        nmea += [_nmea(f"GPRMC,{when:%H%M%S}.{when.microsecond // 10000:02d},A,"
-                       f"{int(lat):02d}{lat % 1 * 60:08.5f},{'N' if m.vessel_lat_deg >= 0 else 'S'},"
-                       f"{int(lon):03d}{lon % 1 * 60:08.5f},{'E' if m.vessel_lon_deg >= 0 else 'W'},"
-                       f"0.8,{m.vessel_heading_deg:.1f},{when:%d%m%y},,"),
-                 _nmea(f"HEHDT,{m.vessel_heading_deg % 360:.2f},T")]
-    (tmp_path / "flight.SRT").write_text("\n".join(srt), encoding="utf-8")
-    (tmp_path / "ship.nmea").write_text("\n".join(nmea) + "\n")
+    metas = [load_frame_metadata(p) for p in sorted((FLIGHT / "frames").glob("*.json"))]
+    logs = write_flight_logs(FLIGHT, tmp_path, video=False)
+    assert logs.frames == 48 and logs.fps == 2.0
     result = build_video_metadata(
-        read_drone_log(tmp_path / "flight.SRT"), read_vessel_track(tmp_path / "ship.nmea"),
+        read_drone_log(logs.srt), read_vessel_track(logs.nmea),
         {"width": 640, "height": 360, "fx": metas[0].camera.fx, "fy": metas[0].camera.fy},
-        len(metas), fps, water_level_m=0.0, video_start_utc=times[0])
+        logs.frames, logs.fps, water_level_m=0.0, video_start_utc=logs.video_start_utc)
     assert result.mount == "gimbal" and not result.skipped
     for frame, m in zip(result.frames, metas, strict=True):
         parsed = parse_frame_metadata({**frame, "image": "video"}, "round trip")
@@ -540,6 +519,23 @@ def test_bundled_flight_round_trips_through_an_srt_and_nmea(tmp_path):
         # NMEA positions carry 1e-5 arc minutes: 1.7e-7 degrees
         assert abs(parsed.vessel_lat_deg - m.vessel_lat_deg) <= 1e-7
         assert abs(parsed.vessel_lon_deg - m.vessel_lon_deg) <= 1e-7
+    # the logs bundled with the flight are exactly these (make-samples writes them)
+    for name in ("flight.SRT", "ship.nmea"):
+        assert (FLIGHT / "logs" / name).read_bytes() == (tmp_path / name).read_bytes(), name
+
+
+def test_the_readmes_telemetry_example_runs_on_the_bundled_logs(tmp_path):
+    """README: `telemetry video` on the bundled SRT, NMEA and mp4 writes metadata for every
+    frame of the video, which `run` then measures."""
+    logs = FLIGHT / "logs"
+    out = tmp_path / "flight.jsonl"
+    result = runner.invoke(app, ["telemetry", "video", str(logs / "flight.SRT"), "--vessel-track",
+                                 str(logs / "ship.nmea"), "--video", str(logs / "flight.mp4"),
+                                 "--camera", "dji-mavic3", "--video-start",
+                                 "2026-05-01T12:00:00Z", "--water-level-m", "0", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "48 of 48 frame(s) written" in result.output
+    assert len(out.read_text().splitlines()) == 48
 
 
 def test_srt_damage_is_noted_not_fatal(tmp_path):

@@ -18,6 +18,7 @@ import yaml
 
 from harborsight.errors import InputError
 from harborsight.sim.dataset import SimulationConfig, simulate
+from harborsight.telemetry.writers import write_flight_logs
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 
 DEFAULT_SEED = 20260501
@@ -116,8 +117,9 @@ def flight_config(seed: int = FLIGHT_SEED) -> SimulationConfig:
 def make_demo_flight(samples_dir: Path, seed: int = FLIGHT_SEED, n_frames: int | None = None
                      ) -> Path:
     """Render the demo flight into ``samples_dir/flight`` (replacing it once every frame is
-    rendered): frames/*.json, images/*.jpg, labels/*.png; the frames name the tug in
-    ``samples_dir/vessels``."""
+    rendered): frames/*.json, images/*.jpg, labels/*.png, and logs/ (flight.SRT, ship.nmea,
+    flight.mp4: the flight as real-format inputs of ``telemetry video``); the frames name the
+    tug in ``samples_dir/vessels``."""
     final = samples_dir / "flight"
     samples_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=samples_dir, prefix=".flight-") as tmp:
@@ -140,5 +142,7 @@ def make_demo_flight(samples_dir: Path, seed: int = FLIGHT_SEED, n_frames: int |
                         [cv2.IMWRITE_JPEG_QUALITY, FLIGHT_JPEG_QUALITY])
             shutil.copy(work / "labels" / f"{stem}.png", flight / "labels" / f"{stem}.png")
         shutil.copy(work / "dataset.json", flight / "dataset.json")
+        # the same flight as a drone's SRT, a vessel's NMEA feed and a video (README example)
+        write_flight_logs(flight, flight / "logs")
         _replace_folder(final, flight)
     return final
