@@ -69,3 +69,69 @@ def natural_key(name: str) -> list:
     ``frame_10`` (letter case ignored, then the name itself breaks ties)."""
     parts = re.split(r"(\d+)", name)
     return [int(p) if i % 2 else p.casefold() for i, p in enumerate(parts)] + [name]
+
+
+def _write_problem(path: Path) -> str | None:
+    """Why nothing can be written at ``path`` (None: it looks writable), without creating it."""
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            return "no such place"
+        probe = probe.parent
+    if probe != path and not probe.is_dir():
+        return f"{probe} is a file, not a folder"
+    folder = probe if probe.is_dir() else probe.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{folder} cannot be written"
+    return None
+
+
+def prepare_output_folder(path: str | Path, option: str = "--out",
+                          inputs: tuple[str | Path | None, ...] = ()) -> Path:
+    """Create the output folder ``path`` (with its parents) or raise :class:`InputError`
+    naming ``option``: when it is a file, cannot be created or written, or is the folder of
+    one of ``inputs`` (files or folders read by the same command), whose files its outputs
+    would overwrite or be read back as input on the next run."""
+    from harborsight.errors import InputError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(path, option, "exists and is not a folder")
+    resolved = path.resolve()
+    for given in inputs:
+        if given is None:
+            continue
+        given = Path(given).resolve()
+        folder = given if given.is_dir() else given.parent
+        if resolved == folder:
+            raise InputError(path, option, f"is the folder of the input {given}: the outputs "
+                             "would overwrite the inputs or be read as inputs next time; "
+                             "give another folder")
+    problem = _write_problem(path)
+    if problem:
+        raise InputError(path, option, f"cannot create the output folder: {problem}")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, option, f"cannot create the output folder: "
+                         f"{exc.strerror or exc}") from None
+    return path
+
+
+def prepare_output_file(path: str | Path, option: str = "--out") -> Path:
+    """Create the parent folders of the output file ``path`` or raise :class:`InputError`
+    naming ``option``: when ``path`` is a folder, or its folder cannot be created or
+    written. Call it before the work, so that an hour of work is not lost to a bad name."""
+    from harborsight.errors import InputError
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(path, option, "is a folder; give a file name")
+    problem = _write_problem(path)
+    if problem:
+        raise InputError(path, option, f"cannot be written: {problem}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, option, f"cannot be written: {exc.strerror or exc}") from None
+    return path

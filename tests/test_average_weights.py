@@ -82,6 +82,8 @@ def test_refuses_what_cannot_be_averaged(tmp_path):
         average_checkpoints([a])
     with pytest.raises(InputError, match=r"weight: 1 weight\(s\) for 2 checkpoints"):
         average_checkpoints([a, a], [1.0])
+    with pytest.raises(InputError, match="weight: weights must be finite"):
+        average_checkpoints([a, a], [1e308, 1e308])      # their sum overflows: all shares 0
     result = runner.invoke(app, ["average-weights", "--checkpoint", str(a), "--checkpoint",
                                  str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.pt")])
     assert result.exit_code == 2 and "missing.pt" in result.output

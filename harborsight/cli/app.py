@@ -21,6 +21,11 @@ MAX_VIDEO_FRAMES = 10_000_000
 
 
 MAX_VIDEO_FPS = 1000.0
+#: Upper bound of --pose-margin-px and --own-rim-px: a morphological growth of this many
+#: pixels is already a third of a 640x360 frame (and 10,000 px would take minutes and GBs).
+MAX_MARGIN_PX = 100
+#: Upper bound of --threads.
+MAX_THREADS = 1024
 
 
 app = typer.Typer(

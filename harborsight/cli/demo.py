@@ -22,6 +22,7 @@ from harborsight.cli.app import (
 from harborsight.cli.measure import run_folder
 from harborsight.cli.run import run_flight_with_progress
 from harborsight.errors import HarborsightError
+from harborsight.files import prepare_output_folder
 
 
 def _bundled_samples() -> Path:
@@ -42,6 +43,7 @@ def demo(
                   "Samples are harbour frames rendered by harborsight's Blender simulator "
                   "(harborsight make-samples); masks are their exact labels.")
     try:
+        prepare_output_folder(out, "--out", inputs=(samples, samples / "flight"))
         code = _demo_runs(samples, out, method)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)

@@ -12,6 +12,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from harborsight.cli.app import (
+    MAX_MARGIN_PX,
+    MAX_THREADS,
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
@@ -22,7 +24,7 @@ from harborsight.cli.app import (
     fmt_number,
 )
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import strict_json, write_image
+from harborsight.files import prepare_output_file, prepare_output_folder, strict_json, write_image
 from harborsight.perception.segment_images import SegmentMode
 
 if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts faster
@@ -52,10 +54,14 @@ def evaluate_segmentation_command(
                         ] = None,
     markdown: Annotated[Path | None, typer.Option(help="Write the table as Markdown.")] = None,
     fps_seconds: Annotated[float, typer.Option(
+        min=0.0, max=600.0,
         help="Seconds of timing for the FPS column; 0 skips it.")] = 2.0,
     device: Annotated[str, typer.Option(help="Device of a torch checkpoint: cpu or cuda.")] = "cpu",
-    threads: Annotated[int | None, typer.Option(help="CPU threads (default: all).")] = None,
+    threads: Annotated[int | None, typer.Option(
+        min=1, max=MAX_THREADS,
+        help="CPU threads (default: all).")] = None,
     height_bin_m: Annotated[float, typer.Option(
+        min=0.0, max=10_000.0,
         help="Also score per drone height above water (frames/*.json), in bins of this many "
         "metres; 0: no breakdown.")] = 10.0,
     by_object: Annotated[bool, typer.Option(
@@ -88,6 +94,11 @@ def evaluate_segmentation_command(
     try:
         if (model is None) == (predictions is None):
             raise InputError(None, "--model", "give either --model or --predictions")
+        if 0 < height_bin_m < 0.1:
+            raise InputError(None, "--height-bin-m", "give 0 (no breakdown) or at least 0.1 m")
+        for path, option in ((json_out, "--json"), (markdown, "--markdown")):
+            if path is not None:
+                prepare_output_file(path, option)
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TimeElapsedColumn(), console=console, transient=True) as progress:
@@ -131,11 +142,9 @@ def evaluate_segmentation_command(
         console.print(f"speed {fmt_number(result.fps, 2)} FPS at {w}x{h}, "
                       f"{result.model.params or 0:,} parameters")
     if json_out:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(strict_json(result.to_dict(), indent=2) + "\n")
         console.print(f"JSON: {json_out}")
     if markdown:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
         markdown.write_text(result.markdown())
         console.print(f"Markdown: {markdown}")
 
@@ -180,10 +189,11 @@ def evaluate_distance_command(
         min=0, help="Draw the N frames with the largest summed error of each configuration "
         "(overlay | simulator labels | measured masks) to worst/.")] = 0,
     pose_margin_px: Annotated[float, typer.Option(
-        min=0.0, help="Growth of the vessel's own image region for pose and mask error, as "
+        min=0.0, max=MAX_MARGIN_PX,
+        help="Growth of the vessel's own image region for pose and mask error, as "
         "in measure [2 px]: wider hides more of a model's vessel blob spilling onto the "
         "water, and reports a touching obstacle that much farther away.")] = POSE_MARGIN_PX,
-    own_rim_px: Annotated[int, typer.Option(min=0, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
@@ -210,6 +220,7 @@ def evaluate_distance_command(
     if oracle:
         sources.append(("oracle", oracle_masks))
     try:
+        prepare_output_folder(out, "--out", inputs=(data,))
         if flat_world:
             sources.append(("flat", flat_world_masks(data)))
         if model is not None:

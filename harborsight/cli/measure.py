@@ -11,6 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from harborsight.cli.app import (
+    MAX_MARGIN_PX,
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
@@ -24,6 +25,7 @@ from harborsight.cli.app import (
     load_segmenter,
 )
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import prepare_output_folder
 
 if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts faster
     from harborsight.clearance.measure import ClearanceSettings
@@ -92,6 +94,19 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     return 1 if bad and (strict or not good) else 0
 
 
+def input_folders(*given: Path | None) -> tuple[Path, ...]:
+    """The folders a command reads: each given path, and a frame folder's frames/ and
+    images/ (its outputs must go elsewhere)."""
+    folders = []
+    for path in given:
+        if path is None:
+            continue
+        folders.append(path)
+        if path.is_dir():
+            folders += [path / "frames", path / "images"]
+    return tuple(folders)
+
+
 @app.command()
 def measure(
     input_path: Annotated[Path, typer.Argument(
@@ -119,14 +134,16 @@ def measure(
     sections: Annotated[int | None, typer.Option(
         min=1, help="Number of hull sections (overrides the vessel spec).")] = None,
     section_length_m: Annotated[float | None, typer.Option(
-        min=0.1, help="Section length in metres (overrides the vessel spec).")] = None,
+        min=0.1, max=10_000.0,
+        help="Section length in metres (overrides the vessel spec).")] = None,
     camera: Annotated[Path | None, typer.Option(
         help="Camera calibration (OpenCV FileStorage YAML/XML or ROS camera_info YAML) "
         "that replaces the frames' intrinsics.")] = None,
     pose_margin_px: Annotated[float, typer.Option(
-        min=0.0, help="Growth in pixels of the vessel's own image region, for pose and mask "
+        min=0.0, max=MAX_MARGIN_PX,
+        help="Growth in pixels of the vessel's own image region, for pose and mask "
         "error.")] = POSE_MARGIN_PX,
-    own_rim_px: Annotated[int, typer.Option(min=0, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
@@ -138,6 +155,7 @@ def measure(
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
         settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px)
+        prepare_output_folder(out, "--out", inputs=input_folders(input_path, meta, mask, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         if input_path.is_dir():

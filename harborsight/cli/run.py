@@ -9,6 +9,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from harborsight.cli.app import (
+    MAX_MARGIN_PX,
     MAX_VIDEO_FPS,
     OWN_RIM_HELP,
     OWN_RIM_PX,
@@ -21,7 +22,9 @@ from harborsight.cli.app import (
     err_console,
     load_segmenter,
 )
+from harborsight.cli.measure import input_folders
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import prepare_output_folder
 
 
 def run_flight_with_progress(source, out: Path, vessels, segmenter, options, inputs: dict):
@@ -67,20 +70,24 @@ def run_command(
     sections: Annotated[int | None, typer.Option(
         min=1, help="Number of hull sections (overrides the vessel spec).")] = None,
     section_length_m: Annotated[float | None, typer.Option(
-        min=0.1, help="Section length in metres (overrides the vessel spec).")] = None,
+        min=0.1, max=10_000.0,
+        help="Section length in metres (overrides the vessel spec).")] = None,
     camera: Annotated[Path | None, typer.Option(
         help="Camera calibration (OpenCV YAML/XML or ROS camera_info) replacing the frames' "
         "intrinsics.")] = None,
     pose_margin_px: Annotated[float, typer.Option(
-        min=0.0, help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
-    own_rim_px: Annotated[int, typer.Option(min=0, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+        min=0.0, max=MAX_MARGIN_PX,
+        help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
+    own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
     fps: Annotated[float | None, typer.Option(
-        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate of annotated.mp4. Default: the input "
+        min=0.1, max=MAX_VIDEO_FPS,
+        help="Frame rate of annotated.mp4. Default: the input "
         "video's, else from the frames' timestamps, else 5.")] = None,
     window_s: Annotated[float, typer.Option(
-        min=0.1, max=3600.0, help="Closing speed: least-squares fit over this many seconds.")
+        min=0.1, max=3600.0,
+        help="Closing speed: least-squares fit over this many seconds.")
     ] = 2.0,
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
@@ -94,6 +101,7 @@ def run_command(
         if not input_path.exists():
             raise InputError(input_path, None, "not found (give a folder of frames, or a video "
                              "with --metadata)")
+        prepare_output_folder(out, "--out", inputs=input_folders(input_path, metadata, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
         if input_path.is_dir():
             if metadata is not None:

@@ -107,7 +107,7 @@ def contact_sheet_command(
     out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("out/contact-sheet.png"),
     n: Annotated[int, typer.Option("--n", min=1, help="How many frames (the first N).")] = 8,
     columns: Annotated[int, typer.Option(min=1, help="Frame pairs per row.")] = 2,
-    tile_width: Annotated[int, typer.Option(min=64, help="Width of each tile, px.")] = 480,
+    tile_width: Annotated[int, typer.Option(min=64, max=4096, help="Width of each tile, px.")] = 480,
 ) -> None:
     """Tile frames with their class masks and the true clearance of every hull section."""
     from harborsight.viz.contact_sheet import contact_sheet

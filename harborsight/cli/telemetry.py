@@ -19,7 +19,7 @@ from harborsight.cli.app import (
     err_console,
 )
 from harborsight.errors import HarborsightError, InputError
-from harborsight.files import strict_json
+from harborsight.files import prepare_output_file, strict_json
 
 telemetry_app = typer.Typer(rich_markup_mode=None,
     no_args_is_help=True,
@@ -48,6 +48,12 @@ def telemetry_show(
     from harborsight.telemetry import DRONE_LOG_SUFFIXES, read_drone_log
     from harborsight.telemetry.vessel_track import read_vessel_track
 
+    if json_out:
+        try:
+            prepare_output_file(json_out, "--json")
+        except HarborsightError as exc:
+            err_console.print(f"error: {exc}", markup=False, highlight=False)
+            raise typer.Exit(2) from None
     summaries, failed = [], 0
     for path in logs:
         try:
@@ -83,7 +89,6 @@ def telemetry_show(
             table.add_row("note", note)
         console.print(table)
     if json_out:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(strict_json(summaries, indent=2) + "\n")
     raise typer.Exit(1 if failed else 0)
 
@@ -123,15 +128,18 @@ def telemetry_video(
         help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
         "(OpenCV YAML/XML or ROS camera_info).")],
     water_level_m: Annotated[float, typer.Option(
-        min=-1000.0, max=1000.0, help="The water surface in the drone altitude's datum (see "
+        min=-1000.0, max=1000.0,
+        help="The water surface in the drone altitude's datum (see "
         "`telemetry show`): e.g. -3.5 for a DJI take-off from a deck 3.5 m above the water.")],
     out: Annotated[Path, typer.Option(help="JSON lines to write, one object per frame.")],
     video: Annotated[Path | None, typer.Option(
         help="The video: its frame count, rate and size.")] = None,
     frames: Annotated[int | None, typer.Option(
-        min=1, max=MAX_VIDEO_FRAMES, help="Frame count, without --video.")] = None,
+        min=1, max=MAX_VIDEO_FRAMES,
+        help="Frame count, without --video.")] = None,
     fps: Annotated[float | None, typer.Option(
-        min=0.1, max=MAX_VIDEO_FPS, help="Frame rate, without --video.")] = None,
+        min=0.1, max=MAX_VIDEO_FPS,
+        help="Frame rate, without --video.")] = None,
     image_size: Annotated[str | None, typer.Option(
         help="WIDTHxHEIGHT of the frames, without --video.")] = None,
     video_start: Annotated[str | None, typer.Option(
@@ -144,16 +152,20 @@ def telemetry_video(
         "stabilised (pointing at --camera-pitch-deg, no roll, the airframe's yaw), or rigid "
         "(fixed to the airframe).")] = "auto",
     camera_pitch_deg: Annotated[float, typer.Option(
-        min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch (-90: "
+        min=-90.0, max=0.0,
+        help="Stabilised or rigid mount: the camera's pitch (-90: "
         "straight down, 0: at the horizon).")] = -90.0,
     camera_yaw_deg: Annotated[float | None, typer.Option(
+        min=-360.0, max=360.0,
         help="A fixed camera yaw (degrees clockwise from true north) for logs without "
         "attitude.")] = None,
     vessel_offset_s: Annotated[float, typer.Option(
-        min=-86400.0, max=86400.0, help="Seconds added to each frame's UTC time before "
+        min=-86400.0, max=86400.0,
+        help="Seconds added to each frame's UTC time before "
         "reading the vessel track: -5 if the vessel's clock runs 5 s behind.")] = 0.0,
     max_gap_s: Annotated[float, typer.Option(
-        min=0.01, max=3600.0, help="Longest gap in a track bridged by interpolation.")] = 1.0,
+        min=0.01, max=3600.0,
+        help="Longest gap in a track bridged by interpolation.")] = 1.0,
 ) -> None:
     """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
     vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
@@ -165,6 +177,7 @@ def telemetry_video(
     from harborsight.telemetry.vessel_track import read_vessel_track
 
     try:
+        prepare_output_file(out, "--out")
         if mount not in MOUNTS:
             raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
         width = height = None
@@ -184,8 +197,9 @@ def telemetry_video(
                 raise InputError(video, None, f"implausible frame count {frames} or rate "
                                  f"{fps:g}/s in the container: give --frames and --fps")
         if image_size:
-            size = re.fullmatch(r"(\d+)x(\d+)", image_size.strip().lower())
-            if size is None or min(int(size[1]), int(size[2])) < 1:
+            size = re.fullmatch(r"(\d{1,6})x(\d{1,6})", image_size.strip().lower())
+            if size is None or not 1 <= min(int(size[1]), int(size[2])) <= max(
+                    int(size[1]), int(size[2])) <= 100_000:
                 raise InputError(None, "--image-size",
                                  f"expected WIDTHxHEIGHT in pixels, got {image_size!r}")
             width, height = int(size[1]), int(size[2])
@@ -208,7 +222,6 @@ def telemetry_video(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("".join(strict_json(frame) + "\n" for frame in result.frames))
     for track in (drone, vessel):
         for note in track.notes:

@@ -12,6 +12,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from harborsight.cli.app import (
+    MAX_THREADS,
     app,
     console,
     err_console,
@@ -20,11 +21,12 @@ from harborsight.cli.app import (
     parse_crop,
 )
 from harborsight.errors import HarborsightError, InputError
+from harborsight.files import prepare_output_file
 
 
 @app.command()
 def models(
-    num_classes: Annotated[int, typer.Option(min=1, help="Classes of the output layer.")] = 3,
+    num_classes: Annotated[int, typer.Option(min=1, max=1000, help="Classes of the output layer.")] = 3,
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
 ) -> None:
     """List the segmentation networks with their parameter counts and input size rule."""
@@ -152,6 +154,7 @@ def train(
     workers: Annotated[int | None, typer.Option(
         help="DataLoader worker processes [CPU: 0, CUDA: min(8, cores - 1)].")] = None,
     threads: Annotated[int | None, typer.Option(
+        min=1, max=MAX_THREADS,
         help="torch CPU threads; on a shared machine fewer threads than cores can be much "
         "faster [torch's default].")] = None,
     init_from: Annotated[Path | None, typer.Option(
@@ -223,6 +226,7 @@ def average_weights(
     from harborsight.training.checkpoint import average_checkpoints, save_checkpoint
 
     try:
+        prepare_output_file(out, "--out")
         payload = average_checkpoints(checkpoint, weight)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
@@ -261,6 +265,7 @@ def export_command(
     from harborsight.training.export import export_checkpoint
 
     try:
+        prepare_output_file(out, "--out")
         result = export_checkpoint(checkpoint, out, height, width, int8, calibration_data,
                                    calibration_split, calibration_frames)
     except HarborsightError as exc:

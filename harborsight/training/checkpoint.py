@@ -20,6 +20,7 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -126,8 +127,10 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
     weights = [1.0] * len(paths) if weights is None else [float(w) for w in weights]
     if len(weights) != len(paths):
         raise InputError(None, "weight", f"{len(weights)} weight(s) for {len(paths)} checkpoints")
-    if any(w < 0 for w in weights) or sum(weights) <= 0:
-        raise InputError(None, "weight", "weights must be non-negative with a positive sum")
+    if (any(not math.isfinite(w) or w < 0 for w in weights) or sum(weights) <= 0
+            or not math.isfinite(sum(weights))):
+        raise InputError(None, "weight", "weights must be finite and non-negative, with a "
+                         "positive, finite sum")
     payloads = [load_checkpoint(p) for p in paths]
     reference, reference_path = payloads[-1], Path(paths[-1])
     for path, payload in zip(paths, payloads, strict=True):
