@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -17,11 +18,39 @@ from typing import Any
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.geometry.camera import Camera, CameraIntrinsics, load_camera_calibration
+from harborsight.geometry.camera import (
+    MAX_IMAGE_SIDE_PX,
+    Camera,
+    CameraIntrinsics,
+    brief,
+    load_camera_calibration,
+)
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.geometry.rotations import enu_from_vessel_rotation, world_from_camera_rotation
 
 FRAME_SCHEMA = "harborsight.frame/1"
+
+
+def parse_json_text(text: str, source: str | Path | None) -> object:
+    """``json.loads(text)``, with every way text can fail to be JSON an :class:`InputError`
+    on ``source``: bad syntax, a whole number of more than 4300 digits (Python refuses to
+    read it), or arrays/objects nested too deep to read (a RecursionError)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(source, None, f"not valid JSON: {exc}") from None
+    except RecursionError:
+        raise InputError(source, None, "not valid JSON: arrays or objects nested too deep "
+                         "to read") from None
+    except ValueError:                  # int("1" * 5000): Python's limit on digits
+        found = _LONG_JSON_NUMBER.search(text)
+        what = (f"{brief(found[1])} holds a whole number of {len(found[2])} digits"
+                if found else "a whole number of more than 4300 digits")
+        raise InputError(source, None, f"not valid JSON: {what} (too long to read: at most "
+                         "4300)") from None
+
+
+_LONG_JSON_NUMBER = re.compile(r'"((?:[^"\\]|\\.){0,200})"\s*:\s*-?(\d{4301,})')
 
 
 @dataclass(frozen=True)
@@ -95,8 +124,12 @@ class _Reader:
             raise InputError(self.source, name, "missing")
         value = data[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(self.source, name, f"expected a number, got {value!r}")
-        value = float(value)
+            raise InputError(self.source, name, f"expected a number, got {brief(value)}")
+        try:
+            value = float(value)
+        except OverflowError:           # a whole number of 400 digits
+            raise InputError(self.source, name,
+                             f"not a finite number, got {brief(data[key])}") from None
         if not math.isfinite(value):
             raise InputError(self.source, name, f"must be finite, got {value}")
         if (low is not None and value < low) or (high is not None and value > high):
@@ -109,7 +142,7 @@ def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIn
     if "calibration" in cam:
         if not isinstance(cam["calibration"], str) or not cam["calibration"]:
             raise InputError(src, "camera.calibration",
-                             f"expected a calibration file path, got {cam['calibration']!r}")
+                             f"expected a calibration file path, got {brief(cam['calibration'])}")
         calib = Path(cam["calibration"])
         if base_dir is not None and not calib.is_absolute():
             calib = base_dir / calib
@@ -119,15 +152,22 @@ def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIn
         if value is None:
             raise InputError(src, f"camera.{key}", "missing")
         if (isinstance(value, bool) or not isinstance(value, (int, float))
-                or not math.isfinite(value) or value != int(value)):
-            raise InputError(src, f"camera.{key}", f"expected a whole number of pixels, got {value!r}")
+                or (isinstance(value, float) and not value.is_integer())):
+            raise InputError(src, f"camera.{key}",
+                             f"expected a whole number of pixels, got {brief(value)}")
+        if not 0 < value <= MAX_IMAGE_SIDE_PX:
+            raise InputError(src, f"camera.{key}", f"expected a whole number of pixels from 1 to "
+                             f"{MAX_IMAGE_SIDE_PX}, got {brief(value)}")
     width, height = int(cam["width"]), int(cam["height"])
     distortion = cam.get("distortion") or []
     if not isinstance(distortion, list) or not all(
         isinstance(c, (int, float)) and not isinstance(c, bool) for c in distortion
     ):
         raise InputError(src, "camera.distortion", "expected a list of numbers (k1, k2, p1, p2[, k3])")
-    distortion = tuple(float(c) for c in distortion)
+    try:
+        distortion = tuple(float(c) for c in distortion)
+    except OverflowError:               # a whole number of 400 digits
+        raise InputError(src, "camera.distortion", "coefficients must be finite numbers") from None
     if "fx" in cam:
         intr = CameraIntrinsics(
             width=width, height=height,
@@ -171,7 +211,7 @@ def parse_frame_metadata(
         raise InputError(src, None, "expected a JSON object")
     schema = data.get("schema", FRAME_SCHEMA)
     if schema != FRAME_SCHEMA:
-        raise InputError(src, "schema", f"expected {FRAME_SCHEMA!r}, got {schema!r}")
+        raise InputError(src, "schema", f"expected {FRAME_SCHEMA!r}, got {brief(schema)}")
     image = data.get("image")
     if not isinstance(image, str) or not image:
         raise InputError(src, "image", "missing (the image file name)")
@@ -182,7 +222,7 @@ def parse_frame_metadata(
             datetime.fromisoformat(timestamp)
         except (TypeError, ValueError):
             raise InputError(src, "timestamp",
-                             f"expected an ISO 8601 time, got {timestamp!r}") from None
+                             f"expected an ISO 8601 time, got {brief(timestamp)}") from None
 
     uav = reader.section(data, "uav")
     att = reader.section(data, "camera_attitude")
@@ -222,13 +262,27 @@ def load_frame_metadata(
 
 
 def read_frame_json(path: Path) -> object:
-    """The JSON value of a frame file, unvalidated."""
+    """The JSON value of a frame file, unvalidated; :class:`InputError` if it cannot be read
+    or is not JSON (:func:`parse_json_text`)."""
     try:
-        return json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise InputError(path, None, "frame metadata file not found") from exc
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, None, f"not valid JSON: {exc}") from exc
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, None, "frame metadata file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, None, "is a folder, not a file") from None
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(path, None, f"not valid JSON: {_not_utf8_message(data, exc)}") from None
+    return parse_json_text(text, path)
+
+
+def _not_utf8_message(data: bytes, exc: UnicodeDecodeError) -> str:
+    """Where bytes stop being UTF-8: 'not UTF-8 text: byte 0xe9 on line 3'."""
+    line = data.count(b"\n", 0, exc.start) + 1
+    return f"not UTF-8 text: byte 0x{data[exc.start]:02x} on line {line} (save the file as UTF-8)"
 
 
 def parse_frame_metadata_untimed_on_error(

@@ -16,7 +16,6 @@ often slower than the camera.
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import statistics
 from collections.abc import Iterable, Iterator
@@ -28,8 +27,13 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds, timestamp_seconds
-from harborsight.frame import FrameMetadata, parse_frame_metadata_untimed_on_error, read_frame_json
-from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.frame import (
+    FrameMetadata,
+    parse_frame_metadata_untimed_on_error,
+    parse_json_text,
+    read_frame_json,
+)
+from harborsight.geometry.camera import CameraIntrinsics, brief
 from harborsight.pipeline import (
     check_image_size,
     discover_jobs,
@@ -39,6 +43,8 @@ from harborsight.pipeline import (
 )
 
 NO_METADATA = "no metadata"
+#: the highest ``frame_index`` a metadata line may name (a year of video at 30 fps)
+MAX_FRAME_INDEX = 999_999_999
 
 
 @dataclass
@@ -103,9 +109,10 @@ def _picture_for_video(job) -> np.ndarray | None:
     path = job.image_path
     if path is None:
         try:
-            name = json.loads(job.meta_path.read_text()).get("image")
-        except (OSError, ValueError, AttributeError):
-            name = None
+            data = read_frame_json(job.meta_path)
+        except InputError:
+            data = None
+        name = data.get("image") if isinstance(data, dict) else None
         path = find_frame_image(job.meta_path, name if isinstance(name, str) else None)
     if path is None:
         return None
@@ -119,8 +126,14 @@ def _raw_timestamp_s(meta_path: Path) -> float | None:
     """The frame file's timestamp in seconds, or None if it has none or cannot be read (the
     frame's own reading reports that)."""
     try:
-        return iso_seconds(json.loads(meta_path.read_text()).get("timestamp"))
-    except (OSError, ValueError, AttributeError):
+        data = read_frame_json(meta_path)
+    except InputError:
+        return None
+    if not isinstance(data, dict):
+        return None
+    try:
+        return iso_seconds(data.get("timestamp"))
+    except (ValueError, OverflowError):
         return None
 
 
@@ -140,12 +153,19 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
     errors of lines that name no frame (a broken line when indices are explicit),
     ``{video frame index: line number}`` and ``{video frame index: timestamp error}`` of
     lines whose only fault is an unreadable timestamp (parsed without it)."""
+    if path.is_dir():
+        raise InputError(path, None, "is a folder, not a file (expected a JSON-lines file)")
     if not path.is_file():
         raise InputError(path, None, "metadata file not found")
-    lines = [(n, line) for n, line in enumerate(path.read_text().splitlines(), 1) if line.strip()]
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    # split the bytes, not the text: a line that is not UTF-8 is that line's fault only
+    lines = [(n, line) for n, line in enumerate(raw.splitlines(), 1) if line.strip()]
     if not lines:
         raise InputError(path, None, "no metadata lines")
-    explicit = any('"frame_index"' in line for _, line in lines)
+    explicit = any(b'"frame_index"' in line for _, line in lines)
     by_frame: dict[int, FrameMetadata | str] = {}
     orphans: list[str] = []
     line_of: dict[int, int] = {}
@@ -153,20 +173,25 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
     for order, (line_no, line) in enumerate(lines):
         where = f"{path}:{line_no}"
         try:
-            record = json.loads(line)
-        except json.JSONDecodeError as exc:
-            message = str(InputError(where, None, f"not valid JSON: {exc}"))
+            try:
+                text = line.decode("utf-8-sig" if line_no == 1 else "utf-8")
+            except UnicodeDecodeError as exc:
+                raise InputError(where, None, f"not UTF-8 text: byte 0x{line[exc.start]:02x} at "
+                                 f"column {exc.start + 1} (save the file as UTF-8)") from None
+            record = parse_json_text(text, where)
+        except InputError as exc:
             if explicit:
-                orphans.append(message)
+                orphans.append(str(exc))
             else:
-                by_frame[order], line_of[order] = message, line_no
+                by_frame[order], line_of[order] = str(exc), line_no
             continue
         index = order
         if explicit:
             index = record.get("frame_index") if isinstance(record, dict) else None
-            if not isinstance(index, int) or isinstance(index, bool) or index < 0:
-                orphans.append(str(InputError(where, "frame_index",
-                                              f"expected a frame number >= 0, got {index!r}")))
+            if (not isinstance(index, int) or isinstance(index, bool)
+                    or not 0 <= index <= MAX_FRAME_INDEX):
+                orphans.append(str(InputError(where, "frame_index", "expected a frame number from "
+                                              f"0 to {MAX_FRAME_INDEX}, got {brief(index)}")))
                 continue
         if index in by_frame:
             orphans.append(str(InputError(where, "frame_index",

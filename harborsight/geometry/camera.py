@@ -12,6 +12,7 @@ undistorted normalised coordinates; the ray meets the plane ``z = z_p`` at
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,11 +23,28 @@ import yaml
 from harborsight.errors import InputError
 
 _VALID_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
+#: the longest image side a calibration or a frame may state (a 100 000 px side is already
+#: beyond any camera; the limit keeps a typo of 400 digits from becoming a width of 1e308)
+MAX_IMAGE_SIDE_PX = 100_000
 # a hull edge reaching far past the image (a point just in front of the camera plane) is cut
 # into at most this many steps; its distorted part beyond the fold is refused anyway
 _MAX_STEPS_PER_EDGE = 4096
 _NEWTON_STEPS = 6
 _NEWTON_SKIP_PX = 1e-7  # pixels that OpenCV's iteration already brought this close are left
+
+
+def brief(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to about ``limit`` characters, for messages: a field may hold a
+    number of 4000 digits or a long string, and an error must stay one readable line."""
+    try:
+        text = repr(value)
+    except ValueError:                  # an int past Python's limit on the digits it prints
+        return "a whole number of more than 4300 digits"
+    if len(text) <= limit:
+        return text
+    if isinstance(value, int) and not isinstance(value, bool):
+        return f"{text[:12]}... (a whole number of {len(text.lstrip('-'))} digits)"
+    return text[:limit - 3] + "..."
 
 
 @dataclass(frozen=True)
@@ -85,8 +103,9 @@ class CameraIntrinsics:
         """Raise :class:`InputError` on non-finite or out-of-range values."""
         for name in ("width", "height"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and value > 0):
-                raise InputError(source, f"{prefix}.{name}", f"must be a positive integer, got {value!r}")
+            if not (isinstance(value, int) and 0 < value <= MAX_IMAGE_SIDE_PX):
+                raise InputError(source, f"{prefix}.{name}", "must be a whole number of pixels "
+                                 f"from 1 to {MAX_IMAGE_SIDE_PX}, got {brief(value)}")
         for name in ("fx", "fy"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -104,34 +123,196 @@ class CameraIntrinsics:
             raise InputError(source, f"{prefix}.distortion", "coefficients must be finite")
 
 
-def _matrix_from_ros(node: dict, path: Path, key: str) -> np.ndarray:
+def _matrix_from_ros(node: object, path: Path, key: str, shape: tuple[int, int] | None
+                     ) -> np.ndarray:
+    """A ROS ``{rows, cols, data}`` matrix; ``shape`` (when given) is the one it must have."""
+    what = "expected {rows, cols, data}"
+    if not isinstance(node, dict):
+        raise InputError(path, key, f"{what}, got {brief(node)}")
+    rows, cols = (_whole(node.get(name), path, f"{key}.{name}", 1, 64) for name in ("rows", "cols"))
+    raw = node.get("data")
+    if raw is None:
+        raise InputError(path, f"{key}.data", "missing")
     try:
-        data = np.asarray(node["data"], dtype=float)
-        return data.reshape(int(node["rows"]), int(node["cols"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(path, key, f"expected {{rows, cols, data}}: {exc}") from exc
+        data = np.asarray(raw, dtype=float)
+    except OverflowError:               # a whole number of 400 digits
+        raise InputError(path, f"{key}.data", "holds a number too large to be finite") from None
+    except (TypeError, ValueError):
+        bad = next(((i, v) for i, v in enumerate(raw, 1)
+                    if isinstance(v, bool) or not isinstance(v, (int, float))), None
+                   ) if isinstance(raw, list) else None
+        if bad is None:
+            raise InputError(path, f"{key}.data", f"expected a list of numbers, got {brief(raw)}"
+                             ) from None
+        raise InputError(path, f"{key}.data", f"element {bad[0]} is not a number: {brief(bad[1])}"
+                         ) from None
+    if data.ndim != 1 or data.size != rows * cols:
+        raise InputError(path, f"{key}.data", f"expected {rows * cols} numbers ({rows}x{cols}), "
+                         f"got {data.size if data.ndim == 1 else 'a nested list'}")
+    if shape is not None and (rows, cols) != shape:
+        raise InputError(path, key, f"expected a {shape[0]}x{shape[1]} matrix, got {rows}x{cols}")
+    return data.reshape(rows, cols)
+
+
+def _whole(value: object, path: Path, key: str, low: int, high: int) -> int:
+    """A whole number from ``low`` to ``high`` (a float such as 640.0 is taken too)."""
+    if isinstance(value, float) and value.is_integer() and low <= value <= high:
+        value = int(value)
+    if value is None:
+        raise InputError(path, key, "missing")
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise InputError(path, key, f"expected a whole number from {low} to {high}, "
+                         f"got {brief(value)}")
+    return value
+
+
+def _distortion_shape_ok(rows: int, cols: int) -> bool:
+    return min(rows, cols) == 1 and rows * cols in _VALID_DISTORTION_LENGTHS
 
 
 def _load_ros_camera_info(doc: dict, path: Path) -> CameraIntrinsics:
     """ROS ``camera_info`` YAML (camera_calibration_parsers): K in ``camera_matrix``."""
-    K = _matrix_from_ros(doc["camera_matrix"], path, "camera_matrix")
+    K = _matrix_from_ros(doc["camera_matrix"], path, "camera_matrix", (3, 3))
     dist = doc.get("distortion_coefficients")
-    coeffs = _matrix_from_ros(dist, path, "distortion_coefficients").ravel() if dist else []
+    coeffs = _matrix_from_ros(dist, path, "distortion_coefficients", None).ravel() if dist else []
     model = doc.get("distortion_model", "plumb_bob")
     if model not in ("plumb_bob", "rational_polynomial"):
-        raise InputError(path, "distortion_model", f"{model!r} is not an OpenCV pinhole model")
+        raise InputError(path, "distortion_model", f"{brief(model)} is not an OpenCV pinhole model")
     return CameraIntrinsics(
-        width=int(doc["image_width"]), height=int(doc["image_height"]),
+        width=_whole(doc.get("image_width"), path, "image_width", 1, MAX_IMAGE_SIDE_PX),
+        height=_whole(doc.get("image_height"), path, "image_height", 1, MAX_IMAGE_SIDE_PX),
         fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
         distortion=tuple(float(c) for c in coeffs),
     )
 
 
-def _load_opencv_filestorage(path: Path) -> CameraIntrinsics:
+#: OpenCV's one-channel element types (``dt``): 8U, 8S, 16U, 16S, 32S, 32F, 64F, 16F
+_FILESTORAGE_TYPES = set("ucwsifdh")
+#: OpenCV's FileStorage parser wraps a whole number past 2**31 and corrupts its own state
+#: with one past 2**32: any of this many digits is refused before OpenCV reads the file
+_FILESTORAGE_MAX_DIGITS = 9
+_KEY_ON_LINE = re.compile(r"^\s*(?:-\s*)?(?:<(\w+)|([A-Za-z_]\w*)\s*:)")
+
+
+def long_whole_number(text: str, min_digits: int) -> tuple[str, int, str] | None:
+    """The first whole number of ``min_digits`` digits or more in YAML or XML text, as
+    ``(field, line number, its digits cut short)``: the field is the key on its line, under
+    the last top-level key for a nested line, or ``line N`` where no key is known."""
+    pattern = re.compile(rf"(?<![\w.+-])[-+]?\d{{{min_digits},}}(?![\w.])")
+    top = None
+    for number, line in enumerate(text.splitlines(), start=1):
+        key = _KEY_ON_LINE.match(line)
+        name = (key.group(1) or key.group(2)) if key else None
+        nested = line[:1].isspace() or line.startswith("-")
+        if name and not nested:
+            top = name
+        if (m := pattern.search(line)) is not None:
+            field = name or f"line {number}"
+            if nested and top:
+                field = f"{top}.{name}" if name else top
+            digits = m.group().lstrip("+-")
+            shown = digits if len(digits) <= 20 else f"{digits[:12]}... ({len(digits)} digits)"
+            return field, number, shown
+    return None
+
+
+def load_yaml_text(text: str, path: Path) -> object:
+    """``yaml.safe_load(text)``, every way it fails an :class:`InputError` on ``path``: bad
+    syntax, nesting too deep to read (a RecursionError), a whole number of more than 4300
+    digits (Python refuses to read it; named by its key) or a bad value (the date 2024-13-01)."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise InputError(path, None, "not valid YAML: " + " ".join(str(exc).split())) from exc
+    except RecursionError:
+        raise InputError(path, None, "not valid YAML: nested too deep to read") from None
+    except ValueError as exc:
+        if "digits" in str(exc) and (found := long_whole_number(text, 4301)) is not None:
+            field, line, shown = found
+            raise InputError(path, field, f"{shown} on line {line}: a whole number of more than "
+                             "4300 digits is too long to read") from None
+        raise InputError(path, None, f"not valid YAML: {brief(str(exc), 80)}") from None
+
+
+def _describe_node(node) -> str:
+    """A FileStorage node's value for a message."""
+    if node.empty():
+        return "nothing"
+    if node.isInt() or node.isReal():
+        return f"{node.real():g}"
+    if node.isString():
+        return brief(node.string())
+    return "a sequence" if node.isSeq() else "a mapping" if node.isMap() else "an unknown value"
+
+
+def _filestorage_matrix(node, path: Path, key: str, allowed, wanted: str) -> np.ndarray:
+    """An ``!!opencv-matrix`` node, checked before OpenCV reads it: ``rows``, ``cols``,
+    ``dt`` and the length and numbers of ``data`` (``node.mat()`` asserts on a mismatch and
+    allocates what ``rows`` says: 51 GB for ``rows: three``). ``allowed(rows, cols)`` says
+    whether the shape fits; ``wanted`` words it."""
+    if not node.isMap():
+        raise InputError(path, key, f"expected an opencv-matrix {{rows, cols, dt, data}}, "
+                         f"got {_describe_node(node)}")
+    dims = []
+    for name in ("rows", "cols"):
+        child = node.getNode(name)
+        if not child.isInt() or not 1 <= child.real() <= 64:
+            raise InputError(path, f"{key}.{name}", f"expected a whole number from 1 to 64 "
+                             f"({wanted}), got {_describe_node(child)}")
+        dims.append(int(child.real()))
+    rows, cols = dims
+    if not allowed(rows, cols):
+        raise InputError(path, key, f"expected {wanted}, got {rows}x{cols}")
+    dt = node.getNode("dt")
+    if not dt.isString() or dt.string() not in _FILESTORAGE_TYPES:
+        raise InputError(path, f"{key}.dt", "expected one of " + ", ".join(sorted(
+            _FILESTORAGE_TYPES)) + f" (d: 64-bit float), got {_describe_node(dt)}")
+    data = node.getNode("data")
+    if not data.isSeq():
+        raise InputError(path, f"{key}.data", f"expected a list of {rows * cols} numbers, got "
+                         f"{_describe_node(data)}")
+    if data.size() != rows * cols:
+        raise InputError(path, f"{key}.data", f"expected {rows * cols} numbers ({rows}x{cols}), "
+                         f"got {data.size()}")
+    for i in range(data.size()):
+        item = data.at(i)
+        if not (item.isInt() or item.isReal()):
+            raise InputError(path, f"{key}.data", f"element {i + 1} is not a number: "
+                             f"{_describe_node(item)}")
+    matrix = node.mat()
+    if matrix is None or matrix.size != rows * cols:
+        raise InputError(path, key, f"OpenCV could not read it as {wanted}")
+    return np.asarray(matrix, dtype=float).reshape(rows, cols)
+
+
+def _filestorage_whole(node, path: Path, key: str) -> int:
+    if not node.isInt() or not 1 <= node.real() <= MAX_IMAGE_SIDE_PX:
+        raise InputError(path, key, f"expected a whole number of pixels from 1 to "
+                         f"{MAX_IMAGE_SIDE_PX}, got {_describe_node(node)}")
+    return int(node.real())
+
+
+def _check_filestorage_numbers(text: str, path: Path) -> None:
+    """Refuse whole numbers OpenCV cannot hold (:data:`_FILESTORAGE_MAX_DIGITS`)."""
+    found = long_whole_number(text, _FILESTORAGE_MAX_DIGITS + 1)
+    if found is not None:
+        field, line, shown = found
+        raise InputError(path, field, f"{shown} on line {line} is too large a whole number for an "
+                         f"OpenCV FileStorage file (more than {_FILESTORAGE_MAX_DIGITS} digits)")
+
+
+def _load_opencv_filestorage(path: Path, text: str) -> CameraIntrinsics:
     """cv2.FileStorage YAML/XML as written by OpenCV's calibration sample."""
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    _check_filestorage_numbers(text, path)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:     # a parse error comes wrapped in a SystemError
+        cause = exc if isinstance(exc, cv2.error) else exc.__cause__ or exc.__context__ or exc
+        raise InputError(path, None, "not a FileStorage file OpenCV can read: "
+                         f"{_cv_message(cause)}") from None
     if not fs.isOpened():
         raise InputError(path, None, "cannot open as an OpenCV FileStorage file")
+    field_name = None
     try:
         def first(*names: str):
             for name in names:
@@ -140,26 +321,50 @@ def _load_opencv_filestorage(path: Path) -> CameraIntrinsics:
                     return name, node
             return None, None
 
+        field_name = "camera_matrix"
         k_name, k_node = first("camera_matrix", "cameraMatrix", "K", "intrinsics")
         if k_node is None:
             raise InputError(path, "camera_matrix", "missing (also tried cameraMatrix, K)")
-        K = k_node.mat()
-        if K is None or K.shape != (3, 3):
-            raise InputError(path, k_name, "expected a 3x3 matrix")
-        _, d_node = first("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
-        dist = () if d_node is None else tuple(float(c) for c in d_node.mat().ravel())
-        _, w_node = first("image_width", "imageWidth")
-        _, h_node = first("image_height", "imageHeight")
+        field_name = k_name
+        K = _filestorage_matrix(k_node, path, k_name, lambda r, c: (r, c) == (3, 3),
+                                "a 3x3 matrix")
+        field_name = "distortion_coefficients"
+        d_name, d_node = first("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
+        if d_node is None:
+            dist = ()
+        else:
+            field_name = d_name
+            dist = tuple(float(c) for c in _filestorage_matrix(
+                d_node, path, d_name, _distortion_shape_ok,
+                "a row or column of 4, 5, 8, 12 or 14 coefficients").ravel())
+        field_name = "image_width"
+        w_name, w_node = first("image_width", "imageWidth")
+        h_name, h_node = first("image_height", "imageHeight")
         if w_node is None or h_node is None:
-            _, size_node = first("image_size", "imageSize")
+            field_name = "image_size"
+            s_name, size_node = first("image_size", "imageSize")
             if size_node is None:
                 raise InputError(path, "image_width", "missing image_width/image_height")
-            size = size_node.mat().ravel() if size_node.isSeq() is False else [
-                size_node.at(i).real() for i in range(size_node.size())
-            ]
-            width, height = int(size[0]), int(size[1])
+            field_name = s_name
+            if size_node.isSeq():
+                if size_node.size() != 2:
+                    raise InputError(path, s_name, f"expected [width, height], got "
+                                     f"{size_node.size()} values")
+                width, height = (_filestorage_whole(size_node.at(i), path, s_name) for i in (0, 1))
+            else:
+                size = _filestorage_matrix(size_node, path, s_name,
+                                           lambda r, c: r * c == 2 and min(r, c) == 1,
+                                           "[width, height]").ravel()
+                if not all(v.is_integer() and 1 <= v <= MAX_IMAGE_SIDE_PX for v in size):
+                    raise InputError(path, s_name, f"expected whole numbers of pixels from 1 to "
+                                     f"{MAX_IMAGE_SIDE_PX}, got {size.tolist()}")
+                width, height = int(size[0]), int(size[1])
         else:
-            width, height = int(w_node.real()), int(h_node.real())
+            width = _filestorage_whole(w_node, path, w_name)
+            field_name = h_name
+            height = _filestorage_whole(h_node, path, h_name)
+    except cv2.error as exc:            # OpenCV asserts on what the checks above did not foresee
+        raise InputError(path, field_name, f"OpenCV cannot read it: {_cv_message(exc)}") from None
     finally:
         fs.release()
     return CameraIntrinsics(
@@ -168,19 +373,32 @@ def _load_opencv_filestorage(path: Path) -> CameraIntrinsics:
     )
 
 
+def _cv_message(exc: BaseException) -> str:
+    """The reason in an OpenCV error, without its source file: 'line 5: Incorrect
+    indentation' for a parse error."""
+    text = " ".join(str(exc).split())
+    if (m := re.search(r"\((\d+)\): ([^']*)'?\s*$", text)) is not None:
+        text = f"line {m[1]}: {m[2].strip()}"
+    elif (m := re.search(r"error: \(-?\d+:[^)]*\) (.*)", text)) is not None:
+        text = m[1]
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
 def load_camera_calibration(path: str | Path) -> CameraIntrinsics:
     """Load intrinsics from an OpenCV FileStorage (YAML/XML) or a ROS camera_info YAML."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(path, None, "is a folder, not a file (expected a calibration file)")
     if not path.is_file():
         raise InputError(path, None, "calibration file not found")
-    text = path.read_text(errors="replace")
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
     if path.suffix.lower() == ".xml" or text.lstrip().startswith("%YAML"):
-        intrinsics = _load_opencv_filestorage(path)
+        intrinsics = _load_opencv_filestorage(path, text)
     else:
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise InputError(path, None, f"not valid YAML: {exc}") from exc
+        doc = load_yaml_text(text, path)
         if not isinstance(doc, dict) or "camera_matrix" not in doc:
             raise InputError(path, "camera_matrix", "missing: not a ROS camera_info file")
         intrinsics = _load_ros_camera_info(doc, path)

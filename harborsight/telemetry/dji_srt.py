@@ -113,6 +113,21 @@ def _local_time_at_zero(rows: list[dict], t_s: np.ndarray) -> datetime | None:
     return reference + timedelta(seconds=shift_s)
 
 
+def _utc_start(local_start: datetime, utc_offset_h: float, duration_s: float, path: Path
+               ) -> datetime:
+    """The UTC time at t = 0 from the local one; :class:`InputError` on the field ``date``
+    where it, or the time of the file's last sample, falls outside the years 1 to 9999 that
+    a time can take (the date lines of a drone whose clock was never set, say)."""
+    try:
+        utc_start = (local_start - timedelta(hours=utc_offset_h)).replace(tzinfo=UTC)
+        utc_start + timedelta(seconds=duration_s)
+    except OverflowError:
+        raise InputError(path, "date", f"the date lines ({local_start.isoformat()} local time at "
+                         f"t = 0, UTC offset {utc_offset_h:+g} h) put the samples before the year "
+                         "1 or after 9999 in UTC: not a time a flight can have") from None
+    return utc_start
+
+
 def _coarse_position_notes(rows: list[dict]) -> list[str]:
     """A note when the file prints latitude with four decimals or fewer (11 m steps)."""
     lat = np.array([r["latitude"] for r in rows]) * 1e4
@@ -253,10 +268,14 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (torn, "cut short at the end of the file left out"),
     ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
     utc_start = None
-    local_start = _local_time_at_zero(rows, t_s)
+    try:
+        local_start = _local_time_at_zero(rows, t_s)
+    except OverflowError:
+        raise InputError(path, "date", "the date lines put the video's start before the year 1 "
+                         "or after 9999: not a time a flight can have") from None
     if local_start is not None:
         if utc_offset_h is not None:
-            utc_start = (local_start - timedelta(hours=utc_offset_h)).replace(tzinfo=UTC)
+            utc_start = _utc_start(local_start, utc_offset_h, float(t_s.max()), path)
         else:
             notes.append(f"date lines are local time ({local_start.isoformat()} at t = 0); "
                          "give the UTC offset to place them in UTC")

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError
+from harborsight.geometry.camera import brief
 from harborsight.telemetry.track import Track
 
 MOUNTS = ("auto", "gimbal", "stabilised", "rigid")
@@ -84,6 +85,24 @@ def camera_attitude_deg(drone: Track, samples: dict[str, np.ndarray], mount: Cam
     return out[:, 0], out[:, 1], out[:, 2]
 
 
+def parse_utc_time(text: str, field: str) -> datetime:
+    """An ISO 8601 time (``Z`` for UTC; a time without a zone is taken as UTC) in UTC, for an
+    option such as ``--video-start``. :class:`InputError` naming ``field`` if it is not ISO
+    8601, or if in UTC it falls outside the years 1 to 9999 that a time can take
+    (``9999-12-31T23:59:59-01:00`` is in the year 10000 in UTC)."""
+    try:
+        when = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except (AttributeError, ValueError):
+        raise InputError(None, field, f"not an ISO 8601 time: {brief(text)}") from None
+    if when.tzinfo is None:
+        return when.replace(tzinfo=UTC)
+    try:
+        return when.astimezone(UTC)
+    except OverflowError:
+        raise InputError(None, field, f"{text.strip()} is before the year 1 or after 9999 in UTC"
+                         ) from None
+
+
 @dataclass
 class FrameMetadataResult:
     frames: list[dict]                      # one harborsight.frame/1 object per usable frame
@@ -123,6 +142,14 @@ def build_video_metadata(
         raise InputError(drone.source, "date", "the frames' UTC time is unknown (the SRT has no "
                          "date lines, or no UTC offset for them): give the video's start time in "
                          "UTC, or the offset of the SRT's local time")
+    try:
+        start_utc + timedelta(seconds=float(video_s[-1]))
+    except OverflowError:
+        source, field = ((None, "--video-start") if video_start_utc is not None
+                         else (drone.source, "date"))
+        raise InputError(source, field, f"the video starts at {start_utc.isoformat()} UTC and "
+                         f"runs {video_s[-1]:g} s: its last frame falls after the year 9999"
+                         ) from None
     utc = [start_utc + timedelta(seconds=float(s)) for s in video_s]
     vessel_t = np.array([vessel.seconds_of(u) for u in utc]) + vessel_offset_s
 

@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 import trimesh
-import yaml
 
 from harborsight.errors import InputError
+from harborsight.geometry.camera import brief, load_yaml_text
 from harborsight.vessel.outline import (
     mesh_in_vessel_frame,
     outline_from_dimensions,
@@ -61,13 +61,26 @@ class VesselSpec:
         return self._sections[key]
 
 
+def _finite(value: Any, path: Path, key: str, what: str = "number of metres",
+            part: str = "") -> float:
+    """``value`` as a finite float, else :class:`InputError` naming ``key`` (NaN, infinity,
+    a whole number of 400 digits, a string, a list); ``part`` says which element it is."""
+    number = math.nan
+    if not isinstance(value, bool) and isinstance(value, (int, float)):
+        try:
+            number = float(value)
+        except OverflowError:           # a whole number of 400 digits
+            number = math.inf
+    if not math.isfinite(number):
+        raise InputError(path, key, f"{part}expected a finite {what}, got {brief(value)}")
+    return number
+
+
 def _positive(doc: dict, key: str, path: Path, prefix: str = "") -> float:
-    value = doc.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(path, f"{prefix}{key}", f"expected a number of metres, got {value!r}")
+    value = _finite(doc.get(key), path, f"{prefix}{key}")
     if value < 0:
         raise InputError(path, f"{prefix}{key}", f"must not be negative, got {value}")
-    return float(value)
+    return value
 
 
 def _load_mesh(mesh_path: Path, spec_path: Path) -> trimesh.Trimesh:
@@ -100,24 +113,25 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
         raise InputError(path, None, "expected a YAML mapping")
     name = str(doc.get("name") or path.parent.name or "vessel")
     mode = doc.get("outline", "waterline")
-    if not (mode in ("waterline", "silhouette") or (
-        isinstance(mode, (int, float)) and not isinstance(mode, bool) and math.isfinite(mode)
-    )):
-        raise InputError(path, "outline", f"expected waterline, silhouette or a height, got {mode!r}")
+    if mode not in ("waterline", "silhouette"):
+        mode = _finite(mode, path, "outline", "height in metres (or waterline, silhouette)")
 
     mesh_v = None
     if doc.get("hull_mesh"):
         mesh = _load_mesh(path.parent / str(doc["hull_mesh"]), path)
         axes = doc.get("mesh_axes", ["bow", "port", "up"])
         antenna = doc.get("gps_antenna", [0.0, 0.0, 0.0])
-        if not (isinstance(antenna, list) and len(antenna) == 3
-                and all(isinstance(v, (int, float)) for v in antenna)):
-            raise InputError(path, "gps_antenna", f"expected [x, y, z] in metres, got {antenna!r}")
+        if not (isinstance(antenna, list) and len(antenna) == 3):
+            raise InputError(path, "gps_antenna", f"expected [x, y, z] in metres, got {brief(antenna)}")
+        antenna = [_finite(v, path, "gps_antenna", part=f"{axis}: ")
+                   for axis, v in zip("xyz", antenna, strict=True)]
+        waterline = _finite(doc.get("waterline_m", 0.0), path, "waterline_m")
+        if not isinstance(axes, list):
+            raise InputError(path, "mesh_axes", f"expected three axis names, got {brief(axes)}")
         try:
-            mesh_v = mesh_in_vessel_frame(mesh, axes, np.asarray(antenna, float),
-                                          float(doc.get("waterline_m", 0.0)))
-        except ValueError as exc:
-            raise InputError(path, "mesh_axes", str(exc)) from exc
+            mesh_v = mesh_in_vessel_frame(mesh, axes, np.asarray(antenna, float), waterline)
+        except (TypeError, ValueError) as exc:
+            raise InputError(path, "mesh_axes", brief(str(exc), 120).strip("'\"")) from None
         try:
             outline = outline_from_mesh(mesh_v, mode)
             hull_points = above_water_hull_points(mesh_v)
@@ -150,7 +164,7 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
     elif "sections" in doc:
         n = doc["sections"]
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-            raise InputError(path, "sections", f"expected a positive whole number, got {n!r}")
+            raise InputError(path, "sections", f"expected a positive whole number, got {brief(n)}")
         n_sections = n
     spec = VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
     try:
@@ -178,10 +192,18 @@ def above_water_hull_points(mesh_v) -> np.ndarray:
 def load_vessel_spec(path: str | Path) -> VesselSpec:
     """Read and validate a ``vessel.yaml``."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(path, None, "is a folder, not a file (expected a vessel.yaml)")
     if not path.is_file():
         raise InputError(path, None, "vessel spec not found")
     try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise InputError(path, None, f"not valid YAML: {exc}") from exc
-    return parse_vessel_spec(doc, path)
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(path, f"line {line}", f"not UTF-8 text (byte 0x{data[exc.start]:02x}): "
+                         "save the file as UTF-8") from None
+    return parse_vessel_spec(load_yaml_text(text, path), path)
