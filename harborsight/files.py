@@ -94,6 +94,21 @@ def prepare_output_folder(path: str | Path, option: str = "--out",
     would overwrite or be read back as input on the next run."""
     from harborsight.errors import InputError
 
+    path = check_output_folder(path, option, inputs)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(path, option, f"cannot create the output folder: "
+                         f"{exc.strerror or exc}") from None
+    return path
+
+
+def check_output_folder(path: str | Path, option: str = "--out",
+                        inputs: tuple[str | Path | None, ...] = ()) -> Path:
+    """:func:`prepare_output_folder`'s checks without creating anything (for a command that
+    writes nothing when it has nothing to write)."""
+    from harborsight.errors import InputError
+
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(path, option, "exists and is not a folder")
@@ -110,11 +125,6 @@ def prepare_output_folder(path: str | Path, option: str = "--out",
     problem = _write_problem(path)
     if problem:
         raise InputError(path, option, f"cannot create the output folder: {problem}")
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(path, option, f"cannot create the output folder: "
-                         f"{exc.strerror or exc}") from None
     return path
 
 

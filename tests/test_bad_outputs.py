@@ -161,3 +161,12 @@ def test_an_absurd_image_size_is_one_line(tmp_path, size):
                                  "2026-05-01T12:00:00Z", "--water-level-m", "0",
                                  "--out", str(tmp_path / "x.jsonl")])
     _one_error_line(result, "--image-size")
+
+
+@pytest.mark.parametrize("start", ["9999-12-31T23:59:59-01:00", "0001-01-01T00:00:00+01:00", "noon"])
+def test_a_video_start_outside_the_calendar_is_one_line(tmp_path, start):
+    result = runner.invoke(app, ["telemetry", "video", str(LOGS / "flight.SRT"), "--vessel-track",
+                                 str(LOGS / "ship.nmea"), "--camera", "dji-mavic3", "--frames",
+                                 "48", "--fps", "2", "--image-size", "640x360", "--video-start",
+                                 start, "--water-level-m", "0", "--out", str(tmp_path / "x.jsonl")])
+    _one_error_line(result, "--video-start")

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from harborsight.cli.app import app, console, err_console
 from harborsight.errors import HarborsightError
-from harborsight.files import prepare_output_folder
+from harborsight.files import check_output_folder
 
 dataset_app = typer.Typer(rich_markup_mode=None, no_args_is_help=True,
                           help="Labelled datasets: import annotations made with COCO, LabelMe, "
@@ -112,7 +112,7 @@ def import_command(
             background=TARGETS[background.value], split=split or "train", split_file=split_file,
             max_side=max_side, append=append, keep_unlabelled=keep_unlabelled)
         plan = plan_import(options)
-        prepare_output_folder(out, "--out")
+        check_output_folder(out, "--out")
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

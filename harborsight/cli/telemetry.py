@@ -170,10 +170,14 @@ def telemetry_video(
     """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
     vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
     a gap, are left out and listed."""
-    from datetime import UTC, datetime
 
     from harborsight.telemetry import read_drone_log
-    from harborsight.telemetry.metadata import MOUNTS, CameraMount, build_video_metadata
+    from harborsight.telemetry.metadata import (
+        MOUNTS,
+        CameraMount,
+        build_video_metadata,
+        parse_utc_time,
+    )
     from harborsight.telemetry.vessel_track import read_vessel_track
 
     try:
@@ -205,13 +209,7 @@ def telemetry_video(
             width, height = int(size[1]), int(size[2])
         if not frames or not fps:
             raise InputError(None, "--frames", "give --video, or --frames and --fps")
-        start = None
-        if video_start:
-            try:
-                start = datetime.fromisoformat(video_start.replace("Z", "+00:00"))
-            except ValueError:
-                raise InputError(None, "--video-start", f"not ISO 8601: {video_start!r}") from None
-            start = start.replace(tzinfo=UTC) if start.tzinfo is None else start.astimezone(UTC)
+        start = parse_utc_time(video_start, "--video-start") if video_start else None
         drone = read_drone_log(drone_log, utc_offset_h)
         vessel = read_vessel_track(vessel_track)
         camera_block = _telemetry_camera(camera, width, height, drone_log)

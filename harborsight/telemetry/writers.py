@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from pathlib import Path
 
 import cv2
@@ -20,6 +20,7 @@ import pynmea2
 
 from harborsight.errors import InputError
 from harborsight.frame import FrameMetadata, load_frame_metadata
+from harborsight.telemetry.metadata import parse_utc_time
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,10 @@ class FlightLogs:
 def _utc(meta: FrameMetadata, source: Path) -> datetime:
     if not meta.timestamp:
         raise InputError(source, "timestamp", "every frame needs a time to be written as a log")
-    when = datetime.fromisoformat(meta.timestamp.replace("Z", "+00:00"))
-    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
+    try:
+        return parse_utc_time(meta.timestamp, "timestamp")
+    except InputError as exc:
+        raise InputError(source, "timestamp", exc.message) from None
 
 
 def _srt_clock(seconds: float) -> str:
