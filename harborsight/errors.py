@@ -18,3 +18,17 @@ class InputError(HarborsightError):
         self.message = message
         parts = [p for p in (self.source, field) if p]
         super().__init__(": ".join([*parts, message]))
+
+
+def brief(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to about ``limit`` characters, for messages: a field may hold a
+    number of 4000 digits or a long string, and an error must stay one readable line."""
+    try:
+        text = repr(value)
+    except ValueError:                  # an int past Python's limit on the digits it prints
+        return "a whole number of more than 4300 digits"
+    if len(text) <= limit:
+        return text
+    if isinstance(value, int) and not isinstance(value, bool):
+        return f"{text[:12]}... (a whole number of {len(text.lstrip('-'))} digits)"
+    return text[:limit - 3] + "..."

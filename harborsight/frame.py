@@ -17,12 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from harborsight.errors import InputError
+from harborsight.errors import InputError, brief
 from harborsight.geometry.camera import (
     MAX_IMAGE_SIDE_PX,
     Camera,
     CameraIntrinsics,
-    brief,
     load_camera_calibration,
 )
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import yaml
 
-from harborsight.errors import InputError
+from harborsight.errors import InputError, brief
 
 _VALID_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
 #: the longest image side a calibration or a frame may state (a 100 000 px side is already
@@ -31,20 +31,6 @@ MAX_IMAGE_SIDE_PX = 100_000
 _MAX_STEPS_PER_EDGE = 4096
 _NEWTON_STEPS = 6
 _NEWTON_SKIP_PX = 1e-7  # pixels that OpenCV's iteration already brought this close are left
-
-
-def brief(value: object, limit: int = 40) -> str:
-    """``repr(value)`` cut to about ``limit`` characters, for messages: a field may hold a
-    number of 4000 digits or a long string, and an error must stay one readable line."""
-    try:
-        text = repr(value)
-    except ValueError:                  # an int past Python's limit on the digits it prints
-        return "a whole number of more than 4300 digits"
-    if len(text) <= limit:
-        return text
-    if isinstance(value, int) and not isinstance(value, bool):
-        return f"{text[:12]}... (a whole number of {len(text.lstrip('-'))} digits)"
-    return text[:limit - 3] + "..."
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,7 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from harborsight.errors import InputError
-from harborsight.geometry.camera import brief
+from harborsight.errors import InputError, brief
 from harborsight.telemetry.track import Track
 
 MOUNTS = ("auto", "gimbal", "stabilised", "rigid")

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from harborsight.errors import InputError
-from harborsight.geometry.camera import brief, load_yaml_text
+from harborsight.errors import InputError, brief
+from harborsight.geometry.camera import load_yaml_text
 from harborsight.vessel.outline import (
     mesh_in_vessel_frame,
     outline_from_dimensions,
