@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from harborsight.vessel.outline import (
     outline_from_dimensions,
     outline_from_mesh,
 )
-from harborsight.vessel.sections import SectionedOutline
+from harborsight.vessel.sections import MAX_SECTIONS, SectionedOutline
 
 DEFAULT_SECTIONS = 16
 
@@ -61,26 +62,66 @@ class VesselSpec:
         return self._sections[key]
 
 
+#: the largest vessel dimension taken (length, beam, air draft, a dimension, the hull's
+#: distance from its antenna): the longest ships afloat are under 460 m, and a hull of
+#: 1e30 m, or one whose length overflows to infinity, is a typo or a mesh in millimetres
+MAX_VESSEL_SIZE_M = 1000.0
+#: the smallest length or beam taken (the outline of a smaller box vanishes in rounding)
+MIN_VESSEL_SIZE_M = 0.1
+#: the largest mesh coordinate taken for gps_antenna and waterline_m (mesh units, which may
+#: be millimetres: the hull itself is checked in metres once it is in the vessel frame)
+MAX_MESH_COORDINATE = 1e6
+#: YAML 1.2 float syntax; PyYAML (YAML 1.1) reads ``1e30`` or ``1.0e30`` as text
+_NUMBER_TEXT = re.compile(r"[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?")
+
+
 def _finite(value: Any, path: Path, key: str, what: str = "number of metres",
-            part: str = "") -> float:
+            part: str = "", limit: float | None = None) -> float:
     """``value`` as a finite float, else :class:`InputError` naming ``key`` (NaN, infinity,
-    a whole number of 400 digits, a string, a list); ``part`` says which element it is."""
+    a whole number of 400 digits, a string, a list); ``part`` says which element it is.
+    Text that is a number in YAML 1.2 (``1e3``, which PyYAML leaves as text) is read as
+    one. ``limit``: the largest magnitude taken."""
     number = math.nan
-    if not isinstance(value, bool) and isinstance(value, (int, float)):
+    if isinstance(value, str) and len(value) < 400 and _NUMBER_TEXT.fullmatch(value.strip()):
+        number = float(value)
+    elif not isinstance(value, bool) and isinstance(value, (int, float)):
         try:
             number = float(value)
         except OverflowError:           # a whole number of 400 digits
             number = math.inf
     if not math.isfinite(number):
         raise InputError(path, key, f"{part}expected a finite {what}, got {brief(value)}")
+    if limit is not None and abs(number) > limit:
+        raise InputError(path, key, f"{part}{number:g} is beyond {limit:g}: larger than any "
+                         "vessel (a typo, or a value in millimetres?)")
     return number
 
 
-def _positive(doc: dict, key: str, path: Path, prefix: str = "") -> float:
-    value = _finite(doc.get(key), path, f"{prefix}{key}")
+def _positive(doc: dict, key: str, path: Path, prefix: str = "",
+              limit: float | None = MAX_VESSEL_SIZE_M) -> float:
+    value = _finite(doc.get(key), path, f"{prefix}{key}", limit=limit)
     if value < 0:
         raise InputError(path, f"{prefix}{key}", f"must not be negative, got {value}")
     return value
+
+
+def _check_mesh_size(mesh_v: trimesh.Trimesh, spec_path: Path, mesh_name: str) -> None:
+    """Refuse a hull in the vessel frame that is larger than any vessel (a mesh in
+    millimetres) or lies far from its antenna (gps_antenna or waterline_m off)."""
+    vertices = np.asarray(mesh_v.vertices)
+    extent = np.ptp(vertices, axis=0)
+    if extent.max() > MAX_VESSEL_SIZE_M:
+        raise InputError(spec_path, "hull_mesh", f"{mesh_name} spans {extent.max():.4g} units: "
+                         f"more than {MAX_VESSEL_SIZE_M:g} m, not a vessel in metres (a mesh in "
+                         "millimetres?)")
+    reach = np.abs(vertices).max(axis=0)
+    if reach[:2].max() > MAX_VESSEL_SIZE_M:
+        raise InputError(spec_path, "gps_antenna", f"the hull lies up to {reach[:2].max():.4g} m "
+                         f"from the antenna: more than {MAX_VESSEL_SIZE_M:g} m (check its "
+                         "coordinates and mesh_axes)")
+    if reach[2] > MAX_VESSEL_SIZE_M:
+        raise InputError(spec_path, "waterline_m", f"the hull lies up to {reach[2]:.4g} m above "
+                         f"or below the waterline: more than {MAX_VESSEL_SIZE_M:g} m")
 
 
 def _load_mesh(mesh_path: Path, spec_path: Path) -> trimesh.Trimesh:
@@ -114,24 +155,30 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
     name = str(doc.get("name") or path.parent.name or "vessel")
     mode = doc.get("outline", "waterline")
     if mode not in ("waterline", "silhouette"):
-        mode = _finite(mode, path, "outline", "height in metres (or waterline, silhouette)")
+        mode = _finite(mode, path, "outline", "height in metres (or waterline, silhouette)",
+                       limit=MAX_VESSEL_SIZE_M)
 
     mesh_v = None
     if doc.get("hull_mesh"):
-        mesh = _load_mesh(path.parent / str(doc["hull_mesh"]), path)
+        if not isinstance(doc["hull_mesh"], str):
+            raise InputError(path, "hull_mesh", f"expected a mesh file name, got "
+                             f"{brief(doc['hull_mesh'])}")
+        mesh = _load_mesh(path.parent / doc["hull_mesh"], path)
         axes = doc.get("mesh_axes", ["bow", "port", "up"])
         antenna = doc.get("gps_antenna", [0.0, 0.0, 0.0])
         if not (isinstance(antenna, list) and len(antenna) == 3):
             raise InputError(path, "gps_antenna", f"expected [x, y, z] in metres, got {brief(antenna)}")
-        antenna = [_finite(v, path, "gps_antenna", part=f"{axis}: ")
+        antenna = [_finite(v, path, "gps_antenna", part=f"{axis}: ", limit=MAX_MESH_COORDINATE)
                    for axis, v in zip("xyz", antenna, strict=True)]
-        waterline = _finite(doc.get("waterline_m", 0.0), path, "waterline_m")
+        waterline = _finite(doc.get("waterline_m", 0.0), path, "waterline_m",
+                            limit=MAX_MESH_COORDINATE)
         if not isinstance(axes, list):
             raise InputError(path, "mesh_axes", f"expected three axis names, got {brief(axes)}")
         try:
             mesh_v = mesh_in_vessel_frame(mesh, axes, np.asarray(antenna, float), waterline)
         except (TypeError, ValueError) as exc:
             raise InputError(path, "mesh_axes", brief(str(exc), 120).strip("'\"")) from None
+        _check_mesh_size(mesh_v, path, str(doc["hull_mesh"]))
         try:
             outline = outline_from_mesh(mesh_v, mode)
             hull_points = above_water_hull_points(mesh_v)
@@ -143,8 +190,12 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
             raise InputError(path, "dimensions", "expected {to_bow, to_stern, to_port, to_starboard}")
         values = {k: _positive(dims, k, path, "dimensions.")
                   for k in ("to_bow", "to_stern", "to_port", "to_starboard")}
-        if values["to_bow"] + values["to_stern"] <= 0 or values["to_port"] + values["to_starboard"] <= 0:
-            raise InputError(path, "dimensions", "length and beam must be positive")
+        for what, total in (("length (to_bow + to_stern)", values["to_bow"] + values["to_stern"]),
+                            ("beam (to_port + to_starboard)",
+                             values["to_port"] + values["to_starboard"])):
+            if not MIN_VESSEL_SIZE_M <= total <= MAX_VESSEL_SIZE_M:
+                raise InputError(path, "dimensions", f"{what} is {total:g} m: expected "
+                                 f"{MIN_VESSEL_SIZE_M:g} to {MAX_VESSEL_SIZE_M:g} m")
         outline = outline_from_dimensions(**values)
         air_draft = _positive(doc, "air_draft_m", path) if "air_draft_m" in doc else 0.0
         hull_points = np.vstack((
@@ -157,9 +208,12 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
     n_sections: int | None = DEFAULT_SECTIONS
     section_length: float | None = None
     if "section_length_m" in doc:
-        section_length = _positive(doc, "section_length_m", path)
+        section_length = _positive(doc, "section_length_m", path, limit=10_000.0)
         if section_length == 0:
             raise InputError(path, "section_length_m", "must be positive")
+        if section_length < 1e-6:       # the count would overflow: say what it means
+            raise InputError(path, "section_length_m", f"{section_length:g} m asks for more "
+                             f"than {MAX_SECTIONS} sections on any hull (give metres)")
         n_sections = None
     elif "sections" in doc:
         n = doc["sections"]
@@ -169,7 +223,7 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
     spec = VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
     try:
         spec.sections()
-    except ValueError as exc:
+    except (ValueError, OverflowError) as exc:
         raise InputError(path, "section_length_m" if section_length else "sections", str(exc)) from None
     return spec
 
