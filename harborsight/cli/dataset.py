@@ -9,10 +9,10 @@ from typing import Annotated
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from harborsight.cli.app import app, console, err_console
+from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.files import check_output_folder
 
@@ -116,11 +116,9 @@ def import_command(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    with Progress(TextColumn("[bold]importing"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True,
-                  disable=not progress) as bar:
-        task = bar.add_task("frames", total=len(plan.frames))
-        result = run_import(plan, on_frame=lambda *_: bar.advance(task))
+    with progress_report("dataset import", len(plan.frames), console,
+                         enabled=progress) as bar:
+        result = run_import(plan, on_frame=lambda *_: bar.advance())
     _print_issues("frame(s) or file(s) skipped:", "red", result.skipped)
     _print_issues("warning(s) (frames imported):", "yellow", result.warnings)
     if not result.splits:
@@ -272,11 +270,9 @@ def _label_and_review(items: list, out: Path, splits: dict[str, str], review: Pa
     from harborsight.datasets.box_dataset import write_box_dataset
     from harborsight.viz.review_sheet import review_sheets
 
-    with Progress(TextColumn("[bold]labelling"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True,
-                  disable=not progress) as bar:
-        task = bar.add_task("images", total=len(items))
-        result = write_box_dataset(items, out, splits, on_image=lambda *_: bar.advance(task),
+    label = f"dataset {writer_options.get('generator', 'label-from-boxes')}"
+    with progress_report(label, len(items), console, unit="images", enabled=progress) as bar:
+        result = write_box_dataset(items, out, splits, on_image=lambda *_: bar.advance(),
                                    **writer_options)
     _print_issues("image(s) skipped:", "red", [f"{file}: {reason}" for file, reason in result.skipped])
     if not result.splits:

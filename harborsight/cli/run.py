@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import json
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from harborsight.cli.app import (
     MAX_MARGIN_PX,
@@ -23,29 +26,73 @@ from harborsight.cli.app import (
     load_segmenter,
 )
 from harborsight.cli.measure import input_folders
+from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
 
 
+class StopRequest:
+    """Whether Ctrl-C (SIGINT) was pressed, for work that stops between two items."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+
+@contextmanager
+def stop_on_interrupt() -> Iterator[StopRequest]:
+    """Turn the first SIGINT into a request to stop after the item in hand (so that what
+    is on disk is whole and counted); a second one interrupts at once. The previous handler
+    is back on exit. Outside the main thread (where no handler can be set) SIGINT keeps its
+    own meaning."""
+    request = StopRequest()
+
+    def first(signum, frame) -> None:
+        request.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)    # a second: at once
+
+    try:
+        previous = signal.signal(signal.SIGINT, first)
+    except ValueError:                  # not the main thread
+        yield request
+        return
+    try:
+        yield request
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_flight_with_progress(source, out: Path, vessels, segmenter, options, inputs: dict):
     """:func:`harborsight.flight.run_flight` over ``source`` (a Folder- or VideoSource) with a
-    progress bar that flags skipped frames."""
+    progress display (:mod:`harborsight.cli.progress`) that counts skipped frames. Ctrl-C
+    stops the run after the frame in hand: :class:`KeyboardInterrupt` is raised with
+    ``run.json`` written, its counts those of the reports on disk."""
     from harborsight.flight import run_flight
+    from harborsight.flight.sources import NO_METADATA
 
-    with Progress(TextColumn("[bold]run"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
-                  console=console, transient=True) as progress:
-        task = progress.add_task("frames", total=source.frame_count or None, status="")
-
-        from harborsight.flight.sources import NO_METADATA
+    skipped = 0
+    with stop_on_interrupt() as stop, progress_report(
+            "run", source.frame_count or None, console) as report:
 
         def advance(frame) -> None:
+            nonlocal skipped
             if frame.is_frame:          # not a metadata line without a picture
-                skipped = frame.error not in (None, NO_METADATA)
-                progress.update(task, advance=1, status="[red]skipped one" if skipped else "")
+                skipped += frame.error not in (None, NO_METADATA)
+                report.advance(note=f"{skipped} skipped" if skipped else "")
+            if stop.requested:          # between two frames: every output is whole
+                raise KeyboardInterrupt
 
         return run_flight(source.frames(), out, vessels, segmenter, options,
                           source_fps=source.fps, inputs=inputs, on_frame=advance)
+
+
+def interrupted_line(out: Path) -> str:
+    """The one line ``run`` prints when Ctrl-C stopped it: what its run.json records."""
+    try:
+        record = json.loads((out / "run.json").read_text())
+        done = f"{record['measured']} of {record['frames']} frame(s) measured"
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"interrupted: the run stopped before writing {out / 'run.json'}"
+    return f"interrupted: {done} before Ctrl-C; the outputs so far and run.json are in {out}"
 
 
 @app.command("run")
@@ -97,6 +144,7 @@ def run_command(
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
 
+    running = False         # whether run_flight has started (and owns run.json)
     try:
         if not input_path.exists():
             raise InputError(input_path, None, "not found (give a folder of frames, or a video "
@@ -127,10 +175,16 @@ def run_command(
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
                   "masks": str(masks) if masks else None}
+        running = True
         summary = run_flight_with_progress(source, out, vessels, segmenter, options, inputs)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        err_console.print(interrupted_line(out) if running else
+                          "interrupted: before the first frame; nothing written",
+                          markup=False, highlight=False)
+        raise typer.Exit(130) from None
     md = summary.min_distance_m
     console.print(
         f"[green]{summary.measured} of {summary.frames} frame(s) measured[/] in "

@@ -7,9 +7,9 @@ from typing import Annotated
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from harborsight.cli.app import app, console, err_console, load_segmenter
+from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.perception.segment_images import SegmentMode
 
@@ -80,11 +80,9 @@ def segment_command(
         segmenter = load_segmenter(model)
         console.print(f"mode: {options.describe()}; {len(paths)} image(s)", markup=False,
                       highlight=False)
-        with Progress(TextColumn("[bold]segmenting"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), console=console, transient=True) as progress:
-            task = progress.add_task("images", total=len(paths))
+        with progress_report("segment", len(paths), console, unit="images") as progress:
             run = segment_images(paths, segmenter, out, options, overlay,
-                                 on_image=lambda _: progress.advance(task))
+                                 on_image=lambda _: progress.advance())
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

@@ -8,13 +8,13 @@ from typing import Annotated
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from harborsight.cli.app import (
     app,
     console,
     err_console,
 )
+from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.files import write_image
 
@@ -73,23 +73,19 @@ def simulate(
             sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
             approach_speed_mps=approach_speed_mps)
         config.validate()
-        with Progress(TextColumn("[bold]rendering"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), TextColumn("{task.fields[status]}"),
-                      console=console) as progress:
-            task = progress.add_task("frames", total=n, status="")
+        with progress_report("simulate", n, console, transient=False) as progress:
 
             def on_frame(result) -> None:
-                progress.advance(task)
                 if result.error:
+                    progress.advance()
                     err_console.print(f"[red]frame {result.index:06d} failed:[/] "
                                       f"{escape(result.error)}")
                 else:
-                    progress.update(task, status=f"{result.seconds:.1f} s/frame")
+                    progress.advance(note=f"{result.seconds:.1f} s/frame")
 
-            progress.update(task, completed=0)
             summary = run_sim(out, n, config, workers=workers, scheduler=scheduler,
                               on_frame=on_frame)
-            progress.update(task, completed=n)
+            progress.update(completed=n)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False)
         raise typer.Exit(2) from None

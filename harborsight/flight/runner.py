@@ -10,7 +10,9 @@ Outputs in ``out_dir``:
   contact (:mod:`harborsight.flight.timeline`), written as the run goes;
 * ``timeline.png``: clearance of every section over time;
 * ``run.json``: inputs, settings, counts, timing, every skipped frame with its reason, and
-  ``completed`` (false, with ``aborted``, when the run was stopped or failed part-way).
+  ``completed`` (false, with ``aborted``, when the run was stopped or failed part-way:
+  ``KeyboardInterrupt`` for Ctrl-C). A frame is counted as measured once its report is on
+  disk, so that the counts of an interrupted run are those of the reports it wrote.
 
 Time of a frame (``time_s``), on one clock for the whole run (:class:`FlightClock`): the
 frames' ``timestamp``, in seconds since the first timestamped frame, if the first frame that
@@ -187,7 +189,6 @@ def run_flight(
         with csv_path.open("w", newline="") as csv_handle:
             csv_out = ClearanceTimeline.csv_writer(csv_handle)
             for frame in frames:
-                summary.frames += frame.is_frame
                 annotated = None
                 if frame.error is None:
                     annotated = _measure_one(frame, summary, timeline, clock, stems, csv_out,
@@ -199,6 +200,7 @@ def run_flight(
                     else:
                         summary.skipped.append({"frame": frame.index, "source": frame.source,
                                                 "error": frame.error})
+                    summary.frames += frame.is_frame
                     if frame.image is not None:
                         annotated = frame.image.copy()
                         if frame.error == NO_METADATA:
@@ -279,6 +281,10 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
         frame.error = (f"{frame.source}: image: its report {stem!r}.json cannot be written "
                        f"({type(exc).__name__}: {exc})")
         return None
+    # counted as soon as its report is on disk: a run interrupted from here on still
+    # records exactly the reports it wrote
+    summary.measured += 1
+    summary.frames += 1
     trends, rows, order_warning = timeline.add(frame.index, time_s, report)
     if order_warning:
         warnings.append(f"{frame.source}: timestamp: {order_warning}")
@@ -296,7 +302,6 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
         overlay_path = overlays_dir / f"{stem}.png"
         if not write_image(overlay_path, annotated):
             warnings.append(f"{frame.source}: overlay {overlay_path} could not be written")
-    summary.measured += 1
     summary.warnings.extend({"frame": frame.index, "source": frame.source, "warning": w}
                             for w in warnings)
     md = report.min_distance_m
