@@ -27,8 +27,11 @@ from harborsight.cli.app import (
 )
 from harborsight.cli.measure import input_folders
 from harborsight.cli.progress import progress_report
+from harborsight.cli.usage import use_plain_usage_names
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
+
+use_plain_usage_names()      # INPUT, not {INPUT}, in every command's usage line
 
 
 class StopRequest:

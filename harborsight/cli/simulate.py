@@ -99,7 +99,8 @@ def simulate(
 
 @app.command("contact-sheet")
 def contact_sheet_command(
-    dataset: Annotated[Path, typer.Argument(help="Dataset folder (design.md layout).")],
+    dataset: Annotated[Path, typer.Argument(metavar="DATASET",
+                                            help="Dataset folder (design.md layout).")],
     out: Annotated[Path, typer.Option(help="PNG to write.")] = Path("out/contact-sheet.png"),
     n: Annotated[int, typer.Option("--n", min=1, help="How many frames (the first N).")] = 8,
     columns: Annotated[int, typer.Option(min=1, help="Frame pairs per row.")] = 2,

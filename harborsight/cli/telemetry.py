@@ -37,6 +37,7 @@ _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of
 @telemetry_app.command("show")
 def telemetry_show(
     logs: Annotated[list[Path], typer.Argument(
+        metavar="LOG...",
         help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, .csv).")],
     utc_offset_h: Annotated[float | None, typer.Option(
         min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
@@ -118,7 +119,8 @@ def _telemetry_camera(camera: str, width: int | None, height: int | None, source
 
 @telemetry_app.command("video")
 def telemetry_video(
-    drone_log: Annotated[Path, typer.Argument(help="The drone's log: DJI .srt (video clock), "
+    drone_log: Annotated[Path, typer.Argument(metavar="DRONE_LOG",
+                                              help="The drone's log: DJI .srt (video clock), "
                                               "PX4 .ulg or ArduPilot .bin.")],
     vessel_track: Annotated[Path, typer.Option(
         help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, "
