@@ -25,11 +25,12 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from harborsight.clearance.obstacles import LABEL_VALUES, obstacle_contours, own_vessel_region
+from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
 from harborsight.clearance.report import (
     STATUS_CLEAR,
     STATUS_OK,
@@ -50,13 +51,15 @@ _HALF_PIXEL = 0.5
 
 @dataclass(frozen=True)
 class ClearanceSettings:
-    """How to measure: method, the own-vessel margin and an optional section override."""
+    """How to measure: method, the own-vessel margin, an optional section override and
+    the pose refinement (on by default)."""
 
     method: str = "ground_plane"
     pose_margin_px: float = 2.0
     own_rim_px: int = 4
     n_sections: int | None = None
     section_length_m: float | None = None
+    pose_refinement: PoseRefinementSettings = field(default_factory=PoseRefinementSettings)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -311,6 +314,11 @@ def measure_clearance(
             f"pixel ({centre_px[0]:.0f}, {centre_px[1]:.0f}) in a {intr.width}x{intr.height} image)",
         )
 
+    # align the vessel to its own pixels; the sensors' pose stays when that is not trustworthy
+    geometry, refinement = refine_vessel_pose(labels, geometry, vessel, settings.pose_refinement)
+    if refinement.applied:
+        visible_fraction = _section_visibility(sections_v, geometry)
+
     vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
     finite = vessel_outline_px[np.isfinite(vessel_outline_px).all(axis=1)]
     span_px = float(np.ptp(finite, axis=0).max()) if len(finite) else 0.0
@@ -399,5 +407,5 @@ def measure_clearance(
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,
-        enu_origin=geometry.origin.to_dict(),
+        enu_origin=geometry.origin.to_dict(), pose_refinement=refinement.to_dict(),
     )

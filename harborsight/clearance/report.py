@@ -65,6 +65,8 @@ class ClearanceReport:
     sections: list[SectionClearance]
     vessel: str = ""
     enu_origin: dict[str, float] = field(default_factory=dict)
+    #: what the pose refinement found (:meth:`PoseRefinement.to_dict`); None: not run
+    pose_refinement: dict[str, Any] | None = None
 
     @property
     def closest_section(self) -> int | None:
@@ -87,6 +89,7 @@ class ClearanceReport:
             "gsd_m_per_px": round(self.gsd_m_per_px, 5),
             "method": self.method,
             "enu_origin": self.enu_origin,
+            "pose_refinement": self.pose_refinement,
             "sections": [s.to_dict() for s in self.sections],
             "min_distance_m": None if md is None else round(md, 3),
             "closest_section": self.closest_section,

@@ -10,6 +10,7 @@ from harborsight.cli import (  # noqa: F401  (each registers its commands)
     demo,
     evaluate,
     measure,
+    pose_noise,
     run,
     segment,
     simulate,

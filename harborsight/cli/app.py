@@ -58,15 +58,17 @@ def check_masks_folder(masks: Path | None) -> None:
 
 
 def clearance_settings(method: Method, sections: int | None, section_length_m: float | None,
-              pose_margin_px: float, own_rim_px: int) -> ClearanceSettings:
+              pose_margin_px: float, own_rim_px: int, refine_pose: bool = True) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
+    from harborsight.clearance.pose_refinement import PoseRefinementSettings
 
     if sections is not None and section_length_m is not None:
         raise InputError(None, "--section-length-m", "give either --sections or "
                          "--section-length-m, not both")
     return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
                              own_rim_px=own_rim_px, n_sections=sections,
-                             section_length_m=section_length_m)
+                             section_length_m=section_length_m,
+                             pose_refinement=PoseRefinementSettings(enabled=refine_pose))
 
 
 #: defaults of --pose-margin-px and --own-rim-px: ClearanceSettings.pose_margin_px and
@@ -75,6 +77,13 @@ POSE_MARGIN_PX = 2.0
 
 
 OWN_RIM_PX = 4
+
+
+#: help of --refine-pose/--no-refine-pose, shared by measure, run and evaluate distance
+REFINE_POSE_HELP = ("Align the projected vessel to its own ship pixels (a correction of its "
+                    "position and heading for GPS and compass error) and measure with that pose "
+                    "when the fit is trustworthy; each report says what was found "
+                    "(pose_refinement).")
 
 
 #: help of --own-rim-px, shared by measure, run and evaluate distance

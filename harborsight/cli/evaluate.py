@@ -17,6 +17,7 @@ from harborsight.cli.app import (
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
+    REFINE_POSE_HELP,
     Method,
     app,
     console,
@@ -194,10 +195,12 @@ def evaluate_distance_command(
         "in measure [2 px]: wider hides more of a model's vessel blob spilling onto the "
         "water, and reports a touching obstacle that much farther away.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
     from harborsight.clearance.measure import ClearanceSettings
+    from harborsight.clearance.pose_refinement import PoseRefinementSettings
     from harborsight.evaluation.distance import (
         attribute_obstacles,
         evaluate_frames,
@@ -210,7 +213,8 @@ def evaluate_distance_command(
         write_outputs,
     )
 
-    clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px)
+    clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
+                                  pose_refinement=PoseRefinementSettings(enabled=refine_pose))
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in {m.value for m in Method}]
     if bad or not chosen:

@@ -15,6 +15,7 @@ from harborsight.cli.app import (
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
+    REFINE_POSE_HELP,
     Method,
     app,
     check_masks_folder,
@@ -144,6 +145,7 @@ def measure(
         help="Growth in pixels of the vessel's own image region, for pose and mask "
         "error.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
@@ -154,7 +156,8 @@ def measure(
     try:
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
-        settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px)
+        settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px,
+                                      refine_pose)
         prepare_output_folder(out, "--out", inputs=input_folders(input_path, meta, mask, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)

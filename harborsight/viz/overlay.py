@@ -113,11 +113,23 @@ def draw_overlay(
 
     md = report.min_distance_m
     header = (f"{report.vessel}  alt {report.altitude_m:.0f} m  GSD {report.gsd_m_per_px * 100:.1f} cm/px"
-              f"  {report.method}  min {'--' if md is None else f'{md:.1f} m'}")
+              f"  {report.method}  min {'--' if md is None else f'{md:.1f} m'}"
+              f"{_pose_note(report.pose_refinement)}")
     draw_banner(out, header)
     if footer:
         draw_banner(out, footer, WHITE, bottom=True)
     return out
+
+
+def _pose_note(refinement: dict | None) -> str:
+    """``pose +1.3 m 0.8 deg`` when the pose was refined, ``pose: sensors`` when the
+    alignment was not trusted, nothing when it was off."""
+    if not refinement or refinement.get("reason") == "off":
+        return ""
+    if refinement.get("applied"):
+        shift = float(np.hypot(*refinement["shift_m"]))
+        return f"  pose {shift:+.1f} m {refinement['rotation_deg']:+.1f} deg"
+    return "  pose: sensors"
 
 
 def _label_anchor(section, end: np.ndarray, w: int, h: int) -> np.ndarray | None:

@@ -1,0 +1,162 @@
+"""Noisy-sensor variants of frame metadata, the true pose kept as ground truth.
+
+Real frames come with the errors of real sensors; the simulator's are exact. To measure
+what those errors do to the distances (and what pose refinement wins back), every pose
+field a sensor delivers is perturbed with independent Gaussian errors, seeded per frame:
+
+* drone and vessel GPS: each receiver's horizontal position, per-axis sigma
+  ``gps_m / sqrt(2)`` so that ``gps_m`` is the horizontal RMS error (DRMS) of one receiver
+  (:data:`GPS_CLASSES`: RTK 0.02 m, DGPS 0.5 m, standalone 2 m);
+* drone camera yaw and vessel heading (compasses): sigma ``heading_deg`` each;
+* drone height above the water (barometer, water level): sigma ``height_m``.
+
+The true values move to ``ground_truth.true_pose`` and the errors drawn to
+``ground_truth.pose_errors``; the ground-truth distances themselves do not change (they are
+properties of the scene, not of the sensors).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import shutil
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from harborsight.errors import HarborsightError, InputError
+from harborsight.files import natural_key, strict_json, write_text_atomic
+from harborsight.frame import parse_json_text
+from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+
+#: horizontal RMS error (m) of one receiver, by class
+GPS_CLASSES = {"rtk": 0.02, "dgps": 0.5, "standalone": 2.0}
+
+
+@dataclass(frozen=True)
+class PoseNoise:
+    """One sigma of each sensor error (metres, degrees); all zero is exact sensors."""
+
+    gps_m: float = 0.0
+    heading_deg: float = 0.0
+    height_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("gps_m", "heading_deg", "height_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+                raise ValueError(f"{name} must be a number from 0 to 1000, got {value}")
+
+    def to_dict(self) -> dict[str, float]:
+        return {"gps_m": self.gps_m, "heading_deg": self.heading_deg, "height_m": self.height_m}
+
+
+def parse_gps_noise(text: str) -> float:
+    """``rtk``, ``dgps``, ``standalone`` or a number of metres (horizontal RMS)."""
+    key = text.strip().lower()
+    if key in GPS_CLASSES:
+        return GPS_CLASSES[key]
+    try:
+        value = float(key)
+    except ValueError:
+        raise ValueError(f"expected {', '.join(GPS_CLASSES)} or metres, got {text!r}") from None
+    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+        raise ValueError(f"expected metres from 0 to 1000, got {text!r}")
+    return value
+
+
+def _moved(lat_deg: float, lon_deg: float, alt_m: float, east_m: float, north_m: float
+           ) -> tuple[float, float]:
+    lat, lon, _ = enu_to_geodetic(np.array([east_m, north_m, 0.0]),
+                                  GeoOrigin(lat_deg, lon_deg, alt_m))
+    return float(lat), float(lon)
+
+
+def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Generator
+                   ) -> dict[str, Any]:
+    """A copy of a ``harborsight.frame/1`` document with sensor errors drawn from ``rng``
+    (module docstring). ``frame`` must hold ``uav``, ``camera_attitude`` and ``vessel``."""
+    if "true_pose" in (frame.get("ground_truth") or {}):
+        raise ValueError("the frame's pose is noisy already (ground_truth.true_pose is set)")
+    noisy = copy.deepcopy(frame)
+    uav, attitude, vessel = noisy["uav"], noisy["camera_attitude"], noisy["vessel"]
+    true_pose = {"uav": dict(uav), "camera_attitude": {"yaw_deg": attitude["yaw_deg"]},
+                 "vessel": dict(vessel)}
+    axis_m = noise.gps_m / math.sqrt(2.0)
+    uav_en = rng.normal(0.0, axis_m, 2) if axis_m else np.zeros(2)
+    vessel_en = rng.normal(0.0, axis_m, 2) if axis_m else np.zeros(2)
+    uav_height = float(rng.normal(0.0, noise.height_m)) if noise.height_m else 0.0
+    yaw_error, heading_error = (rng.normal(0.0, noise.heading_deg, 2) if noise.heading_deg
+                                else np.zeros(2))
+    uav["lat"], uav["lon"] = _moved(uav["lat"], uav["lon"], uav["alt_m"], *uav_en)
+    uav["alt_m"] = uav["alt_m"] + uav_height
+    attitude["yaw_deg"] = (attitude["yaw_deg"] + float(yaw_error)) % 360.0
+    vessel["lat"], vessel["lon"] = _moved(vessel["lat"], vessel["lon"], 0.0, *vessel_en)
+    vessel["heading_deg"] = (vessel["heading_deg"] + float(heading_error)) % 360.0
+    truth = noisy.setdefault("ground_truth", {})
+    truth["true_pose"] = true_pose
+    truth["pose_errors"] = {
+        "noise": noise.to_dict(),
+        "uav_en_m": [round(float(v), 4) for v in uav_en],
+        "uav_height_m": round(uav_height, 4),
+        "camera_yaw_deg": round(float(yaw_error), 4),
+        "vessel_en_m": [round(float(v), 4) for v in vessel_en],
+        "vessel_heading_deg": round(float(heading_error), 4),
+    }
+    return noisy
+
+
+@dataclass
+class NoisyDatasetResult:
+    written: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)      # "file: reason"
+
+
+def frame_rng(seed: int, stem: str) -> np.random.Generator:
+    """The generator of one frame: the same errors for a frame whatever else is in the set."""
+    return np.random.default_rng([seed, zlib.crc32(stem.encode("utf-8"))])
+
+
+def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
+                        ) -> NoisyDatasetResult:
+    """A copy of a dataset (``frames/*.json`` and what sits beside it) whose frames carry
+    sensor errors. ``frames/`` is written anew; every other entry (images, labels, vessels,
+    dataset.json, ...) is linked (copied where links are not possible). A frame that cannot
+    be read, or lacks a pose, is listed with its reason and skipped."""
+    frames_dir = source / "frames"
+    paths = sorted(frames_dir.glob("*.json"), key=lambda p: natural_key(p.name))
+    if not paths:
+        raise InputError(source, None, "no frames/*.json to add sensor noise to")
+    out.mkdir(parents=True, exist_ok=True)
+    for entry in sorted(source.iterdir()):
+        target = out / entry.name
+        if entry.name == "frames" or target.exists() or target.is_symlink():
+            continue
+        try:
+            target.symlink_to(entry.resolve(), target_is_directory=entry.is_dir())
+        except OSError:
+            (shutil.copytree if entry.is_dir() else shutil.copy2)(entry, target)
+    (out / "frames").mkdir(exist_ok=True)
+    result = NoisyDatasetResult()
+    for path in paths:
+        try:
+            doc = parse_json_text(path.read_text(encoding="utf-8"), path)
+            if not isinstance(doc, dict):
+                raise InputError(path, None, "expected a JSON object")
+            for key in ("uav", "camera_attitude", "vessel"):
+                if not isinstance(doc.get(key), dict):
+                    raise InputError(path, key, "missing: a pose is needed to add noise to")
+            try:
+                noisy = add_pose_noise(doc, noise, frame_rng(seed, path.stem))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(path, "ground_truth" if isinstance(exc, ValueError) else None,
+                                 f"cannot add noise: {exc}") from None
+            write_text_atomic(out / "frames" / path.name, strict_json(noisy, indent=1) + "\n")
+            result.written.append(path.stem)
+        except (HarborsightError, UnicodeDecodeError, OSError) as exc:
+            result.skipped.append(f"{path}: {exc}" if not isinstance(exc, HarborsightError)
+                                  else str(exc))
+    return result

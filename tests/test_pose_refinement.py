@@ -1,0 +1,212 @@
+"""Pose refinement: the projected vessel moved onto its own ship pixels (issue #27, item 1).
+
+The scenes are schematic renders with exact labels and exact ground truth (shapely on the
+footprints); the sensors' pose is made wrong by a known GPS and compass error, and the
+refinement must find the true pose again, from the image alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.clearance.measure import ClearanceSettings, measure_clearance, measure_frame
+from harborsight.clearance.pose_refinement import (
+    PoseRefinementSettings,
+    corrected_geometry,
+    refine_vessel_pose,
+)
+from harborsight.cli import app
+from harborsight.frame import FrameGeometry
+from harborsight.sim.schematic import ground_truth, render, sample_scene
+from harborsight.vessel.spec import load_vessel_spec
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+TUG = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
+GEOD = pyproj.Geod(ellps="WGS84")
+
+
+def scene_and_labels(seed: int, scenario: str, altitude_m: float, tilt_deg: float = 5.0):
+    scene = sample_scene(TUG, np.random.default_rng(seed), altitude_m=altitude_m,
+                         tilt_deg=tilt_deg, scenario=scenario)
+    _, labels, _ = render(scene)
+    return scene, labels
+
+
+def pose_error(found: FrameGeometry, true: FrameGeometry) -> tuple[float, float]:
+    """Horizontal position error (m) and heading error (deg) of the vessel."""
+    shift = float(np.hypot(*(found.vessel_position_enu - true.vessel_position_enu)))
+    turn = math.degrees(found.vessel_heading_rad - true.vessel_heading_rad)
+    return shift, abs((turn + 180) % 360 - 180)
+
+
+@pytest.mark.parametrize(("seed", "scenario", "altitude_m"), [
+    (1, "alongside", 60), (2, "slip", 40), (3, "open", 100), (4, "touching", 60)])
+def test_a_wrong_gps_and_compass_pose_is_found_again(seed, scenario, altitude_m):
+    scene, labels = scene_and_labels(seed, scenario, altitude_m)
+    true = scene.geometry()
+    error = np.array([1.8, -1.5, math.radians(2.5)])          # 2.3 m and 2.5 degrees off
+    found, refinement = refine_vessel_pose(labels, corrected_geometry(true, error), TUG)
+    assert refinement.applied, refinement.reason
+    shift_m, turn_deg = pose_error(found, true)
+    assert shift_m < 0.05 and turn_deg < 0.2          # 0.2 deg: 0.06 m at the ends of 33 m
+    # the correction reported is the error undone
+    assert refinement.shift_m == pytest.approx(-error[:2], abs=0.05)
+    assert refinement.rotation_deg == pytest.approx(-2.5, abs=0.2)
+    assert refinement.residual_px < 0.5 and refinement.inlier_fraction > 0.6
+
+
+def test_the_distances_from_a_wrong_pose_come_back_to_the_truth():
+    """Against shapely's distances on the scene's footprints (an independent truth)."""
+    scene, labels = scene_and_labels(21, "alongside", 50)
+    truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+    meta = scene.metadata("frame.png")
+    # 2 m east on the drone's GPS, 1.5 m south on the vessel's, 2 degrees on its compass
+    lon, lat, _ = GEOD.fwd(meta.uav_lon_deg, meta.uav_lat_deg, 90.0, 2.0)
+    vlon, vlat, _ = GEOD.fwd(meta.vessel_lon_deg, meta.vessel_lat_deg, 180.0, 1.5)
+    noisy = replace(meta, uav_lat_deg=lat, uav_lon_deg=lon, vessel_lat_deg=vlat,
+                    vessel_lon_deg=vlon, vessel_heading_deg=meta.vessel_heading_deg + 2.0)
+    off = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+
+    def errors(report):
+        return [abs(s.distance_m - t) for s, t in zip(report.sections, truth, strict=True)
+                if s.status == "ok" and t is not None]
+
+    exact = errors(measure_frame(labels, meta, TUG, off))
+    refined_report = measure_frame(labels, noisy, TUG)
+    refined, unrefined = errors(refined_report), errors(measure_frame(labels, noisy, TUG, off))
+    assert len(exact) >= 4 and len(refined) == len(exact)
+    assert np.median(unrefined) > 0.8                      # the sensors' pose: metres off
+    assert np.median(refined) < 1.5 * np.median(exact) + 0.02
+    assert max(refined) < 0.3
+    assert refined_report.pose_refinement["applied"] is True
+
+
+def test_nothing_to_align_to_is_a_flag_not_an_error():
+    scene, labels = scene_and_labels(5, "alongside", 60)
+    geometry = scene.geometry()
+    for mask, why in ((np.zeros_like(labels), "no ship pixels"),
+                      (np.ones_like(labels), "only ship pixels")):
+        found, refinement = refine_vessel_pose(mask, geometry, TUG)
+        assert not refinement.applied and why in refinement.reason
+        assert found is geometry
+    # a mask where the vessel sits 25 m from where the sensors put it: beyond the bounds
+    far = corrected_geometry(geometry, np.array([25.0, 0.0, 0.0]))
+    found, refinement = refine_vessel_pose(labels, far, TUG)
+    assert not refinement.applied and found is far and refinement.reason
+
+
+def test_a_hull_partly_out_of_view_is_aligned_on_what_is_seen():
+    scene, labels = scene_and_labels(7, "alongside", 25, tilt_deg=0.0)
+    true = scene.geometry()
+    seen = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+    report = measure_clearance(labels, true, TUG, seen)
+    assert 0 < sum(s.visible_fraction == 1.0 for s in report.sections) < len(report.sections)
+    found, refinement = refine_vessel_pose(labels, corrected_geometry(true, np.array(
+        [0.8, 0.6, math.radians(1.0)])), TUG)
+    assert refinement.applied, refinement.reason
+    # what is in view sits where it should: the visible sections' ends within a pixel
+    ends = TUG.sections().section_endpoints().reshape(-1, 2)
+    uv_true = true.camera.project(true.vessel_to_enu(ends))[0]
+    uv_found = found.camera.project(found.vessel_to_enu(ends))[0]
+    w, h = true.camera.intrinsics.width, true.camera.intrinsics.height
+    inside = (uv_true[:, 0] >= 0) & (uv_true[:, 0] < w) & (uv_true[:, 1] >= 0) & (uv_true[:, 1] < h)
+    assert inside.sum() >= 4
+    assert np.hypot(*(uv_found - uv_true)[inside].T).max() < 1.0
+
+
+def test_exact_poses_are_left_where_they_are():
+    scene, labels = scene_and_labels(9, "slip", 80)
+    true = scene.geometry()
+    found, _ = refine_vessel_pose(labels, true, TUG)
+    assert pose_error(found, true)[0] < 0.03 and pose_error(found, true)[1] < 0.05
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="prior_shift_m"):
+        PoseRefinementSettings(prior_shift_m=float("nan"))
+    with pytest.raises(ValueError, match="min_inlier_fraction"):
+        PoseRefinementSettings(min_inlier_fraction=2.0)
+
+
+def test_measure_reports_the_refinement_and_can_turn_it_off(tmp_path):
+    runner = CliRunner()
+    frames = SAMPLES / "frames"
+    stem = sorted(frames.glob("*.json"))[0].stem
+    for flag, applied in (("--refine-pose", None), ("--no-refine-pose", False)):
+        out = tmp_path / flag
+        result = runner.invoke(app, ["measure", str(SAMPLES), "--out", str(out), flag,
+                                     "--no-tables"])
+        assert result.exit_code == 0, result.output
+        doc = json.loads((out / f"{stem}.json").read_text())
+        refinement = doc["pose_refinement"]
+        assert set(refinement) >= {"applied", "shift_m", "rotation_deg", "residual_px"}
+        if applied is False:
+            assert refinement == {**refinement, "applied": False, "reason": "off"}
+        else:
+            assert isinstance(refinement["applied"], bool) and len(refinement["shift_m"]) == 2
+
+
+def test_add_pose_noise_writes_sensor_errors_and_keeps_the_truth(tmp_path):
+    from harborsight.sim.pose_noise import GPS_CLASSES, PoseNoise, add_pose_noise
+
+    frame = json.loads(sorted((SAMPLES / "frames").glob("*.json"))[0].read_text())
+    rng = np.random.default_rng(0)
+    noise = PoseNoise(gps_m=GPS_CLASSES["standalone"], heading_deg=2.0, height_m=1.0)
+    offsets, turns = [], []
+    for _ in range(400):
+        noisy = add_pose_noise(frame, noise, rng)
+        truth = noisy["ground_truth"]
+        assert truth["true_pose"]["vessel"] == frame["vessel"]
+        assert truth["sections"] == frame["ground_truth"]["sections"]
+        # the drone moved by the recorded error, as pyproj's geodesic measures it
+        azimuth, _, moved_m = GEOD.inv(frame["uav"]["lon"], frame["uav"]["lat"],
+                                       noisy["uav"]["lon"], noisy["uav"]["lat"])
+        east, north = truth["pose_errors"]["uav_en_m"]
+        assert moved_m == pytest.approx(math.hypot(east, north), abs=2e-3)
+        if moved_m > 0.1:
+            assert math.degrees(math.atan2(east, north)) == pytest.approx(azimuth, abs=0.5)
+        offsets.append(moved_m)
+        turns.append(truth["pose_errors"]["vessel_heading_deg"])
+        assert noisy["uav"]["alt_m"] - frame["uav"]["alt_m"] == pytest.approx(
+            truth["pose_errors"]["uav_height_m"], abs=1e-3)
+    # 2 m horizontal RMS per receiver, 2 degrees of compass
+    assert np.sqrt(np.mean(np.square(offsets))) == pytest.approx(2.0, rel=0.1)
+    assert np.std(turns) == pytest.approx(2.0, rel=0.1)
+    with pytest.raises(ValueError, match="noisy already"):
+        add_pose_noise(noisy, noise, rng)
+
+
+def test_the_add_pose_noise_command_skips_a_bad_frame_and_writes_the_rest(tmp_path):
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLES, data)
+    names = sorted(p.name for p in (data / "frames").glob("*.json"))
+    (data / "frames" / names[1]).write_text("{ not json")
+    out = tmp_path / "noisy"
+    result = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(data), "--out", str(out),
+                                      "--gps", "dgps", "--heading-deg", "1", "--seed", "3"])
+    assert result.exit_code == 1, result.output
+    assert names[1] in result.output
+    written = sorted(p.name for p in (out / "frames").glob("*.json"))
+    assert written == [n for n in names if n != names[1]]
+    assert (out / "images").is_dir() and (out / "vessels").is_dir()
+    doc = json.loads((out / "frames" / names[0]).read_text())
+    assert doc["ground_truth"]["pose_errors"]["noise"] == {"gps_m": 0.5, "heading_deg": 1.0,
+                                                          "height_m": 0.0}
+    again = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(data), "--out",
+                                     str(tmp_path / "again"), "--gps", "dgps", "--heading-deg", "1",
+                                     "--seed", "3"])
+    assert (tmp_path / "again" / "frames" / names[0]).read_text() == (
+        out / "frames" / names[0]).read_text(), again.output
+    bad = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(data), "--out",
+                                   str(tmp_path / "x"), "--gps", "cheap"])
+    assert bad.exit_code == 2 and "--gps" in bad.output
