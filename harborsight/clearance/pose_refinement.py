@@ -24,11 +24,20 @@ sensors' accuracy. Gauss-Newton on iteratively re-weighted least squares; the Ja
 of the projection (exact for any lens model). Outline points outside the image, or within
 a pixel of its border, are left out: a hull partly out of view is aligned on what is seen.
 
-**Quality.** ``residual_px`` is the RMS of the inliers' distances after the fit and
+**Quality.** ``residual_px`` is the RMS of the inliers' distances after the fit,
 ``inlier_fraction`` the share of visible outline points within :data:`INLIER_PX` of a ship
-boundary. A correction is applied only when enough of the outline is seen, most of it fits,
-the fit is better than the sensors' pose, and the correction is within the search bounds;
-otherwise the frame keeps the sensors' pose and the report says why.
+boundary (points deep inside ship pixels, :data:`DEEP_PX`, cannot tell and are left out),
+and ``ship_fill`` the share of the silhouette's pixels in view that are ship pixels: a
+rigid outline can fit the straight edges of the wrong blobs (a neighbour's side, a
+deckhouse), but then it covers water or a quay. A correction is applied only when enough of
+the outline is seen, most of it fits, the silhouette is filled, the fit is not worse than
+the sensors' pose, and the correction is within the search bounds; otherwise the frame keeps
+the sensors' pose and the report says why.
+
+**Starts.** Huber from the sensors' pose first; when that leaves the outline or the
+silhouette short, graduated Tukey from the sensors' pose and from the prior's reach to
+either side across the hull, and the lowest final Tukey cost among the filled candidates
+wins.
 """
 
 from __future__ import annotations
@@ -40,7 +49,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from harborsight.clearance.obstacles import SHIP
+from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.frame import FrameGeometry
 from harborsight.vessel.spec import VesselSpec
 
@@ -80,6 +89,9 @@ class PoseRefinementSettings:
     max_shift_m: float = 12.0
     max_rotation_deg: float = 12.0
     min_inlier_fraction: float = 0.5
+    #: share of the silhouette's pixels in view that must be ship pixels: a rigid outline can
+    #: fit straight edges of the wrong blobs, but then it covers water or a quay
+    min_ship_fill: float = 0.9
     max_residual_px: float = 1.5
 
     def __post_init__(self) -> None:
@@ -88,8 +100,9 @@ class PoseRefinementSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value}")
-        if not 0.0 <= self.min_inlier_fraction <= 1.0:
-            raise ValueError(f"min_inlier_fraction must be in [0, 1], got {self.min_inlier_fraction}")
+        for name in ("min_inlier_fraction", "min_ship_fill"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)
@@ -104,6 +117,7 @@ class PoseRefinement:
     inlier_fraction: float | None = None
     inlier_fraction_before: float | None = None
     edge_points: int = 0
+    ship_fill: float | None = None
     reason: str | None = None
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
@@ -119,6 +133,7 @@ class PoseRefinement:
             "inlier_fraction": rounded(self.inlier_fraction, 3),
             "inlier_fraction_before": rounded(self.inlier_fraction_before, 3),
             "edge_points": self.edge_points,
+            "ship_fill": rounded(self.ship_fill, 3),
             "reason": self.reason,
         }
 
@@ -202,11 +217,21 @@ def _project_with_jacobian(geometry: FrameGeometry, points_v: np.ndarray
     camera = geometry.camera
     intr = camera.intrinsics
     points_c = camera.to_camera_frame(geometry.vessel_to_enu(points_v))
-    uv, jac = cv2.projectPoints(points_c.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K,
-                                intr.dist_coeffs if intr.has_distortion else None)
-    uv = uv.reshape(-1, 2)
+    if intr.has_distortion:
+        uv, jac = cv2.projectPoints(points_c.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K,
+                                    intr.dist_coeffs)
+        uv = uv.reshape(-1, 2)
+        duv_dc = jac[:, 3:6].reshape(-1, 2, 3)
+    else:   # pinhole: u = fx x/z + cx, v = fy y/z + cy
+        x, y, z = points_c.T
+        inv_z = 1.0 / np.where(np.abs(z) > 1e-9, z, 1e-9)
+        uv = np.column_stack((intr.fx * x * inv_z + intr.cx, intr.fy * y * inv_z + intr.cy))
+        duv_dc = np.zeros((len(points_c), 2, 3))
+        duv_dc[:, 0, 0] = intr.fx * inv_z
+        duv_dc[:, 0, 2] = -intr.fx * x * inv_z ** 2
+        duv_dc[:, 1, 1] = intr.fy * inv_z
+        duv_dc[:, 1, 2] = -intr.fy * y * inv_z ** 2
     uv[points_c[:, 2] <= 1e-9] = np.nan
-    duv_dc = jac[:, 3:6].reshape(-1, 2, 3)
     duv_dw = duv_dc @ camera.camera_from_world
     h = geometry.vessel_heading_rad
     s, c = math.sin(h), math.cos(h)
@@ -234,7 +259,9 @@ def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
         return None
     intr = geometry.camera.intrinsics
     height_m = max(float(geometry.camera.position_enu[2]), 1e-3)
-    reach_m = settings.max_shift_m + 0.5 * vessel.length_m * math.radians(settings.max_rotation_deg)
+    # 2.5 sigma of the prior: a correction beyond it needs edges the window still holds
+    reach_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m) + 0.5 * vessel.length_m * (
+        math.radians(min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg)))
     reach_px = min(reach_m * max(intr.fx, intr.fy) / height_m, max(shape)) + 4
     lo = np.floor(finite.min(axis=0) - reach_px).astype(int)
     hi = np.ceil(finite.max(axis=0) + reach_px).astype(int)
@@ -243,6 +270,22 @@ def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     if u1 - u0 < 2 or v1 - v0 < 2:
         return None
     return slice(v0, v1), slice(u0, u1)
+
+
+def _ship_fill(geometry: FrameGeometry, vessel: VesselSpec, window: tuple[slice, slice],
+               ship: np.ndarray, known: np.ndarray) -> float:
+    """Share of the silhouette's labelled pixels inside ``window`` that are ship pixels."""
+    uv = geometry.camera.project(geometry.vessel_to_enu(vessel.hull_points))[0]
+    uv = uv[np.isfinite(uv).all(axis=1)]      # the corners' hull: close enough for a share
+    if len(uv) < 3:
+        return 0.0
+    offset = np.array([window[1].start, window[0].start])
+    corners = cv2.convexHull(np.round((uv - offset) * 16).astype(np.int32))
+    inside = np.zeros(ship.shape, np.uint8)
+    cv2.fillConvexPoly(inside, corners, 1, lineType=cv2.LINE_8, shift=4)
+    counted = (inside > 0) & known
+    total = int(counted.sum())
+    return float((ship & counted).sum()) / total if total else 0.0
 
 
 def _weights(residual: np.ndarray, loss: str, scale_px: float) -> np.ndarray:
@@ -307,9 +350,10 @@ def refine_vessel_pose(
                             math.radians(settings.prior_heading_deg)])
     prior_information = np.diag(prior_sigma ** -2.0)
 
-    def solve(schedule) -> tuple[np.ndarray, np.ndarray, float]:
-        """Gauss-Newton IRLS through ``schedule``: ``(params, information, final cost)``."""
-        params, information = np.zeros(3), prior_information
+    def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Gauss-Newton IRLS through ``schedule`` from ``start``: ``(params, information,
+        final cost)``."""
+        params, information = start.astype(float), prior_information
         for stage, (loss, scale_px, iterations) in enumerate(schedule):
             tolerance_m = 1e-3 if stage == len(schedule) - 1 else 1e-2
             points = _Outline(vessel, corrected_geometry(geometry, params))  # corners move
@@ -343,10 +387,25 @@ def refine_vessel_pose(
                         _FINAL_TUKEY_PX ** 2 / 6).sum() / settings.edge_sigma_px ** 2
         return params, information, float(cost + params @ prior_information @ params)
 
-    best = solve(SCHEDULES[0])
-    if _fit(*residuals(best[0], outline))[0] < SKIP_SECOND_START_FRACTION:
-        best = min((best, *(solve(schedule) for schedule in SCHEDULES[1:])), key=lambda t: t[2])
-    params, information, _ = best
+    window_ship = labels[window] == SHIP
+    window_known = labels[window] != IGNORE
+
+    def fill(params: np.ndarray) -> float:
+        return _ship_fill(corrected_geometry(geometry, params), vessel, window, window_ship,
+                          window_known)
+
+    # the first start; when it leaves the outline or the silhouette short of ship pixels,
+    # the second schedule from the sensors' pose and from a beam's reach to either side
+    candidates = [solve(SCHEDULES[0], np.zeros(3))]
+    if (_fit(*residuals(candidates[0][0], outline))[0] < SKIP_SECOND_START_FRACTION
+            or fill(candidates[0][0]) < settings.min_ship_fill):
+        h = geometry.vessel_heading_rad
+        across = np.array([math.cos(h), -math.sin(h), 0.0]) * settings.prior_shift_m
+        candidates += [solve(SCHEDULES[1], start) for start in (np.zeros(3), across, -across)]
+    fills = [fill(c[0]) for c in candidates]
+    full = [c for c, f in zip(candidates, fills, strict=True) if f >= settings.min_ship_fill]
+    params, information, _ = min(full or candidates, key=lambda t: t[2])
+    ship_fill = fill(params)
 
     fraction, residual_px, n_edge = _fit(*residuals(params, outline))
     shift = (float(params[0]), float(params[1]))
@@ -361,7 +420,7 @@ def refine_vessel_pose(
     except np.linalg.LinAlgError:
         covariance = None
     found = PoseRefinement(False, shift, rotation_deg, residual_px, fraction, before, n_edge,
-                           covariance=covariance)
+                           ship_fill=ship_fill, covariance=covariance)
     reason = None
     if not np.isfinite(params).all():
         reason = "the alignment diverged"
@@ -372,6 +431,9 @@ def refine_vessel_pose(
     elif fraction < settings.min_inlier_fraction:
         reason = (f"{100 * fraction:.0f} % of the outline fits a ship edge "
                   f"(at least {100 * settings.min_inlier_fraction:.0f} % needed)")
+    elif ship_fill < settings.min_ship_fill:
+        reason = (f"{100 * ship_fill:.0f} % of the silhouette is ship pixels "
+                  f"(at least {100 * settings.min_ship_fill:.0f} % needed)")
     elif residual_px is None or residual_px > settings.max_residual_px:
         reason = f"residual {residual_px:.2f} px above {settings.max_residual_px:g} px"
     elif fraction < before - 0.02:
