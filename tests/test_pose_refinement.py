@@ -210,3 +210,16 @@ def test_the_add_pose_noise_command_skips_a_bad_frame_and_writes_the_rest(tmp_pa
     bad = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(data), "--out",
                                    str(tmp_path / "x"), "--gps", "cheap"])
     assert bad.exit_code == 2 and "--gps" in bad.output
+
+
+def test_a_batch_summary_counts_the_frames_and_the_reasons():
+    from harborsight.clearance.pose_refinement import refinement_summary
+
+    assert refinement_summary([{"applied": False, "reason": "off"}, None]) is None
+    line = refinement_summary([
+        {"applied": True, "reason": None},
+        {"applied": False, "reason": "12 % of the outline fits a ship edge (at least 50 % needed)"},
+        {"applied": False, "reason": "40 % of the outline fits a ship edge (at least 50 % needed)"},
+        {"applied": False, "reason": "no ship pixels near the projected hull"}])
+    assert line.startswith("pose refined on 1 of 4 frame(s); the sensors' pose kept on 3 (2x ")
+    assert "1x no ship pixels near the projected hull" in line

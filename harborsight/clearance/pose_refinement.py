@@ -441,3 +441,23 @@ def refine_vessel_pose(
     if reason is not None:
         return geometry, replace(found, reason=reason)
     return corrected_geometry(geometry, params), replace(found, applied=True)
+
+
+def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
+    """One line for a batch: on how many frames the pose was refined, and why not on the
+    others (reasons without their numbers, most common first); None when it was off."""
+    ran = [r for r in refinements if r and r.get("reason") != "off"]
+    if not ran:
+        return None
+    applied = sum(bool(r.get("applied")) for r in ran)
+    line = f"pose refined on {applied} of {len(ran)} frame(s)"
+    kept = [str(r.get("reason") or "") for r in ran if not r.get("applied")]
+    if kept:
+        kinds: dict[str, int] = {}
+        for reason in kept:
+            kind = "".join(ch for ch in reason if not (ch.isdigit() or ch in ".-")).strip()
+            kinds[" ".join(kind.split())] = kinds.get(" ".join(kind.split()), 0) + 1
+        top = sorted(kinds.items(), key=lambda kv: -kv[1])[:3]
+        line += "; the sensors' pose kept on " + str(len(kept)) + " (" + "; ".join(
+            f"{n}x {kind}" for kind, n in top) + ")"
+    return line
