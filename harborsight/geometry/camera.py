@@ -359,6 +359,17 @@ def _load_opencv_filestorage(path: Path, text: str) -> CameraIntrinsics:
     )
 
 
+def _check_utf8(data: bytes, path: Path) -> None:
+    """Refuse a FileStorage file that is not UTF-8: OpenCV reads it, and a field holding a
+    byte such as 0xe9 (Latin-1) raises UnicodeDecodeError when its value is read back."""
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(path, f"line {line}", f"not UTF-8 text (byte 0x{data[exc.start]:02x}): "
+                         "save the file as UTF-8") from None
+
+
 def _cv_message(exc: BaseException) -> str:
     """The reason in an OpenCV error, without its source file: 'line 5: Incorrect
     indentation' for a parse error."""
@@ -378,10 +389,12 @@ def load_camera_calibration(path: str | Path) -> CameraIntrinsics:
     if not path.is_file():
         raise InputError(path, None, "calibration file not found")
     try:
-        text = path.read_text(errors="replace")
+        data = path.read_bytes()
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    text = data.decode("utf-8", errors="replace")
     if path.suffix.lower() == ".xml" or text.lstrip().startswith("%YAML"):
+        _check_utf8(data, path)         # OpenCV hands its strings back as UTF-8
         intrinsics = _load_opencv_filestorage(path, text)
     else:
         doc = load_yaml_text(text, path)

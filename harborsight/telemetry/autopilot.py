@@ -130,10 +130,40 @@ def _estimator_altitude(t_s: np.ndarray, gps_alt_m: np.ndarray, est_t_s: np.ndar
     return alt, est_reference
 
 
+#: the largest altitude (m) and attitude angle (degrees) a log sample is taken with; a larger
+#: one (a corrupt record, a byte flipped in the log) is taken as missing
+MAX_LOG_ALTITUDE_M = 100_000.0
+MAX_LOG_ANGLE_DEG = 720.0
+
+
+def _possible_positions(t_s: np.ndarray, lat: np.ndarray, lon: np.ndarray,
+                        notes: list[str]) -> np.ndarray:
+    """Which GPS samples have a finite time and a position on the globe; the others come
+    from corrupt records and are counted in ``notes``."""
+    with np.errstate(invalid="ignore"):
+        ok = (np.isfinite(t_s) & np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90)
+              & (np.abs(lon) <= 180))
+    if not ok.all():
+        notes.append(f"{int((~ok).sum())} GPS sample(s) with no possible time or position "
+                     "(not finite, or outside ±90°/±180°: corrupt records) skipped")
+    return ok
+
+
+def _missing_if_absurd(values: np.ndarray, limit: float) -> np.ndarray:
+    """``values`` with every non-finite one, or one larger than ``limit``, NaN (missing)."""
+    values = np.array(values, dtype=float)
+    with np.errstate(invalid="ignore"):
+        values[~(np.abs(values) <= limit)] = np.nan
+    return values
+
+
 def _attitude_fields(t_s: np.ndarray | None, ypr_deg: np.ndarray | None) -> dict:
-    """Track keyword arguments for a vehicle attitude on its own time axis."""
+    """Track keyword arguments for a vehicle attitude on its own time axis (samples without
+    a finite time dropped, absurd angles missing)."""
     if t_s is None:
         return {}
+    timed = np.isfinite(t_s)
+    t_s, ypr_deg = t_s[timed], _missing_if_absurd(ypr_deg[timed], MAX_LOG_ANGLE_DEG)
     return {"attitude_t_s": t_s, "yaw_deg": ypr_deg[:, 0], "pitch_deg": ypr_deg[:, 1],
             "roll_deg": ypr_deg[:, 2], "attitude_of": "vehicle"}
 
@@ -178,21 +208,34 @@ def read_px4_ulog(path: str | Path) -> Track:
         alt = gps["alt"].astype(float) * 1e-3
     if not good.any():
         raise InputError(path, "fix_type", "the log has no GPS sample with a 3-D fix")
+    good &= _possible_positions(t_s, lat, lon, notes)
+    if not good.any():
+        raise InputError(path, "vehicle_gps_position", "no GPS sample with a possible time and "
+                         "position (the log is corrupt)")
     alt, alt_reference = _estimator_altitude(t_s, alt, *_px4_estimator_altitude(datasets),
                                              notes)
+    alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
     utc_start = None
     if "time_utc_usec" in gps:
         utc_us = gps["time_utc_usec"].astype(float)
         synced = good & (utc_us > 0)
         if synced.any():
             offset_s = np.median(utc_us[synced] / 1e6 - t_s[synced])
-            utc_start = utc_from_epoch_s(offset_s)
+            try:
+                utc_start = utc_from_epoch_s(offset_s)
+            except (ValueError, OverflowError, OSError):    # a corrupt time_utc_usec
+                notes.append(f"no UTC: time_utc_usec puts the boot at {offset_s:.4g} s from "
+                             "1970, not a time a flight can have")
     ypr = att_t_s = None
     att = datasets.get("vehicle_attitude")
     if att is not None and len(att["timestamp"]):
         quat_wxyz = np.column_stack([att[f"q[{i}]"] for i in range(4)]).astype(float)
-        rotation = Rotation.from_quat(quat_wxyz[:, [1, 2, 3, 0]])    # scipy wants x, y, z, w
-        ypr = rotation.as_euler("ZYX", degrees=True)                 # R_NED<-B = Rz Ry Rx
+        norm = np.linalg.norm(quat_wxyz, axis=1)
+        usable = np.isfinite(norm) & (norm > 1e-6)     # a zeroed record is no rotation
+        ypr = np.full((len(quat_wxyz), 3), np.nan)
+        if usable.any():
+            rotation = Rotation.from_quat(quat_wxyz[usable][:, [1, 2, 3, 0]])  # x, y, z, w
+            ypr[usable] = rotation.as_euler("ZYX", degrees=True)    # R_NED<-B = Rz Ry Rx
         att_t_s = att["timestamp"].astype(float) / 1e6
     else:
         notes.append("no vehicle_attitude topic: no attitude")
@@ -281,10 +324,15 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                      "and is read up to there")
     if other_instances:
         notes.append(f"{other_instances} sample(s) of other GPS receivers (I > 0) left out")
+    gps = gps[_possible_positions(gps[:, 0], gps[:, 1], gps[:, 2], notes)]
+    if not len(gps):
+        raise InputError(path, "GPS", "no GPS sample with a possible time and position (the "
+                         "log is corrupt)")
     t_s = gps[:, 0]
     pos = np.array(pos_rows, dtype=float).reshape(-1, 2)
     alt, alt_reference = _estimator_altitude(t_s, gps[:, 3], pos[:, 0], pos[:, 1],
                                              "EKF altitude above mean sea level (POS.Alt)", notes)
+    alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
     utc_start = None
     weeks, ms = gps[:, 4], gps[:, 5]
     if (weeks > 0).any():

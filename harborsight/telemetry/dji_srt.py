@@ -43,7 +43,8 @@ from harborsight.errors import InputError
 from harborsight.telemetry.track import Track
 
 _NUMBER = r"[-+]?\d+(?:\.\d+)?"
-_TIMECODE = re.compile(r"^(\d+):(\d{2}):(\d{2})[,.](\d{3})\s*-->\s*(\d+):(\d{2}):(\d{2})[,.](\d{3})")
+# hours of at most 6 digits: a longer run is not a timecode (and 400 digits overflow a float)
+_TIMECODE = re.compile(r"^(\d{1,6}):(\d{2}):(\d{2})[,.](\d{3})\s*-->\s*(\d{1,6}):(\d{2}):(\d{2})[,.](\d{3})")
 _BRACKET = re.compile(r"\b(latitude|longitude|longtitude|rel_alt|abs_alt|altitude)\s*:\s*(" + _NUMBER + ")",
                       re.IGNORECASE)
 _GPS = re.compile(r"\bGPS\s*\(\s*(" + _NUMBER + r")\s*,\s*(" + _NUMBER + r")\s*(?:,\s*(" + _NUMBER
@@ -92,6 +93,13 @@ def _parse_date(match: re.Match) -> datetime | None:
         return datetime(int(year), int(month), int(day), int(hour), int(minute), int(second), micro)
     except ValueError:
         return None
+
+
+def _all_finite(row: dict) -> bool:
+    """Whether every number a block gave (its fields and gimbal angles) is finite."""
+    values = [v for v in row.values() if isinstance(v, float)]
+    values += list(row.get("gimbal", ()))
+    return bool(np.isfinite(values).all()) if values else True
 
 
 def _lines(numbers: list[int]) -> str:
@@ -149,6 +157,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
     skipped: list[int] = []
     out_of_range: list[int] = []
     bad_dates: list[int] = []
+    too_large: list[int] = []
     blocks = _blocks(text)
     # a file cut inside its last line (a copy interrupted, a card pulled): its last field may
     # be cut too, and "[altitude: 117.0" cut to "[altitude: 11" reads 11 m. Files saved
@@ -198,6 +207,9 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
                 row["date"] = when
             else:
                 bad_dates.append(line_number)
+        if not _all_finite(row):       # a number of hundreds of digits reads as infinity
+            too_large.append(line_number)
+            continue
         lat, lon = row.get("latitude"), row.get("longitude")
         if lat is None or lon is None or (lat, lon) == (0.0, 0.0):
             skipped.append(line_number)
@@ -265,6 +277,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (out_of_range, "with a position outside ±90°/±180° skipped"),
         (without_clock, "without the file's clock (timecode or date) skipped"),
         (bad_dates, "with an impossible date line (date ignored)"),
+        (too_large, "with a number too large to be a reading skipped"),
         (torn, "cut short at the end of the file left out"),
     ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
     utc_start = None

@@ -1,0 +1,85 @@
+"""Property tests (issue #30): every parser, fed torn, cut and salted versions of real inputs,
+either reads them or refuses them with one HarborsightError; what it reads is finite; and
+``measure_frame`` on valid poses writes strict JSON with no negative or non-finite distance
+in an ``ok`` section. The cases are ``tests/fuzz_cases.py``'s; ``benchmarks/fuzz_parsers.py``
+runs 10,000 of each.
+
+Bounded for CI (about 25 s in all on the project's 2-core machine) and repeatable: the
+default Hypothesis profile here draws the same cases on every run. Set
+``HARBORSIGHT_HYPOTHESIS=random`` to draw new ones (and ``HARBORSIGHT_FUZZ_SCALE=10`` for
+ten times as many)."""
+
+import os
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tests.fuzz_cases import STRONG_K1, TARGETS, log_seed, measure_report, pose_case
+
+_SLOW_OK = [HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much,
+            HealthCheck.large_base_example]
+settings.register_profile("harborsight", deadline=None, database=None, derandomize=True,
+                          suppress_health_check=_SLOW_OK, print_blob=True)
+settings.register_profile("harborsight-random", deadline=None, database=None,
+                          suppress_health_check=_SLOW_OK, print_blob=True)
+settings.load_profile("harborsight-random" if os.environ.get("HARBORSIGHT_HYPOTHESIS") == "random"
+                      else "harborsight")
+SCALE = float(os.environ.get("HARBORSIGHT_FUZZ_SCALE", "1"))
+
+
+def _property(name: str, examples: int, strategy=None):
+    """A test running ``examples`` cases of the target ``name`` (its strategy, or
+    ``strategy``): each must be read or refused, nothing else."""
+    target_strategy, run = TARGETS[name]
+
+    @settings(max_examples=max(1, int(examples * SCALE)))
+    @given(strategy if strategy is not None else target_strategy)
+    def test(case) -> None:
+        assert run(case) in ("ok", "refused")
+
+    test.__doc__ = f"{name}: {examples} generated cases, no crash outside HarborsightError."
+    return test
+
+
+test_frame_dict = _property("frame-dict", 300)
+test_frame_file = _property("frame-file", 300)
+test_json_lines = _property("json-lines", 200)
+test_vessel_dict = _property("vessel-dict", 300)
+test_vessel_file = _property("vessel-file", 120)
+test_calibration = _property("calibration", 150)
+test_dji_srt = _property("dji-srt", 200)
+test_nmea = _property("nmea", 200)
+test_vessel_csv = _property("vessel-csv", 200)
+test_px4_ulog = pytest.mark.skipif(not log_seed("px4/sample_log_small.ulg"),
+                                   reason="no PX4 sample in ../shared/data/telemetry")(
+    _property("px4-ulog", 25))
+test_ardupilot_bin = pytest.mark.skipif(not log_seed("ardupilot/test.BIN"),
+                                        reason="no ArduPilot sample in ../shared/data/telemetry")(
+    _property("ardupilot-bin", 60))
+#: views up to 96 degrees across with mild distortion stay inside the lens model's fold
+test_measure_frame = _property("measure-frame", 160, pose_case(
+    k1_values=(0.0, 0.1, -0.05), methods=("ground_plane",), fov_scale=(0.9, 2.0)))
+test_measure_frame_gsd = _property("measure-frame", 60, pose_case(
+    k1_values=(0.0,), methods=("gsd",)))
+test_measure_frame_near_a_lens_fold = pytest.mark.xfail(
+    strict=False, raises=(AssertionError, ValueError),
+    reason="known (issue #30), to fix in clearance/measure.py: where a barrel lens model's "
+           "fold is in view (k1 -0.26, or -0.05 at 127 degrees across), the half-pixel "
+           "boundary correction can move the nearest obstacle pixel past it (an ok section "
+           "with distance_m NaN, null in the report); and with distortion the gsd method can "
+           "project the hull outline to a line (ValueError 'outline is degenerate')")(
+    _property("measure-frame", 40, st.one_of(
+        pose_case(k1_values=(*STRONG_K1, -0.05)),
+        pose_case(k1_values=(0.1, -0.05), methods=("gsd",)))))
+
+
+def test_the_measure_target_sees_a_distance():
+    """The generated poses are not all refused or clear: some sections get a distance."""
+    case = {"alt_m": 60.0, "water_level_m": 0.0, "pitch_deg": -90.0, "yaw_deg": 0.0,
+            "roll_deg": 0.0, "east_m": 0.0, "north_m": 0.0, "heading_deg": 0.0, "k1": 0.0,
+            "fov_scale": 1.0, "quay_point": (0.5, 0.75), "quay_angle_deg": 90.0,
+            "method": "ground_plane", "box": True}
+    report = measure_report(case)
+    ok = [s.distance_m for s in report.sections if s.status == "ok"]
+    assert ok and 5.0 < min(ok) < 30.0, [s.to_dict() for s in report.sections]
