@@ -223,3 +223,18 @@ def test_a_batch_summary_counts_the_frames_and_the_reasons():
         {"applied": False, "reason": "no ship pixels near the projected hull"}])
     assert line.startswith("pose refined on 1 of 4 frame(s); the sensors' pose kept on 3 (2x ")
     assert "1x no ship pixels near the projected hull" in line
+
+
+def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):
+    flight = SAMPLES / "flight"
+    for flag, applied, off in (("--refine-pose", 48, 0), ("--no-refine-pose", 0, 48)):
+        out = tmp_path / flag
+        result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                                          "--out", str(out), "--no-video", flag],
+                                    terminal_width=200)
+        assert result.exit_code == 0, result.output
+        record = json.loads((out / "run.json").read_text())
+        assert record["pose_refinement"] == {"applied": applied, "kept_sensors_pose": 0,
+                                             "off": off}
+        if applied:
+            assert "pose refined on 48 of 48 frame(s)" in result.output

@@ -17,6 +17,7 @@ from harborsight.cli.app import (
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
+    REFINE_POSE_HELP,
     Method,
     app,
     check_masks_folder,
@@ -129,6 +130,7 @@ def run_command(
         min=0.0, max=MAX_MARGIN_PX,
         help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
+    refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
     fps: Annotated[float | None, typer.Option(
@@ -173,7 +175,7 @@ def run_command(
             source = VideoSource(input_path, metadata, camera=intrinsics)
             segmenter = load_segmenter(model)
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
-                                                pose_margin_px, own_rim_px),
+                                                pose_margin_px, own_rim_px, refine_pose),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
@@ -194,6 +196,12 @@ def run_command(
         f"{summary.seconds:.1f} s"
         + (f"; closest approach {md:.2f} m (frame {summary.min_distance_frame})"
            if md is not None else "; no obstacle in view"))
+    from harborsight.clearance.pose_refinement import refinement_summary
+
+    pose_line = refinement_summary(summary.pose_refinements)
+    if pose_line:
+        (console if "kept" not in pose_line else err_console).print(pose_line, markup=False,
+                                                                   highlight=False)
     if summary.without_metadata:
         console.print(f"{summary.without_metadata} video frame(s) had no metadata line "
                       "(in the video, not measured)")

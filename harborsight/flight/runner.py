@@ -76,6 +76,7 @@ class RunSummary:
     outputs: dict[str, str] = field(default_factory=dict)
     completed: bool = False
     aborted: str | None = None        # why the run stopped early
+    pose_refinements: list[dict] = field(default_factory=list)   # per measured frame
 
     def to_dict(self) -> dict:
         return {
@@ -87,6 +88,12 @@ class RunSummary:
             "frames_per_second": round(self.frames / self.seconds, 2) if self.seconds else None,
             "outputs": self.outputs, "skipped_frames": self.skipped,
             "warnings": self.warnings,
+            "pose_refinement": {
+                "applied": sum(bool(r.get("applied")) for r in self.pose_refinements),
+                "kept_sensors_pose": sum(not r.get("applied") and r.get("reason") != "off"
+                                         for r in self.pose_refinements),
+                "off": sum(r.get("reason") == "off" for r in self.pose_refinements),
+            },
         }
 
 
@@ -284,6 +291,7 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
     # counted as soon as its report is on disk: a run interrupted from here on still
     # records exactly the reports it wrote
     summary.measured += 1
+    summary.pose_refinements.append(report.pose_refinement or {})
     summary.frames += 1
     trends, rows, order_warning = timeline.add(frame.index, time_s, report)
     if order_warning:
