@@ -227,14 +227,22 @@ def test_a_batch_summary_counts_the_frames_and_the_reasons():
 
 def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):
     flight = SAMPLES / "flight"
-    for flag, applied, off in (("--refine-pose", 48, 0), ("--no-refine-pose", 0, 48)):
-        out = tmp_path / flag
-        result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+    noisy = tmp_path / "noisy"
+    made = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(flight), "--out", str(noisy),
+                                    "--gps", "standalone", "--heading-deg", "2"])
+    assert made.exit_code == 0, made.output
+    counts = {}
+    for data, flag in ((flight, "--refine-pose"), (noisy, "--refine-pose"),
+                       (noisy, "--no-refine-pose")):
+        out = tmp_path / f"{data.name}{flag}"
+        result = CliRunner().invoke(app, ["run", str(data), "--masks", str(data / "labels"),
                                           "--out", str(out), "--no-video", flag],
                                     terminal_width=200)
         assert result.exit_code == 0, result.output
-        record = json.loads((out / "run.json").read_text())
-        assert record["pose_refinement"] == {"applied": applied, "kept_sensors_pose": 0,
-                                             "off": off}
-        if applied:
-            assert "pose refined on 48 of 48 frame(s)" in result.output
+        counts[data.name, flag] = json.loads((out / "run.json").read_text())["pose_refinement"]
+    # exact poses fit their exact labels: nothing to correct
+    assert counts["flight", "--refine-pose"] == {"applied": 0, "sensors_pose_fitted": 48,
+                                                 "kept_sensors_pose": 0, "off": 0}
+    noisy_counts = counts["noisy", "--refine-pose"]
+    assert noisy_counts["applied"] >= 44 and noisy_counts["off"] == 0
+    assert counts["noisy", "--no-refine-pose"]["off"] == 48

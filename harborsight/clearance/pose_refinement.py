@@ -73,6 +73,11 @@ SCHEDULES = (
     (("tukey", 16.0, 6), ("tukey", 8.0, 4), ("tukey", 3.0, 5)),
 )
 _FINAL_TUKEY_PX = 3.0
+#: the sensors' pose is kept when it fits within this much RMS of the refined one, with as
+#: many inliers: a correction then follows the mask's rounding, not the sensors' error
+SAME_FIT_RMS_PX = 0.25
+#: the reason given when the sensors' pose fits the mask as well as the refined one
+SENSORS_FIT = "the sensors' pose fits the mask as well"
 #: the other schedules run only when the first leaves fewer inliers than this
 SKIP_SECOND_START_FRACTION = 0.9
 
@@ -344,7 +349,7 @@ def refine_vessel_pose(
         value, _, valid = sdf.sample(uv)
         return value, valid & _in_view(uv, intr.width, intr.height)
 
-    before, _, _ = _fit(*residuals(np.zeros(3), outline))
+    before, before_rms_px, _ = _fit(*residuals(np.zeros(3), outline))
 
     prior_sigma = np.array([settings.prior_shift_m, settings.prior_shift_m,
                             math.radians(settings.prior_heading_deg)])
@@ -436,28 +441,35 @@ def refine_vessel_pose(
                   f"(at least {100 * settings.min_ship_fill:.0f} % needed)")
     elif residual_px is None or residual_px > settings.max_residual_px:
         reason = f"residual {residual_px:.2f} px above {settings.max_residual_px:g} px"
-    elif fraction < before - 0.02:
-        reason = "the sensors' pose fits the mask better"
+    elif fraction < before - 0.02 or (
+            fraction <= before + 0.02 and before_rms_px is not None
+            and before_rms_px <= residual_px + SAME_FIT_RMS_PX):
+        reason = SENSORS_FIT      # a correction would only follow the pixels' rounding
     if reason is not None:
         return geometry, replace(found, reason=reason)
     return corrected_geometry(geometry, params), replace(found, applied=True)
 
 
 def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
-    """One line for a batch: on how many frames the pose was refined, and why not on the
-    others (reasons without their numbers, most common first); None when it was off."""
+    """One line for a batch: on how many frames the pose was refined, on how many the
+    sensors' pose fitted as well, and why the others kept it (reasons without their
+    numbers, most common first; the line holds "kept" only then). None when it was off."""
     ran = [r for r in refinements if r and r.get("reason") != "off"]
     if not ran:
         return None
     applied = sum(bool(r.get("applied")) for r in ran)
+    fitted = sum(r.get("reason") == SENSORS_FIT for r in ran)
     line = f"pose refined on {applied} of {len(ran)} frame(s)"
-    kept = [str(r.get("reason") or "") for r in ran if not r.get("applied")]
+    if fitted:
+        line += f"; the sensors' pose fitted as well on {fitted}"
+    kept = [str(r.get("reason") or "") for r in ran
+            if not r.get("applied") and r.get("reason") != SENSORS_FIT]
     if kept:
         kinds: dict[str, int] = {}
         for reason in kept:
-            kind = "".join(ch for ch in reason if not (ch.isdigit() or ch in ".-")).strip()
-            kinds[" ".join(kind.split())] = kinds.get(" ".join(kind.split()), 0) + 1
+            kind = " ".join("".join(ch for ch in reason if not (ch.isdigit() or ch in ".-")).split())
+            kinds[kind] = kinds.get(kind, 0) + 1
         top = sorted(kinds.items(), key=lambda kv: -kv[1])[:3]
-        line += "; the sensors' pose kept on " + str(len(kept)) + " (" + "; ".join(
+        line += f"; the sensors' pose kept on {len(kept)} (" + "; ".join(
             f"{n}x {kind}" for kind, n in top) + ")"
     return line

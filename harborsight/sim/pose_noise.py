@@ -120,6 +120,22 @@ def frame_rng(seed: int, stem: str) -> np.random.Generator:
     return np.random.default_rng([seed, zlib.crc32(stem.encode("utf-8"))])
 
 
+def _keep_vessel_spec_reachable(frame: dict[str, Any], source: Path, target: Path) -> None:
+    """A relative ``vessel_spec`` that points outside the dataset (e.g. ``../vessels/...``)
+    would not resolve from the copy: make it absolute. Relative names are looked up beside
+    the frame JSON and in the dataset root, as the measurement does."""
+    ref = frame.get("vessel_spec")
+    if not isinstance(ref, str) or Path(ref).is_absolute():
+        return
+    reachable = any((base / ref).is_file() for base in (target.parent, target.parent.parent))
+    if reachable:
+        return
+    for base in (source.parent, source.parent.parent):
+        if (base / ref).is_file():
+            frame["vessel_spec"] = str((base / ref).resolve())
+            return
+
+
 def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
                         ) -> NoisyDatasetResult:
     """A copy of a dataset (``frames/*.json`` and what sits beside it) whose frames carry
@@ -154,6 +170,7 @@ def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(path, "ground_truth" if isinstance(exc, ValueError) else None,
                                  f"cannot add noise: {exc}") from None
+            _keep_vessel_spec_reachable(noisy, path, out / "frames" / path.name)
             write_text_atomic(out / "frames" / path.name, strict_json(noisy, indent=1) + "\n")
             result.written.append(path.stem)
         except (HarborsightError, UnicodeDecodeError, OSError) as exc:
