@@ -73,6 +73,8 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
               "headings before the first fix": 0}
 
     def add_fix(clock: time, lat: float, lon: float) -> None:
+        if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+            raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
         when = _utc(day, clock)
         if fixes and when < fixes[-1][0] - timedelta(hours=12):
             when += timedelta(days=1)          # past midnight, before the next date arrives
@@ -111,16 +113,16 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                         continue
                     add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
             elif kind == "HDT" and sentence.heading is not None and fixes:
-                headings.append((len(fixes) - 1, float(sentence.heading)))
+                headings.append((len(fixes) - 1, _angle(sentence.heading)))
             elif kind == "HDG" and sentence.heading is not None and fixes:
-                deviation = float(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
+                deviation = _angle(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
                 if sentence.variation is None:
-                    magnetic.append((len(fixes) - 1, float(sentence.heading) + deviation))
+                    magnetic.append((len(fixes) - 1, _angle(sentence.heading) + deviation))
                     continue
-                variation = float(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
-                headings.append((len(fixes) - 1, float(sentence.heading) + deviation + variation))
+                variation = _angle(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
+                headings.append((len(fixes) - 1, _angle(sentence.heading) + deviation + variation))
             elif kind == "HDM" and sentence.heading is not None and fixes:
-                magnetic.append((len(fixes) - 1, float(sentence.heading)))
+                magnetic.append((len(fixes) - 1, _angle(sentence.heading)))
             elif kind in ("HDT", "HDG", "HDM") and sentence.heading is not None:
                 no_fix["headings before the first fix"] += 1
         except (ValueError, TypeError, AttributeError):
@@ -166,6 +168,15 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     ordered = [fixes[i] for i in fix_order]
     return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
                   [f[2] for f in ordered], heading, notes)
+
+
+def _angle(value) -> float:
+    """An NMEA angle field in degrees; ValueError (the sentence is skipped as unreadable) for
+    one that is not finite or beyond a turn (a corrupt field such as 1e308)."""
+    degrees = float(value)
+    if not (math.isfinite(degrees) and abs(degrees) <= 360.0):
+        raise ValueError(f"angle {value!r} is not within one turn")
+    return degrees
 
 
 def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datetime, float, float]]
