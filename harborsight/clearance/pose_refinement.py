@@ -392,25 +392,24 @@ def refine_vessel_pose(
                         _FINAL_TUKEY_PX ** 2 / 6).sum() / settings.edge_sigma_px ** 2
         return params, information, float(cost + params @ prior_information @ params)
 
-    window_ship = labels[window] == SHIP
-    window_known = labels[window] != IGNORE
+    known = labels[window] != IGNORE
 
     def fill(params: np.ndarray) -> float:
-        return _ship_fill(corrected_geometry(geometry, params), vessel, window, window_ship,
-                          window_known)
+        return _ship_fill(corrected_geometry(geometry, params), vessel, window, ship, known)
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side
-    candidates = [solve(SCHEDULES[0], np.zeros(3))]
-    if (_fit(*residuals(candidates[0][0], outline))[0] < SKIP_SECOND_START_FRACTION
-            or fill(candidates[0][0]) < settings.min_ship_fill):
+    first = solve(SCHEDULES[0], np.zeros(3))
+    candidates = [(*first, fill(first[0]))]        # (params, information, cost, fill)
+    if (_fit(*residuals(first[0], outline))[0] < SKIP_SECOND_START_FRACTION
+            or candidates[0][3] < settings.min_ship_fill):
         h = geometry.vessel_heading_rad
         across = np.array([math.cos(h), -math.sin(h), 0.0]) * settings.prior_shift_m
-        candidates += [solve(SCHEDULES[1], start) for start in (np.zeros(3), across, -across)]
-    fills = [fill(c[0]) for c in candidates]
-    full = [c for c, f in zip(candidates, fills, strict=True) if f >= settings.min_ship_fill]
-    params, information, _ = min(full or candidates, key=lambda t: t[2])
-    ship_fill = fill(params)
+        for start in (np.zeros(3), across, -across):
+            found = solve(SCHEDULES[1], start)
+            candidates.append((*found, fill(found[0])))
+    full = [c for c in candidates if c[3] >= settings.min_ship_fill]
+    params, information, _, ship_fill = min(full or candidates, key=lambda c: c[2])
 
     fraction, residual_px, n_edge = _fit(*residuals(params, outline))
     shift = (float(params[0]), float(params[1]))
@@ -450,20 +449,30 @@ def refine_vessel_pose(
     return corrected_geometry(geometry, params), replace(found, applied=True)
 
 
+def refinement_counts(refinements: list[dict[str, Any] | None]) -> dict[str, int]:
+    """How a batch's frames came out: ``applied``, ``sensors_pose_fitted`` (kept, fitting as
+    well), ``kept_sensors_pose`` (kept, the alignment not trusted) and ``off``."""
+    given = [r for r in refinements if r]
+    off = sum(r.get("reason") == "off" for r in given)
+    applied = sum(bool(r.get("applied")) for r in given)
+    fitted = sum(r.get("reason") == SENSORS_FIT for r in given)
+    return {"applied": applied, "sensors_pose_fitted": fitted,
+            "kept_sensors_pose": len(given) - off - applied - fitted, "off": off}
+
+
 def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
     """One line for a batch: on how many frames the pose was refined, on how many the
     sensors' pose fitted as well, and why the others kept it (reasons without their
     numbers, most common first; the line holds "kept" only then). None when it was off."""
-    ran = [r for r in refinements if r and r.get("reason") != "off"]
+    counts = refinement_counts(refinements)
+    ran = counts["applied"] + counts["sensors_pose_fitted"] + counts["kept_sensors_pose"]
     if not ran:
         return None
-    applied = sum(bool(r.get("applied")) for r in ran)
-    fitted = sum(r.get("reason") == SENSORS_FIT for r in ran)
-    line = f"pose refined on {applied} of {len(ran)} frame(s)"
-    if fitted:
-        line += f"; the sensors' pose fitted as well on {fitted}"
-    kept = [str(r.get("reason") or "") for r in ran
-            if not r.get("applied") and r.get("reason") != SENSORS_FIT]
+    line = f"pose refined on {counts['applied']} of {ran} frame(s)"
+    if counts["sensors_pose_fitted"]:
+        line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
+    kept = [str(r.get("reason") or "") for r in refinements
+            if r and not r.get("applied") and r.get("reason") not in ("off", SENSORS_FIT)]
     if kept:
         kinds: dict[str, int] = {}
         for reason in kept:

@@ -79,6 +79,16 @@ POSE_MARGIN_PX = 2.0
 OWN_RIM_PX = 4
 
 
+def print_pose_refinement_summary(refinements: list) -> None:
+    """The batch's one line on pose refinement: on stdout, or on stderr when some frames
+    kept the sensors' pose because the alignment was not trusted."""
+    from harborsight.clearance.pose_refinement import refinement_summary
+
+    line = refinement_summary(refinements)
+    if line:
+        (err_console if "kept" in line else console).print(line, markup=False, highlight=False)
+
+
 #: help of --refine-pose/--no-refine-pose, shared by measure, run and evaluate distance
 REFINE_POSE_HELP = ("Align the projected vessel to its own ship pixels (a correction of its "
                     "position and heading for GPS and compass error) and measure with that pose "

@@ -24,6 +24,7 @@ from harborsight.cli.app import (
     err_console,
     fmt_number,
     load_segmenter,
+    print_pose_refinement_summary,
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
@@ -88,12 +89,7 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
         for outcome in good:
             print_report_table(outcome)
     console.print(f"[green]{len(good)} frame(s) measured[/]; reports and overlays in {escape(str(out))}/")
-    from harborsight.clearance.pose_refinement import refinement_summary
-
-    pose_line = refinement_summary([o.report.pose_refinement for o in good])
-    if pose_line:
-        (console if "kept" not in pose_line else err_console).print(pose_line, markup=False,
-                                                                   highlight=False)
+    print_pose_refinement_summary([o.report.pose_refinement for o in good])
     if bad:
         err_console.print(f"[red]{len(bad)} frame(s) skipped:[/]")
         for outcome in bad:

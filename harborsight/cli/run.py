@@ -25,6 +25,7 @@ from harborsight.cli.app import (
     console,
     err_console,
     load_segmenter,
+    print_pose_refinement_summary,
 )
 from harborsight.cli.measure import input_folders
 from harborsight.cli.progress import progress_report
@@ -196,12 +197,7 @@ def run_command(
         f"{summary.seconds:.1f} s"
         + (f"; closest approach {md:.2f} m (frame {summary.min_distance_frame})"
            if md is not None else "; no obstacle in view"))
-    from harborsight.clearance.pose_refinement import refinement_summary
-
-    pose_line = refinement_summary(summary.pose_refinements)
-    if pose_line:
-        (console if "kept" not in pose_line else err_console).print(pose_line, markup=False,
-                                                                   highlight=False)
+    print_pose_refinement_summary(summary.pose_refinements)
     if summary.without_metadata:
         console.print(f"{summary.without_metadata} video frame(s) had no metadata line "
                       "(in the video, not measured)")

@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
-from harborsight.clearance.pose_refinement import SENSORS_FIT
+from harborsight.clearance.pose_refinement import refinement_counts
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
@@ -89,14 +89,7 @@ class RunSummary:
             "frames_per_second": round(self.frames / self.seconds, 2) if self.seconds else None,
             "outputs": self.outputs, "skipped_frames": self.skipped,
             "warnings": self.warnings,
-            "pose_refinement": {
-                "applied": sum(bool(r.get("applied")) for r in self.pose_refinements),
-                "sensors_pose_fitted": sum(r.get("reason") == SENSORS_FIT
-                                           for r in self.pose_refinements),
-                "kept_sensors_pose": sum(not r.get("applied") and r.get("reason") not in (
-                    "off", SENSORS_FIT) for r in self.pose_refinements),
-                "off": sum(r.get("reason") == "off" for r in self.pose_refinements),
-            },
+            "pose_refinement": refinement_counts(self.pose_refinements),
         }
 
 
