@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from harborsight.errors import InputError
 from tests.fuzz_cases import STRONG_K1, TARGETS, log_seed, measure_report, pose_case
 
 _SLOW_OK = [HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much,
@@ -62,16 +63,11 @@ test_measure_frame = _property("measure-frame", 160, pose_case(
     k1_values=(0.0, 0.1, -0.05), methods=("ground_plane",), fov_scale=(0.9, 2.0)))
 test_measure_frame_gsd = _property("measure-frame", 60, pose_case(
     k1_values=(0.0,), methods=("gsd",)))
-test_measure_frame_near_a_lens_fold = pytest.mark.xfail(
-    strict=False, raises=(AssertionError, ValueError),
-    reason="known (issue #30), to fix in clearance/measure.py: where a barrel lens model's "
-           "fold is in view (k1 -0.26, or -0.05 at 127 degrees across), the half-pixel "
-           "boundary correction can move the nearest obstacle pixel past it (an ok section "
-           "with distance_m NaN, null in the report); and with distortion the gsd method can "
-           "project the hull outline to a line (ValueError 'outline is degenerate')")(
-    _property("measure-frame", 40, st.one_of(
-        pose_case(k1_values=(*STRONG_K1, -0.05)),
-        pose_case(k1_values=(0.1, -0.05), methods=("gsd",)))))
+#: where a barrel lens model's fold is in view (k1 -0.26, or -0.05 at 127 degrees across), and
+#: the gsd method with distortion (issue #30, see the two regression tests below)
+test_measure_frame_near_a_lens_fold = _property("measure-frame", 40, st.one_of(
+    pose_case(k1_values=(*STRONG_K1, -0.05)),
+    pose_case(k1_values=(0.1, -0.05), methods=("gsd",))))
 
 
 def test_the_measure_target_sees_a_distance():
@@ -83,3 +79,39 @@ def test_the_measure_target_sees_a_distance():
     report = measure_report(case)
     ok = [s.distance_m for s in report.sections if s.status == "ok"]
     assert ok and 5.0 < min(ok) < 30.0, [s.to_dict() for s in report.sections]
+
+
+def _fold_case(**changes) -> dict:
+    """A drone over the vessel with a 127-degree barrel lens (k1 -0.26) whose fold is in view."""
+    case = {"alt_m": 30.0, "water_level_m": 0.0, "pitch_deg": -75.0, "yaw_deg": -90.0,
+            "roll_deg": 0.0, "east_m": 0.0, "north_m": 0.0, "heading_deg": 155.0, "k1": -0.26,
+            "fov_scale": 0.5, "quay_point": (0.0, 0.0), "quay_angle_deg": 0.0,
+            "method": "ground_plane", "box": True}
+    return {**case, **changes}
+
+
+def test_boundary_correction_does_not_cross_a_lens_fold():
+    """Issue #30: section 14's nearest obstacle pixel lies at the fold, where the half-pixel
+    move toward the hull leaves the water; it keeps its unmoved pixel and a distance (it was
+    an ok section with distance_m NaN)."""
+    report = measure_report(_fold_case())      # checks every ok section's distance is finite
+    section = report.sections[14]
+    assert section.status == "ok" and 20.0 < section.distance_m < 30.0, section.to_dict()
+
+
+def test_an_unmeasurable_nearest_point_is_not_ok():
+    """Issue #30: where the nearest hull point has no pixel (past the fold), the section is
+    out of view, not ok with distance_m NaN."""
+    report = measure_report(_fold_case(alt_m=15.0, pitch_deg=-50.0, yaw_deg=0.0, north_m=-12.0,
+                                       heading_deg=0.0, box=False))
+    assert [s.status for s in report.sections][0::15] == ["out_of_view", "out_of_view"]
+    assert report.sections[0].visible_fraction > 0 and report.sections[0].distance_m is None
+
+
+def test_gsd_refuses_a_hull_past_the_lens_edge():
+    """Issue #30: with distortion, part of the hull can have no pixel; the gsd method then says
+    so and names the ground_plane method (it was ValueError 'outline is degenerate')."""
+    case = _fold_case(alt_m=15.0, pitch_deg=-60.0, yaw_deg=0.0, heading_deg=230.0, k1=-0.05,
+                      method="gsd")
+    with pytest.raises(InputError, match=r"vessel: .*gsd method cannot be used; use the ground_plane"):
+        measure_report(case)

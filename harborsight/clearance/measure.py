@@ -17,7 +17,8 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 4. pixel-boundary correction: a contour pixel is the centre of the outermost solid pixel,
    and the solid pixel covers its whole square, so the chosen obstacle point is moved
    toward the hull to where that ray leaves the square (0.5 to 0.71 px) before its
-   distance is taken;
+   distance is taken (not where the move would cross a barrel lens's fold); a section
+   whose nearest point has no place in the image or on the water is ``out_of_view``;
 5. band edges: a contour pixel whose square (not only its centre) reaches into a
    neighbouring band is also a candidate of that band, so an obstacle corner poking less
    than a pixel into a band is not missed (see ``_band_edge_pixels``).
@@ -336,10 +337,19 @@ def measure_clearance(
         outline = sections_v
         to_outline = geometry.pixels_to_vessel_xy
     else:
-        outline = sections_v.transformed(vessel_to_px)
-        if not np.isfinite(outline.vertices).all():
+        def hull_to_px(points_v: np.ndarray) -> np.ndarray:
+            uv = vessel_to_px(points_v)
+            if not np.isfinite(uv).all():   # behind the camera or past its lens model's edge
+                raise InputError(geometry.source, "vessel",
+                                 "the hull crosses the camera's horizon or the edge of its lens "
+                                 "model: the gsd method cannot be used; use the ground_plane method")
+            return uv
+        try:
+            outline = sections_v.transformed(hull_to_px)
+        except ValueError:      # a distorted lens can fold the outline onto a line
             raise InputError(geometry.source, "vessel",
-                             "the hull crosses the camera's horizon: the gsd method cannot be used")
+                             "the hull outline projects to a line in the image: the gsd method "
+                             "cannot be used; use the ground_plane method") from None
         def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return uv, np.ones(len(uv), bool)
     points, valid = to_outline(points_px)
@@ -380,7 +390,14 @@ def measure_clearance(
         to_square_edge = _HALF_PIXEL / np.maximum(np.abs(unit).max(axis=1), _HALF_PIXEL * 2 ** 0.5)
         shift = np.minimum(to_square_edge, norm)
         moved_px = obstacle_px + unit * shift[:, None]
-        moved_enu, _ = camera.back_project_to_plane(moved_px)
+        moved_enu, moved_ok = camera.back_project_to_plane(moved_px)
+        if not moved_ok.all():
+            # near a barrel lens's fold the half-pixel move can cross it, where no ray meets
+            # the water: those points keep their unmoved pixel (no correction)
+            back = ~moved_ok
+            shift[back] = 0.0
+            moved_px[back] = obstacle_px[back]
+            moved_enu[back] = camera.back_project_to_plane(obstacle_px[back])[0]
         if outline is sections_v:
             moved_v = geometry.enu_to_vessel_xy(moved_enu)
             distance_m = np.hypot(*(moved_v - nearest).T)
@@ -394,6 +411,13 @@ def measure_clearance(
         for i, k in enumerate(best_section):
             j = best[i]
             result = results[k]
+            if not (np.isfinite([distance_m[i], distance_px[i]]).all()
+                    and np.isfinite(hull_px[i]).all() and np.isfinite(moved_px[i]).all()):
+                # the nearest obstacle point or hull point has no place in the image or on the
+                # water (past a barrel lens's fold): no distance can be given, and "clear"
+                # would claim there is no obstacle
+                result.status = STATUS_OUT_OF_VIEW
+                continue
             result.status = STATUS_OK
             result.distance_m = float(distance_m[i])
             result.distance_px = float(distance_px[i])
