@@ -25,6 +25,7 @@ from harborsight.geometry.camera import (
 )
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.geometry.rotations import enu_from_vessel_rotation, world_from_camera_rotation
+from harborsight.geometry.sensor_sigmas import FRAME_SIGMA_FIELDS
 
 FRAME_SCHEMA = "harborsight.frame/1"
 
@@ -101,6 +102,12 @@ class FrameMetadata:
     timestamp: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     source: str | None = None
+    #: the sensors' own one-sigma figures the file carries (FRAME_SIGMA_FIELDS), by
+    #: SensorSigmas name; positions per axis
+    sensor_sigmas: dict[str, float] = field(default_factory=dict)
+    #: ground velocities (east, north) in m/s, when the file gives them
+    uav_velocity_en_mps: tuple[float, float] | None = None
+    vessel_velocity_en_mps: tuple[float, float] | None = None
 
     @property
     def height_above_water_m(self) -> float:
@@ -123,6 +130,13 @@ class FrameMetadata:
         }
         if self.timestamp is not None:
             data["timestamp"] = self.timestamp
+        for (section, key), name in FRAME_SIGMA_FIELDS.items():
+            if name in self.sensor_sigmas:
+                data[section][key] = self.sensor_sigmas[name]
+        for section, velocity in (("uav", self.uav_velocity_en_mps),
+                                  ("vessel", self.vessel_velocity_en_mps)):
+            if velocity is not None:
+                data[section]["velocity_en_mps"] = list(velocity)
         data.update(self.extra)
         return data
 
@@ -164,6 +178,26 @@ class _Reader:
         if (low is not None and value < low) or (high is not None and value > high):
             raise InputError(self.source, name, f"{value} is outside [{low}, {high}]")
         return value
+
+    def optional_number(self, data: dict, key: str, prefix: str, low: float, high: float
+                        ) -> float | None:
+        """A number that may be absent (or null): None then."""
+        if data.get(key) is None:
+            return None
+        return self.number(data, key, prefix, low=low, high=high)
+
+    def optional_pair(self, data: dict, key: str, prefix: str, bound: float
+                      ) -> tuple[float, float] | None:
+        """Two numbers ``[a, b]`` within ``±bound`` that may be absent (None then)."""
+        value = data.get(key)
+        if value is None:
+            return None
+        if not isinstance(value, list) or len(value) != 2:
+            raise InputError(self.source, f"{prefix}{key}",
+                             f"expected two numbers [east, north], got {brief(value)}")
+        pair = {f"{key}[0]": value[0], f"{key}[1]": value[1]}
+        east, north = (self.number(pair, name, prefix, low=-bound, high=bound) for name in pair)
+        return east, north
 
 
 def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIntrinsics:
@@ -225,6 +259,20 @@ def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIn
 MAX_HEIGHT_ABOVE_WATER_M = 3000.0
 MAX_VESSEL_RANGE_M = 10_000.0
 
+#: bound on a velocity in frame metadata (m/s): faster than any drone or ship
+MAX_SPEED_MPS = 200.0
+
+
+def _frame_sigmas(reader: _Reader, sections: dict[str, dict]) -> dict[str, float]:
+    """The optional sensor sigmas of a frame (FRAME_SIGMA_FIELDS), by SensorSigmas name."""
+    found = {}
+    for (section, key), name in FRAME_SIGMA_FIELDS.items():
+        value = reader.optional_number(sections[section], key, f"{section}.", 0.0, 1000.0)
+        if value is not None:
+            found[name] = value
+    return found
+
+
 _KNOWN_KEYS = {"schema", "image", "timestamp", "camera", "uav", "camera_attitude", "vessel",
                "water_level_m"}
 
@@ -273,6 +321,11 @@ def parse_frame_metadata(
         timestamp=timestamp,
         extra={k: v for k, v in data.items() if k not in _KNOWN_KEYS},
         source=src,
+        sensor_sigmas=_frame_sigmas(reader, {"uav": uav, "camera_attitude": att,
+                                             "vessel": ves}),
+        uav_velocity_en_mps=reader.optional_pair(uav, "velocity_en_mps", "uav.", MAX_SPEED_MPS),
+        vessel_velocity_en_mps=reader.optional_pair(ves, "velocity_en_mps", "vessel.",
+                                                    MAX_SPEED_MPS),
     )
     if meta.height_above_water_m <= 0:
         raise InputError(

@@ -156,7 +156,8 @@ def measure_job(
     check_image_size(image, meta, image_path)
     labels, mask_source = frame_labels(image, job.mask_path, segmenter, job.meta_path)
     vessel = vessels.for_frame(meta, job.meta_path)
-    report = measure_frame(labels, meta, vessel, settings, mask_source=mask_source)
+    report = measure_frame(labels, meta, vessel, settings, mask_source=mask_source,
+                           mask_from_file=job.mask_path is not None)
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)

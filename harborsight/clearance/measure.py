@@ -39,9 +39,15 @@ from harborsight.clearance.report import (
     ClearanceReport,
     SectionClearance,
 )
+from harborsight.clearance.uncertainty import (
+    LOWER_BOUND_QUANTILE,
+    FrameVelocities,
+    add_section_uncertainty,
+)
 from harborsight.errors import InputError
 from harborsight.frame import FrameGeometry, FrameMetadata
 from harborsight.geometry.gsd import nadir_gsd_m_per_px
+from harborsight.geometry.sensor_sigmas import LABEL_FILE_EDGE_PX, SensorSigmas, sigmas_for_frame
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
@@ -61,6 +67,8 @@ class ClearanceSettings:
     n_sections: int | None = None
     section_length_m: float | None = None
     pose_refinement: PoseRefinementSettings = field(default_factory=PoseRefinementSettings)
+    #: ``--sigma NAME=VALUE`` pairs: the sensor sigmas of frames that do not carry their own
+    sigma_options: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -69,6 +77,15 @@ class ClearanceSettings:
             raise ValueError(f"pose_margin_px must be >= 0, got {self.pose_margin_px}")
         if self.own_rim_px < 0:
             raise ValueError(f"own_rim_px must be >= 0, got {self.own_rim_px}")
+        SensorSigmas().with_values(dict(self.sigma_options))     # names and values checked
+
+    def sensor_sigmas(self, meta: FrameMetadata | None = None, mask_from_file: bool = False
+                      ) -> SensorSigmas:
+        """The sigmas of one frame: its own figures, else ``sigma_options``, else the
+        defaults (a mask read from a file has the file default's edge sigma)."""
+        base = SensorSigmas(edge_px=LABEL_FILE_EDGE_PX) if mask_from_file else SensorSigmas()
+        base = base.with_values(dict(self.sigma_options))
+        return sigmas_for_frame(base, meta.sensor_sigmas) if meta is not None else base
 
 
 def check_label_mask(labels: np.ndarray, width: int, height: int, source: str | None) -> None:
@@ -94,13 +111,23 @@ def check_label_mask(labels: np.ndarray, width: int, height: int, source: str | 
 def measure_frame(
     labels: np.ndarray, meta: FrameMetadata, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(), mask_source: str | None = None,
+    *, mask_from_file: bool = False,
 ) -> ClearanceReport:
-    """Measure one frame from its metadata (validates the mask against the camera)."""
+    """Measure one frame from its metadata (validates the mask against the camera).
+    ``mask_from_file``: the labels were read from a file, not segmented by a model (it sets
+    the default edge sigma of the distances' uncertainty)."""
     check_label_mask(labels, meta.camera.width, meta.camera.height, mask_source or meta.source)
     geometry = FrameGeometry.from_metadata(meta)
-    report = measure_clearance(labels, geometry, vessel, settings)
+    velocities = FrameVelocities(meta.uav_velocity_en_mps, meta.vessel_velocity_en_mps)
+    report = measure_clearance(labels, geometry, vessel, settings,
+                               sigmas=settings.sensor_sigmas(meta, mask_from_file),
+                               velocities=velocities)
     report.image = meta.image
     report.timestamp = meta.timestamp
+    if report.uncertainty is not None:
+        report.uncertainty["from_frame"] = sorted(meta.sensor_sigmas)
+        report.uncertainty["velocities"] = (meta.uav_velocity_en_mps is not None
+                                            and meta.vessel_velocity_en_mps is not None)
     return report
 
 
@@ -288,7 +315,8 @@ MIN_HULL_SPAN_PX = 8.0
 
 def measure_clearance(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
-    settings: ClearanceSettings = ClearanceSettings(),
+    settings: ClearanceSettings = ClearanceSettings(), *, sigmas: SensorSigmas | None = None,
+    velocities: FrameVelocities | None = None,
 ) -> ClearanceReport:
     """The clearance of every section (see module docstring). ``labels`` must match the
     camera's size (use :func:`check_label_mask`)."""
@@ -428,8 +456,12 @@ def measure_clearance(
             result.contact = bool(candidates.contact[j])
             result.truncated = bool(candidates.on_border[j])
 
+    sigmas = sigmas or settings.sensor_sigmas()
+    add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
+                            refinement, sigmas, velocities)
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,
         enu_origin=geometry.origin.to_dict(), pose_refinement=refinement.to_dict(),
+        uncertainty={"sigmas": sigmas.to_dict(), "lower_bound_quantile": LOWER_BOUND_QUANTILE},
     )

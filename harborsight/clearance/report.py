@@ -37,6 +37,11 @@ class SectionClearance:
     obstacle_point_enu: list[float] | None = None
     contact: bool = False
     truncated: bool = False
+    #: one standard deviation of distance_m, its frame-to-frame part, and the one-sided 95 %
+    #: lower bound (clearance.uncertainty)
+    sigma_m: float | None = None
+    sigma_random_m: float | None = None
+    distance_lower_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -45,6 +50,10 @@ class SectionClearance:
             "status": self.status,
             "distance_m": None if self.distance_m is None else round(self.distance_m, 3),
             "distance_px": None if self.distance_px is None else round(self.distance_px, 2),
+            "sigma_m": None if self.sigma_m is None else round(self.sigma_m, 3),
+            "sigma_random_m": None if self.sigma_random_m is None else round(self.sigma_random_m, 3),
+            "distance_lower_m": (None if self.distance_lower_m is None
+                                 else round(self.distance_lower_m, 3)),
             "hull_point_px": _round_list(self.hull_point_px, 2),
             "obstacle_point_px": _round_list(self.obstacle_point_px, 2),
             "hull_point_enu": _round_list(self.hull_point_enu, 3),
@@ -67,6 +76,8 @@ class ClearanceReport:
     enu_origin: dict[str, float] = field(default_factory=dict)
     #: what the pose refinement found (:meth:`PoseRefinement.to_dict`); None: not run
     pose_refinement: dict[str, Any] | None = None
+    #: the sensor sigmas the section sigmas were propagated from, and where each came from
+    uncertainty: dict[str, Any] | None = None
 
     @property
     def closest_section(self) -> int | None:
@@ -90,6 +101,7 @@ class ClearanceReport:
             "method": self.method,
             "enu_origin": self.enu_origin,
             "pose_refinement": self.pose_refinement,
+            "uncertainty": self.uncertainty,
             "sections": [s.to_dict() for s in self.sections],
             "min_distance_m": None if md is None else round(md, 3),
             "closest_section": self.closest_section,

@@ -161,6 +161,22 @@ class SectionResult:
     truncated: bool
     obstacle: str | None = None      # kind of the true nearest obstacle (when attributed)
     point_truth: str | None = None   # what the reported obstacle point really is (POINT_TRUTHS)
+    sigma_m: float | None = None     # the report's one sigma and 95 % lower bound
+    lower_m: float | None = None
+
+    @property
+    def within_sigma(self) -> bool | None:
+        """Whether the estimate is within one reported sigma of the truth."""
+        if self.kind != "estimate" or self.sigma_m is None:
+            return None
+        return abs(self.estimate_m - self.truth_m) <= self.sigma_m
+
+    @property
+    def lower_bound_holds(self) -> bool | None:
+        """Whether the true distance is at least the reported lower bound."""
+        if self.kind != "estimate" or self.lower_m is None:
+            return None
+        return self.truth_m >= self.lower_m
 
     @property
     def kind(self) -> str:
@@ -270,7 +286,8 @@ def evaluate_frames(
             if spec_path not in vessels:
                 vessels[spec_path] = load_vessel_spec(dataset / spec_path)
             truth = frame["ground_truth"]["sections"]
-            report = measure_frame(masks(dataset, frame), meta, vessels[spec_path], settings)
+            report = measure_frame(masks(dataset, frame), meta, vessels[spec_path], settings,
+                                   mask_from_file=masks is oracle_masks)
             if len(report.sections) != len(truth):
                 raise HarborsightError(f"{frame_path}: {len(report.sections)} sections measured, "
                                        f"{len(truth)} in the ground truth")
@@ -293,7 +310,7 @@ def evaluate_frames(
             results.append(SectionResult(
                 stem, altitude, masks_name, method, s.index, s.status, s.distance_m,
                 t["distance_m"], report.gsd_m_per_px, bool(s.contact), bool(s.truncated),
-                point_truth=point_truth))
+                point_truth=point_truth, sigma_m=s.sigma_m, lower_m=s.distance_lower_m))
         if on_frame:
             on_frame(stem, None)
     return results
@@ -314,6 +331,17 @@ class AltitudeSummary:
     median_px: float | None
     missed: int
     false: int
+    #: share of estimates within one reported sigma of the truth (0.68 when the sigmas are
+    #: right and errors normal), share whose truth is at least the reported lower bound
+    #: (0.95), and the median reported sigma
+    within_sigma_share: float | None = None
+    lower_bound_share: float | None = None
+    median_sigma_m: float | None = None
+
+
+def _share(flags: list[bool | None]) -> float | None:
+    known = [f for f in flags if f is not None]
+    return float(np.mean(known)) if known else None
 
 
 def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
@@ -334,8 +362,15 @@ def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
             float(np.percentile(errors, 95)) if some else None,
             float(np.mean(errors > 1.0)) if some else None,
             float(np.median(px)) if some else None,
-            sum(r.kind == "missed" for r in group), sum(r.kind == "false" for r in group)))
+            sum(r.kind == "missed" for r in group), sum(r.kind == "false" for r in group),
+            _share([r.within_sigma for r in group]), _share([r.lower_bound_holds for r in group]),
+            _median([r.sigma_m for r in group if r.kind == "estimate"])))
     return rows
+
+
+def _median(values: list[float | None]) -> float | None:
+    known = [v for v in values if v is not None]
+    return float(np.median(known)) if known else None
 
 
 @dataclass
@@ -509,7 +544,7 @@ def write_csv(results: list[SectionResult], path: Path) -> None:
         writer = csv.writer(f)
         writer.writerow(["frame", "altitude_m", "masks", "method", "section", "status", "kind",
                          "estimate_m", "truth_m", "abs_error_m", "gsd_m_per_px", "contact",
-                         "truncated", "obstacle", "point_truth"])
+                         "truncated", "obstacle", "point_truth", "sigma_m", "lower_m"])
         for r in results:
             err = r.abs_error_m
             writer.writerow([r.frame, r.altitude_m, r.masks, r.method, r.section, r.status, r.kind,
@@ -517,7 +552,9 @@ def write_csv(results: list[SectionResult], path: Path) -> None:
                              "" if r.truth_m is None else f"{r.truth_m:.4f}",
                              "" if err is None else f"{err:.4f}", f"{r.gsd_m_per_px:.5f}",
                              int(r.contact), int(r.truncated), r.obstacle or "",
-                             r.point_truth or ""])
+                             r.point_truth or "",
+                             "" if r.sigma_m is None else f"{r.sigma_m:.4f}",
+                             "" if r.lower_m is None else f"{r.lower_m:.4f}"])
 
 
 def read_csv(path: Path) -> list[SectionResult]:
@@ -530,7 +567,8 @@ def read_csv(path: Path) -> list[SectionResult]:
                               int(row["section"]), row["status"], number(row["estimate_m"]),
                               number(row["truth_m"]), float(row["gsd_m_per_px"]),
                               bool(int(row["contact"])), bool(int(row["truncated"])),
-                              row.get("obstacle") or None, row.get("point_truth") or None)
+                              row.get("obstacle") or None, row.get("point_truth") or None,
+                              number(row.get("sigma_m", "")), number(row.get("lower_m", "")))
                 for row in csv.DictReader(f)]
 
 
@@ -538,17 +576,22 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "—" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
+def _percent(share: float | None) -> str:
+    return "—" if share is None else f"{100 * share:.0f} %"
+
+
 def markdown_table(rows: list[AltitudeSummary]) -> str:
     lines = ["| masks | method | altitude m | n | MAE m (± std) | median m | median px | p95 m "
-             "| > 1 m | missed | false |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| > 1 m | missed | false | median sigma m | within 1 sigma | truth >= lower |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         share = "—" if r.over_1m_share is None else f"{100 * r.over_1m_share:.1f} %"
         mae = "—" if r.mae_m is None else f"{r.mae_m:.2f}" + (
             "" if r.std_m is None else f" ± {r.std_m:.2f}")
         lines.append(f"| {r.masks} | {r.method} | {r.altitude_m:.0f} | {r.n} | {mae} | "
                      f"{_fmt(r.median_m)} | {_fmt(r.median_px)} | {_fmt(r.p95_m)} | {share} | "
-                     f"{r.missed} | {r.false} |")
+                     f"{r.missed} | {r.false} | {_fmt(r.median_sigma_m)} | "
+                     f"{_percent(r.within_sigma_share)} | {_percent(r.lower_bound_share)} |")
     return "\n".join(lines) + "\n"
 
 
@@ -643,7 +686,8 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     image = read_image(dataset / "images" / frame["image"])
     measured = masks(dataset, frame)
     report = measure_frame(measured, meta, load_vessel_spec(dataset / frame["vessel_spec"]),
-                           dataclasses.replace(clearance or ClearanceSettings(), method=method))
+                           dataclasses.replace(clearance or ClearanceSettings(), method=method),
+                           mask_from_file=masks is oracle_masks)
     truth = [t["distance_m"] for t in frame["ground_truth"]["sections"]]
     truth_text = " ".join("-" if t is None else f"{t:.1f}" for t in truth)
     panels = [draw_overlay(image, report, footer=f"true m: {truth_text}")]

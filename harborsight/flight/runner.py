@@ -270,7 +270,7 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
                                            frame.source)
         vessel = vessels.for_frame(frame.meta, frame.meta_path)
         report = measure_frame(labels, frame.meta, vessel, options.settings,
-                               mask_source=mask_source)
+                               mask_source=mask_source, mask_from_file=frame.mask_path is not None)
     except HarborsightError as exc:
         frame.error = str(exc)
         return None

@@ -10,9 +10,13 @@ field a sensor delivers is perturbed with independent Gaussian errors, seeded pe
 * drone camera yaw and vessel heading (compasses): sigma ``heading_deg`` each;
 * drone height above the water (barometer, water level): sigma ``height_m``.
 
-The true values move to ``ground_truth.true_pose`` and the errors drawn to
-``ground_truth.pose_errors``; the ground-truth distances themselves do not change (they are
-properties of the scene, not of the sensors).
+Each noisy frame carries the sigmas it was drawn with (``uav.position_sigma_m``,
+``uav.alt_sigma_m``, ``camera_attitude.yaw_sigma_deg``, ``vessel.position_sigma_m``,
+``vessel.heading_sigma_deg``), as a telemetry reader writes a receiver's reported accuracy,
+so that the distances' sigmas follow them. The true values move to
+``ground_truth.true_pose`` and the errors drawn to ``ground_truth.pose_errors``; the
+ground-truth distances themselves do not change (they are properties of the scene, not of
+the sensors).
 """
 
 from __future__ import annotations
@@ -31,10 +35,9 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import natural_key, strict_json, write_text_atomic
 from harborsight.frame import parse_json_text
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+from harborsight.geometry.sensor_sigmas import GPS_CLASSES, parse_gps_noise
 
-#: horizontal RMS error (m) of one receiver, by class
-GPS_CLASSES = {"rtk": 0.02, "dgps": 0.5, "standalone": 2.0}
-
+__all__ = ["GPS_CLASSES", "PoseNoise", "add_pose_noise", "parse_gps_noise", "write_noisy_dataset"]
 
 @dataclass(frozen=True)
 class PoseNoise:
@@ -52,20 +55,6 @@ class PoseNoise:
 
     def to_dict(self) -> dict[str, float]:
         return {"gps_m": self.gps_m, "heading_deg": self.heading_deg, "height_m": self.height_m}
-
-
-def parse_gps_noise(text: str) -> float:
-    """``rtk``, ``dgps``, ``standalone`` or a number of metres (horizontal RMS)."""
-    key = text.strip().lower()
-    if key in GPS_CLASSES:
-        return GPS_CLASSES[key]
-    try:
-        value = float(key)
-    except ValueError:
-        raise ValueError(f"expected {', '.join(GPS_CLASSES)} or metres, got {text!r}") from None
-    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
-        raise ValueError(f"expected metres from 0 to 1000, got {text!r}")
-    return value
 
 
 def _moved(lat_deg: float, lon_deg: float, alt_m: float, east_m: float, north_m: float
@@ -96,6 +85,10 @@ def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Gener
     attitude["yaw_deg"] = (attitude["yaw_deg"] + float(yaw_error)) % 360.0
     vessel["lat"], vessel["lon"] = _moved(vessel["lat"], vessel["lon"], 0.0, *vessel_en)
     vessel["heading_deg"] = (vessel["heading_deg"] + float(heading_error)) % 360.0
+    # the sensors' own figures, as a telemetry reader would write them (per-axis positions)
+    uav["position_sigma_m"] = vessel["position_sigma_m"] = round(axis_m, 4)
+    uav["alt_sigma_m"] = noise.height_m
+    attitude["yaw_sigma_deg"] = vessel["heading_sigma_deg"] = noise.heading_deg
     truth = noisy.setdefault("ground_truth", {})
     truth["true_pose"] = true_pose
     truth["pose_errors"] = {

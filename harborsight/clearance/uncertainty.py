@@ -1,0 +1,196 @@
+"""One standard deviation for every measured clearance, propagated from the sensors.
+
+A section's clearance is ``d = |O - H|``: ``O`` the obstacle point, back-projected from its
+pixel onto the water plane with the drone's pose, ``H`` the nearest hull point, placed by
+the vessel's pose. To first order a small error moves ``O`` by ``δO`` and ``H`` by ``δH``
+and changes the distance by ``u · (δO - δH)``, ``u = (O - H) / d`` (the nearest hull point
+may slide along the hull, which changes ``d`` only to second order). The sources are
+independent, so
+
+    sigma² = Σ_s (u · (δO_s - δH_s))²
+
+with each ``δ`` the displacement caused by a one-sigma error of source ``s``
+(:class:`~harborsight.geometry.sensor_sigmas.SensorSigmas`):
+
+* drone horizontal position (per axis): ``δO`` is that shift, ``δH = 0``;
+* drone height above the water, camera yaw, camera tilt about east and north: ``δO`` is
+  where the same pixel lands with the perturbed camera (exact back-projection, lens
+  included), minus where it lands now;
+* vessel position (per axis) and heading: ``δH`` is the shift, or the turn ``δψ · (r_n, -r_e)``
+  of ``r = H - V`` about the antenna ``V`` (heading is clockwise);
+* the clock between video and telemetry, when the frame gives both ground velocities:
+  ``δO - δH = σ_t · (v_uav - v_vessel)``;
+* the pixel grid: the edge lies anywhere in its pixel, whose extent along ``u`` on the
+  water is ``w = |u·J_u| + |u·J_v|`` (``J`` the pixel-to-water Jacobian): ``w / sqrt 12``;
+* the mask's edge: ``edge_px`` pixels across the edge, ``edge_px · |Jᵀu|``.
+
+When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
+any correction), the hull is placed by the image, not by the vessel's
+sensors. Then each camera error moves the hull as well: by the rigid motion (shift and
+turn) that best fits that error's displacement of the outline's points, which is what the
+alignment absorbs; only what no rigid motion absorbs is left (a height error scales the
+scene about the nadir: ``(d + u·(H - c))·δh / h`` remains, ``c`` the outline's centre). A
+drone shift or a camera yaw is absorbed entirely, and the vessel's position and heading
+errors are replaced by the alignment's own covariance, scaled by
+:data:`REFINEMENT_COVARIANCE_SCALE` (calibrated on the bench: see docs/results.md).
+
+Parts: ``sigma_random_m`` holds what changes from frame to frame (pixel grid, mask edge,
+the alignment); the rest (GPS, compasses, height, tilt, clock) drifts slowly and is not
+averaged away over frames, which matters to a filter over time. ``distance_lower_m`` is
+``max(0, d - 1.645 sigma)``: the one-sided 95 % bound of a normal error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
+from harborsight.clearance.report import STATUS_OK, SectionClearance
+from harborsight.frame import FrameGeometry
+from harborsight.geometry.camera import Camera
+from harborsight.geometry.sensor_sigmas import SensorSigmas
+
+#: z of the one-sided lower bound (5 % of a normal distribution lies below mean - z sigma)
+LOWER_BOUND_Z = 1.645
+LOWER_BOUND_QUANTILE = 0.05
+#: the alignment's Gauss-Newton covariance treats outline points as independent, which
+#: they are not (a mask's edge errors run along the edge): inflate its variance by this
+REFINEMENT_COVARIANCE_SCALE = 25.0
+_PIXEL_STEP = 0.5
+_UNIFORM_SIGMA = 1.0 / math.sqrt(12.0)
+
+
+@dataclass(frozen=True)
+class FrameVelocities:
+    """Ground velocities (east, north) in m/s of drone and vessel; None when unknown."""
+
+    uav_en_mps: tuple[float, float] | None = None
+    vessel_en_mps: tuple[float, float] | None = None
+
+
+def _world_rotation(axis: int, angle_rad: float) -> np.ndarray:
+    """Rotation by ``angle_rad`` about world axis 0 (east), 1 (north) or 2 (up)."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    rotation = np.eye(3)
+    rotation[i, i] = rotation[j, j] = c
+    rotation[i, j], rotation[j, i] = -s, s
+    return rotation
+
+
+def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
+    """The camera moved by one sigma of each camera error (height, yaw, tilt e, tilt n)."""
+    cameras = []
+    if sigmas.height_m > 0:
+        cameras.append(Camera(camera.intrinsics, camera.position_enu + np.array([0.0, 0.0, sigmas.height_m]),
+                              camera.world_from_camera))
+    for axis, sigma_deg in ((2, sigmas.camera_yaw_deg), (0, sigmas.camera_tilt_deg),
+                            (1, sigmas.camera_tilt_deg)):
+        if sigma_deg > 0:
+            turn = _world_rotation(axis, math.radians(sigma_deg))
+            cameras.append(Camera(camera.intrinsics, camera.position_enu,
+                                  turn @ camera.world_from_camera))
+    return cameras
+
+
+def _rigid_fit(points: np.ndarray, moved_by: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """Least-squares 2-D rigid motion (shift ``t``, small turn ``ω`` anticlockwise about the
+    centre ``c``) of displacements ``moved_by`` at ``points``: ``δ ≈ t + ω·perp(p - c)``."""
+    centre = points.mean(axis=0)
+    shift = moved_by.mean(axis=0)
+    rel, rest = points - centre, moved_by - shift
+    spread = float((rel ** 2).sum())
+    turn = float((rel[:, 0] * rest[:, 1] - rel[:, 1] * rest[:, 0]).sum() / spread) if spread else 0.0
+    return shift, turn, centre
+
+
+def _perp(vectors: np.ndarray) -> np.ndarray:
+    """Each 2-vector turned 90 degrees anticlockwise."""
+    return np.column_stack((-vectors[:, 1], vectors[:, 0]))
+
+
+def _back_project(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    return camera.back_project_to_plane(uv)[0][:, :2]
+
+
+def add_section_uncertainty(
+    sections: list[SectionClearance], geometry: FrameGeometry, outline_enu: np.ndarray,
+    refinement: PoseRefinement, sigmas: SensorSigmas,
+    velocities: FrameVelocities | None = None,
+) -> None:
+    """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
+    with a finite distance (module docstring). ``geometry`` is the one the distances were
+    measured with (refined or not); ``outline_enu`` the hull outline's points on the water."""
+    ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
+          and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
+    if not ok:
+        return
+    camera = geometry.camera
+    obstacle = np.array([s.obstacle_point_enu for s in ok], float)
+    hull = np.array([s.hull_point_enu for s in ok], float)
+    obstacle_px = np.array([s.obstacle_point_px for s in ok], float)
+    direction = obstacle - hull
+    length = np.hypot(*direction.T)
+    # in contact (d = 0) the direction is outward from the antenna through the hull point
+    outward = hull - geometry.vessel_position_enu
+    direction = np.where((length > 1e-6)[:, None], direction, outward)
+    u = direction / np.maximum(np.hypot(*direction.T), 1e-12)[:, None]
+
+    systematic = np.zeros(len(ok))
+    random = np.zeros(len(ok))
+    # the hull is placed by the image when the alignment moved it, and also when it found
+    # the sensors' pose fitting as well as any correction would
+    refined = refinement.applied or (refinement.reason == SENSORS_FIT
+                                     and refinement.covariance is not None)
+    outline = np.asarray(outline_enu, float)[:, :2]
+    outline_px, _ = camera.project(np.column_stack((outline, np.zeros(len(outline)))))
+    seen = np.isfinite(outline_px).all(axis=1)
+    here = _back_project(camera, obstacle_px)
+    outline_here = _back_project(camera, outline_px[seen]) if refined else None
+    for moved_camera in _perturbed_cameras(camera, sigmas):
+        shift_o = _back_project(moved_camera, obstacle_px) - here
+        shift_h = np.zeros_like(shift_o)
+        if refined and len(outline_here) >= 3:
+            moved_outline = _back_project(moved_camera, outline_px[seen]) - outline_here
+            usable = np.isfinite(moved_outline).all(axis=1)
+            if usable.sum() >= 3:
+                t, turn, centre = _rigid_fit(outline_here[usable], moved_outline[usable])
+                shift_h = t + turn * _perp(hull - centre)
+        systematic += np.nan_to_num(np.einsum("ij,ij->i", u, shift_o - shift_h)) ** 2
+    if not refined:
+        # drone shift moves O, vessel shift moves H: both along u in full (|u| = 1)
+        systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
+        r = hull - geometry.vessel_position_enu
+        turn_h = math.radians(sigmas.vessel_heading_deg) * np.column_stack((r[:, 1], -r[:, 0]))
+        systematic += np.einsum("ij,ij->i", u, turn_h) ** 2
+        if (velocities is not None and velocities.uav_en_mps is not None
+                and velocities.vessel_en_mps is not None):
+            relative = np.subtract(velocities.uav_en_mps, velocities.vessel_en_mps)
+            systematic += (sigmas.clock_s * (u @ relative)) ** 2
+    elif refinement.covariance is not None:
+        r = hull - geometry.vessel_position_enu
+        gradient = np.column_stack((u[:, 0], u[:, 1], u[:, 0] * r[:, 1] - u[:, 1] * r[:, 0]))
+        covariance = REFINEMENT_COVARIANCE_SCALE * np.asarray(refinement.covariance)
+        random += np.einsum("ij,jk,ik->i", gradient, covariance, gradient)
+
+    # pixel grid and mask edge, through the local pixel-to-water Jacobian at the obstacle
+    du, dv = np.array([_PIXEL_STEP, 0.0]), np.array([0.0, _PIXEL_STEP])
+    step_u = (_back_project(camera, obstacle_px + du)
+              - _back_project(camera, obstacle_px - du)) / (2 * _PIXEL_STEP)
+    step_v = (_back_project(camera, obstacle_px + dv)
+              - _back_project(camera, obstacle_px - dv)) / (2 * _PIXEL_STEP)
+    along_u = np.abs(np.einsum("ij,ij->i", u, step_u))
+    along_v = np.abs(np.einsum("ij,ij->i", u, step_v))
+    random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
+                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2))
+
+    total = np.sqrt(systematic + random)
+    for section, sigma, sigma_random in zip(ok, total, np.sqrt(random), strict=True):
+        if not math.isfinite(sigma):
+            continue
+        section.sigma_m = float(sigma)
+        section.sigma_random_m = float(sigma_random)
+        section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * float(sigma))

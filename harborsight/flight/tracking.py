@@ -1,0 +1,206 @@
+"""Per-section tracking of clearance and closing speed over time (a gated Kalman filter).
+
+Each track holds ``x = [d, ḋ]`` (clearance in metres and its rate; closing speed is ``-ḋ``)
+under a constant-velocity model with white acceleration of spectral density
+``q = accel_sigma_mps2²``:
+
+    F = [[1, Δt], [0, 1]],   Q = q · [[Δt³/3, Δt²/2], [Δt²/2, Δt]]
+
+and a reading ``z = d + e`` of variance ``R = sigma_random² + sigma_systematic² · min(1, Δt/τ)``.
+The frame-to-frame part of a reading's error (pixel grid, mask edge, the pose alignment) is
+white; the sensors' part (GPS, compasses, height) drifts with correlation time ``τ``
+(``drift_time_s``), so only what it can change between two readings enters ``R``. The
+reported ``sigma`` of a filtered distance adds the latest reading's systematic part back:
+averaging frames does not remove a GPS bias.
+
+Gating and tracks. A section may hold several tracks (obstacles): a reading updates the
+track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is within
+``gate_sigma``; else it starts a new track. Which track is *current* (reported):
+
+* the track a reading updated;
+* a reading **nearer** than the current track's prediction, beyond the gate, is reported at
+  once from its new track: the filter never hides a nearer obstacle (a boat entering the
+  band, or a false alarm, which errs on the safe side);
+* a reading **farther** than the prediction, beyond the gate, is held back as an outlier:
+  the current track coasts on its prediction (``state = "held"``) until ``confirm_frames``
+  readings in a row agree with the new track instead;
+* a track with no reading for ``max_coast_s`` is dropped; a section out of view or clear
+  coasts its current track meanwhile (``state = "coasting"``).
+
+So a boat passing between the hull and a quay takes its own track, and the quay's track
+keeps its closing speed and resumes when the quay is seen again. A closing speed is
+reported once a track has ``min_updates`` readings; time to contact is ``d̂ / closing speed``
+while the closing speed exceeds ``min_closing_mps``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    accel_sigma_mps2: float = 0.05
+    gate_sigma: float = 3.0
+    confirm_frames: int = 3
+    max_coast_s: float = 5.0
+    initial_speed_sigma_mps: float = 1.0
+    min_updates: int = 3
+    min_closing_mps: float = 0.05
+    drift_time_s: float = 60.0
+    #: the least one-sigma of a reading (m), when its own sigma is missing or tiny
+    min_reading_sigma_m: float = 0.02
+    max_tracks: int = 3
+
+    def __post_init__(self) -> None:
+        for name in ("accel_sigma_mps2", "gate_sigma", "max_coast_s", "initial_speed_sigma_mps",
+                     "drift_time_s", "min_reading_sigma_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value}")
+        for name in ("confirm_frames", "min_updates", "max_tracks"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+
+
+@dataclass
+class Reading:
+    """One frame's clearance of one section: distance and its sigma (total and random part)."""
+
+    distance_m: float
+    sigma_m: float | None = None
+    sigma_random_m: float | None = None
+
+
+@dataclass
+class _Track:
+    ident: int
+    time_s: float
+    state: np.ndarray                 # [d, ḋ]
+    covariance: np.ndarray            # 2x2
+    updates: int = 1
+    misses_in_row: int = 0            # readings in a row that went to another track
+    systematic_m: float = 0.0
+
+    def predicted(self, time_s: float, q: float) -> tuple[np.ndarray, np.ndarray]:
+        dt = max(time_s - self.time_s, 0.0)
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        Q = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+        return F @ self.state, F @ self.covariance @ F.T + Q
+
+
+@dataclass
+class SectionEstimate:
+    """What the tracker says of one section after a frame."""
+
+    distance_m: float | None = None
+    sigma_m: float | None = None
+    closing_speed_mps: float | None = None
+    closing_speed_sigma_mps: float | None = None
+    time_to_contact_s: float | None = None
+    track: int | None = None
+    state: str = "none"       # updated | new | held | coasting | none
+
+
+@dataclass
+class SectionTracker:
+    """The tracks of one section (module docstring)."""
+
+    settings: TrackerSettings = field(default_factory=TrackerSettings)
+    tracks: list[_Track] = field(default_factory=list)
+    current: _Track | None = None
+    _next_id: int = 0
+
+    def _reading_variance(self, reading: Reading, dt: float) -> tuple[float, float]:
+        s = self.settings
+        total = reading.sigma_m if reading.sigma_m is not None else s.min_reading_sigma_m
+        random = reading.sigma_random_m if reading.sigma_random_m is not None else total
+        systematic2 = max(total ** 2 - random ** 2, 0.0)
+        variance = max(random, s.min_reading_sigma_m) ** 2 + systematic2 * min(
+            1.0, dt / s.drift_time_s)
+        return variance, math.sqrt(systematic2)
+
+    def _new_track(self, time_s: float, reading: Reading) -> _Track:
+        variance, systematic = self._reading_variance(reading, self.settings.drift_time_s)
+        track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
+                       np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
+                       systematic_m=systematic)
+        self._next_id += 1
+        self.tracks.append(track)
+        if len(self.tracks) > self.settings.max_tracks:      # drop the stalest other track
+            others = [t for t in self.tracks if t is not track and t is not self.current]
+            self.tracks.remove(min(others or [t for t in self.tracks if t is not track],
+                                   key=lambda t: t.time_s))
+        return track
+
+    def step(self, time_s: float, reading: Reading | None) -> SectionEstimate:
+        """Advance to ``time_s`` (non-decreasing) with this frame's reading, or None when
+        the section has none (not ok, or cut by the image edge)."""
+        s = self.settings
+        q = s.accel_sigma_mps2 ** 2
+        self.tracks = [t for t in self.tracks if time_s - t.time_s <= s.max_coast_s]
+        if self.current is not None and self.current not in self.tracks:
+            self.current = None
+        if reading is None:
+            return self._estimate(time_s, "coasting" if self.current else "none")
+
+        best, best_score = None, math.inf
+        for track in self.tracks:
+            x, P = track.predicted(time_s, q)
+            variance, _ = self._reading_variance(reading, time_s - track.time_s)
+            score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
+            if score < best_score:
+                best, best_score = track, score
+        if best is not None and best_score <= s.gate_sigma:
+            self._update(best, time_s, reading)
+            state = "updated"
+        else:
+            best = self._new_track(time_s, reading)
+            state = "new"
+        for track in self.tracks:
+            if track is not best:
+                track.misses_in_row += 1
+        if self._takes_over(best, time_s):
+            self.current = best
+            return self._estimate(time_s, state)
+        return self._estimate(time_s, "held")
+
+    def _takes_over(self, track: _Track, time_s: float) -> bool:
+        """Whether the track that took this frame's reading becomes the current one."""
+        current = self.current
+        if current is None or track is current:
+            return True
+        if track.state[0] < current.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)[0][0]:
+            return True                     # never hide a nearer obstacle
+        confirm = self.settings.confirm_frames
+        return track.misses_in_row == 0 and current.misses_in_row >= confirm
+
+    def _update(self, track: _Track, time_s: float, reading: Reading) -> None:
+        x, P = track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+        variance, systematic = self._reading_variance(reading, time_s - track.time_s)
+        gain = P[:, 0] / (P[0, 0] + variance)
+        track.state = x + gain * (reading.distance_m - x[0])
+        track.covariance = P - np.outer(gain, P[0, :])
+        track.time_s = time_s
+        track.updates += 1
+        track.misses_in_row = 0
+        track.systematic_m = systematic
+
+    def _estimate(self, time_s: float, state: str) -> SectionEstimate:
+        track = self.current
+        if track is None:
+            return SectionEstimate(state="none")
+        x, P = track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+        estimate = SectionEstimate(
+            distance_m=max(float(x[0]), 0.0),
+            sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2),
+            track=track.ident, state=state)
+        if track.updates >= self.settings.min_updates:
+            estimate.closing_speed_mps = -float(x[1])
+            estimate.closing_speed_sigma_mps = math.sqrt(max(P[1, 1], 0.0))
+            if estimate.closing_speed_mps > self.settings.min_closing_mps:
+                estimate.time_to_contact_s = estimate.distance_m / estimate.closing_speed_mps
+        return estimate

@@ -1,0 +1,136 @@
+"""How wrong each pose sensor may be: one standard deviation per error source.
+
+A clearance depends on the drone's and the vessel's positions, the vessel's heading, the
+camera's yaw and tilt and its height above the water. Each is measured by a sensor with a
+known class of error. Where a frame's metadata carries its own figure (a receiver's
+reported accuracy, an RTK flag turned into metres by a telemetry reader) that figure is
+used; else the value given with ``--sigma NAME=VALUE``; else the default of the sensor class
+below. Defaults (one sigma):
+
+=====================  =========  ==========================================================
+name                   default    source
+=====================  =========  ==========================================================
+``uav_gps``            2.0 m      drone receiver, horizontal RMS (DRMS) of one standalone
+                                  GPS; per axis ``DRMS / sqrt(2)``. Classes: ``rtk`` 0.02,
+                                  ``dgps`` 0.5, ``standalone`` 2.0
+``vessel_gps``         2.0 m      the vessel's receiver, as above
+``vessel_heading_deg`` 2.0 deg    magnetic compass; ``gnss`` (dual-antenna) 0.3, ``gyro`` 0.5
+``camera_yaw_deg``     2.0 deg    the drone's compass, which sets the gimbal's yaw
+``camera_tilt_deg``    0.5 deg    a stabilised gimbal's pitch and roll, each
+``height_m``           1.0 m      barometric height plus the water level's
+``clock_s``            0.05 s     video vs telemetry clocks (needs the frames' velocities)
+``edge_px``            1.0 px     where the mask puts the obstacle's edge: a model's mask;
+                                  0.5 px for masks read from files
+=====================  =========  ==========================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+#: horizontal RMS error (m) of one receiver, by class
+GPS_CLASSES = {"rtk": 0.02, "dgps": 0.5, "standalone": 2.0}
+#: one sigma (deg) of a vessel's heading sensor, by class
+HEADING_CLASSES = {"magnetic": 2.0, "gnss": 0.3, "gyro": 0.5}
+#: the segmentation edge's sigma (px) of a mask read from a file (hand or simulator labels)
+LABEL_FILE_EDGE_PX = 0.5
+
+
+def _parse_class_or_number(text: str, classes: dict[str, float], unit: str) -> float:
+    key = str(text).strip().lower()
+    if key in classes:
+        return classes[key]
+    try:
+        value = float(key)
+    except ValueError:
+        raise ValueError(f"expected {', '.join(classes)} or {unit}, got {text!r}") from None
+    if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+        raise ValueError(f"expected {unit} from 0 to 1000, got {text!r}")
+    return value
+
+
+def parse_gps_noise(text: str) -> float:
+    """``rtk``, ``dgps``, ``standalone`` or a number of metres (horizontal RMS)."""
+    return _parse_class_or_number(text, GPS_CLASSES, "metres")
+
+
+@dataclass(frozen=True)
+class SensorSigmas:
+    """One sigma of every error source (metres, degrees, seconds, pixels); see module."""
+
+    uav_gps: float = GPS_CLASSES["standalone"]
+    vessel_gps: float = GPS_CLASSES["standalone"]
+    vessel_heading_deg: float = HEADING_CLASSES["magnetic"]
+    camera_yaw_deg: float = 2.0
+    camera_tilt_deg: float = 0.5
+    height_m: float = 1.0
+    clock_s: float = 0.05
+    edge_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in self.names():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    math.isfinite(value) and 0.0 <= value <= 1000.0):
+                raise ValueError(f"sigma {name} must be a number from 0 to 1000, got {value!r}")
+
+    @classmethod
+    def names(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+    @property
+    def uav_axis_m(self) -> float:
+        """Per-axis sigma of the drone's horizontal position (DRMS / sqrt 2)."""
+        return self.uav_gps / math.sqrt(2.0)
+
+    @property
+    def vessel_axis_m(self) -> float:
+        return self.vessel_gps / math.sqrt(2.0)
+
+    def with_values(self, values: dict[str, float]) -> SensorSigmas:
+        """A copy with some sigmas replaced (unknown names raise ValueError)."""
+        unknown = sorted(set(values) - set(self.names()))
+        if unknown:
+            raise ValueError(f"unknown sigma(s) {', '.join(unknown)}; known: "
+                             f"{', '.join(self.names())}")
+        return replace(self, **values)
+
+    def to_dict(self) -> dict[str, float]:
+        return {name: round(float(getattr(self, name)), 4) for name in self.names()}
+
+
+def parse_sigma_option(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of ``--sigma`` (VALUE may name a class: ``uav_gps=rtk``,
+    ``vessel_heading_deg=gnss``); raises ValueError naming what is wrong."""
+    name, sep, value = str(text).partition("=")
+    name = name.strip().replace("-", "_")
+    if not sep or not name:
+        raise ValueError(f"expected NAME=VALUE, got {text!r}")
+    if name not in SensorSigmas.names():
+        raise ValueError(f"unknown sigma {name!r}; known: {', '.join(SensorSigmas.names())}")
+    classes = (GPS_CLASSES if name in ("uav_gps", "vessel_gps")
+               else HEADING_CLASSES if name == "vessel_heading_deg" else {})
+    return name, _parse_class_or_number(value, classes, "a number")
+
+
+#: frame metadata fields (``harborsight.frame/1``, optional) that carry a sensor's own sigma,
+#: and the :class:`SensorSigmas` name each sets. Positions are per-axis sigmas in the file.
+FRAME_SIGMA_FIELDS = {
+    ("uav", "position_sigma_m"): "uav_gps",
+    ("uav", "alt_sigma_m"): "height_m",
+    ("camera_attitude", "yaw_sigma_deg"): "camera_yaw_deg",
+    ("camera_attitude", "tilt_sigma_deg"): "camera_tilt_deg",
+    ("vessel", "position_sigma_m"): "vessel_gps",
+    ("vessel", "heading_sigma_deg"): "vessel_heading_deg",
+}
+
+
+def sigmas_for_frame(base: SensorSigmas, frame_sigmas: dict[str, float]) -> SensorSigmas:
+    """``base`` with the frame's own figures (``FrameMetadata.sensor_sigmas``: keys as
+    :data:`FRAME_SIGMA_FIELDS` values; positions per axis, turned into DRMS here)."""
+    values = dict(frame_sigmas)
+    for name in ("uav_gps", "vessel_gps"):
+        if name in values:
+            values[name] = values[name] * math.sqrt(2.0)
+    return base.with_values(values) if values else base

@@ -1,0 +1,126 @@
+"""The per-section tracker: a gated Kalman filter of clearance and closing speed."""
+
+import numpy as np
+import pytest
+
+from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
+
+
+def _approach(times_s, start_m=10.0, speed_mps=0.4):
+    return start_m - speed_mps * np.asarray(times_s)
+
+
+def test_closing_speed_and_time_to_contact_of_a_steady_approach():
+    rng = np.random.default_rng(3)
+    times = np.arange(0, 20, 0.5)
+    truth = _approach(times)
+    tracker = SectionTracker()
+    for t, d in zip(times, truth + rng.normal(0, 0.05, len(times)), strict=True):
+        estimate = tracker.step(float(t), Reading(float(d), 0.05, 0.05))
+    assert estimate.state == "updated"
+    # the speed's own sigma is honest: the error is within 2.5 of it, and it is small
+    assert estimate.closing_speed_sigma_mps < 0.06
+    assert abs(estimate.closing_speed_mps - 0.4) < 2.5 * estimate.closing_speed_sigma_mps
+    # the filtered distance's sigma is below the readings' 0.05 m, and honest
+    assert estimate.sigma_m < 0.05
+    assert abs(estimate.distance_m - truth[-1]) < 2.5 * estimate.sigma_m
+    assert estimate.time_to_contact_s == pytest.approx(truth[-1] / 0.4, rel=0.2)
+
+
+def test_no_speed_until_enough_readings_and_none_before_any():
+    tracker = SectionTracker(TrackerSettings(min_updates=3))
+    assert tracker.step(0.0, None).state == "none"
+    assert tracker.step(0.5, Reading(5.0, 0.1, 0.1)).closing_speed_mps is None
+    assert tracker.step(1.0, Reading(4.8, 0.1, 0.1)).closing_speed_mps is None
+    assert tracker.step(1.5, Reading(4.6, 0.1, 0.1)).closing_speed_mps is not None
+
+
+def test_a_farther_outlier_is_held_back_and_does_not_move_the_speed():
+    times = np.arange(0, 10, 0.5)
+    tracker = SectionTracker()
+    speeds = []
+    for i, (t, d) in enumerate(zip(times, _approach(times), strict=True)):
+        reading = Reading(float(d) + (3.0 if i == 12 else 0.0), 0.05, 0.05)
+        estimate = tracker.step(float(t), reading)
+        if i == 12:
+            assert estimate.state == "held"
+            assert estimate.distance_m == pytest.approx(d, abs=0.1)
+        speeds.append(estimate.closing_speed_mps)
+    assert speeds[-1] == pytest.approx(0.4, abs=0.02)
+    assert speeds[13] == pytest.approx(0.4, abs=0.05)
+
+
+def test_a_nearer_reading_is_reported_at_once():
+    tracker = SectionTracker()
+    for t in np.arange(0, 3, 0.5):
+        tracker.step(float(t), Reading(8.0, 0.05, 0.05))
+    estimate = tracker.step(3.0, Reading(2.0, 0.05, 0.05))
+    assert estimate.state == "new"
+    assert estimate.distance_m == pytest.approx(2.0)
+    assert estimate.closing_speed_mps is None        # a new track has no speed yet
+
+
+def test_a_passing_boat_does_not_corrupt_the_quays_closing_speed():
+    """The quay closes at 0.3 m/s; a boat crosses the band 2 m nearer for 3 s, moving fast
+    (its distance falls by 1 m/s). After it has gone the quay's track resumes with its own
+    speed, and the readings return to it."""
+    times = np.arange(0, 30, 0.5)
+    quay = 12.0 - 0.3 * times
+    tracker = SectionTracker()
+    during, after = [], []
+    for t, d_quay in zip(times, quay, strict=True):
+        boat = 10 <= t < 13
+        distance = d_quay - 2.0 - 1.0 * (t - 10) if boat else d_quay
+        estimate = tracker.step(float(t), Reading(float(distance), 0.05, 0.05))
+        if boat:
+            during.append((estimate, distance))
+        elif t >= 16:
+            after.append(estimate)
+    assert during[0][0].state == "new"
+    # the nearer boat is what is reported while it is there
+    assert all(abs(e.distance_m - d) < 0.1 for e, d in during)
+    assert during[-1][0].closing_speed_mps == pytest.approx(1.3, abs=0.15)
+    quay_track = after[-1].track
+    assert all(e.track == quay_track for e in after)
+    assert after[0].closing_speed_mps == pytest.approx(0.3, abs=0.03)
+    assert after[-1].closing_speed_mps == pytest.approx(0.3, abs=0.01)
+
+
+def test_coasting_through_missing_frames_and_dropping_stale_tracks():
+    settings = TrackerSettings(max_coast_s=2.0)
+    tracker = SectionTracker(settings)
+    for t in np.arange(0, 5, 0.5):
+        tracker.step(float(t), Reading(float(10 - 0.5 * t), 0.05, 0.05))
+    coasting = tracker.step(6.0, None)               # 1.5 s without a reading
+    assert coasting.state == "coasting"
+    assert coasting.distance_m == pytest.approx(10 - 0.5 * 6.0, abs=0.05)
+    assert coasting.sigma_m > tracker.step(6.0, None).sigma_m * 0.99
+    gone = tracker.step(7.0, None)                   # 2.5 s: the track is dropped
+    assert gone.state == "none" and gone.distance_m is None
+    # a section that comes back starts afresh
+    assert tracker.step(7.5, Reading(6.0, 0.05, 0.05)).state == "new"
+
+
+def test_a_farther_obstacle_takes_over_after_confirm_frames():
+    tracker = SectionTracker(TrackerSettings(confirm_frames=3))
+    for t in np.arange(0, 3, 0.5):
+        tracker.step(float(t), Reading(4.0, 0.05, 0.05))
+    states = [tracker.step(3.0 + 0.5 * i, Reading(9.0, 0.05, 0.05)) for i in range(4)]
+    assert [e.state for e in states[:2]] == ["held", "held"]
+    assert states[2].state == "updated" and states[2].distance_m == pytest.approx(9.0, abs=0.05)
+
+
+def test_the_sensors_bias_is_not_averaged_away():
+    """A reading of sigma 1 m, 0.05 m of it random: many frames shrink the random part,
+    never the systematic 1 m."""
+    tracker = SectionTracker()
+    for t in np.arange(0, 20, 0.5):
+        estimate = tracker.step(float(t), Reading(5.0, 1.0, 0.05))
+    assert estimate.sigma_m == pytest.approx(1.0, abs=0.02)
+
+
+def test_settings_are_checked():
+    with pytest.raises(ValueError, match="gate_sigma"):
+        TrackerSettings(gate_sigma=0.0)
+    with pytest.raises(ValueError, match="confirm_frames"):
+        TrackerSettings(confirm_frames=0)
