@@ -12,7 +12,7 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from harborsight.cli import app
-from harborsight.cli.progress import plain_line, progress_report
+from harborsight.progress import plain_line, progress_report
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 runner = CliRunner()
@@ -28,6 +28,18 @@ def test_plain_line():
     assert plain_line("run", 120, 480, "frames", 70.4) == "run: 120/480 frames, 25 %, 0:01:10 elapsed"
     assert plain_line("segment", 3, None, "images", 3725, "2 skipped") == (
         "segment: 3 images, 1:02:05 elapsed, 2 skipped")
+
+
+def test_a_resumed_task_shows_the_time_left_from_its_own_pace():
+    console, buffer = _console(terminal=False)
+    now = [100.0]
+    with progress_report("training x", 100, console, unit="iterations", completed=40,
+                         remaining=True, every_s=3600, clock=lambda: now[0]) as report:
+        now[0] += 30.0
+        report.advance(10, note="loss 0.5000")     # 10 in 30 s: the other 50 take 150 s
+    assert buffer.getvalue().splitlines() == [
+        "training x: 50/100 iterations, 50 %, 0:00:30 elapsed, 0:02:30 left, loss 0.5000"]
+    assert plain_line("run", 3, 3, "frames", 9.0, remaining_s=0.0).endswith("elapsed, 0:00:00 left")
 
 
 def test_a_non_terminal_gets_a_line_every_few_seconds_and_one_at_the_end():

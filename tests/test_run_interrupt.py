@@ -84,3 +84,37 @@ def test_ctrl_c_stops_the_run_with_its_record_equal_to_the_disk(tmp_path):
     assert not list(out.rglob("*.part"))
     progress = [line for line in stdout.splitlines() if line.startswith("run: ")]
     assert progress[-1].startswith(f"run: {record['frames']}/{total} frames, "), stdout
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_ctrl_c_stops_measure_after_the_frame_in_hand(tmp_path):
+    flight = _long_flight(tmp_path)
+    total = len(list((flight / "frames").glob("*.json")))
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "harborsight.cli", "measure", str(flight), "--vessel", str(VESSEL),
+         "--out", str(out), "--no-tables"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(out.glob("*.json"))) < 3:
+            assert process.poll() is None, process.communicate()
+            assert time.monotonic() < deadline, "no report written in 120 s"
+            time.sleep(0.02)
+        process.send_signal(signal.SIGINT)
+        stdout, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, (stdout, stderr)
+    assert "Traceback" not in stderr and "Aborted" not in stderr
+    reports = sorted(p.stem for p in out.glob("*.json"))
+    assert 3 <= len(reports) < total
+    assert sorted(p.stem for p in out.glob("*.png")) == reports
+    [line] = [line for line in stderr.splitlines() if line.strip()]
+    assert line == (f"interrupted: {len(reports)} of {total} frame(s) measured before Ctrl-C; "
+                    f"the reports and overlays so far are in {out}")
+    assert not list(out.glob("*.part"))
+    progress = [line for line in stdout.splitlines() if line.startswith("measure: ")]
+    assert progress[-1].startswith(f"measure: {len(reports)}/{total} frames, "), stdout

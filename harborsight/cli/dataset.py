@@ -12,9 +12,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from harborsight.cli.app import app, console, err_console
-from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.files import check_output_folder
+from harborsight.progress import progress_report
 
 dataset_app = typer.Typer(rich_markup_mode=None, no_args_is_help=True,
                           help="Labelled datasets: import annotations made with COCO, LabelMe, "

@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from harborsight.cli.app import (
@@ -27,6 +26,7 @@ from harborsight.cli.app import (
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file, prepare_output_folder, strict_json, write_image
 from harborsight.perception.segment_images import SegmentMode
+from harborsight.progress import progress_report
 
 if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts faster
     from harborsight.clearance.measure import ClearanceSettings
@@ -101,17 +101,14 @@ def evaluate_segmentation_command(
             if path is not None:
                 prepare_output_file(path, option)
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
-        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                      TimeElapsedColumn(), console=console, transient=True) as progress:
-            task = progress.add_task("reading frames", total=None)
+        with progress_report("reading frames", None, console) as progress:
 
             def on_split(name: str, n_frames: int) -> None:
-                progress.update(task, description=f"scoring {name}", total=n_frames,
-                                completed=0)
+                progress.update(label=f"scoring {name}", total=n_frames, completed=0)
 
             result = evaluate_segmentation(
                 model, data, split or ["test"], fps_seconds, device, threads,
-                on_frame=lambda _: progress.advance(task), height_bin_m=height_bin_m,
+                on_frame=lambda _: progress.advance(), height_bin_m=height_bin_m,
                 by_object=by_object, on_split=on_split, options=options,
                 predictions=predictions)
     except HarborsightError as exc:
@@ -244,30 +241,28 @@ def evaluate_distance_command(
         err_console.print(f"error: {exc}", markup=False)
         raise typer.Exit(2) from None
     results, skipped = [], list(unreadable)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
-        for masks_name, source in sources:
-            for method in chosen:
-                task = progress.add_task(f"{masks_name} {method}", total=len(frames))
+    for masks_name, source in sources:
+        for method in chosen:       # a display each: a log gets one closing line per pass
+            with progress_report(f"{masks_name} {method}", len(frames), console) as progress:
 
-                def done(stem: str, error: str | None, task=task) -> None:
-                    progress.advance(task)
+                def done(stem: str, error: str | None, progress=progress) -> None:
+                    progress.advance()
                     if error:
                         skipped.append((stem, error))
 
                 results += evaluate_frames(data, frames, masks_name, source, method, done,
                                            clearance)
-        if by_obstacle:
-            kinds_of, kinds = truth_obstacle_kinds(data), {}
-            task = progress.add_task("obstacle kinds", total=len(frames))
+    if by_obstacle:
+        kinds_of, kinds = truth_obstacle_kinds(data), {}
+        with progress_report("obstacle kinds", len(frames), console) as progress:
             for frame in frames:
                 stem = Path(frame["image"]).stem
                 try:
                     kinds[stem] = kinds_of(frame)
                 except (HarborsightError, KeyError, ValueError) as exc:
                     skipped.append((stem, f"obstacle kinds: {type(exc).__name__}: {exc}"))
-                progress.advance(task)
-            attribute_obstacles(results, kinds)
+                progress.advance()
+        attribute_obstacles(results, kinds)
     written = write_outputs(results, out)
     drawn = _draw_worst_frames(data, frames, results, sources, chosen, out / "worst", worst,
                                skipped, clearance)

@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from harborsight.cli.app import (
@@ -28,6 +27,7 @@ from harborsight.cli.app import (
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
+from harborsight.progress import progress_report
 
 if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts faster
     from harborsight.clearance.measure import ClearanceSettings
@@ -73,16 +73,33 @@ def print_report_table(outcome: FrameOutcome) -> None:
 def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
                 model: Path | None = None, strict: bool = False) -> int:
-    """Measure a folder; exit code 1 if every frame failed (``strict``: if any did)."""
+    """Measure a folder; exit code 1 if every frame failed (``strict``: if any did), 130
+    when Ctrl-C stopped it (after the frame in hand: the reports and overlays written are
+    whole)."""
+    from harborsight.cli.run import stop_on_interrupt
     from harborsight.pipeline import discover_jobs, run_batch
 
     jobs = discover_jobs(folder, masks, segment=model is not None)
     segmenter = load_segmenter(model) if any(job.mask_path is None for job in jobs) else None
-    with Progress(TextColumn("[bold]measuring"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
-        task = progress.add_task("frames", total=len(jobs))
-        outcomes = run_batch(jobs, vessels, settings, out, camera,
-                             on_done=lambda _: progress.advance(task), segmenter=segmenter)
+    measured = skipped = 0
+    try:
+        with stop_on_interrupt() as stop, progress_report("measure", len(jobs), console) as report:
+
+            def done(outcome: FrameOutcome) -> None:
+                nonlocal measured, skipped
+                measured += outcome.error is None
+                skipped += outcome.error is not None
+                report.advance(note=f"{skipped} skipped" if skipped else "")
+                if stop.requested:
+                    raise KeyboardInterrupt
+
+            outcomes = run_batch(jobs, vessels, settings, out, camera, on_done=done,
+                                 segmenter=segmenter)
+    except KeyboardInterrupt:
+        err_console.print(f"interrupted: {measured} of {len(jobs)} frame(s) measured before "
+                          f"Ctrl-C; the reports and overlays so far are in {out}",
+                          markup=False, highlight=False)
+        return 130
     good = [o for o in outcomes if o.error is None]
     bad = [o for o in outcomes if o.error is not None]
     if show_tables:
@@ -181,6 +198,10 @@ def measure(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        err_console.print("interrupted: Ctrl-C before the measurement was written",
+                          markup=False, highlight=False)
+        raise typer.Exit(130) from None
     if tables:
         print_report_table(outcome)
     console.print(f"report: {outcome.report_path}\noverlay: {outcome.overlay_path}",

@@ -9,9 +9,9 @@ import typer
 from rich.markup import escape
 
 from harborsight.cli.app import app, console, err_console, load_segmenter
-from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.perception.segment_images import SegmentMode
+from harborsight.progress import progress_report
 
 #: help of --mode, --tile-overlap, --tile-scale and --max-side, shared with evaluate segmentation
 MODE_HELP = ("How a frame of another size than the model input (640x360 for the default "

@@ -14,9 +14,9 @@ from harborsight.cli.app import (
     console,
     err_console,
 )
-from harborsight.cli.progress import progress_report
 from harborsight.errors import HarborsightError
 from harborsight.files import write_image
+from harborsight.progress import progress_report
 
 
 class Preset(StrEnum):

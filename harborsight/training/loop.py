@@ -54,13 +54,13 @@ import numpy as np
 import torch
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from harborsight.errors import HarborsightError, InputError
 from harborsight.evaluation.segmentation import SegmentationScores, score_frames
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.model import SegmentationModel, TorchSegmenter
 from harborsight.perception.networks import NETWORKS, create_network
+from harborsight.progress import progress_report
 from harborsight.training.augment import AugmentConfig, augment, augment_weighted
 from harborsight.training.checkpoint import (
     AUX_STATE_PREFIX,
@@ -656,18 +656,18 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     )
     weights = config.effective_aux_weights
     result = TrainResult(out_dir, start, val_miou=val_miou, best_val_miou=best_miou)
-    columns = [TextColumn("[bold]training {task.fields[net]}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("loss {task.fields[loss]:.4f}  lr {task.fields[lr]:.2e}  "
-                          "keep {task.fields[keep]:.0%}  val mIoU {task.fields[miou]}"),
-               TimeRemainingColumn()]
+    miou_text = "—" if val_miou is None else f"{val_miou:.3f}"
+
+    def status(loss_value: float, lr: float, keep: float) -> str:
+        return f"loss {loss_value:.4f}, lr {lr:.2e}, keep {keep:.0%}, val mIoU {miou_text}"
+
     t0 = time.perf_counter()
     # line-buffered: each iteration's line is on disk at once, for `tail -f` and after a kill
     log = log_path.open("a", buffering=1)
-    with log, Progress(*columns, console=console, disable=not show_progress,
-                       transient=False) as progress:
-        task = progress.add_task("train", total=config.iterations, completed=start, net=config.model,
-                                 loss=math.nan, lr=config.lr, keep=1.0,
-                                 miou="—" if val_miou is None else f"{val_miou:.3f}")
+    with log, progress_report(f"training {config.model}", config.iterations, console,
+                              unit="iterations", transient=False, enabled=show_progress,
+                              completed=start, remaining=True) as progress:
+        progress.update(note=status(math.nan, config.lr, 1.0))
         iteration = start
         for images, labels, pixel_weights in loader:
             lr = learning_rate(config, iteration)
@@ -705,10 +705,10 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                 if math.isfinite(val_miou) and (best_miou is None or val_miou > best_miou):
                     best_miou = val_miou
                     save_checkpoint(best_path, payload(iteration, full=False))
-                progress.update(task, miou=f"{val_miou:.3f}")
+                miou_text = f"{val_miou:.3f}"
             if iteration % config.checkpoint_every == 0 or iteration == stop:
                 log.flush()
                 save_checkpoint(last_path, payload(iteration, full=True))
-            progress.update(task, advance=1, loss=loss_value, lr=lr, keep=keep)
+            progress.advance(note=status(loss_value, lr, keep))
     result.iteration, result.val_miou, result.best_val_miou = iteration, val_miou, best_miou
     return result
