@@ -57,6 +57,8 @@ class FrameOutcome:
 
 def read_image(path: Path) -> np.ndarray:
     """BGR image; a clear error for a missing or unreadable file."""
+    if path.is_dir():
+        raise InputError(path, None, "is a folder, not an image file")
     if not path.is_file():
         raise InputError(path, None, "image file not found")
     image, reason = decode_image_file(path, cv2.IMREAD_COLOR)  # a cut JPEG decodes half grey
@@ -69,6 +71,8 @@ def read_image(path: Path) -> np.ndarray:
 
 def read_mask(path: Path) -> np.ndarray:
     """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
+    if path.is_dir():
+        raise InputError(path, "mask", "is a folder, not a mask file")
     if not path.is_file():
         raise InputError(path, "mask", "mask file not found")
     mask, reason = decode_image_file(path, cv2.IMREAD_UNCHANGED)
@@ -136,11 +140,20 @@ def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter
 
 def frame_image_path(job: FrameJob, meta: FrameMetadata) -> Path:
     """The image of a job: the file named like its JSON, else the one its ``image`` key
-    names (in ``images/``, beside the JSON or in the root); the path reported as not found
-    is the one beside the JSON."""
+    names (in ``images/``, beside the JSON or in the root); where there is none, a folder
+    that stands in one of those places under the image's name (reported as a folder), else
+    the path beside the JSON (reported as not found)."""
     if job.image_path is not None:
         return job.image_path
-    return find_frame_image(job.meta_path, meta.image) or job.meta_path.parent / meta.image
+    found = find_frame_image(job.meta_path, meta.image)
+    if found is not None:
+        return found
+    names = [meta.image] + [job.meta_path.stem + ext for ext in IMAGE_EXTENSIONS]
+    for folder in image_folders(job.meta_path):
+        for name in names:
+            if (folder / name).is_dir():
+                return folder / name
+    return job.meta_path.parent / meta.image
 
 
 def measure_job(

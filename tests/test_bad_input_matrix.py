@@ -217,6 +217,12 @@ def _single_frame_5000_digits(data: Path, out: Path) -> list[str]:
             "--no-tables", "--out", str(out)]
 
 
+def _single_frame_folder_as_mask(data: Path, out: Path) -> list[str]:
+    return ["measure", str(data / "images" / "000000.png"), "--meta",
+            str(data / "frames" / "000000.json"), "--mask", str(data / "labels"),
+            "--no-tables", "--out", str(out)]
+
+
 def _srt_in_year_9999(data: Path, out: Path) -> list[str]:
     srt = _srt(data, "9999-12-31 23:59:57")
     return ["telemetry", "video", str(srt), "--vessel-track", str(LOGS / "ship.nmea"), "--camera",
@@ -242,6 +248,8 @@ WHOLE = [
               lambda d: "a-file", ("--out", "not a folder")),
     WholeCase("one frame with a 5000-digit number", _single_frame_5000_digits,
               lambda d: "000000.json", ("'distortion'", "5000 digits")),
+    WholeCase("one frame with a folder as --mask", _single_frame_folder_as_mask,
+              lambda d: "labels", ("mask", "is a folder, not a mask file")),
     WholeCase("SRT dates past the year 9999", _srt_in_year_9999,
               lambda d: "flight.srt", ("date", "after 9999")),
 ]
@@ -262,9 +270,6 @@ def test_a_bad_input_to_a_whole_command_is_one_line_and_exit_2(samples, tmp_path
         assert (samples / "a-file").read_text() == "keep me"
 
 
-@pytest.mark.xfail(strict=False, reason="pipeline.py (not this module's) looks for an image "
-                   "named like the frame and reports the first place it tried, frames/<stem>.png, "
-                   "as 'not found' instead of the folder in images/ that stands where the image is")
 def test_a_folder_where_a_frame_image_is_expected_is_named(samples, tmp_path):
     image = samples / "images" / "000003.png"
     image.unlink()
