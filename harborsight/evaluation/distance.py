@@ -300,7 +300,7 @@ def evaluate_frames(
             if on_frame:
                 on_frame(stem, f"{frame_path}: {type(exc).__name__}: {exc}")
             continue
-        altitude = round(meta.height_above_water_m)
+        altitude = round(_true_height_m(frame, meta.height_above_water_m))
         for s, t in zip(report.sections, truth, strict=True):
             if s.status not in (STATUS_OK, STATUS_CLEAR):
                 continue
@@ -314,6 +314,16 @@ def evaluate_frames(
         if on_frame:
             on_frame(stem, None)
     return results
+
+
+def _true_height_m(frame: dict, measured_m: float) -> float:
+    """The drone's true height above the water: from ``ground_truth.true_pose`` in frames
+    with sensor noise (``dataset add-pose-noise``), else the frame's own."""
+    true_pose = (frame.get("ground_truth") or {}).get("true_pose") or {}
+    try:
+        return float(true_pose["uav"]["alt_m"]) - float(frame.get("water_level_m") or 0.0)
+    except (KeyError, TypeError, ValueError):
+        return measured_m
 
 
 @dataclass

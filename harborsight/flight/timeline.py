@@ -1,14 +1,18 @@
 """Per-section clearance over time: closing speed, time to contact, the CSV and the plot.
 
-Closing speed of section k at time t is minus the least-squares slope of its distance over
-the samples of the last ``window_s`` seconds (at least ``min_samples`` of them):
+Two estimates of each section's closing speed are kept side by side:
 
-    v_k(t) = -Σ (t_i - t̄)(d_i - d̄) / Σ (t_i - t̄)²,   t - window_s <= t_i <= t
+* **filtered** (``closing_speed_mps``, ``filtered_distance_m``, ``time_to_contact_s``): the
+  gated per-section Kalman tracker of :mod:`harborsight.flight.tracking`, fed with each
+  frame's distance and its sigma; robust to outliers, missing frames, sections entering and
+  leaving the view, and obstacles that come and go (each gets its own track);
+* **raw** (``closing_speed_raw_mps``): minus the least-squares slope of the distance over the
+  samples of the last ``window_s`` seconds (at least ``min_samples`` of them):
 
-so a positive speed means the gap is shrinking. A fit over a window rather than a
-difference of two frames keeps the pixel quantisation (one GSD per frame) from dominating:
-over n samples spread over T seconds its effect on the slope falls roughly as
-GSD / (T·√n). Time to contact is d / v while v exceeds ``min_closing_mps``.
+      v_k(t) = -Σ (t_i - t̄)(d_i - d̄) / Σ (t_i - t̄)²,   t - window_s <= t_i <= t
+
+A positive speed means the gap is shrinking. Time to contact is the filtered distance over
+the filtered closing speed while that exceeds the tracker's ``min_closing_mps``.
 """
 
 from __future__ import annotations
@@ -20,14 +24,18 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
+
 from harborsight.clearance.report import STATUS_OK, ClearanceReport
 from harborsight.errors import InputError
+from harborsight.flight.tracking import Reading, SectionEstimate, SectionTracker, TrackerSettings
 from harborsight.frame import FrameMetadata
 
 CSV_COLUMNS = [
     "frame", "image", "timestamp", "time_s", "altitude_m", "gsd_m_per_px", "method", "section",
-    "status", "distance_m", "distance_px", "contact", "truncated", "closing_speed_mps",
-    "time_to_contact_s",
+    "status", "distance_m", "sigma_m", "distance_lower_m", "distance_px", "contact", "truncated",
+    "closing_speed_raw_mps", "filtered_distance_m", "filtered_sigma_m", "closing_speed_mps",
+    "closing_speed_sigma_mps", "time_to_contact_s", "track", "track_state",
 ]
 
 
@@ -63,8 +71,18 @@ def least_squares_slope(times_s: list[float], values: list[float]) -> float:
 
 @dataclass
 class SectionTrend:
-    closing_speed_mps: float | None
-    time_to_contact_s: float | None
+    """One section after a frame: the raw window fit and the tracker's estimate."""
+
+    closing_speed_raw_mps: float | None = None
+    estimate: SectionEstimate = field(default_factory=SectionEstimate)
+
+    @property
+    def closing_speed_mps(self) -> float | None:
+        return self.estimate.closing_speed_mps
+
+    @property
+    def time_to_contact_s(self) -> float | None:
+        return self.estimate.time_to_contact_s
 
 
 @dataclass
@@ -83,9 +101,10 @@ class ClearanceTimeline:
 
     window_s: float = 2.0
     min_samples: int = 3
-    min_closing_mps: float = 0.05
     resync_frames: int = 3
+    tracker_settings: TrackerSettings = field(default_factory=TrackerSettings)
     rows: list[dict] = field(default_factory=list)
+    _trackers: dict[int, SectionTracker] = field(default_factory=dict)
     _history: dict[int, deque] = field(default_factory=lambda: defaultdict(deque))
     _last_time_s: float | None = None
     _behind: list[tuple[int, float]] = field(default_factory=list)   # (frame, time_s)
@@ -113,6 +132,7 @@ class ClearanceTimeline:
                     self._history[row["section"]].append((row["time_s"], row["distance_m"]))
             self._off_clock_frames.update(ahead)
             self._off_clock_frames.difference_update(behind_frames)
+            self._trackers.clear()          # the tracks ran on the wrong clock: start afresh
             warning = (f"{len(self._behind)} frames in a row are before {self._last_time_s:.3f} s:"
                        f" the time of frame(s) {', '.join(map(str, ahead))} is taken as wrong, "
                        "left out of the closing speeds from here on, and the clock follows the "
@@ -132,7 +152,7 @@ class ClearanceTimeline:
                                                                                   time_s)
         trends, rows = {}, []
         for section in report.sections:
-            trend = SectionTrend(None, None)
+            trend = SectionTrend()
             fits = section.status == STATUS_OK and not section.truncated
             if timed:
                 history = self._history[section.index]
@@ -144,20 +164,31 @@ class ClearanceTimeline:
                     times, distances = zip(*history, strict=True)
                     slope = least_squares_slope(list(times), list(distances))
                     if math.isfinite(slope):
-                        trend.closing_speed_mps = -slope
-                        if -slope > self.min_closing_mps:
-                            trend.time_to_contact_s = section.distance_m / -slope
+                        trend.closing_speed_raw_mps = -slope
+                tracker = self._trackers.setdefault(
+                    section.index, SectionTracker(self.tracker_settings))
+                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
+                           if fits else None)
+                trend.estimate = tracker.step(time_s, reading)
             trends[section.index] = trend
+            estimate = trend.estimate
             rows.append({
                 "frame": frame_index, "image": report.image, "timestamp": report.timestamp or "",
                 "time_s": _round(time_s, 3), "altitude_m": round(report.altitude_m, 2),
                 "gsd_m_per_px": round(report.gsd_m_per_px, 5), "method": report.method,
                 "section": section.index, "status": section.status,
                 "distance_m": _round(section.distance_m, 3),
+                "sigma_m": _round(section.sigma_m, 3),
+                "distance_lower_m": _round(section.distance_lower_m, 3),
                 "distance_px": _round(section.distance_px, 2),
                 "contact": int(section.contact), "truncated": int(section.truncated),
-                "closing_speed_mps": _round(trend.closing_speed_mps, 3),
-                "time_to_contact_s": _round(trend.time_to_contact_s, 1),
+                "closing_speed_raw_mps": _round(trend.closing_speed_raw_mps, 3),
+                "filtered_distance_m": _round(estimate.distance_m, 3),
+                "filtered_sigma_m": _round(estimate.sigma_m, 3),
+                "closing_speed_mps": _round(estimate.closing_speed_mps, 3),
+                "closing_speed_sigma_mps": _round(estimate.closing_speed_sigma_mps, 3),
+                "time_to_contact_s": _round(estimate.time_to_contact_s, 1),
+                "track": estimate.track, "track_state": estimate.state if timed else "",
             })
         if timed:
             self._last_time_s = time_s
@@ -195,12 +226,15 @@ class ClearanceTimeline:
                                          height_ratios=[2, 1], constrained_layout=True)
         for colour, k in zip(colours, sections, strict=True):
             rows = [r for r in measured if r["section"] == k]
-            ax_d.plot([r[x_key] for r in rows], [r["distance_m"] for r in rows], ".-", ms=3,
-                      lw=1, color=colour, label=f"section {k}")
+            ax_d.plot([r[x_key] for r in rows], [r["distance_m"] for r in rows], ".", ms=3,
+                      color=colour, label=f"section {k}")
+            filtered = [r for r in rows if r["filtered_distance_m"] is not None]
+            ax_d.plot([r[x_key] for r in filtered], [r["filtered_distance_m"] for r in filtered],
+                      "-", lw=1.2, color=colour)
         ax_d.axhspan(0, alarm_m, color="tab:red", alpha=0.12, lw=0)
         ax_d.axhspan(alarm_m, warn_m, color="tab:orange", alpha=0.10, lw=0)
         ax_d.set_ylim(bottom=0)
-        ax_d.set_ylabel("clearance (m)")
+        ax_d.set_ylabel("clearance (m)\n(dots: each frame; lines: filtered)")
         ax_d.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
                     ncol=1 + len(sections) // 17)
         ax_d.grid(alpha=0.3)
@@ -210,8 +244,12 @@ class ClearanceTimeline:
             if best is None or r["distance_m"] < best["distance_m"]:
                 closest[r["frame"]] = r
         rows = [closest[f] for f in sorted(closest) if closest[f]["closing_speed_mps"] is not None]
-        ax_v.plot([r[x_key] for r in rows], [r["closing_speed_mps"] for r in rows], "k.-", ms=3,
-                  lw=1)
+        x = [r[x_key] for r in rows]
+        speed = np.array([r["closing_speed_mps"] for r in rows], float)
+        spread = np.array([r["closing_speed_sigma_mps"] or 0.0 for r in rows], float)
+        ax_v.fill_between(x, speed - spread, speed + spread, color="grey", alpha=0.25, lw=0,
+                          label="± one sigma")
+        ax_v.plot(x, speed, "k.-", ms=3, lw=1, label="filtered")
         ax_v.axhline(0, color="grey", lw=0.8)
         ax_v.set_ylabel("closing speed of the\nclosest section (m/s)")
         ax_v.set_xlabel(x_label)

@@ -124,7 +124,7 @@ class SectionTracker:
         return variance, math.sqrt(systematic2)
 
     def _new_track(self, time_s: float, reading: Reading) -> _Track:
-        variance, systematic = self._reading_variance(reading, self.settings.drift_time_s)
+        variance, systematic = self._reading_variance(reading, 0.0)   # the bias is added later
         track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
                        np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
                        systematic_m=systematic)

@@ -61,6 +61,12 @@ def section_colour(distance_m: float | None, warn_m: float, alarm_m: float):
     return GREEN
 
 
+def alarm_distance_m(section) -> float | None:
+    """The distance the colours go by: the 95 % lower bound where the section has one (a
+    section whose gap may be under the alarm distance shows red), else the distance."""
+    return section.distance_m if section.distance_lower_m is None else section.distance_lower_m
+
+
 def draw_overlay(
     image_bgr: np.ndarray, report: ClearanceReport, *, warn_m: float = 5.0, alarm_m: float = 2.0,
     footer: str | None = None,
@@ -84,7 +90,7 @@ def draw_overlay(
     for s, end in zip(report.sections, ends, strict=True):
         if s.status not in (STATUS_OK, STATUS_CLEAR) or not np.isfinite(end).all():
             continue
-        colour = section_colour(s.distance_m, warn_m, alarm_m)
+        colour = section_colour(alarm_distance_m(s), warn_m, alarm_m)
         piece = _clipped(end[0], end[1], w, h)
         if piece is not None:
             cv2.line(out, _fixed(piece[0]), _fixed(piece[1]), colour, thickness, cv2.LINE_AA,
@@ -105,8 +111,10 @@ def draw_overlay(
             if _on_canvas(s.obstacle_point_px, w, h):
                 cv2.circle(out, _fixed(s.obstacle_point_px), 2 * _SCALE, YELLOW, -1,
                            cv2.LINE_AA, _SHIFT)
-            text = f"{s.distance_m:.1f}m" + ("!" if s.contact else "")
-            colour = section_colour(s.distance_m, warn_m, alarm_m)
+            # OpenCV's Hershey fonts have no "±"; the colour follows the 95 % lower bound
+            spread = "" if s.sigma_m is None else f"+-{s.sigma_m:.1f}"
+            text = f"{s.distance_m:.1f}{spread}m" + ("!" if s.contact else "")
+            colour = section_colour(alarm_distance_m(s), warn_m, alarm_m)
         else:
             text, colour = "??", WHITE
         _label(out, text, mid + outward * 18 * scale / 0.5, colour, scale)
