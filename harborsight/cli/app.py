@@ -58,7 +58,8 @@ def check_masks_folder(masks: Path | None) -> None:
 
 
 def clearance_settings(method: Method, sections: int | None, section_length_m: float | None,
-              pose_margin_px: float, own_rim_px: int, refine_pose: bool = True) -> ClearanceSettings:
+              pose_margin_px: float, own_rim_px: int, refine_pose: bool = True,
+              sigma: list[str] | None = None) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
     from harborsight.clearance.pose_refinement import PoseRefinementSettings
 
@@ -68,7 +69,31 @@ def clearance_settings(method: Method, sections: int | None, section_length_m: f
     return ClearanceSettings(method=method.value, pose_margin_px=pose_margin_px,
                              own_rim_px=own_rim_px, n_sections=sections,
                              section_length_m=section_length_m,
-                             pose_refinement=PoseRefinementSettings(enabled=refine_pose))
+                             pose_refinement=PoseRefinementSettings(enabled=refine_pose),
+                             sigma_options=parse_sigma_options(sigma))
+
+
+def parse_sigma_options(values: list[str] | None) -> tuple[tuple[str, float], ...]:
+    """The ``--sigma NAME=VALUE`` options, checked (the last of a name wins)."""
+    from harborsight.geometry.sensor_sigmas import parse_sigma_option
+
+    chosen: dict[str, float] = {}
+    for text in values or []:
+        try:
+            name, value = parse_sigma_option(text)
+        except ValueError as exc:
+            raise InputError(None, "--sigma", str(exc)) from None
+        chosen[name] = value
+    return tuple(chosen.items())
+
+
+#: help of --sigma, shared by measure, run and evaluate distance
+SIGMA_HELP = ("One sigma of a sensor's error, for frames whose metadata does not carry its own "
+              "(repeatable): uav_gps and vessel_gps (horizontal RMS, m, or rtk / dgps / "
+              "standalone), vessel_heading_deg (or magnetic / gnss / gyro), camera_yaw_deg, "
+              "camera_tilt_deg, height_m, clock_s, edge_px. Defaults: standalone GPS, 2 deg "
+              "compasses, 0.5 deg tilt, 1 m height, 0.05 s clock, 4 px model edge (0.5 px for "
+              "mask files). Each ok section then carries sigma_m and distance_lower_m.")
 
 
 #: defaults of --pose-margin-px and --own-rim-px: ClearanceSettings.pose_margin_px and

@@ -17,11 +17,13 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SIGMA_HELP,
     Method,
     app,
     console,
     err_console,
     fmt_number,
+    parse_sigma_options,
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file, prepare_output_folder, strict_json, write_image
@@ -193,6 +195,7 @@ def evaluate_distance_command(
         "water, and reports a touching obstacle that much farther away.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
 ) -> None:
     """Per-section distance error against ground truth by altitude: CSV, Markdown, box and
     bar plots, side by side for each mask source and conversion method."""
@@ -211,7 +214,8 @@ def evaluate_distance_command(
     )
 
     clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
-                                  pose_refinement=PoseRefinementSettings(enabled=refine_pose))
+                                  pose_refinement=PoseRefinementSettings(enabled=refine_pose),
+                                  sigma_options=parse_sigma_options(sigma))
     chosen = [m.strip() for m in methods.split(",") if m.strip()]
     bad = [m for m in chosen if m not in {m.value for m in Method}]
     if bad or not chosen:

@@ -15,6 +15,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SIGMA_HELP,
     Method,
     app,
     check_masks_folder,
@@ -49,6 +50,8 @@ def print_report_table(outcome: FrameOutcome) -> None:
     table.add_column("section", justify="right")
     table.add_column("status")
     table.add_column("distance m", justify="right")
+    table.add_column("± m", justify="right")
+    table.add_column("≥ m (95 %)", justify="right")
     table.add_column("pixels", justify="right")
     if truth:
         table.add_column("truth m", justify="right")
@@ -56,8 +59,10 @@ def print_report_table(outcome: FrameOutcome) -> None:
     table.add_column("notes")
     for s in report.sections:
         notes = ", ".join(n for n, on in (("contact", s.contact), ("cut by frame", s.truncated)) if on)
-        style = "bold red" if s.status == STATUS_OK and s.distance_m < 2 else None
-        row = [str(s.index), s.status, fmt_number(s.distance_m, 2), fmt_number(s.distance_px, 1)]
+        nearest_m = s.distance_lower_m if s.distance_lower_m is not None else s.distance_m
+        style = "bold red" if s.status == STATUS_OK and nearest_m < 2 else None
+        row = [str(s.index), s.status, fmt_number(s.distance_m, 2), fmt_number(s.sigma_m, 2),
+               fmt_number(s.distance_lower_m, 2), fmt_number(s.distance_px, 1)]
         if truth:
             t = truth.get(s.index)
             err = (None if s.distance_m is None or t is None
@@ -165,6 +170,7 @@ def measure(
         "error.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
@@ -176,7 +182,7 @@ def measure(
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
         settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px,
-                                      refine_pose)
+                                      refine_pose, sigma)
         prepare_output_folder(out, "--out", inputs=input_folders(input_path, meta, mask, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)

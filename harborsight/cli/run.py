@@ -18,6 +18,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SIGMA_HELP,
     Method,
     app,
     check_masks_folder,
@@ -132,6 +133,7 @@ def run_command(
         help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
     fps: Annotated[float | None, typer.Option(
@@ -176,7 +178,7 @@ def run_command(
             source = VideoSource(input_path, metadata, camera=intrinsics)
             segmenter = load_segmenter(model)
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
-                                                pose_margin_px, own_rim_px, refine_pose),
+                                                pose_margin_px, own_rim_px, refine_pose, sigma),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)
         vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,

@@ -357,6 +357,7 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "n_sections": options.settings.n_sections,
                            "section_length_m": options.settings.section_length_m,
                            "closing_window_s": options.window_s,
+                           "sigma_options": dict(options.settings.sigma_options),
                            "video_fps": video_fps,
                            "model": str(segmenter.path) if segmenter is not None else None},
               **summary.to_dict()}

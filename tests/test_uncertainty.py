@@ -1,0 +1,223 @@
+"""A sigma for every distance: hand calculations of each term, and a Monte-Carlo check."""
+
+import json
+import math
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.pose_refinement import PoseRefinement, PoseRefinementSettings
+from harborsight.clearance.report import SectionClearance
+from harborsight.clearance.uncertainty import LOWER_BOUND_Z, add_section_uncertainty
+from harborsight.frame import FrameGeometry, parse_frame_metadata
+from harborsight.geometry.camera import Camera, CameraIntrinsics
+from harborsight.geometry.geodesy import GeoOrigin
+from harborsight.geometry.rotations import world_from_camera_rotation
+from harborsight.geometry.sensor_sigmas import SensorSigmas, parse_sigma_option, sigmas_for_frame
+from harborsight.sim.pose_noise import PoseNoise, add_pose_noise
+from harborsight.vessel.spec import load_vessel_spec
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+HEIGHT_M, FOCAL_PX = 50.0, 500.0
+GSD_M = HEIGHT_M / FOCAL_PX
+QUANTISATION_M = GSD_M / math.sqrt(12.0)
+ZERO = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
+                    camera_tilt_deg=0, height_m=0, clock_s=0, edge_px=0)
+BOX = np.array([[10.0, 3.0], [10.0, -3.0], [-10.0, -3.0], [-10.0, 3.0]])   # centred on (0, 0)
+
+
+def _nadir(camera_east_m: float = 0.0) -> FrameGeometry:
+    intrinsics = CameraIntrinsics(1000, 1000, FOCAL_PX, FOCAL_PX, 499.5, 499.5)
+    rotation = world_from_camera_rotation(0.0, math.radians(-90.0), 0.0)
+    camera = Camera(intrinsics, np.array([camera_east_m, 0.0, HEIGHT_M]), rotation)
+    return FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
+
+
+def _section(geometry: FrameGeometry, hull_en, obstacle_en) -> SectionClearance:
+    hull_en, obstacle_en = np.asarray(hull_en, float), np.asarray(obstacle_en, float)
+    obstacle_px = geometry.camera.project(np.array([[*obstacle_en, 0.0]]))[0][0]
+    return SectionClearance(0, "ok", [[0, 0], [1, 1]], 1.0,
+                            distance_m=float(np.hypot(*(obstacle_en - hull_en))),
+                            hull_point_enu=hull_en.tolist(), obstacle_point_enu=obstacle_en.tolist(),
+                            obstacle_point_px=obstacle_px.tolist())
+
+
+def _sigma(geometry, hull_en, obstacle_en, sigmas, refinement=None) -> SectionClearance:
+    section = _section(geometry, hull_en, obstacle_en)
+    outline_enu = np.column_stack((BOX, np.zeros(len(BOX))))
+    add_section_uncertainty([section], geometry, outline_enu,
+                            refinement or PoseRefinement(applied=False, reason="off"), sigmas)
+    return section
+
+
+def test_pixel_grid_alone_is_a_uniform_pixel():
+    section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0], ZERO)
+    assert section.sigma_m == pytest.approx(QUANTISATION_M, rel=1e-3)
+    assert section.sigma_random_m == pytest.approx(QUANTISATION_M, rel=1e-3)
+    assert section.distance_lower_m == pytest.approx(3.0 - LOWER_BOUND_Z * QUANTISATION_M)
+
+
+def test_height_scales_the_obstacle_about_the_nadir():
+    # camera 20 m east of the antenna: the obstacle at east 8 m is 12 m west of the nadir,
+    # and a 1 m height error moves it by 12/50 m along u
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0],
+                     SensorSigmas(**{**ZERO.to_dict(), "height_m": 1.0}))
+    assert section.sigma_m == pytest.approx(math.hypot(12.0 / HEIGHT_M, QUANTISATION_M), rel=1e-3)
+
+
+def test_vessel_heading_turns_the_hull_point_about_the_antenna():
+    # hull point 10 m north of the antenna, the obstacle east of it: a 2 deg heading error
+    # moves the hull point 10 · 2 · pi/180 m along u
+    section = _sigma(_nadir(), [0.0, 10.0], [3.0, 10.0],
+                     SensorSigmas(**{**ZERO.to_dict(), "vessel_heading_deg": 2.0}))
+    expected = 10.0 * math.radians(2.0)
+    assert section.sigma_m == pytest.approx(math.hypot(expected, QUANTISATION_M), rel=1e-3)
+
+
+def test_gps_of_both_receivers_adds_per_axis():
+    # 2 m DRMS each: sqrt(2) m per axis each, so 2 m along u together
+    section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0],
+                     SensorSigmas(**{**ZERO.to_dict(), "uav_gps": 2.0, "vessel_gps": 2.0}))
+    assert section.sigma_m == pytest.approx(math.hypot(2.0, QUANTISATION_M), rel=1e-3)
+    assert section.sigma_random_m == pytest.approx(QUANTISATION_M, rel=1e-3)
+
+
+def test_mask_edge_adds_its_pixels_in_metres():
+    section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0], SensorSigmas(**{**ZERO.to_dict(),
+                                                                      "edge_px": 2.0}))
+    assert section.sigma_m == pytest.approx(math.hypot(2.0 * GSD_M, QUANTISATION_M), rel=1e-3)
+
+
+def test_an_image_placed_hull_absorbs_drone_shift_and_yaw_but_not_height():
+    placed = PoseRefinement(applied=True, covariance=np.zeros((3, 3)))
+    gps_and_yaw = SensorSigmas(**{**ZERO.to_dict(), "uav_gps": 2.0, "vessel_gps": 2.0,
+                                  "vessel_heading_deg": 2.0, "camera_yaw_deg": 2.0})
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0], gps_and_yaw, placed)
+    # (to first order: a finite 2 deg turn leaves a few millimetres)
+    assert section.sigma_m == pytest.approx(QUANTISATION_M, rel=3e-2)
+    # a height error scales the scene about the nadir; the hull, aligned to the scaled
+    # silhouette, keeps its centre's share: u · (O - c) = 8 m remains (not O - nadir = -12 m)
+    height = SensorSigmas(**{**ZERO.to_dict(), "height_m": 1.0})
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0], height, placed)
+    assert section.sigma_m == pytest.approx(math.hypot(8.0 / HEIGHT_M, QUANTISATION_M), rel=2e-2)
+
+
+def test_the_alignments_covariance_enters_as_a_random_part():
+    from harborsight.clearance.uncertainty import REFINEMENT_COVARIANCE_SCALE
+
+    covariance = np.diag([0.01, 0.04, 0.0])       # east 0.1 m, north 0.2 m
+    placed = PoseRefinement(applied=True, covariance=covariance)
+    section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0], ZERO, placed)
+    expected = math.sqrt(REFINEMENT_COVARIANCE_SCALE * 0.01 + QUANTISATION_M ** 2)
+    assert section.sigma_m == pytest.approx(expected, rel=1e-3)
+    assert section.sigma_random_m == pytest.approx(expected, rel=1e-3)
+
+
+def test_sigma_options_and_frame_figures():
+    assert parse_sigma_option("uav_gps=rtk") == ("uav_gps", 0.02)
+    assert parse_sigma_option("vessel-heading-deg=gnss") == ("vessel_heading_deg", 0.3)
+    assert parse_sigma_option("height_m=0.4") == ("height_m", 0.4)
+    for bad, message in (("height_m", "NAME=VALUE"), ("speed=1", "unknown sigma"),
+                         ("height_m=-1", "from 0 to 1000"), ("uav_gps=nan", "from 0 to 1000")):
+        with pytest.raises(ValueError, match=message):
+            parse_sigma_option(bad)
+    # a frame's per-axis position sigma becomes the DRMS the sigmas hold
+    sigmas = sigmas_for_frame(SensorSigmas(), {"uav_gps": 0.1, "vessel_heading_deg": 0.5})
+    assert sigmas.uav_gps == pytest.approx(0.1 * math.sqrt(2)) and sigmas.uav_axis_m == pytest.approx(0.1)
+    assert sigmas.vessel_heading_deg == 0.5 and sigmas.vessel_gps == 2.0
+
+
+def test_the_report_and_the_frame_fields(tmp_path):
+    frame = json.loads((SAMPLES / "frames" / "000000.json").read_text())
+    frame["uav"]["position_sigma_m"] = 0.02
+    frame["vessel"]["position_sigma_m"] = 0.02
+    meta = parse_frame_metadata(frame, SAMPLES / "frames" / "000000.json")
+    labels = cv2.imread(str(SAMPLES / "labels" / "000000.png"), cv2.IMREAD_UNCHANGED)
+    vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
+    report = measure_frame(labels, meta, vessel, ClearanceSettings(), mask_from_file=True)
+    assert report.uncertainty["from_frame"] == ["uav_gps", "vessel_gps"]
+    assert report.uncertainty["sigmas"]["edge_px"] == 0.5          # a mask file's default
+    ok = [s for s in report.sections if s.status == "ok"]
+    assert ok and all(0 < s.sigma_random_m <= s.sigma_m for s in ok)
+    assert all(s.distance_lower_m == pytest.approx(max(0.0, s.distance_m - LOWER_BOUND_Z * s.sigma_m))
+               for s in ok)
+    written = report.to_dict()["sections"]
+    assert all(w["sigma_m"] is None for w, s in zip(written, report.sections, strict=True)
+               if s.status != "ok")
+    with pytest.raises(Exception, match=r"vessel\.position_sigma_m"):
+        bad = json.loads(json.dumps(frame))
+        bad["vessel"]["position_sigma_m"] = -1
+        parse_frame_metadata(bad, "x.json")
+
+
+def test_monte_carlo_spread_matches_the_propagated_sigma():
+    """Independent check: perturb the frame's geodetic pose (add_pose_noise: lat/lon, heading,
+    yaw, altitude) with small errors, measure each draw with the same exact labels and no pose
+    refinement, and compare the spread of each section's distance with the sigma propagated
+    for those sensor sigmas (its systematic part: the labels do not change between draws)."""
+    stem = "000002"
+    frame = json.loads((SAMPLES / "frames" / f"{stem}.json").read_text())
+    labels = cv2.imread(str(SAMPLES / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
+    noise = PoseNoise(gps_m=0.2, heading_deg=0.3, height_m=0.5)
+    settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False),
+                                 sigma_options=(("camera_tilt_deg", 0.0),))
+    rng = np.random.default_rng(1)
+    predicted = None
+    draws = []
+    for _ in range(150):
+        meta = parse_frame_metadata(add_pose_noise(frame, noise, rng), "noisy.json")
+        report = measure_frame(labels, meta, vessel, settings, mask_from_file=True)
+        if predicted is None:        # the frame carries the sigmas it was drawn with
+            # sections well clear of the hull: within a few pixels of it, the vessel's own
+            # pixels left outside its shifted region clamp the distance (not first order)
+            predicted = {s.index: math.sqrt(s.sigma_m ** 2 - s.sigma_random_m ** 2)
+                         for s in report.sections
+                         if s.status == "ok" and not s.truncated and s.distance_m > 2.0}
+        draws.append({s.index: s.distance_m for s in report.sections if s.status == "ok"})
+    checked = 0
+    for k, sigma in predicted.items():
+        values = np.array([d[k] for d in draws if k in d])
+        if len(values) < 140:
+            continue
+        checked += 1
+        # a robust spread (1.4826 MAD): a draw may put another obstacle nearest, a jump
+        # that no first-order sigma describes
+        spread = 1.4826 * np.median(np.abs(values - np.median(values)))
+        assert spread == pytest.approx(sigma, rel=0.3), k
+    assert checked >= 3
+
+
+def test_run_writes_sigmas_and_filtered_values_and_takes_sigma_options(tmp_path):
+    from typer.testing import CliRunner
+
+    from harborsight.cli import app
+
+    flight = SAMPLES / "flight"
+    out = tmp_path / "run"
+    runner = CliRunner()
+    result = runner.invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                                 "--out", str(out), "--no-video", "--no-overlays",
+                                 "--sigma", "uav_gps=rtk", "--sigma", "vessel_gps=0.05"],
+                           terminal_width=200)
+    assert result.exit_code == 0, result.output
+    import csv
+
+    rows = list(csv.DictReader((out / "sections.csv").open()))
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert ok and all(r["sigma_m"] and r["distance_lower_m"] for r in ok)
+    assert any(r["filtered_distance_m"] and r["closing_speed_mps"] for r in ok)
+    assert {r["track_state"] for r in rows} <= {"updated", "new", "held", "coasting", "none"}
+    record = json.loads((out / "run.json").read_text())
+    assert record["settings"]["sigma_options"] == {"uav_gps": 0.02, "vessel_gps": 0.05}
+    report = json.loads(next((out / "reports").glob("*.json")).read_text())
+    assert report["uncertainty"]["sigmas"]["uav_gps"] == 0.02
+
+    bad = runner.invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                              "--out", str(tmp_path / "bad"), "--sigma", "height=1"])
+    assert bad.exit_code == 2
+    assert "--sigma" in bad.output and "unknown sigma 'height'" in bad.output
