@@ -322,3 +322,31 @@ def test_a_given_vessel_is_copied_with_its_mesh_only(tmp_path):
     (copied,) = paths.values()
     assert sorted(p.name for p in copied.parent.iterdir()) == ["tug.stl", "vessel.yaml"]
     assert load_vessel_spec(copied).mesh is not None
+
+
+def test_pose_noise_writes_noisy_frames_with_the_true_pose_kept(dataset, tmp_path):
+    """``simulate --pose-noise``: the frames carry sensor errors (and their sigmas), the true
+    pose sits in the ground truth, and the errors are those ``dataset add-pose-noise`` draws
+    for the same seed and frame."""
+    from typer.testing import CliRunner
+
+    from harborsight.cli import app
+    from harborsight.sim.dataset import with_pose_noise
+    from harborsight.sim.pose_noise import PoseNoise, add_pose_noise, frame_rng
+
+    config = SimulationConfig(**{**TINY.to_dict(), "altitudes_m": (30.0, 40.0),
+                                 "pose_noise": {"gps_m": 2.0, "heading_deg": 2.0, "height_m": 1.0}})
+    exact = _frame(dataset, 0)
+    noisy = with_pose_noise(exact, config, "000000")
+    assert noisy["ground_truth"]["true_pose"]["uav"]["lat"] == exact["uav"]["lat"]
+    assert noisy["uav"]["lat"] != exact["uav"]["lat"]
+    assert noisy["vessel"]["position_sigma_m"] == pytest.approx(2.0 / 2 ** 0.5, abs=1e-4)
+    assert noisy == add_pose_noise(exact, PoseNoise(2.0, 2.0, 1.0), frame_rng(TINY.seed, "000000"))
+    assert with_pose_noise(exact, TINY, "000000") is exact
+    parse_frame_metadata(noisy, "noisy.json")
+
+    runner = CliRunner()
+    for bad in ("standalone,2", "gnss,2,1", "standalone,-1,1"):
+        result = runner.invoke(app, ["simulate", "--n", "1", "--out", str(tmp_path / "x"),
+                                     "--preset", "tiny", "--pose-noise", bad])
+        assert result.exit_code == 2 and "--pose-noise" in result.output, bad

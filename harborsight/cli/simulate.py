@@ -14,7 +14,7 @@ from harborsight.cli.app import (
     console,
     err_console,
 )
-from harborsight.errors import HarborsightError
+from harborsight.errors import HarborsightError, InputError
 from harborsight.files import write_image
 from harborsight.progress import progress_report
 
@@ -59,6 +59,12 @@ def simulate(
         min=0.01, help="Flights: seconds between frames.")] = 0.5,
     approach_speed_mps: Annotated[float, typer.Option(
         min=0.0, help="Flights: the vessel's closing speed, m/s (it stops 0.5 m short).")] = 0.5,
+    pose_noise: Annotated[str | None, typer.Option(
+        metavar="GPS,HEADING_DEG,HEIGHT_M",
+        help="Write frame metadata with sensor errors: GPS horizontal RMS per receiver (rtk, "
+        "dgps, standalone or metres), one sigma of camera yaw and vessel heading (deg), of "
+        "height (m), e.g. standalone,2,1. The true pose stays in ground_truth.true_pose; as "
+        "dataset add-pose-noise does on a finished dataset.")] = None,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -71,7 +77,8 @@ def simulate(
             max_tilt_deg=max_tilt_deg, vessel_spec=str(vessel.resolve()) if vessel else None,
             vessel_pool=vessel_pool, scenario=scenario, split=split,
             sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
-            approach_speed_mps=approach_speed_mps)
+            approach_speed_mps=approach_speed_mps,
+            pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 
@@ -95,6 +102,22 @@ def simulate(
                   f"{len(summary.failed)} failed, in {summary.seconds:.1f} s{rate}; dataset in {out}/")
     if summary.failed:
         raise typer.Exit(1)
+
+
+def parse_pose_noise_option(text: str) -> dict:
+    """``GPS,HEADING_DEG,HEIGHT_M`` of ``--pose-noise`` as PoseNoise fields."""
+    from harborsight.sim.pose_noise import parse_gps_noise
+
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != 3:
+        raise InputError(None, "--pose-noise", f"expected GPS,HEADING_DEG,HEIGHT_M (e.g. "
+                         f"standalone,2,1), got {text!r}")
+    try:
+        gps_m = parse_gps_noise(parts[0])
+        heading_deg, height_m = float(parts[1]), float(parts[2])
+    except ValueError as exc:
+        raise InputError(None, "--pose-noise", str(exc)) from None
+    return {"gps_m": gps_m, "heading_deg": heading_deg, "height_m": height_m}
 
 
 @app.command("contact-sheet")

@@ -59,6 +59,9 @@ class SimulationConfig:
     sequence_frames: int = 0
     frame_interval_s: float = 0.5
     approach_speed_mps: float = 0.5
+    # sensor noise of the written frame metadata (sim.pose_noise.PoseNoise fields: gps_m,
+    # heading_deg, height_m); None: exact poses. The true pose stays in the ground truth
+    pose_noise: dict | None = None
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -74,6 +77,13 @@ class SimulationConfig:
         if self.sequence_frames < 0 or self.frame_interval_s <= 0 or self.approach_speed_mps < 0:
             raise InputError(None, "--sequence-frames", "need sequence_frames >= 0, "
                              "frame_interval_s > 0 and approach_speed_mps >= 0")
+        if self.pose_noise is not None:
+            from harborsight.sim.pose_noise import PoseNoise
+
+            try:
+                PoseNoise(**self.pose_noise)
+            except (TypeError, ValueError) as exc:
+                raise InputError(None, "--pose-noise", str(exc)) from None
         for name in (self.scenario or "").split(","):
             if name and name not in SCENARIOS:
                 raise InputError(None, "--scenario", f"unknown scenario {name!r}; "
@@ -289,6 +299,7 @@ class FrameRenderer:
             "label_agreement": round(agreement, 6), "environment": asdict(scene.environment),
             "split": split_of(self.config, index),
         }
+        meta = with_pose_noise(meta, self.config, stem)
         files = {
             f"images/{stem}.png": _encode_png(image),
             f"labels/{stem}.png": _encode_png(labels),
@@ -308,6 +319,17 @@ class FrameRenderer:
         write_frame_files(self.out_dir, result.files)
         result.files = {}
         return result
+
+
+def with_pose_noise(meta: dict, config: SimulationConfig, stem: str) -> dict:
+    """The frame metadata with the configured sensor noise (sim.pose_noise; the same
+    errors per (seed, frame) as ``dataset add-pose-noise --seed`` with the dataset's seed),
+    or unchanged when the config has none."""
+    if not config.pose_noise:
+        return meta
+    from harborsight.sim.pose_noise import PoseNoise, add_pose_noise, frame_rng
+
+    return add_pose_noise(meta, PoseNoise(**config.pose_noise), frame_rng(config.seed, stem))
 
 
 def write_frame_files(out_dir: Path, files: dict[str, bytes]) -> None:
