@@ -140,7 +140,7 @@ def test_the_report_and_the_frame_fields(tmp_path):
     vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
     report = measure_frame(labels, meta, vessel, ClearanceSettings(), mask_from_file=True)
     assert report.uncertainty["from_frame"] == ["uav_gps", "vessel_gps"]
-    assert report.uncertainty["sigmas"]["edge_px"] == 0.5          # a mask file's default
+    assert report.uncertainty["sigmas"]["edge_px"] == 1.0          # a mask file's default
     ok = [s for s in report.sections if s.status == "ok"]
     assert ok and all(0 < s.sigma_random_m <= s.sigma_m for s in ok)
     assert all(s.distance_lower_m == pytest.approx(max(0.0, s.distance_m - LOWER_BOUND_Z * s.sigma_m))

@@ -22,7 +22,8 @@ name                   default    source
 ``edge_px``            4.0 px     where the mask puts the obstacle's edge, and a model's other
                                   small errors near the hull: calibrated for the shipped model
                                   on the seed-7 bench (simulator frames; real frames are worse);
-                                  0.5 px for masks read from files
+                                  1 px for masks read from files (it also takes the
+                                  planar assumption's error: quay tops above the water)
 =====================  =========  ==========================================================
 """
 
@@ -36,7 +37,7 @@ GPS_CLASSES = {"rtk": 0.02, "dgps": 0.5, "standalone": 2.0}
 #: one sigma (deg) of a vessel's heading sensor, by class
 HEADING_CLASSES = {"magnetic": 2.0, "gnss": 0.3, "gyro": 0.5}
 #: the segmentation edge's sigma (px) of a mask read from a file (hand or simulator labels)
-LABEL_FILE_EDGE_PX = 0.5
+LABEL_FILE_EDGE_PX = 1.0
 
 
 def _parse_class_or_number(text: str, classes: dict[str, float], unit: str) -> float:
