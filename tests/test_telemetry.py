@@ -209,7 +209,12 @@ def test_px4_gps_timed_by_measurement_and_a_cut_log_is_noted(tmp_path):
     assert track.utc_at(1.05) == datetime.fromtimestamp(utc0_us / 1e6, tz=UTC)
     assert track.notes == ["no estimator altitude in the log: the GPS receiver's own "
                            "altitude is used, which can drift by metres in seconds",
-                           "no vehicle_attitude topic: no attitude"]
+                           "no vehicle_attitude topic: no attitude",
+                           "position_sigma_m (per axis): the fix_type class for 6 (no HDOP in "
+                           "the log); fix_type: 3-D fix 6"]
+    # no eph in this sensor_gps: a 3-D fix is the standalone class, 2 m DRMS, per axis / √2
+    np.testing.assert_allclose(track.position_sigma_m, 2.0 / math.sqrt(2.0))
+    assert track.alt_sigma_m is None                # no epv either
     assert track.alt_reference == "GPS receiver altitude above mean sea level"
     cut = tmp_path / "cut.ulg"
     cut.write_bytes(path.read_bytes()[:-20])     # power lost mid-message: 34 of its 54 bytes
@@ -293,7 +298,11 @@ def test_nmea_vessel_track(tmp_path):
     assert track.lat_deg[0] == pytest.approx(48 + 7.038 / 60)
     assert track.lat_deg[2] == pytest.approx(48 + 7.042 / 60)
     np.testing.assert_allclose(track.heading_deg, [358.0, 0.0, 2.0], atol=1e-9)
-    assert track.notes == ["1 unreadable sentence(s) skipped (bad checksum or field; line 6)"]
+    assert track.notes == ["1 unreadable sentence(s) skipped (bad checksum or field; line 6)",
+                           "position_sigma_m (per axis): the GGA quality class, widened by "
+                           "HDOP above 1, for 2 (GPS 2)"]
+    # the RMC fix states no accuracy; the GGA fixes (quality 1, HDOP 0.9) are standalone GPS
+    np.testing.assert_allclose(track.position_sigma_m, [np.nan, math.sqrt(2.0), math.sqrt(2.0)])
     no_heading = tmp_path / "no_heading.nmea"
     no_heading.write_text(lines[0] + "\n" + lines[-1] + "\n")
     with pytest.raises(InputError, match="no heading"):
@@ -655,3 +664,297 @@ def test_random_bytes_as_a_dataflash_log_are_one_line(tmp_path, capfd):
     assert result.exit_code == 1
     captured = capfd.readouterr()
     assert "bad header" not in result.output + captured.out + captured.err
+
+
+# -- accuracy figures: what each log states, and the frames that carry them -----------------
+
+def test_px4_accuracy_is_eph_and_epv_of_the_receiver():
+    """eph is the receiver's radial horizontal accuracy (u-blox hAcc): per axis / √2; the
+    altitude here is the receiver's (z_global never set), so its sigma is the receiver's epv.
+    Checked against pyulog's own reading of the topic."""
+    from pyulog import ULog
+
+    path = TELEMETRY / "px4" / "sample_log_small.ulg"
+    track = read_drone_log(path)
+    gps = ULog(str(path), ["vehicle_gps_position"]).get_dataset("vehicle_gps_position").data
+    assert set(gps["fix_type"]) == {3} and len(track) == len(gps["eph"]) == 32
+    np.testing.assert_allclose(track.position_sigma_m, gps["eph"] / math.sqrt(2.0), rtol=1e-6)
+    np.testing.assert_allclose(track.alt_sigma_m, gps["epv"], rtol=1e-6)
+    assert gps["eph"][0] == pytest.approx(3.26) and gps["epv"][0] == pytest.approx(6.984)
+    assert track.position_sigma_m[0] == pytest.approx(3.26 / math.sqrt(2.0), rel=1e-6)
+    summary = track.summary()
+    assert summary["position_sigma_m"] == pytest.approx([2.507 / math.sqrt(2.0), 3.26 / math.sqrt(2.0)],
+                                                        rel=1e-5)
+    assert summary["alt_sigma_m"] == pytest.approx([5.222, 6.984], rel=1e-5)
+    assert summary["heading_sigma_deg"] is None
+    assert any(n.startswith("position_sigma_m (per axis): vehicle_gps_position.eph / √2") and
+               n.endswith("for 32 of 32 samples; fix_type: 3-D fix 32") for n in track.notes)
+    assert "alt_sigma_m: the receiver's vehicle_gps_position.epv (vertical accuracy)" in track.notes
+
+
+def test_px4_altitude_sigma_follows_the_altitudes_source(tmp_path):
+    """The estimator's altitude goes with the estimator's epv; a sample outside its span keeps
+    the receiver's altitude and the receiver's epv."""
+    topics = "uint64_t timestamp;uint64_t timestamp_sample;uint64_t time_utc_usec;double " \
+             "latitude_deg;double longitude_deg;double altitude_msl_m;uint8_t fix_type;float eph;" \
+             "float epv;float hdop;"
+    gps_rows = [(1_000_000 + 200_000 * i, 1_000_000 + 200_000 * i, 0, 51.9, 4.1, 30.0, fix,
+                 eph, 3.0, 0.8) for i, (fix, eph) in enumerate(
+                     [(6, 0.014), (6, 0.014), (5, 0.3), (3, 0.0), (3, 0.0), (6, 0.014)])]
+    data = b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", 0)
+    data += _ulog_message("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
+    data += _ulog_message("F", f"sensor_gps:{topics}".encode())
+    data += _ulog_message("F", b"vehicle_global_position:uint64_t timestamp;double lat;double lon;"
+                          b"float alt;float eph;float epv;")
+    data += _ulog_message("A", struct.pack("<BH", 0, 0) + b"sensor_gps")
+    data += _ulog_message("A", struct.pack("<BH", 0, 1) + b"vehicle_global_position")
+    for row in gps_rows:
+        data += _ulog_message("D", struct.pack("<H", 0) + struct.pack("<3Q3dB3f", *row))
+    for k in range(9):                                              # t = 1.0 ... 1.8 s
+        data += _ulog_message("D", struct.pack("<H", 1) + struct.pack(
+            "<Q2d3f", 1_000_000 + 100_000 * k, 51.9, 4.1, 20.0, 0.5, 0.4 + 0.01 * k))
+    path = tmp_path / "rtk.ulg"
+    path.write_bytes(data)
+    track = read_drone_log(path)
+    # eph where the receiver states it; eph 0 (none) falls back on the class: 3-D fix,
+    # standalone 2 m DRMS (HDOP 0.8 does not narrow it)
+    np.testing.assert_allclose(track.position_sigma_m, np.array(
+        [0.014, 0.014, 0.3, 2.0, 2.0, 0.014]) / math.sqrt(2.0), rtol=1e-6)
+    np.testing.assert_allclose(track.alt_sigma_m, [0.40, 0.42, 0.44, 0.46, 0.48, 3.0], rtol=1e-6)
+    assert ("position_sigma_m (per axis): sensor_gps.eph / √2 (the receiver's horizontal accuracy, "
+            "radial) for 4 of 6 samples; the fix_type class for 2, widened by HDOP above 1; "
+            "fix_type: RTK fixed 3, 3-D fix 2, RTK float 1") in track.notes
+    assert ("alt_sigma_m: the estimator's vehicle_global_position.epv; the receiver's "
+            "sensor_gps.epv (vertical accuracy) outside its span") in track.notes
+
+
+def _dataflash_records(log, name: str) -> tuple[list[int], int]:
+    """Offsets and length of every record of one message type, from pymavlink's index."""
+    kind = next(i for i, f in log.formats.items() if f.name == name)
+    return list(log.offsets[kind]), log.formats[kind].len
+
+
+def test_ardupilot_accuracy_is_gpa_hacc_else_the_fix_class(tmp_path):
+    from pymavlink import DFReader
+
+    path = TELEMETRY / "ardupilot" / "test.BIN"
+    track = read_drone_log(path)
+    log = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    hacc, gps_time_us = {}, []
+    while (message := log.recv_match(type=["GPS", "GPA"])) is not None:
+        if message.get_type() == "GPA":
+            hacc[message.TimeUS] = message.HAcc
+        else:
+            gps_time_us.append(message.TimeUS)
+    assert set(hacc) == set(gps_time_us) and set(hacc.values()) == {1.61}    # SITL's receiver
+    np.testing.assert_allclose(track.position_sigma_m,
+                               [hacc[t] / math.sqrt(2.0) for t in gps_time_us])
+    # the altitude is the EKF's POS.Alt, whose accuracy the log does not state: GPA.VAcc
+    # (2.41 m) belongs to the receiver's altitude, so the track gives none
+    assert track.alt_sigma_m is None and "POS.Alt" in track.alt_reference
+    assert any(n.startswith("alt_sigma_m: none for the EKF altitude (POS.Alt)") for n in track.notes)
+
+    # without GPA: GPS.Status's class, widened by HDop. The first three GPS records are set to
+    # RTK fixed with HDop 2.5, RTK float, DGPS (HDop 0.77 as logged); the GPA records dropped
+    data = bytearray(path.read_bytes())
+    gps_offsets, _ = _dataflash_records(log, "GPS")
+    for offset, status in zip(gps_offsets[:3], (6, 5, 4), strict=True):
+        data[offset + 11] = status                              # header 3 + TimeUS 8: Status
+    data[gps_offsets[0] + 19:gps_offsets[0] + 21] = struct.pack("<h", 250)   # HDop x 100
+    gpa_offsets, gpa_len = _dataflash_records(log, "GPA")
+    for offset in reversed(gpa_offsets):
+        del data[offset:offset + gpa_len]
+    no_gpa = tmp_path / "no_gpa.BIN"
+    no_gpa.write_bytes(bytes(data))
+    track = read_drone_log(no_gpa)
+    np.testing.assert_allclose(track.position_sigma_m, np.array(
+        [0.02 * 2.5, 0.5, 0.5, 2.0, 2.0]) / math.sqrt(2.0))
+    assert ("position_sigma_m (per axis): the GPS Status class for 5, widened by HDOP above 1; "
+            "GPS Status: 3-D fix 2, DGPS/SBAS 1, RTK float 1, RTK fixed 1") in track.notes
+    assert track.alt_sigma_m is None
+
+
+@pytest.mark.parametrize("name", [name for name, *_ in SRT_CASES])
+def test_dji_srts_state_no_accuracy(name):
+    """None of the real SRT families prints an RTK flag or a standard deviation, the P4 RTK's
+    and the Matrice 300's included: no accuracy figures, and the show table says so."""
+    text = (DJI / name).read_text(errors="replace").lower()
+    assert not any(word in text for word in ("rtk", "std", "acc", "dop", "sigma"))
+    track = read_dji_srt(DJI / name)
+    assert (track.position_sigma_m, track.alt_sigma_m, track.heading_sigma_deg) == (None,) * 3
+    assert not any("sigma" in note for note in track.notes)
+
+
+def _nmea_feed(path: Path, epochs: list[tuple[str, ...]], gst: dict[int, tuple[str, ...]],
+               gst_first: bool = False) -> Path:
+    """An NMEA feed written with pynmea2: per epoch a GGA (fields as given), a true heading,
+    and where ``gst`` has the epoch a GST (before the GGA if ``gst_first``), after a ZDA that
+    dates the fixes 2021-04-21."""
+    import pynmea2
+
+    lines = [str(pynmea2.ZDA("GP", "ZDA", (epochs[0][0], "21", "04", "2021", "00", "00")))]
+    for k, gga_fields in enumerate(epochs):
+        gga = str(pynmea2.GGA("GP", "GGA", gga_fields))
+        hdt = str(pynmea2.HDT("HE", "HDT", (f"{90.0 + k:.1f}", "T")))
+        errors = [str(pynmea2.GST("GP", "GST", gst[k]))] if k in gst else []
+        lines += [*errors, gga, hdt] if gst_first else [gga, *errors, hdt]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _gga(clock: str, quality: int, hdop: str) -> tuple[str, ...]:
+    return (clock, "5154.000", "N", "00406.000", "E", str(quality), "12", hdop, "5.0", "M",
+            "47.0", "M", "", "")
+
+
+@pytest.mark.parametrize("gst_first", [False, True])
+def test_nmea_position_sigma_from_gst(tmp_path, gst_first):
+    """GST gives the latitude and longitude error sigmas (m) of its epoch's fix: one per axis
+    already, their RMS is the track's figure. A GST belongs to the fix with its time, before
+    or after the GGA; an epoch without one falls back on the GGA quality class."""
+    clocks = [f"0630{55 + k:02d}.00" for k in range(4)]
+    gst = {0: (clocks[0], "0.006", "0.023", "0.020", "273.6", "0.023", "0.020", "0.031"),
+           1: (clocks[1], "0.9", "1.2", "0.8", "10.0", "1.1", "0.9", "2.0"),
+           2: ("063059.00", "0.9", "1.2", "0.8", "10.0", "1.1", "0.9", "2.0"),   # no such fix
+           3: (clocks[3], "0.9", "", "", "", "", "", "")}                          # no errors
+    path = _nmea_feed(tmp_path / "ship.nmea", [_gga(c, 4, "0.7") for c in clocks], gst, gst_first)
+    track = read_vessel_track(path)
+    assert track.utc_start == datetime(2021, 4, 21, 6, 30, 55, tzinfo=UTC)
+    rtk = 0.02 / math.sqrt(2.0)
+    np.testing.assert_allclose(track.position_sigma_m, [
+        math.sqrt((0.023 ** 2 + 0.020 ** 2) / 2), math.sqrt((1.1 ** 2 + 0.9 ** 2) / 2), rtk, rtk])
+    assert track.heading_sigma_deg is None               # HDT states no accuracy
+    assert track.notes == [
+        "position_sigma_m (per axis): GST latitude/longitude error RMS for 2 of 4 fixes; the GGA "
+        "quality class, widened by HDOP above 1, for 2 (RTK fixed 2)",
+        "1 GST sentence(s) left out: no fix at their time",
+        "1 GST sentence(s) without a time or a usable latitude/longitude error skipped"]
+
+
+def test_nmea_position_sigma_from_the_gga_quality_class(tmp_path):
+    """GGA only: 4 RTK fixed, 5 RTK float, 2 DGPS, 1 GPS give the rtk, dgps, dgps and
+    standalone horizontal RMS (0.02, 0.5, 0.5, 2.0 m), widened by an HDOP above 1 (not by one
+    below, nor by NMEA's 99.99 "no value"); per axis / √2. Quality 6 (dead reckoning) is no fix."""
+    epochs = [_gga("120000.00", 4, "0.6"), _gga("120001.00", 5, "2.0"), _gga("120002.00", 2, "1.5"),
+              _gga("120003.00", 1, "3.0"), _gga("120004.00", 1, "99.99"), _gga("120005.00", 6, "1.0"),
+              _gga("120006.00", 1, "")]
+    track = read_vessel_track(_nmea_feed(tmp_path / "ship.nmea", epochs, {}))
+    assert len(track) == 6
+    np.testing.assert_allclose(track.position_sigma_m, np.array(
+        [0.02, 0.5 * 2.0, 0.5 * 1.5, 2.0 * 3.0, 2.0, 2.0]) / math.sqrt(2.0))
+    assert ("position_sigma_m (per axis): the GGA quality class, widened by HDOP above 1, for 6 "
+            "(GPS 3, DGPS 1, RTK fixed 1, RTK float 1)") in track.notes
+
+
+def test_csv_accuracy_columns(tmp_path):
+    path = tmp_path / "ship.csv"
+    path.write_text("time,lat,lon,heading_deg,position_sigma_m,heading_sigma_deg\n"
+                    "2026-05-01T12:00:00Z,56.15,10.21,75,0.05,0.3\n"
+                    "2026-05-01T12:00:01Z,56.15,10.21,76,,0.3\n"
+                    "2026-05-01T12:00:02Z,56.15,10.21,77,-1,0.3\n"
+                    "2026-05-01T12:00:03Z,56.15,10.21,78,0.07,\n")
+    track = read_vessel_track(path)
+    assert list(track.t_s) == [0.0, 1.0, 3.0]
+    np.testing.assert_allclose(track.position_sigma_m, [0.05, np.nan, 0.07])
+    np.testing.assert_allclose(track.heading_sigma_deg, [0.3, 0.3, np.nan])
+    assert "line 4: position_sigma_m: -1.0 is outside [0.0, 1000.0]" in track.notes[0]
+    # interpolated over the rows that have it, within reach like every quantity: the 3 s
+    # between them is a gap at max_gap_s 1, bridged at 2
+    assert np.isnan(track.sample(np.array([0.5, 2.0]))["position_sigma_m"]).all()
+    sampled = track.sample(np.array([0.5, 2.0]), max_gap_s=2.0)
+    np.testing.assert_allclose(sampled["position_sigma_m"], [0.05 + 0.02 / 6, 0.05 + 0.02 * 2 / 3])
+    plain = tmp_path / "plain.csv"
+    plain.write_text("time,lat,lon,heading_deg\n2026-05-01T12:00:00Z,56.15,10.21,75\n")
+    assert read_vessel_track(plain).position_sigma_m is None
+
+
+def test_sampled_sigmas_have_gaps_like_every_quantity():
+    track = Track(source=Path("x"), kind="csv", t_s=np.array([0.0, 1.0, 10.0]),
+                  lat_deg=np.zeros(3), lon_deg=np.zeros(3), heading_deg=np.zeros(3),
+                  position_sigma_m=np.array([1.0, 2.0, 2.0]), alt_sigma_m=np.full(3, np.nan))
+    sampled = track.sample(np.array([0.5, 5.0, 12.0]))
+    np.testing.assert_allclose(sampled["position_sigma_m"], [1.5, np.nan, np.nan])
+    assert np.isnan(sampled["alt_sigma_m"]).all() and "heading_sigma_deg" not in sampled
+    assert track.summary()["position_sigma_m"] == [1.0, 2.0] and track.summary()["alt_sigma_m"] is None
+    with pytest.raises(ValueError, match="position_sigma_m"):
+        Track(source=Path("x"), kind="csv", t_s=np.zeros(2), lat_deg=np.zeros(2),
+              lon_deg=np.zeros(2), position_sigma_m=np.ones(3))
+
+
+def test_frames_carry_the_logs_accuracy(tmp_path):
+    """PX4 log + NMEA feed with GST: each frame carries the drone's per-axis position sigma
+    and altitude sigma and the vessel's position sigma, sampled at its time, and they reach
+    FrameMetadata.sensor_sigmas. A track without them writes no field (never null)."""
+    clocks = [f"{datetime(2021, 4, 21, 6, 30, 55) + timedelta(seconds=k):%H%M%S}.00"
+              for k in range(12)]
+    gst = {k: (c, "0.5", "0.03", "0.02", "0.0", "0.03", "0.04", "0.05") for k, c in enumerate(clocks)}
+    vessel = read_vessel_track(_nmea_feed(tmp_path / "ship.nmea",
+                                          [_gga(c, 4, "0.7") for c in clocks], gst))
+    drone = read_drone_log(TELEMETRY / "px4" / "sample_log_small.ulg")
+    camera = {"width": 64, "height": 36, "fx": 50.0, "fy": 50.0, "cx": 31.5, "cy": 17.5}
+    start = datetime(2021, 4, 21, 6, 30, 58, 700000, tzinfo=UTC)
+    result = build_video_metadata(drone, vessel, camera, 7, 1.0, water_level_m=40.0,
+                                  video_start_utc=start)
+    assert len(result.frames) == 7
+    uav = drone.sample(np.array([f["telemetry"]["drone_t_s"] for f in result.frames]))
+    for frame, position, alt in zip(result.frames, uav["position_sigma_m"], uav["alt_sigma_m"],
+                                    strict=True):
+        assert frame["uav"]["position_sigma_m"] == pytest.approx(position, abs=1e-4)
+        assert frame["uav"]["alt_sigma_m"] == pytest.approx(alt, abs=1e-4)
+        assert frame["vessel"]["position_sigma_m"] == pytest.approx(0.025 * math.sqrt(2.0), abs=1e-4)
+        assert "heading_sigma_deg" not in frame["vessel"]
+        meta = parse_frame_metadata({**frame, "image": "video"}, "flight.jsonl")
+        assert meta.sensor_sigmas == {"uav_gps": frame["uav"]["position_sigma_m"],
+                                      "height_m": frame["uav"]["alt_sigma_m"],
+                                      "vessel_gps": frame["vessel"]["position_sigma_m"]}
+    assert 1.77 < result.frames[0]["uav"]["position_sigma_m"] < 2.31
+    assert 5.2 < result.frames[0]["uav"]["alt_sigma_m"] < 7.0
+    # a log that states none: the frame has no sigma field at all
+    srt = read_dji_srt(DJI / "matrice_300.srt", utc_offset_h=2.0)
+    csv_vessel = read_vessel_track(_vessel_csv(tmp_path / "ship.csv", srt.utc_start, 10))
+    plain = build_video_metadata(srt, csv_vessel, camera, 5, 1.0, water_level_m=-5.0,
+                                 mount=CameraMount(yaw_deg=30.0))
+    assert len(plain.frames) == 5
+    for frame in plain.frames:
+        assert not any("sigma" in key for section in ("uav", "camera_attitude", "vessel")
+                       for key in frame[section])
+        assert parse_frame_metadata({**frame, "image": "video"}).sensor_sigmas == {}
+
+
+def test_frame_sigma_fields_only_where_finite(tmp_path):
+    """A sampled sigma that is NaN (a gap in the figures) or beyond the frame's 1000 limit is
+    left out of that frame; the frames stay strict JSON."""
+    from harborsight.files import strict_json
+
+    start = datetime(2026, 5, 1, 12, tzinfo=UTC)
+    vessel = Track(source=tmp_path / "ship.csv", kind="csv", t_s=np.arange(4.0),
+                   lat_deg=np.full(4, 56.15), lon_deg=np.full(4, 10.21), heading_deg=np.full(4, 75.0),
+                   position_sigma_m=np.array([0.1, np.nan, np.nan, 0.1]),
+                   heading_sigma_deg=np.array([0.3, 0.3, 0.3, 5000.0]), utc_start=start)
+    drone = Track(source=tmp_path / "log.ulg", kind="px4-ulog", t_s=np.arange(4.0),
+                  lat_deg=np.full(4, 56.1501), lon_deg=np.full(4, 10.21), alt_m=np.full(4, 60.0),
+                  yaw_deg=np.zeros(4), pitch_deg=np.zeros(4), roll_deg=np.zeros(4),
+                  attitude_of="vehicle", utc_start=start, alt_sigma_m=np.full(4, 0.5))
+    camera = {"width": 64, "height": 36, "fx": 50.0, "fy": 50.0, "cx": 31.5, "cy": 17.5}
+    result = build_video_metadata(drone, vessel, camera, 4, 1.0, water_level_m=0.0,
+                                  video_start_utc=start, max_gap_s=0.5)
+    assert [f["vessel"].get("position_sigma_m") for f in result.frames] == [0.1, None, None, 0.1]
+    assert [f["vessel"].get("heading_sigma_deg") for f in result.frames] == [0.3, 0.3, 0.3, None]
+    assert all(f["uav"]["alt_sigma_m"] == 0.5 and "position_sigma_m" not in f["uav"]
+               for f in result.frames)
+    for frame in result.frames:
+        strict_json(frame)
+        parse_frame_metadata({**frame, "image": "video"})
+
+
+def test_cli_show_lists_the_accuracy_figures(tmp_path):
+    result = runner.invoke(app, ["telemetry", "show", str(TELEMETRY / "px4" / "sample_log_small.ulg"),
+                                 str(TELEMETRY / "ardupilot" / "test.BIN"), str(DJI / "p4_rtk.SRT"),
+                                 "--json", str(tmp_path / "s.json")], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "position (per axis) 1.77 to 2.31 m; altitude 5.22 to 6.98 m" in result.output
+    assert "position (per axis) 1.14 m" in result.output
+    assert "none in the log (the sensor defaults apply)" in result.output
+    px4, ardupilot, dji = json.loads((tmp_path / "s.json").read_text())
+    assert px4["position_sigma_m"] == pytest.approx([1.7727, 2.3052], abs=1e-4)
+    assert ardupilot["alt_sigma_m"] is None and dji["position_sigma_m"] is None

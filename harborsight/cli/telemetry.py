@@ -45,7 +45,8 @@ def telemetry_show(
         "--json", help="Also write the summaries as JSON.")] = None,
 ) -> None:
     """What each log holds: samples, rate, duration, UTC start, extent, altitude datum,
-    attitude, and what was skipped. Exit code 1 if any log could not be read."""
+    attitude, the accuracy figures it states (one sigma: their range), and what was skipped.
+    Exit code 1 if any log could not be read."""
     from harborsight.telemetry import DRONE_LOG_SUFFIXES, read_drone_log
     from harborsight.telemetry.vessel_track import read_vessel_track
 
@@ -86,6 +87,15 @@ def telemetry_show(
             summary["attitude"], "none"))
         if summary["heading"]:
             table.add_row("heading", "true heading")
+        accuracy = [f"{what} " + (f"{summary[key][0]:.2f}{unit}"
+                                  if f"{summary[key][0]:.2f}" == f"{summary[key][1]:.2f}"
+                                  else span(summary[key], 2, unit))
+                    for key, what, unit in (("position_sigma_m", "position (per axis)", " m"),
+                                            ("alt_sigma_m", "altitude", " m"),
+                                            ("heading_sigma_deg", "heading", "°"))
+                    if summary[key] is not None]
+        table.add_row("accuracy (1σ)", "; ".join(accuracy) if accuracy
+                      else "none in the log (the sensor defaults apply)")
         for note in summary["notes"]:
             table.add_row("note", note)
         console.print(table)

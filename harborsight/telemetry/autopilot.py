@@ -13,7 +13,7 @@ Topics and messages read:
   (quaternion ``q``, body FRD -> NED) for attitude; ``sensor_gps`` where the GPS topic has that
   name (PX4 1.14 on).
 * ArduPilot: ``GPS`` (``Lat``, ``Lng`` in degrees, ``Alt`` in m above mean sea level, ``GWk``,
-  ``GMS``) and ``ATT`` (``Roll``, ``Pitch``, ``Yaw`` in degrees).
+  ``GMS``), ``GPA`` (accuracy) and ``ATT`` (``Roll``, ``Pitch``, ``Yaw`` in degrees).
 
 Altitude: the autopilot's estimator (EKF) altitude above mean sea level wherever the log has it
 (PX4 ``vehicle_global_position.alt``, else ``vehicle_local_position`` ``ref_alt - z`` while
@@ -23,6 +23,27 @@ own altitude is the noisiest height in the log: on the ground, PX4's sample log 
 ``GPS.Alt`` reads 4.4 m above ``POS.Alt``; every measured distance scales with the height
 above the water. The raw GPS altitude is used, and noted, only where no estimate covers a
 sample.
+
+Accuracy (one sigma; conversions in :mod:`harborsight.telemetry.accuracy`; the track's notes
+say which were used):
+
+* horizontal, per axis: PX4's ``eph`` ("GPS horizontal position accuracy (metres)" in the
+  uORB message definition; PX4's u-blox driver copies the receiver's radial ``hAcc``) divided
+  by √2; ArduPilot's ``GPA.HAcc`` ("horizontal position accuracy", m; the receiver's own
+  estimate, 0 where it gives none), matched to its GPS sample by ``TimeUS``, divided by √2.
+  Where a sample has no such figure: the fix class (PX4 ``fix_type``, ArduPilot
+  ``GPS.Status``: 6 RTK fixed, 5 RTK float, 4 DGPS, 3 3-D fix) widened by ``hdop``/``HDop``.
+* altitude: the sigma of the altitude actually used. PX4's estimator states its own
+  (``epv``, "standard deviation of vertical position error" of ``vehicle_global_position`` /
+  ``vehicle_local_position``), relative to the estimator's origin, whose datum error shifts
+  every frame alike; the receiver's ``epv`` (ArduPilot ``GPA.VAcc``) goes with the receiver's
+  altitude only. ArduPilot logs no accuracy of ``POS.Alt``: where that is the altitude, the
+  track has no altitude sigma (the receiver's VAcc would describe a different, noisier
+  height).
+
+On the real sample logs: PX4 eph 2.51-3.26 m (1.77-2.31 m per axis) and, its altitude being
+the receiver's (``z_global`` is never set), epv 5.22-6.98 m; ArduPilot SITL HAcc 1.61 m
+(1.14 m per axis) and no altitude sigma.
 
 GPS samples are timed by when the receiver measured them (PX4's ``timestamp_sample``, where the
 message has it) rather than when the driver published them, which is 0.1-0.2 s later on
@@ -45,6 +66,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError
+from harborsight.telemetry.accuracy import (
+    ARDUPILOT_STATUS_CLASSES,
+    FIX_NAMES,
+    PX4_FIX_CLASSES,
+    count_codes,
+    none_if_missing,
+    per_axis_from_class_m,
+    per_axis_from_radial_m,
+    usable,
+)
 from harborsight.telemetry.track import Track, utc_from_epoch_s
 
 GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
@@ -92,42 +123,56 @@ def _dataflash_partial_tail_bytes(log) -> int:
     return log.data_len - last_start if last_end > log.data_len else log.data_len - last_end
 
 
-def _px4_estimator_altitude(datasets: dict) -> tuple[np.ndarray, np.ndarray, str]:
-    """PX4's estimator altitude above mean sea level: (times s, altitudes m, what it is)."""
+def _px4_estimator_altitude(datasets: dict
+                            ) -> tuple[np.ndarray, np.ndarray, str, np.ndarray | None]:
+    """PX4's estimator altitude above mean sea level: (times s, altitudes m, what it is, the
+    estimator's ``epv`` in m where the topic has it)."""
     glob = datasets.get("vehicle_global_position")
     if glob is not None and "alt" in glob and len(glob["timestamp"]):
         return (glob["timestamp"].astype(float) / 1e6, glob["alt"].astype(float),
-                "EKF altitude above mean sea level (vehicle_global_position.alt)")
+                "EKF altitude above mean sea level (vehicle_global_position.alt)",
+                glob["epv"].astype(float) if "epv" in glob else None)
     local = datasets.get("vehicle_local_position")
     if local is not None and {"z_global", "ref_alt", "z"} <= set(local):
         ok = local["z_global"].astype(bool)
         return (local["timestamp"][ok].astype(float) / 1e6,
                 (local["ref_alt"][ok] - local["z"][ok]).astype(float),
-                "EKF altitude above mean sea level (vehicle_local_position ref_alt - z)")
-    return np.empty(0), np.empty(0), ""
+                "EKF altitude above mean sea level (vehicle_local_position ref_alt - z)",
+                local["epv"][ok].astype(float) if "epv" in local else None)
+    return np.empty(0), np.empty(0), "", None
 
 
 def _estimator_altitude(t_s: np.ndarray, gps_alt_m: np.ndarray, est_t_s: np.ndarray,
-                        est_alt_m: np.ndarray, est_reference: str, notes: list[str]
-                        ) -> tuple[np.ndarray, str]:
+                        est_alt_m: np.ndarray, est_reference: str, notes: list[str],
+                        est_sigma_m: np.ndarray | None = None,
+                        gps_sigma_m: np.ndarray | None = None,
+                        ) -> tuple[np.ndarray, str, np.ndarray]:
     """The estimator's altitude at the GPS sample times (linear interpolation, within its own
-    time span only), the raw GPS altitude where it does not reach; and what the result is."""
+    time span only), the raw GPS altitude where it does not reach; what the result is; and
+    its one sigma (m), from the same source as each altitude: the estimator's ``est_sigma_m``
+    or the receiver's ``gps_sigma_m`` (NaN where that source states none)."""
     raw = "GPS receiver altitude above mean sea level"
+    gps_sigma = np.full(len(t_s), np.nan) if gps_sigma_m is None else usable(gps_sigma_m)
     finite = np.isfinite(est_t_s) & np.isfinite(est_alt_m)
     est_t_s, est_alt_m = est_t_s[finite], est_alt_m[finite]
     if len(est_t_s) < 2:
         notes.append("no estimator altitude in the log: the GPS receiver's own altitude is "
                      "used, which can drift by metres in seconds")
-        return gps_alt_m, raw
+        return gps_alt_m, raw, gps_sigma
+    est_sigma = np.full(len(est_t_s), np.nan) if est_sigma_m is None else usable(
+        est_sigma_m[finite])
     order = np.argsort(est_t_s, kind="stable")
-    est_t_s, est_alt_m = est_t_s[order], est_alt_m[order]
+    est_t_s, est_alt_m, est_sigma = est_t_s[order], est_alt_m[order], est_sigma[order]
     covered = (t_s >= est_t_s[0]) & (t_s <= est_t_s[-1])
     alt = np.where(covered, np.interp(t_s, est_t_s, est_alt_m), gps_alt_m)
+    stated = np.isfinite(est_sigma)
+    sigma = np.where(covered, np.interp(t_s, est_t_s[stated], est_sigma[stated])
+                     if stated.any() else np.nan, gps_sigma)
     if not covered.all():
         notes.append(f"{int((~covered).sum())} GPS sample(s) outside the estimator's time "
                      "span keep the receiver's own altitude")
-        return alt, f"{est_reference}; GPS receiver altitude outside its span"
-    return alt, est_reference
+        return alt, f"{est_reference}; GPS receiver altitude outside its span", sigma
+    return alt, est_reference, sigma
 
 
 #: the largest altitude (m) and attitude angle (degrees) a log sample is taken with; a larger
@@ -147,6 +192,35 @@ def _possible_positions(t_s: np.ndarray, lat: np.ndarray, lon: np.ndarray,
         notes.append(f"{int((~ok).sum())} GPS sample(s) with no possible time or position "
                      "(not finite, or outside ±90°/±180°: corrupt records) skipped")
     return ok
+
+
+def _position_sigma(figure_m: np.ndarray, codes: np.ndarray | None, hdop: np.ndarray | None,
+                    classes: dict[int, str], keep: np.ndarray, notes: list[str],
+                    figure_words: str, code_name: str) -> np.ndarray | None:
+    """Per-axis position sigma (m) of the samples ``keep``: the receiver's own figure
+    (``figure_m``, per axis already) where it states one, else its fix class widened by HDOP
+    (:mod:`harborsight.telemetry.accuracy`); None where neither gives one. Says which in
+    ``notes``, with the fix classes seen."""
+    sigma = np.array(figure_m, dtype=float)[keep]
+    stated = np.isfinite(sigma)
+    classed = np.zeros(len(sigma), bool)
+    hdop_missing = hdop is None
+    if codes is not None:
+        codes = np.asarray(codes, dtype=float)[keep]
+        hdop = np.full(len(sigma), np.nan) if hdop is None else np.asarray(hdop, float)[keep]
+        sigma[~stated] = per_axis_from_class_m(codes[~stated], hdop[~stated], classes)
+        classed = ~stated & np.isfinite(sigma)
+    if not (stated | classed).any():
+        return None
+    parts = [f"{figure_words} for {int(stated.sum())} of {len(sigma)} samples"] if stated.any() \
+        else []
+    if classed.any():
+        parts.append(f"the {code_name} class for {int(classed.sum())}" + (
+            " (no HDOP in the log)" if hdop_missing else ", widened by HDOP above 1"))
+    if codes is not None and np.isfinite(codes).all():
+        parts.append(f"{code_name}: {count_codes(codes, FIX_NAMES)}")
+    notes.append("position_sigma_m (per axis): " + "; ".join(parts))
+    return sigma
 
 
 def _missing_if_absurd(values: np.ndarray, limit: float) -> np.ndarray:
@@ -181,7 +255,8 @@ def read_px4_ulog(path: str | Path) -> Track:
     except Exception as exc:  # pyulog raises plain Exceptions and struct errors on foreign files
         raise InputError(path, None, f"not a readable PX4 ULog: {exc}") from None
     datasets = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
-    gps = datasets.get("vehicle_gps_position", datasets.get("sensor_gps"))
+    gps_topic = "vehicle_gps_position" if "vehicle_gps_position" in datasets else "sensor_gps"
+    gps = datasets.get(gps_topic)
     if gps is None:
         raise InputError(path, "vehicle_gps_position", "the log has no GPS topic "
                          "(vehicle_gps_position or sensor_gps)")
@@ -212,9 +287,27 @@ def read_px4_ulog(path: str | Path) -> Track:
     if not good.any():
         raise InputError(path, "vehicle_gps_position", "no GPS sample with a possible time and "
                          "position (the log is corrupt)")
-    alt, alt_reference = _estimator_altitude(t_s, alt, *_px4_estimator_altitude(datasets),
-                                             notes)
+    accuracy_notes: list[str] = []       # said last, after what was skipped
+    position_sigma = _position_sigma(
+        per_axis_from_radial_m(gps["eph"]) if "eph" in gps else np.full(len(t_s), np.nan),
+        gps.get("fix_type"), gps.get("hdop"), PX4_FIX_CLASSES, good, accuracy_notes,
+        f"{gps_topic}.eph / √2 (the receiver's horizontal accuracy, radial)", "fix_type")
+    est_t_s, est_alt_m, est_reference, est_epv_m = _px4_estimator_altitude(datasets)
+    alt, alt_reference, alt_sigma = _estimator_altitude(
+        t_s, alt, est_t_s, est_alt_m, est_reference, notes, est_epv_m, gps.get("epv"))
     alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
+    alt_sigma = none_if_missing(alt_sigma[good])
+    if alt_sigma is not None:
+        receiver = f"the receiver's {gps_topic}.epv (vertical accuracy)"
+        topic = next((name for name in ("vehicle_global_position", "vehicle_local_position")
+                      if est_reference and name in alt_reference), None)
+        if topic is None:
+            accuracy_notes.append(f"alt_sigma_m: {receiver}")
+        elif alt_reference.endswith("its span"):
+            accuracy_notes.append(f"alt_sigma_m: the estimator's {topic}.epv; {receiver} "
+                                  "outside its span")
+        else:
+            accuracy_notes.append(f"alt_sigma_m: the estimator's {topic}.epv")
     utc_start = None
     if "time_utc_usec" in gps:
         utc_us = gps["time_utc_usec"].astype(float)
@@ -231,17 +324,19 @@ def read_px4_ulog(path: str | Path) -> Track:
     if att is not None and len(att["timestamp"]):
         quat_wxyz = np.column_stack([att[f"q[{i}]"] for i in range(4)]).astype(float)
         norm = np.linalg.norm(quat_wxyz, axis=1)
-        usable = np.isfinite(norm) & (norm > 1e-6)     # a zeroed record is no rotation
+        rotates = np.isfinite(norm) & (norm > 1e-6)     # a zeroed record is no rotation
         ypr = np.full((len(quat_wxyz), 3), np.nan)
-        if usable.any():
-            rotation = Rotation.from_quat(quat_wxyz[usable][:, [1, 2, 3, 0]])  # x, y, z, w
-            ypr[usable] = rotation.as_euler("ZYX", degrees=True)    # R_NED<-B = Rz Ry Rx
+        if rotates.any():
+            rotation = Rotation.from_quat(quat_wxyz[rotates][:, [1, 2, 3, 0]])  # x, y, z, w
+            ypr[rotates] = rotation.as_euler("ZYX", degrees=True)    # R_NED<-B = Rz Ry Rx
         att_t_s = att["timestamp"].astype(float) / 1e6
     else:
         notes.append("no vehicle_attitude topic: no attitude")
+    notes += accuracy_notes
     return Track(
         source=path, kind="px4-ulog", t_s=t_s[good], lat_deg=lat[good], lon_deg=lon[good],
         alt_m=alt[good], alt_reference=alt_reference,
+        position_sigma_m=position_sigma, alt_sigma_m=alt_sigma,
         **_attitude_fields(att_t_s, ypr), utc_start=utc_start,
         clock="seconds since the autopilot booted", notes=notes,
     )
@@ -283,10 +378,11 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     except Exception as exc:  # DFReader raises assorted errors on foreign files
         raise InputError(path, None, f"not a readable ArduPilot DataFlash log: {exc}") from None
     gps_rows, att_rows, pos_rows, unfixed, other_instances = [], [], [], 0, 0
+    accuracy: dict[int, tuple[float, float]] = {}   # GPA by TimeUS: HAcc, VAcc (m)
     with _captured_output(noise):
         while True:
             try:
-                message = log.recv_match(type=["GPS", "ATT", "POS"])
+                message = log.recv_match(type=["GPS", "ATT", "POS", "GPA"])
             except Exception as exc:  # a torn record at the end of a log cut by power loss
                 raise InputError(path, None, f"unreadable record after {len(gps_rows)} GPS "
                                  f"sample(s): {exc}") from None
@@ -301,7 +397,12 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                         unfixed += 1
                         continue
                     gps_rows.append((message.TimeUS / 1e6, message.Lat, message.Lng, message.Alt,
-                                     message.GWk, message.GMS))
+                                     message.GWk, message.GMS, getattr(message, "HDop", np.nan),
+                                     getattr(message, "Status", 3), message.TimeUS))
+                elif message.get_type() == "GPA":       # logged with its GPS message's TimeUS
+                    if getattr(message, "I", 0) == 0:
+                        accuracy[message.TimeUS] = (getattr(message, "HAcc", np.nan),
+                                                    getattr(message, "VAcc", np.nan))
                 elif message.get_type() == "POS":
                     pos_rows.append((message.TimeUS / 1e6, message.Alt))
                 else:
@@ -329,10 +430,25 @@ def read_ardupilot_bin(path: str | Path) -> Track:
         raise InputError(path, "GPS", "no GPS sample with a possible time and position (the "
                          "log is corrupt)")
     t_s = gps[:, 0]
+    hacc_m, vacc_m = np.array([accuracy.get(int(time_us), (np.nan, np.nan))
+                               for time_us in gps[:, 8]], dtype=float).reshape(-1, 2).T
+    accuracy_notes: list[str] = []       # said last, after what was skipped
+    position_sigma = _position_sigma(
+        per_axis_from_radial_m(hacc_m), gps[:, 7], gps[:, 6], ARDUPILOT_STATUS_CLASSES,
+        np.ones(len(gps), bool), accuracy_notes,
+        "GPA.HAcc / √2 (the receiver's horizontal accuracy, radial)", "GPS Status")
     pos = np.array(pos_rows, dtype=float).reshape(-1, 2)
-    alt, alt_reference = _estimator_altitude(t_s, gps[:, 3], pos[:, 0], pos[:, 1],
-                                             "EKF altitude above mean sea level (POS.Alt)", notes)
+    alt, alt_reference, alt_sigma = _estimator_altitude(
+        t_s, gps[:, 3], pos[:, 0], pos[:, 1], "EKF altitude above mean sea level (POS.Alt)",
+        notes, None, vacc_m)
     alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
+    alt_sigma = none_if_missing(alt_sigma)
+    if alt_sigma is not None:
+        accuracy_notes.append("alt_sigma_m: GPA.VAcc (the receiver's vertical accuracy) where "
+                              "the receiver's own altitude is used")
+    if "POS.Alt" in alt_reference and np.isfinite(usable(vacc_m)).any():
+        accuracy_notes.append("alt_sigma_m: none for the EKF altitude (POS.Alt): the log states "
+                              "no accuracy for it, and GPA.VAcc is the receiver's altitude's")
     utc_start = None
     weeks, ms = gps[:, 4], gps[:, 5]
     if (weeks > 0).any():
@@ -345,9 +461,11 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     att = np.array(att_rows, dtype=float) if att_rows else None
     if att is None:
         notes.append("no ATT messages: no attitude")
+    notes += accuracy_notes
     return Track(
         source=path, kind="ardupilot-bin", t_s=t_s, lat_deg=gps[:, 1], lon_deg=gps[:, 2],
         alt_m=alt, alt_reference=alt_reference,
+        position_sigma_m=position_sigma, alt_sigma_m=alt_sigma,
         **_attitude_fields(None if att is None else att[:, 0], None if att is None else att[:, 1:]),
         utc_start=utc_start,
         clock="seconds since the autopilot booted", notes=notes,

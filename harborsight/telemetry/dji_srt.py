@@ -26,6 +26,13 @@ Date lines are the drone's local time, with no zone: they become UTC only with a
 block time; older firmware writes whole seconds (truncated), and then it is their mean plus
 0.5 s, good to a few tenths of a second instead of up to 1 s early from the first block alone.
 
+Accuracy: none of these families states any. No RTK flag, standard deviation or DOP field
+appears in the real files, the P4 RTK's and the Matrice 300's included (the P4 RTK's
+``GPS (lon, lat, 15)`` ends in the satellite count, the Matrice 300's ``GPS(lat, lon, 0.0M)``
+in an altitude); DJI documents ``RtkFlag`` and ``RtkStdLon``/``RtkStdLat``/``RtkStdHgt`` for
+its photos' XMP metadata, not for the SRT. The track has no accuracy figures, and the sensor
+defaults (``harborsight.geometry.sensor_sigmas``) apply to its frames.
+
 Latitude/longitude printed with four decimals (Mavic Pro, Mavic Mini, Matrice 300 files) are
 steps of 11 m north-south: the track's notes say so, since the drone's position places the
 vessel in the image.

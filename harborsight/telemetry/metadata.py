@@ -15,6 +15,13 @@ Camera attitude (``CameraMount``):
 * ``rigid``: a camera fixed to the airframe, pitched ``pitch_deg`` about the body's right axis:
   ``R_NED<-G = R_NED<-B · Ry(pitch)``, whose ZYX Euler angles are written (scipy; at exactly
   −90° pitch the split between yaw and roll is arbitrary and the rotation still exact).
+
+Accuracy: where a track states its own (:class:`Track`'s ``position_sigma_m``, ``alt_sigma_m``,
+``heading_sigma_deg``), the frame carries the figure sampled at its time as the optional
+``uav.position_sigma_m``, ``uav.alt_sigma_m``, ``vessel.position_sigma_m`` and
+``vessel.heading_sigma_deg`` (:data:`~harborsight.geometry.sensor_sigmas.FRAME_SIGMA_FIELDS`),
+which override the sensor-class defaults for that frame. A figure that is missing at that
+time (NaN, or outside the frame's 0-1000 limit) is left out of the frame, never null.
 """
 
 from __future__ import annotations
@@ -27,9 +34,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError, brief
+from harborsight.telemetry.accuracy import MAX_SIGMA_M
 from harborsight.telemetry.track import Track
 
 MOUNTS = ("auto", "gimbal", "stabilised", "rigid")
+#: the frame fields written from each track's accuracy figures: (section, key, track quantity)
+UAV_SIGMA_FIELDS = (("uav", "position_sigma_m", "position_sigma_m"),
+                    ("uav", "alt_sigma_m", "alt_sigma_m"))
+VESSEL_SIGMA_FIELDS = (("vessel", "position_sigma_m", "position_sigma_m"),
+                       ("vessel", "heading_sigma_deg", "heading_sigma_deg"))
 
 
 @dataclass(frozen=True)
@@ -187,4 +200,18 @@ def build_video_metadata(
                           "vessel": str(vessel.source), "vessel_t_s": round(float(vessel_t[i]), 4),
                           "alt_reference": drone.alt_reference},
         })
+        for samples, fields in ((uav, UAV_SIGMA_FIELDS), (ship, VESSEL_SIGMA_FIELDS)):
+            for section, key, name in fields:
+                value = _frame_sigma(samples.get(name), i)
+                if value is not None:
+                    frames[-1][section][key] = value
     return FrameMetadataResult(frames, skipped, mount.resolve(drone))
+
+
+def _frame_sigma(values: np.ndarray | None, i: int) -> float | None:
+    """Sample ``i`` of a sampled accuracy figure, rounded for the frame; None where the track
+    has none or it is missing there (NaN, or not within the frame's limits: above 0 and at most
+    1000)."""
+    if values is None or not (0.0 < values[i] <= MAX_SIGMA_M):
+        return None
+    return max(round(float(values[i]), 4), 0.0001)

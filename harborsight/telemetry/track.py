@@ -12,6 +12,12 @@ A time between two samples more than ``2 max_gap_s`` apart, or outside the track
 half its end sample interval (or ``max_gap_s``, if less), has no value: NaN, and the caller
 reports the frame instead of guessing. (Outside, the end sample's value is held, not
 extrapolated: GPS noise makes a slope from two samples worse than holding for half a step.)
+
+Accuracy figures the log states go with the samples and are sampled the same way (never
+unwrapped): ``position_sigma_m``, one sigma per horizontal axis (east, north) in metres;
+``alt_sigma_m``, one sigma of ``alt_m`` in metres; ``heading_sigma_deg`` (vessel tracks). NaN
+marks a sample without one; None, a log that states none. Where each comes from is in
+``notes`` (:mod:`harborsight.telemetry.accuracy` turns a log's figures into these).
 """
 
 from __future__ import annotations
@@ -23,7 +29,10 @@ from pathlib import Path
 import numpy as np
 
 #: The quantities a track may carry, each an array over samples or None.
-QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg")
+QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg",
+              "position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
+#: the accuracy figures among them (one sigma; see the module docstring)
+SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
 ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
 #: Quantities that may run on their own time axis (``attitude_t_s``): autopilots log attitude
 #: 10-50 times as often as position.
@@ -49,6 +58,9 @@ class Track:
     attitude_of: str | None = None
     attitude_t_s: np.ndarray | None = None
     heading_deg: np.ndarray | None = None    # vessel tracks: true heading
+    position_sigma_m: np.ndarray | None = None   # one sigma per horizontal axis, m
+    alt_sigma_m: np.ndarray | None = None        # one sigma of alt_m, m
+    heading_sigma_deg: np.ndarray | None = None  # one sigma of heading_deg, deg
     utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
     clock: str = ""                          # what t_s counts, in words
     notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
@@ -130,7 +142,8 @@ class Track:
         return out
 
     def summary(self) -> dict:
-        """What an operator checks first: extent in time and space, rate, attitude."""
+        """What an operator checks first: extent in time and space, rate, attitude, and the
+        range of the accuracy figures the log states (None where it states none)."""
         def span(values: np.ndarray | None) -> list[float] | None:
             if values is None or not np.isfinite(values).any():
                 return None
@@ -144,7 +157,8 @@ class Track:
             "lat_deg": span(self.lat_deg), "lon_deg": span(self.lon_deg),
             "alt_m": span(self.alt_m), "alt_reference": self.alt_reference,
             "attitude": None if not self.has_attitude else self.attitude_of,
-            "heading": self.heading_deg is not None, "notes": list(self.notes),
+            "heading": self.heading_deg is not None,
+            **{name: span(getattr(self, name)) for name in SIGMAS}, "notes": list(self.notes),
         }
 
 

@@ -14,10 +14,23 @@ is over 12 h before the previous one's is in the next day (a GGA after midnight,
 next RMC/ZDA brings the date). Course over ground (``RMC``/``VTG``) is never used as heading: a
 vessel berthing moves sideways.
 
+Accuracy (NMEA; conversions in :mod:`harborsight.telemetry.accuracy`): a fix's
+``position_sigma_m`` (one sigma per horizontal axis, m) comes from the ``GST`` sentence of its
+epoch, matched by GST's time field (the "UTC time of the GGA or GNS fix associated with this
+sentence", as pynmea2 documents it): the RMS of its latitude and longitude error standard
+deviations (metres, one per axis). A fix without a GST takes its GGA quality's class (4 RTK
+fixed: ``rtk``; 5 RTK float and 2 DGPS: ``dgps``; 1 GPS and 3 PPS: ``standalone``; horizontal
+RMS per receiver of ``GPS_CLASSES``), widened by the GGA's HDOP above 1, divided by √2; a fix
+from RMC alone, without a GST, has none. The heading sentences read (HDT, HDG, HDM) state no
+accuracy, nor does THS: the track has no heading sigma.
+
 CSV: a header line, then one row per sample, with columns ``time`` (ISO 8601 with a zone, e.g.
 ``2026-05-01T12:00:00.25Z``), ``lat``, ``lon`` (degrees) and ``heading_deg`` (true, clockwise
 from north), or instead ``heading_mag_deg`` (magnetic, deviation already applied: made true
-with the WMM declination of each row).
+with the WMM declination of each row). Optional columns carry the receivers' accuracy, as the
+frame metadata does: ``position_sigma_m`` (one sigma per horizontal axis, m) and
+``heading_sigma_deg`` (one sigma, degrees); an empty cell is a row without one, a value that
+is not a number above 0 and at most 1000 makes the row unreadable (skipped and noted).
 """
 
 from __future__ import annotations
@@ -30,6 +43,15 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.telemetry.accuracy import (
+    GGA_NAMES,
+    GGA_QUALITY_CLASSES,
+    MAX_SIGMA_M,
+    count_codes,
+    none_if_missing,
+    per_axis_from_class_m,
+    per_axis_from_gst_m,
+)
 from harborsight.telemetry.declination import (
     decimal_year,
     magnetic_declination_deg,
@@ -47,12 +69,14 @@ def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0) -> Track
 
 
 def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: list[float],
-           heading: np.ndarray, notes: list[str]) -> Track:
+           heading: np.ndarray, notes: list[str], **sigmas: np.ndarray | None) -> Track:
+    """A vessel track; ``sigmas``: its accuracy figures (Track's names), None where none is
+    stated for any sample."""
     start = min(utc)
     t_s = np.array([(u - start).total_seconds() for u in utc])
     return Track(source=path, kind=kind, t_s=t_s, lat_deg=np.array(lat), lon_deg=np.array(lon),
                  heading_deg=heading, utc_start=start, clock="seconds since the first fix (UTC)",
-                 notes=notes)
+                 notes=notes, **{name: none_if_missing(values) for name, values in sigmas.items()})
 
 
 def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
@@ -67,7 +91,9 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     fixes: list[tuple[datetime, float, float]] = []       # in arrival order
     headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
     magnetic: list[tuple[int, float]] = []                # HDM / HDG without variation
-    bad, undated = [], 0
+    qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
+    errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
+    bad, undated, unusable_gst = [], 0, 0
     no_fix = {"RMC status V (no fix)": 0, "GGA quality 0 (no fix)": 0,
               "GGA quality 6 (dead reckoning, not a measured position)": 0,
               "headings before the first fix": 0}
@@ -112,6 +138,14 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                         undated += 1
                         continue
                     add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
+                    qualities[len(fixes) - 1] = (quality, _number(sentence.horizontal_dil))
+            elif kind == "GST":
+                sigma_m = per_axis_from_gst_m(_number(sentence.std_dev_latitude),
+                                              _number(sentence.std_dev_longitude))
+                if isinstance(sentence.timestamp, time) and math.isfinite(sigma_m):
+                    errors.append((len(fixes) - 1, sentence.timestamp, sigma_m))
+                else:
+                    unusable_gst += 1
             elif kind == "HDT" and sentence.heading is not None and fixes:
                 headings.append((len(fixes) - 1, _angle(sentence.heading)))
             elif kind == "HDG" and sentence.heading is not None and fixes:
@@ -149,6 +183,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     if undated:
         notes.append(f"{undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
     notes += [f"{count} sentence(s) skipped: {what}" for what, count in no_fix.items() if count]
+    position_sigma = _nmea_position_sigma(fixes, qualities, errors, unusable_gst, notes)
     t0 = min(f[0] for f in fixes)
     arrival_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
     head_t = _heading_times(arrival_t, [epoch for epoch, _ in headings])
@@ -167,7 +202,55 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                      f"{max_heading_gap_s:g} s")
     ordered = [fixes[i] for i in fix_order]
     return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
-                  [f[2] for f in ordered], heading, notes)
+                  [f[2] for f in ordered], heading, notes,
+                  position_sigma_m=position_sigma[fix_order])
+
+
+def _number(value) -> float:
+    """An NMEA number field as a float; NaN where it is empty or not a number."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
+                         qualities: dict[int, tuple[int, float]],
+                         errors: list[tuple[int, time, float]], unusable_gst: int,
+                         notes: list[str]) -> np.ndarray:
+    """Per-axis position sigma (m) of each fix, in arrival order (module docstring): its
+    GST's where one matches its time, else its GGA quality class; NaN for neither. A GST
+    belongs to the fix before it or the one after (receivers send it either side of the
+    epoch's GGA), whichever has its time. Says what was used in ``notes``."""
+    sigma = np.full(len(fixes), np.nan)
+    unmatched = 0
+    for last, clock, value in errors:
+        clock = clock.replace(tzinfo=None)
+        match = next((i for i in (last, last + 1)
+                      if 0 <= i < len(fixes) and fixes[i][0].time() == clock), None)
+        if match is None:
+            unmatched += 1
+        else:
+            sigma[match] = value
+    from_gst = np.isfinite(sigma)
+    classed = [i for i in sorted(qualities) if not from_gst[i]]
+    if classed:
+        codes, hdops = zip(*(qualities[i] for i in classed), strict=True)
+        sigma[classed] = per_axis_from_class_m(codes, hdops, GGA_QUALITY_CLASSES)
+    by_class = [i for i in classed if np.isfinite(sigma[i])]
+    parts = [f"GST latitude/longitude error RMS for {int(from_gst.sum())} of {len(fixes)} "
+             "fixes"] if from_gst.any() else []
+    if by_class:
+        parts.append(f"the GGA quality class, widened by HDOP above 1, for {len(by_class)} ("
+                     + count_codes([qualities[i][0] for i in by_class], GGA_NAMES) + ")")
+    if parts:
+        notes.append("position_sigma_m (per axis): " + "; ".join(parts))
+    if unmatched:
+        notes.append(f"{unmatched} GST sentence(s) left out: no fix at their time")
+    if unusable_gst:
+        notes.append(f"{unusable_gst} GST sentence(s) without a time or a usable latitude/"
+                     "longitude error skipped")
+    return sigma
 
 
 def _angle(value) -> float:
@@ -243,18 +326,23 @@ def read_vessel_csv(path: str | Path) -> Track:
                          "missing column (need time, lat, lon and heading_deg, or "
                          "heading_mag_deg for a magnetic heading)")
     utc, lat, lon, heading, bad, declinations = [], [], [], [], [], []
+    sigma_columns = [c for c in ("position_sigma_m", "heading_sigma_deg") if c in rows[0]]
+    sigmas: dict[str, list[float]] = {c: [] for c in sigma_columns}
     for line, row in enumerate(rows, start=2):
         try:
             when = _csv_time(row["time"])
             row_lat = _csv_number(row["lat"], -90, 90, "lat")
             row_lon = _csv_number(row["lon"], -180, 180, "lon")
             value = _csv_number(row[heading_column], -360, 360, heading_column)
+            row_sigmas = {c: _csv_sigma(row[c], c) for c in sigma_columns}
             if heading_column == "heading_mag_deg":
                 declinations.append(magnetic_declination_deg(row_lat, row_lon, when))
                 value += declinations[-1]
         except ValueError as exc:
             bad.append(f"line {line}: {exc}")
             continue
+        for column, sigma in row_sigmas.items():
+            sigmas[column].append(sigma)
         utc.append(when)
         lat.append(row_lat)
         lon.append(row_lon)
@@ -266,7 +354,8 @@ def read_vessel_csv(path: str | Path) -> Track:
     if declinations:
         notes.append(f"heading_mag_deg made true with the {wmm_model_name(decimal_year(utc[0]))}"
                      f" declination, {min(declinations):+.2f} to {max(declinations):+.2f} deg")
-    return _track(path, "csv", utc, lat, lon, np.array(heading), notes)
+    return _track(path, "csv", utc, lat, lon, np.array(heading), notes,
+                  **{column: np.array(values) for column, values in sigmas.items()})
 
 
 def _csv_time(text: str | None) -> datetime:
@@ -277,6 +366,17 @@ def _csv_time(text: str | None) -> datetime:
     if when.tzinfo is None:
         raise ValueError(f"time: {text!r} has no time zone")
     return when.astimezone(UTC)
+
+
+def _csv_sigma(text: str | None, column: str) -> float:
+    """An optional sigma cell: NaN where empty, else a number above 0 and at most
+    :data:`MAX_SIGMA_M` (ValueError otherwise)."""
+    if text is None or not text.strip():
+        return math.nan
+    value = _csv_number(text, 0.0, MAX_SIGMA_M, column)
+    if value <= 0:
+        raise ValueError(f"{column}: {value} is not above 0")
+    return value
 
 
 def _csv_number(text: str | None, low: float, high: float, column: str) -> float:
