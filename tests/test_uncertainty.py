@@ -26,7 +26,7 @@ HEIGHT_M, FOCAL_PX = 50.0, 500.0
 GSD_M = HEIGHT_M / FOCAL_PX
 QUANTISATION_M = GSD_M / math.sqrt(12.0)
 ZERO = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
-                    camera_tilt_deg=0, height_m=0, clock_s=0, edge_px=0)
+                    camera_tilt_deg=0, height_m=0, water_level_m=0, clock_s=0, edge_px=0)
 BOX = np.array([[10.0, 3.0], [10.0, -3.0], [-10.0, -3.0], [-10.0, 3.0]])   # centred on (0, 0)
 
 
@@ -66,6 +66,10 @@ def test_height_scales_the_obstacle_about_the_nadir():
     # and a 1 m height error moves it by 12/50 m along u
     section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0],
                      SensorSigmas(**{**ZERO.to_dict(), "height_m": 1.0}))
+    assert section.sigma_m == pytest.approx(math.hypot(12.0 / HEIGHT_M, QUANTISATION_M), rel=1e-3)
+    # the water level's error adds to the altitude's: 0.6 and 0.8 m make 1 m
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0],
+                     SensorSigmas(**{**ZERO.to_dict(), "height_m": 0.6, "water_level_m": 0.8}))
     assert section.sigma_m == pytest.approx(math.hypot(12.0 / HEIGHT_M, QUANTISATION_M), rel=1e-3)
 
 

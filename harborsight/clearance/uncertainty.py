@@ -84,8 +84,9 @@ def _world_rotation(axis: int, angle_rad: float) -> np.ndarray:
 def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
     """The camera moved by one sigma of each camera error (height, yaw, tilt e, tilt n)."""
     cameras = []
-    if sigmas.height_m > 0:
-        cameras.append(Camera(camera.intrinsics, camera.position_enu + np.array([0.0, 0.0, sigmas.height_m]),
+    height_m = sigmas.height_above_water_m
+    if height_m > 0:
+        cameras.append(Camera(camera.intrinsics, camera.position_enu + np.array([0.0, 0.0, height_m]),
                               camera.world_from_camera))
     for axis, sigma_deg in ((2, sigmas.camera_yaw_deg), (0, sigmas.camera_tilt_deg),
                             (1, sigmas.camera_tilt_deg)):

@@ -17,7 +17,9 @@ name                   default    source
 ``vessel_heading_deg`` 2.0 deg    magnetic compass; ``gnss`` (dual-antenna) 0.3, ``gyro`` 0.5
 ``camera_yaw_deg``     2.0 deg    the drone's compass, which sets the gimbal's yaw
 ``camera_tilt_deg``    0.5 deg    a stabilised gimbal's pitch and roll, each
-``height_m``           1.0 m      barometric height plus the water level's
+``height_m``           1.0 m      the drone's altitude (barometric; a frame's ``uav.alt_sigma_m``)
+``water_level_m``      0.3 m      the water level under it (tide, chart datum); adds to
+                                  ``height_m`` in quadrature
 ``clock_s``            0.05 s     video vs telemetry clocks (needs the frames' velocities)
 ``edge_px``            4.0 px     where the mask puts the obstacle's edge, and a model's other
                                   small errors near the hull: calibrated for the shipped model
@@ -68,6 +70,7 @@ class SensorSigmas:
     camera_yaw_deg: float = 2.0
     camera_tilt_deg: float = 0.5
     height_m: float = 1.0
+    water_level_m: float = 0.3
     clock_s: float = 0.05
     edge_px: float = 4.0
 
@@ -81,6 +84,11 @@ class SensorSigmas:
     @classmethod
     def names(cls) -> list[str]:
         return [f.name for f in fields(cls)]
+
+    @property
+    def height_above_water_m(self) -> float:
+        """One sigma of the height above the water: altitude and water level together."""
+        return math.hypot(self.height_m, self.water_level_m)
 
     @property
     def uav_axis_m(self) -> float:
