@@ -42,19 +42,16 @@ def _long_flight(root: Path) -> Path:
     return flight
 
 
-@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_ctrl_c_stops_the_run_with_its_record_equal_to_the_disk(tmp_path):
-    flight = _long_flight(tmp_path)
-    total = len(list((flight / "frames").glob("*.json")))
-    out = tmp_path / "out"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+def _interrupted_after_three_reports(args: list[str], reports_dir: Path) -> tuple[int, str, str]:
+    """Start ``harborsight ARGS``, send SIGINT once three reports are in ``reports_dir``, and
+    return its exit code, stdout and stderr."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "harborsight.cli", "run", str(flight), "--masks",
-         str(flight / "labels"), "--vessel", str(VESSEL), "--out", str(out)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        [sys.executable, "-m", "harborsight.cli", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         deadline = time.monotonic() + 120
-        while len(list((out / "reports").glob("*.json"))) < 3:
+        while len(list(reports_dir.glob("*.json"))) < 3:
             assert process.poll() is None, process.communicate()
             assert time.monotonic() < deadline, "no report written in 120 s"
             time.sleep(0.02)
@@ -63,7 +60,18 @@ def test_ctrl_c_stops_the_run_with_its_record_equal_to_the_disk(tmp_path):
     finally:
         if process.poll() is None:
             process.kill()
-    assert process.returncode == 130, (stdout, stderr)
+    return process.returncode, stdout, stderr
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_ctrl_c_stops_the_run_with_its_record_equal_to_the_disk(tmp_path):
+    flight = _long_flight(tmp_path)
+    total = len(list((flight / "frames").glob("*.json")))
+    out = tmp_path / "out"
+    returncode, stdout, stderr = _interrupted_after_three_reports(
+        ["run", str(flight), "--masks", str(flight / "labels"), "--vessel", str(VESSEL),
+         "--out", str(out)], out / "reports")
+    assert returncode == 130, (stdout, stderr)
     assert "Traceback" not in stderr and "Aborted" not in stderr
     [line] = [line for line in stderr.splitlines() if line.strip()]
     record = json.loads((out / "run.json").read_text())
@@ -91,23 +99,9 @@ def test_ctrl_c_stops_measure_after_the_frame_in_hand(tmp_path):
     flight = _long_flight(tmp_path)
     total = len(list((flight / "frames").glob("*.json")))
     out = tmp_path / "out"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "harborsight.cli", "measure", str(flight), "--vessel", str(VESSEL),
-         "--out", str(out), "--no-tables"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        deadline = time.monotonic() + 120
-        while len(list(out.glob("*.json"))) < 3:
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "no report written in 120 s"
-            time.sleep(0.02)
-        process.send_signal(signal.SIGINT)
-        stdout, stderr = process.communicate(timeout=120)
-    finally:
-        if process.poll() is None:
-            process.kill()
-    assert process.returncode == 130, (stdout, stderr)
+    returncode, stdout, stderr = _interrupted_after_three_reports(
+        ["measure", str(flight), "--vessel", str(VESSEL), "--out", str(out), "--no-tables"], out)
+    assert returncode == 130, (stdout, stderr)
     assert "Traceback" not in stderr and "Aborted" not in stderr
     reports = sorted(p.stem for p in out.glob("*.json"))
     assert 3 <= len(reports) < total

@@ -140,7 +140,6 @@ class SectionTracker:
         """Advance to ``time_s`` (non-decreasing) with this frame's reading, or None when
         the section has none (not ok, or cut by the image edge)."""
         s = self.settings
-        q = s.accel_sigma_mps2 ** 2
         self.tracks = [t for t in self.tracks if time_s - t.time_s <= s.max_coast_s]
         if self.current is not None and self.current not in self.tracks:
             self.current = None
@@ -149,7 +148,7 @@ class SectionTracker:
 
         best, best_score = None, math.inf
         for track in self.tracks:
-            x, P = track.predicted(time_s, q)
+            x, P = self._predicted(track, time_s)
             variance, _ = self._reading_variance(reading, time_s - track.time_s)
             score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
             if score < best_score:
@@ -168,18 +167,21 @@ class SectionTracker:
             return self._estimate(time_s, state)
         return self._estimate(time_s, "held")
 
+    def _predicted(self, track: _Track, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+        return track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+
     def _takes_over(self, track: _Track, time_s: float) -> bool:
         """Whether the track that took this frame's reading becomes the current one."""
         current = self.current
         if current is None or track is current:
             return True
-        if track.state[0] < current.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)[0][0]:
+        if track.state[0] < self._predicted(current, time_s)[0][0]:
             return True                     # never hide a nearer obstacle
         confirm = self.settings.confirm_frames
         return track.misses_in_row == 0 and current.misses_in_row >= confirm
 
     def _update(self, track: _Track, time_s: float, reading: Reading) -> None:
-        x, P = track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+        x, P = self._predicted(track, time_s)
         variance, systematic = self._reading_variance(reading, time_s - track.time_s)
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * (reading.distance_m - x[0])
@@ -193,7 +195,7 @@ class SectionTracker:
         track = self.current
         if track is None:
             return SectionEstimate(state="none")
-        x, P = track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+        x, P = self._predicted(track, time_s)
         estimate = SectionEstimate(
             distance_m=max(float(x[0]), 0.0),
             sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2),
