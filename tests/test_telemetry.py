@@ -198,6 +198,20 @@ def test_px4_altitude_is_the_estimators_where_the_log_has_it(tmp_path):
     assert any("1 GPS sample(s) outside the estimator's time span" in n for n in track.notes)
 
 
+
+def test_px4_extrapolated_fixes_are_not_positions(tmp_path):
+    """sensor_gps.fix_type 8 is "extrapolated": the receiver did not measure it. Such
+    samples are skipped and counted apart from the no-fix ones."""
+    fix_types = [3, 8, 6, 8, 2, 3]
+    rows = [(1_000_000 + 200_000 * i, 1_000_000 + 200_000 * i, 0, 51.9 + 1e-4 * i, 4.1, 30.0, fix)
+            for i, fix in enumerate(fix_types)]
+    track = read_drone_log(_write_sensor_gps_ulog(tmp_path / "extrapolated.ulg", rows))
+    np.testing.assert_allclose(track.t_s, [1.0, 1.4, 2.0])
+    np.testing.assert_allclose(track.lat_deg, [51.9, 51.9002, 51.9005])
+    assert "2 GPS sample(s) with fix_type 8 (extrapolated, not a measured position) skipped" \
+        in track.notes
+    assert "1 GPS sample(s) without a 3-D fix skipped" in track.notes
+
 def test_px4_gps_timed_by_measurement_and_a_cut_log_is_noted(tmp_path):
     # published 150 ms after the measurement, as a u-blox driver does; UTC of the measurement
     utc0_us = 1_780_000_000_000_000
@@ -408,6 +422,33 @@ def test_nmea_fixes_without_a_position_are_counted(tmp_path):
                  "1 sentence(s) skipped: GGA quality 6", "1 sentence(s) skipped: headings before"):
         assert any(note.startswith(what) for note in track.notes), what
 
+
+
+def test_nmea_fixes_and_headings_that_were_not_measured_are_skipped(tmp_path):
+    """GGA quality 7 (manual input) and 8 (simulator), an RMC whose mode indicator is E
+    (dead reckoning) and a THS heading whose mode is not A are not measurements: each is
+    skipped and counted. THS with mode A is a true heading like HDT."""
+    lines = [_nmea("GPRMC,120000,A,5154.000,N,00406.000,E,0.0,0.0,010526,,,A"),
+             _nmea("GPTHS,10.0,A"),
+             _nmea("GPGGA,120001,5154.001,N,00406.000,E,7,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPGGA,120002,5154.002,N,00406.000,E,8,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPRMC,120003,A,5154.003,N,00406.000,E,0.0,0.0,010526,,,E"),
+             _nmea("GPGGA,120004,5154.004,N,00406.000,E,2,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPTHS,90.0,E"),                 # estimated: not used
+             _nmea("GPTHS,12.0,A"),
+             _nmea("GPGGA,120005,5154.005,N,00406.000,E,9,08,0.9,5.0,M,46.9,M,,"),
+             _nmea("GPTHS,13.0,A")]
+    path = tmp_path / "ship.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert list(track.t_s) == [0.0, 4.0, 5.0]                   # 1, 2 and 3 are not measured
+    assert track.lat_deg[1] == pytest.approx(51 + 54.004 / 60)
+    np.testing.assert_allclose(track.heading_deg, [10.0, 12.0, 13.0], atol=1e-9)
+    for what in ("1 sentence(s) skipped: GGA quality 7", "1 sentence(s) skipped: GGA quality 8",
+                 "1 sentence(s) skipped: RMC mode E", "1 sentence(s) skipped: THS mode E"):
+        assert any(note.startswith(what) for note in track.notes), (what, track.notes)
+    assert not any("unreadable" in note for note in track.notes)   # THS is understood
+    assert any("SBAS 1" in note for note in track.notes)           # quality 9: the DGPS class
 
 def test_rigid_mount_composes_body_and_mount_rotations():
     """Camera = body · Ry(mount pitch); checked with harborsight's own rotation matrices."""

@@ -40,10 +40,10 @@ MAX_HDOP = 50.0
 #: GPS_CLASSES name of each code of a fix class, by the log that writes it
 PX4_FIX_CLASSES = {3: "standalone", 4: "dgps", 5: "dgps", 6: "rtk"}
 ARDUPILOT_STATUS_CLASSES = {3: "standalone", 4: "dgps", 5: "dgps", 6: "rtk"}
-GGA_QUALITY_CLASSES = {1: "standalone", 2: "dgps", 3: "standalone", 4: "rtk", 5: "dgps"}
+GGA_QUALITY_CLASSES = {1: "standalone", 2: "dgps", 3: "standalone", 4: "rtk", 5: "dgps", 9: "dgps"}
 #: the codes' meaning, for notes
 FIX_NAMES = {3: "3-D fix", 4: "DGPS/SBAS", 5: "RTK float", 6: "RTK fixed"}
-GGA_NAMES = {1: "GPS", 2: "DGPS", 3: "PPS", 4: "RTK fixed", 5: "RTK float"}
+GGA_NAMES = {1: "GPS", 2: "DGPS", 3: "PPS", 4: "RTK fixed", 5: "RTK float", 9: "SBAS"}
 
 
 def usable(values) -> np.ndarray:

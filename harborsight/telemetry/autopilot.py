@@ -272,9 +272,15 @@ def read_px4_ulog(path: str | Path) -> Track:
         t_s = gps["timestamp_sample"].astype(float) / 1e6     # the measurement, not the publish
     good = np.ones(len(t_s), bool)
     if "fix_type" in gps:
-        good &= gps["fix_type"] >= 3
-        if (~good).any():
-            notes.append(f"{int((~good).sum())} GPS sample(s) without a 3-D fix skipped")
+        # 3 3-D, 4 RTCM code differential, 5 RTK float, 6 RTK fixed; 8 is "extrapolated"
+        # (sensor_gps.msg): a position the receiver did not measure
+        extrapolated = gps["fix_type"] == 8
+        good &= (gps["fix_type"] >= 3) & (gps["fix_type"] <= 6)
+        if extrapolated.any():
+            notes.append(f"{int(extrapolated.sum())} GPS sample(s) with fix_type 8 (extrapolated, "
+                         "not a measured position) skipped")
+        if (~good & ~extrapolated).any():
+            notes.append(f"{int((~good & ~extrapolated).sum())} GPS sample(s) without a 3-D fix skipped")
     if "latitude_deg" in gps:                   # PX4 1.14 on: degrees and metres
         lat, lon = gps["latitude_deg"].astype(float), gps["longitude_deg"].astype(float)
         alt = gps["altitude_msl_m"].astype(float)
@@ -393,7 +399,7 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                     if getattr(message, "I", 0) != 0:   # 4.1 on: every receiver logs as GPS
                         other_instances += 1
                         continue
-                    if getattr(message, "Status", 3) < 3:
+                    if not 3 <= getattr(message, "Status", 3) <= 6:   # AP_GPS: 3 3-D ... 6 RTK fixed
                         unfixed += 1
                         continue
                     gps_rows.append((message.TimeUS / 1e6, message.Lat, message.Lng, message.Alt,

@@ -2,10 +2,10 @@
 (read with pynmea2) or from a CSV.
 
 NMEA: ``RMC`` gives UTC date, time and position; ``GGA`` time and position (its date comes from
-the last ``RMC`` or ``ZDA``); ``HDT`` the true heading; ``HDG`` a magnetic heading that becomes
+the last ``RMC`` or ``ZDA``); ``HDT`` and ``THS`` the true heading; ``HDG`` a magnetic heading that becomes
 true with the deviation and variation it carries; ``HDM``, and an ``HDG`` without variation, a
 magnetic heading made true with the World Magnetic Model's declination at the last fix
-(:mod:`harborsight.telemetry.declination`). Where a feed has both, true headings (HDT, HDG with
+(:mod:`harborsight.telemetry.declination`). Where a feed has both, true headings (HDT, THS, HDG with
 variation) are used and the magnetic ones are left out.
 Heading sentences have no time: those between two fixes are spread evenly over that interval
 (:func:`_heading_times`). The heading at each position fix is then interpolated (on unwrapped
@@ -21,8 +21,15 @@ sentence", as pynmea2 documents it): the RMS of its latitude and longitude error
 deviations (metres, one per axis). A fix without a GST takes its GGA quality's class (4 RTK
 fixed: ``rtk``; 5 RTK float and 2 DGPS: ``dgps``; 1 GPS and 3 PPS: ``standalone``; horizontal
 RMS per receiver of ``GPS_CLASSES``), widened by the GGA's HDOP above 1, divided by √2; a fix
-from RMC alone, without a GST, has none. The heading sentences read (HDT, HDG, HDM) state no
-accuracy, nor does THS: the track has no heading sigma.
+from RMC alone, without a GST, has none. The heading sentences read (HDT, THS, HDG, HDM) state no
+accuracy: the track has no heading sigma.
+
+Only measured fixes and headings are used; the rest are skipped and counted in the notes: an
+RMC with status V, or with a mode indicator (NMEA 2.3 on) of E (estimated, dead reckoning),
+M (manual input), S (simulator) or N (not valid); a GGA of quality 0 (invalid), 6 (estimated),
+7 (manual input) or 8 (simulator), or of a code the standard does not define (9, SBAS in
+some receivers' manuals, is read as DGPS); a THS (true heading and status, NMEA 0183 v3) whose
+mode is not A (autonomous): E estimated, M manual, S simulator, V not valid.
 
 CSV: a header line, then one row per sample, with columns ``time`` (ISO 8601 with a zone, e.g.
 ``2026-05-01T12:00:00.25Z``), ``lat``, ``lon`` (degrees) and ``heading_deg`` (true, clockwise
@@ -36,6 +43,7 @@ is not a number above 0 and at most 1000 makes the row unreadable (skipped and n
 from __future__ import annotations
 
 import csv
+import functools
 import math
 from datetime import UTC, date, datetime, time, timedelta
 from pathlib import Path
@@ -79,9 +87,31 @@ def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: li
                  notes=notes, **{name: none_if_missing(values) for name, values in sigmas.items()})
 
 
+@functools.cache
+def _teach_pynmea2_ths() -> None:
+    """Register THS (true heading and status, NMEA 0183 v3 on), which pynmea2 does not define:
+    heading in degrees true, then a mode: A autonomous, E estimated, M manual, S simulator,
+    V not valid. pynmea2 registers every TalkerSentence subclass by its name."""
+    import pynmea2
+
+    class THS(pynmea2.TalkerSentence):
+        fields = (("Heading", "heading", float), ("Mode indicator", "mode"))
+
+
+_RMC_MODES_NOT_MEASURED = {"E": "RMC mode E (estimated, dead reckoning)", "M": "RMC mode M (manual input)",
+                           "S": "RMC mode S (simulator)", "N": "RMC mode N (data not valid)"}
+_GGA_QUALITIES_NOT_MEASURED = {0: "GGA quality 0 (no fix)",
+                               6: "GGA quality 6 (dead reckoning, not a measured position)",
+                               7: "GGA quality 7 (manual input, not a measured position)",
+                               8: "GGA quality 8 (simulator, not a measured position)"}
+_THS_MODES_NOT_MEASURED = {"E": "THS mode E (estimated heading)", "M": "THS mode M (manual input)",
+                           "S": "THS mode S (simulator)", "V": "THS mode V (heading not valid)"}
+
+
 def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     import pynmea2
 
+    _teach_pynmea2_ths()
     path = Path(path)
     try:
         lines = path.read_text(errors="replace").splitlines()
@@ -94,9 +124,10 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
     errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
     bad, undated, unusable_gst = [], 0, 0
-    no_fix = {"RMC status V (no fix)": 0, "GGA quality 0 (no fix)": 0,
-              "GGA quality 6 (dead reckoning, not a measured position)": 0,
-              "headings before the first fix": 0}
+    no_fix = dict.fromkeys(["RMC status V (no fix)", *_RMC_MODES_NOT_MEASURED.values(),
+                            *_GGA_QUALITIES_NOT_MEASURED.values(), *_THS_MODES_NOT_MEASURED.values(),
+                            "GGA quality code the standard does not define",
+                            "headings before the first fix"], 0)
 
     def add_fix(clock: time, lat: float, lon: float) -> None:
         if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
@@ -124,15 +155,19 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
             elif kind == "RMC":
                 if sentence.datestamp is not None:
                     day = sentence.datestamp
+                mode = (getattr(sentence, "mode_indicator", None) or "").strip()[:1]
                 if sentence.status != "A":
                     no_fix["RMC status V (no fix)"] += 1
+                elif mode in _RMC_MODES_NOT_MEASURED:
+                    no_fix[_RMC_MODES_NOT_MEASURED[mode]] += 1
                 elif sentence.timestamp is not None and day is not None:
                     add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
             elif kind == "GGA":
                 quality = int(sentence.gps_qual or 0)
-                if quality in (0, 6):
-                    no_fix["GGA quality 0 (no fix)" if quality == 0 else
-                           "GGA quality 6 (dead reckoning, not a measured position)"] += 1
+                if quality in _GGA_QUALITIES_NOT_MEASURED:
+                    no_fix[_GGA_QUALITIES_NOT_MEASURED[quality]] += 1
+                elif quality not in GGA_QUALITY_CLASSES:
+                    no_fix["GGA quality code the standard does not define"] += 1
                 elif sentence.timestamp is not None:
                     if day is None:
                         undated += 1
@@ -146,7 +181,10 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                     errors.append((len(fixes) - 1, sentence.timestamp, sigma_m))
                 else:
                     unusable_gst += 1
-            elif kind == "HDT" and sentence.heading is not None and fixes:
+            elif kind == "THS" and (sentence.mode or "").strip()[:1] != "A":
+                no_fix[_THS_MODES_NOT_MEASURED.get((sentence.mode or "").strip()[:1],
+                                                   "THS mode V (heading not valid)")] += 1
+            elif kind in ("HDT", "THS") and sentence.heading is not None and fixes:
                 headings.append((len(fixes) - 1, _angle(sentence.heading)))
             elif kind == "HDG" and sentence.heading is not None and fixes:
                 deviation = _angle(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
@@ -157,7 +195,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                 headings.append((len(fixes) - 1, _angle(sentence.heading) + deviation + variation))
             elif kind == "HDM" and sentence.heading is not None and fixes:
                 magnetic.append((len(fixes) - 1, _angle(sentence.heading)))
-            elif kind in ("HDT", "HDG", "HDM") and sentence.heading is not None:
+            elif kind in ("HDT", "THS", "HDG", "HDM") and sentence.heading is not None:
                 no_fix["headings before the first fix"] += 1
         except (ValueError, TypeError, AttributeError):
             bad.append(number)
@@ -174,7 +212,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
             raise InputError(path, None, note)
         notes.append(note)
     if not headings:
-        raise InputError(path, None, "no heading (HDT, HDG or HDM): the vessel's heading "
+        raise InputError(path, None, "no heading (HDT, THS, HDG or HDM): the vessel's heading "
                          "cannot come from course over ground")
     if bad:
         shown = ", ".join(map(str, bad[:5])) + (", ..." if len(bad) > 5 else "")
