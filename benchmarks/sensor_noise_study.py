@@ -3,7 +3,8 @@
 For each noise level (GPS class of both receivers, compass sigma of drone and vessel,
 height sigma) a noisy copy of a simulator dataset is written (``dataset add-pose-noise``),
 every frame is measured with and without pose refinement, and the median and mean absolute
-per-section errors per altitude band are printed as Markdown, beside the noise-free ones.
+per-section errors per altitude band, their 95th percentile and the share of sections within
+0.5 m are printed as Markdown, beside the noise-free ones.
 
     .venv/bin/python benchmarks/sensor_noise_study.py --data /work/data/bench260 \\
         --work /tmp/noise-study [--model default] [--levels standalone:2:0,dgps:1:0]
@@ -31,12 +32,15 @@ DEFAULT_LEVELS = ("rtk:0.2:0", "dgps:1:0", "standalone:1:0", "standalone:2:0", "
 BANDS = ((30, 50), (60, 100), (110, 150))
 
 
-def band_stats(results, low: float, high: float) -> tuple[float, float, int]:
-    errors = [r.abs_error_m for r in results
-              if r.kind == "estimate" and low <= r.altitude_m <= high]
-    if not errors:
-        return float("nan"), float("nan"), 0
-    return float(np.median(errors)), float(np.mean(errors)), len(errors)
+def band_stats(results, low: float, high: float) -> tuple[float, float, float, float, int]:
+    """Median, mean, 95th percentile of the absolute error (m), the share of sections within
+    0.5 m (%), and how many sections, for frames flown from ``low`` to ``high`` metres."""
+    errors = np.array([r.abs_error_m for r in results
+                       if r.kind == "estimate" and low <= r.altitude_m <= high])
+    if not errors.size:
+        return float("nan"), float("nan"), float("nan"), float("nan"), 0
+    return (float(np.median(errors)), float(np.mean(errors)), float(np.percentile(errors, 95)),
+            float(100.0 * np.mean(errors <= 0.5)), int(errors.size))
 
 
 def main() -> None:
@@ -82,18 +86,19 @@ def main() -> None:
             rows.append((name, label, [band_stats(results, *b) for b in BANDS]))
         print(f"done: {name}", flush=True)
 
-    head = " | ".join(f"{lo}-{hi} m median / MAE" for lo, hi in BANDS)
+    head = " | ".join(f"{lo}-{hi} m median / MAE / p95 / ≤0.5 m" for lo, hi in BANDS)
     print(f"\n{masks_name} masks, {len(frames)} frames of {args.data}\n")
     print(f"| sensors | refinement | {head} |")
     print("|---|---|" + "---:|" * len(BANDS))
     for name, label, stats in rows:
-        cells = " | ".join(f"{m:.2f} / {a:.2f}" for m, a, _ in stats)
+        cells = " | ".join(f"{m:.2f} / {a:.2f} / {p:.2f} / {w:.0f} %" for m, a, p, w, _ in stats)
         print(f"| {name} | {label} | {cells} |")
     args.work.mkdir(parents=True, exist_ok=True)
     (args.work / "study.json").write_text(json.dumps(
         [{"sensors": n, "refinement": r, "bands": [
-            {"altitude_m": list(b), "median_m": m, "mae_m": a, "n": k}
-            for b, (m, a, k) in zip(BANDS, s, strict=True)]} for n, r, s in rows], indent=1))
+            {"altitude_m": list(b), "median_m": m, "mae_m": a, "p95_m": p, "within_0_5_m_pct": w,
+             "n": k}
+            for b, (m, a, p, w, k) in zip(BANDS, s, strict=True)]} for n, r, s in rows], indent=1))
 
 
 if __name__ == "__main__":

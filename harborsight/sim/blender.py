@@ -153,9 +153,20 @@ class BlenderRenderer:
         bsdf.inputs["Roughness"].default_value = spec.roughness
         bsdf.inputs["Metallic"].default_value = spec.metallic
         coords = nodes.new("ShaderNodeTexCoord")
-        noise = nodes.new("ShaderNodeTexNoise")
-        noise.inputs["Scale"].default_value = spec.texture_scale
-        noise.inputs["Detail"].default_value = 2.0
+        if spec.pattern == "planks":
+            # boards across the object's x: a banded wave texture (one band a board, about
+            # 0.15 m at texture_scale 3), its bands' edges darkened like the gaps between boards
+            noise = nodes.new("ShaderNodeTexWave")
+            noise.wave_type = "BANDS"
+            noise.bands_direction = "X"
+            noise.wave_profile = "SAW"
+            noise.inputs["Scale"].default_value = spec.texture_scale * 0.35
+            noise.inputs["Distortion"].default_value = 0.5
+            noise.inputs["Detail"].default_value = 1.0
+        else:
+            noise = nodes.new("ShaderNodeTexNoise")
+            noise.inputs["Scale"].default_value = spec.texture_scale
+            noise.inputs["Detail"].default_value = 2.0
         links.new(coords.outputs["Object"], noise.inputs["Vector"])
         ramp = nodes.new("ShaderNodeMix")
         ramp.data_type = "RGBA"

@@ -11,6 +11,7 @@ in a child process and return the files as bytes (no shared disk needed).
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -30,7 +31,13 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import write_bytes_atomic
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
-from harborsight.sim.layout import SCENARIOS, HarbourScene, generate_vessel, sample_harbour_scene
+from harborsight.sim.layout import (
+    FAMILIES,
+    SCENARIOS,
+    HarbourScene,
+    generate_vessel,
+    sample_harbour_scene,
+)
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
 CLASSES = {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"}
@@ -84,10 +91,8 @@ class SimulationConfig:
                 PoseNoise(**self.pose_noise)
             except (TypeError, ValueError) as exc:
                 raise InputError(None, "--pose-noise", str(exc)) from None
-        for name in (self.scenario or "").split(","):
-            if name and name not in SCENARIOS:
-                raise InputError(None, "--scenario", f"unknown scenario {name!r}; "
-                                 f"choose from {', '.join(SCENARIOS)}")
+        if self.scenario:
+            parse_scenarios(self.scenario)
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
@@ -179,12 +184,43 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
     return paths
 
 
+def parse_scenarios(text: str) -> tuple[list[str], list[float] | None]:
+    """``--scenario``: names cycled by frame index (``lakeshore,marina``), or names with
+    weights to draw from (``lakeshore=0.4,marina=0.4,alongside=0.2``; normalised)."""
+    names, weights = [], []
+    known = [*SCENARIOS, *FAMILIES]
+    for item in text.split(","):
+        name, _, weight = item.strip().partition("=")
+        if name not in known:
+            raise InputError(None, "--scenario", f"unknown scenario {name!r}; choose from "
+                             f"{', '.join(known)}")
+        names.append(name)
+        if weight:
+            try:
+                weights.append(float(weight))
+            except ValueError:
+                weights.append(float("nan"))
+            if not (math.isfinite(weights[-1]) and weights[-1] >= 0):
+                raise InputError(None, "--scenario", f"the weight of {name} is {weight!r}: "
+                                 "need a number of 0 or more")
+    if weights and len(weights) != len(names):
+        raise InputError(None, "--scenario", "give every scenario a weight (name=weight), or none")
+    if weights and sum(weights) <= 0:
+        raise InputError(None, "--scenario", "the weights add up to 0")
+    return names, ([w / sum(weights) for w in weights] if weights else None)
+
+
 def scenario_of(config: SimulationConfig, index: int) -> str | None:
-    """The forced scenario of frame ``index`` (a comma list cycles), or None (drawn)."""
+    """The scenario of scene ``index``: a comma list cycles; with weights it is drawn from
+    its own stream of (seed, index), so the scene's other draws are those of a forced one;
+    None: drawn among the classic five."""
     if not config.scenario:
         return None
-    names = config.scenario.split(",")
-    return names[index % len(names)]
+    names, weights = parse_scenarios(config.scenario)
+    if weights is None:
+        return names[index % len(names)]
+    rng = np.random.default_rng([config.seed, index, 5])
+    return names[int(rng.choice(len(names), p=weights))]
 
 
 def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSpec]
@@ -228,8 +264,35 @@ def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: Harb
     t = np.power(1.0 - env.haze, np.minimum(range_m, 2_000.0) / 100.0)[..., None]
     airlight = 255.0 * np.array(env.haze_rgb[::-1])
     out = image_bgr.astype(np.float32) * t + airlight * (1.0 - t)
+    out = _consumer_camera(out, env)
     out += rng.normal(0.0, env.noise_sigma, out.shape)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    if env.jpeg_quality is not None:
+        _, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(env.jpeg_quality)])
+        out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def _consumer_camera(image: np.ndarray, env) -> np.ndarray:
+    """Motion blur (a line kernel of ``motion_blur_px`` at ``motion_blur_deg``), white balance
+    gains, and vignetting ``1 - v·r²`` with r the distance from the centre over the half
+    diagonal. The classic scenes' defaults leave the image as it is."""
+    if env.motion_blur_px >= 1.0:
+        size = math.ceil(env.motion_blur_px) | 1
+        kernel = np.zeros((size, size), np.float32)
+        c, a = size // 2, math.radians(env.motion_blur_deg)
+        half = env.motion_blur_px / 2
+        cv2.line(kernel, (round(c - half * math.cos(a)), round(c - half * math.sin(a))),
+                 (round(c + half * math.cos(a)), round(c + half * math.sin(a))), 1.0, 1, cv2.LINE_AA)
+        image = cv2.filter2D(image, -1, kernel / kernel.sum(), borderType=cv2.BORDER_REFLECT)
+    if tuple(env.white_balance) != (1.0, 1.0, 1.0):
+        image = image * np.array(env.white_balance[::-1], np.float32)     # BGR
+    if env.vignetting > 0:
+        h, w = image.shape[:2]
+        y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+        r2 = ((x - (w - 1) / 2) ** 2 + (y - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
+        image = image * (1.0 - env.vignetting * r2)[..., None]
+    return image
 
 
 def class_mask(instances: np.ndarray, class_of_instance: dict[int, int]) -> np.ndarray:

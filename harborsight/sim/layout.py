@@ -45,6 +45,7 @@ class Material:
     metallic: float = 0.0
     texture: float = 0.15        # amplitude of the noise that varies the colour
     texture_scale: float = 0.5   # noise frequency, per metre
+    pattern: str = "noise"       # "noise", or "planks" (wood boards along the object's x)
 
 
 @dataclass
@@ -107,6 +108,12 @@ class Environment:
     haze_rgb: tuple[float, float, float] = (0.75, 0.78, 0.82)
     exposure_ev: float = 0.0
     noise_sigma: float = 2.0            # sensor noise, 8-bit grey levels
+    # a consumer drone's camera (harborsight.sim.families); the defaults change nothing
+    vignetting: float = 0.0             # brightness lost in the image corners, share
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)   # gains on R, G, B
+    jpeg_quality: int | None = None     # re-encoded as a JPEG of this quality
+    motion_blur_px: float = 0.0         # length of a straight blur, pixels
+    motion_blur_deg: float = 0.0        # its direction in the image, degrees
 
 
 @dataclass
@@ -456,6 +463,9 @@ def _vessel_object(b: _Builder, vessel: VesselSpec) -> SceneObject:
 # ------------------------------------------------------------------------ sampling
 
 SCENARIOS = {"alongside": 0.3, "slip": 0.25, "pass": 0.15, "touching": 0.1, "open": 0.2}
+#: scene families that look like real harbours (harborsight.sim.families); never drawn unless
+#: asked for, so that the classic draws (and every dataset rendered with them) stay the same
+FAMILIES = ("lakeshore", "marina")
 
 
 def _overlaps(candidate: SceneObject, others: list[SceneObject], margin_m: float) -> bool:
@@ -482,11 +492,13 @@ def sample_harbour_scene(
 
     Scenarios: ``alongside`` a quay, ``slip`` between moored ships, ``pass`` a pier head
     close by, ``touching`` a moored neighbour, ``open`` water with buoys and a breakwater.
-    Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn.
+    Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn. The families (``lakeshore``,
+    ``marina``: :mod:`harborsight.sim.families`) only when asked for by name.
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose from {sorted(SCENARIOS)}")
+    if scenario not in SCENARIOS and scenario not in FAMILIES:
+        raise ValueError(f"unknown scenario {scenario!r}; choose from "
+                         f"{sorted(SCENARIOS) + list(FAMILIES)}")
     heading = float(rng.uniform(0.0, 360.0))
     b = _Builder(rng, heading)
     _vessel_object(b, vessel)
@@ -516,6 +528,17 @@ def sample_harbour_scene(
             _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
                 b, x, y, p, skew_deg + float(rng.choice([0.0, 180.0]))), 0.0)
 
+    if scenario in FAMILIES:
+        from harborsight.sim import families
+
+        hull = Polygon(vessel.outline)
+        build = families.build_lakeshore if scenario == "lakeshore" else families.build_marina
+        build(b, hull, hull_xy, side, gap)
+        families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
+        families.keep_gap(b, gap)
+        env = families.sample_realistic_environment(rng)
+        return _with_camera(b, vessel, vessel_dir_name, rng, heading, altitude_m, intrinsics,
+                            max_tilt_deg, env, scenario, gap, name, timestamp)
     if scenario in ("alongside", "touching"):
         clearance = gap
         if scenario == "touching":
@@ -559,6 +582,16 @@ def sample_harbour_scene(
             b, x, y, pr, float(rng.uniform(0, 360)), kind="boat"), 1.0)
 
     env = sample_environment(rng)
+    return _with_camera(b, vessel, vessel_dir_name, rng, heading, altitude_m, intrinsics,
+                        max_tilt_deg, env, scenario, gap if scenario != "open" else None, name,
+                        timestamp)
+
+
+def _with_camera(b: _Builder, vessel: VesselSpec, vessel_dir_name: str, rng: np.random.Generator,
+                 heading: float, altitude_m: float, intrinsics: CameraIntrinsics,
+                 max_tilt_deg: float, env: Environment, scenario: str, gap: float | None,
+                 name: str, timestamp: str | None) -> HarbourScene:
+    """The scene with a drone camera drawn above the vessel."""
     # camera: above the vessel with a horizontal offset and a random yaw; the tilt off nadir
     # is a gimbal pitch toward the yaw direction; a small roll turns the image
     tilt = float(rng.uniform(0.0, max_tilt_deg))
@@ -572,7 +605,7 @@ def sample_harbour_scene(
         name=name, vessel=vessel, vessel_dir_name=vessel_dir_name, vessel_heading_deg=heading,
         objects=b.objects, materials=b.materials, intrinsics=intrinsics, uav_enu=uav,
         yaw_deg=yaw, pitch_deg=-90.0 + tilt, roll_deg=roll, environment=env,
-        scenario=scenario, gap_m=gap if scenario != "open" else None, timestamp=timestamp,
+        scenario=scenario, gap_m=gap, timestamp=timestamp,
     )
 
 

@@ -1,0 +1,507 @@
+"""Scene families that look like real harbours (issue #26): a lake or river shore with private
+docks and boat lifts, and a marina with rows of pontoons and finger piers full of moored boats.
+
+They sit beside the five classic scenarios of :mod:`harborsight.sim.layout` and use its
+builder, so the same rules hold: every part is a convex mesh in the world frame W, vessels are
+``ship`` (1), everything solid that is not a vessel is ``obstacle`` (2): land, lawns, trees,
+houses, cars, rip-rap, docks, pontoons, lift frames and canopies. Boats sitting on a lift are
+``ship``; seen from above under a canopy they are hidden by it, as in the real photos.
+
+Each family also draws its own look (:func:`sample_realistic_environment`): brown, green or
+blue water of any turbidity, a consumer drone's camera (vignetting, white balance, JPEG, a
+little motion blur), on top of the classic sun, sky, waves and haze. The classic scenarios
+keep their draws, so datasets rendered before these families are reproduced exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import trimesh
+from shapely.geometry import Polygon
+
+from harborsight.sim.layout import (
+    OBSTACLE,
+    SHIP,
+    Environment,
+    Material,
+    _box,
+    _Builder,
+    _cylinder,
+    _grey,
+    _jitter,
+    sample_environment,
+)
+from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
+
+# Leisure hulls are mostly white; then navy, red, dark green, grey, black, cream (a rough
+# share from marina photos, not a survey)
+_LEISURE_HULL_RGB = [(0.78, 0.78, 0.76), (0.8, 0.8, 0.8), (0.72, 0.74, 0.76), (0.03, 0.06, 0.2),
+                     (0.4, 0.03, 0.03), (0.02, 0.12, 0.05), (0.35, 0.36, 0.38), (0.02, 0.02, 0.02),
+                     (0.7, 0.62, 0.45)]
+_LEISURE_HULL_P = np.array([0.28, 0.2, 0.15, 0.09, 0.07, 0.05, 0.07, 0.04, 0.05])
+_COVER_RGB = [(0.02, 0.08, 0.25), (0.55, 0.55, 0.52), (0.06, 0.12, 0.06), (0.35, 0.3, 0.2),
+              (0.7, 0.7, 0.68), (0.25, 0.02, 0.02)]
+_CAR_RGB = [(0.75, 0.75, 0.75), (0.02, 0.02, 0.02), (0.3, 0.3, 0.32), (0.4, 0.02, 0.02),
+            (0.02, 0.08, 0.3), (0.6, 0.6, 0.62), (0.85, 0.85, 0.85)]
+_ROOF_RGB = [(0.15, 0.15, 0.16), (0.3, 0.08, 0.05), (0.4, 0.4, 0.4), (0.12, 0.14, 0.2),
+             (0.35, 0.3, 0.25)]
+# water from clear blue over green to brown lake water (linear RGB, as the classic palette)
+_REAL_WATER_RGB = [(0.01, 0.035, 0.07), (0.02, 0.06, 0.08), (0.03, 0.07, 0.04), (0.04, 0.06, 0.03),
+                   (0.06, 0.05, 0.025), (0.045, 0.045, 0.03), (0.02, 0.04, 0.035),
+                   (0.05, 0.07, 0.06)]
+
+
+def _pick(palette: list, rng: np.random.Generator, p: np.ndarray | None = None):
+    return palette[int(rng.choice(len(palette), p=p))]
+
+
+def _rotated_cylinder_x(radius: float, length: float, x: float, y: float, z: float) -> trimesh.Trimesh:
+    """A cylinder lying along local x, centred at (x, y, z)."""
+    mesh = trimesh.creation.cylinder(radius=radius, height=length, sections=10)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0)))
+    mesh.apply_translation((x, y, z))
+    return mesh
+
+
+def _gable(length: float, width: float, height: float, z_bottom: float) -> trimesh.Trimesh:
+    """A gabled roof or canopy: a triangular prism along local x, ridge on the centreline."""
+    points = [(x, y, z_bottom) for x in (-length / 2, length / 2) for y in (-width / 2, width / 2)]
+    points += [(x, 0.0, z_bottom + height) for x in (-length / 2, length / 2)]
+    return trimesh.convex.convex_hull(np.array(points))
+
+
+def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float) -> trimesh.Trimesh:
+    mesh = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
+    mesh.apply_scale((radius_xy, radius_xy, radius_z))
+    mesh.apply_translation((0.0, 0.0, z_centre))
+    return mesh
+
+
+# ------------------------------------------------------------------------ boats
+
+
+def _leisure_hull(rng: np.random.Generator, length_m: float) -> HullParameters:
+    """A small craft: beamier than a ship, a low cabin or none."""
+    beam = length_m * rng.uniform(0.3, 0.4)
+    start = rng.uniform(0.3, 0.5)
+    return HullParameters(
+        length_m=length_m, beam_m=beam, draft_m=max(0.3, 0.06 * length_m),
+        freeboard_m=float(np.clip(length_m * rng.uniform(0.07, 0.11), 0.5, 2.2)),
+        bow_fraction=rng.uniform(0.3, 0.45), flare=rng.uniform(0.0, 0.12),
+        deckhouse=(start, min(start + rng.uniform(0.15, 0.35), 0.8), rng.uniform(0.5, 0.8),
+                   float(np.clip(length_m * rng.uniform(0.05, 0.12), 0.4, 3.0))))
+
+
+_TEMPLATE_LENGTH_M = 10.0
+_N_TEMPLATES = 6
+
+
+def _hull_template(b: _Builder, length_m: float) -> tuple[HullParameters, list[trimesh.Trimesh]]:
+    """A leisure hull of ``length_m`` (hull first, then the cabin; centred on midship),
+    scaled from one of a few shapes drawn once per scene: a marina has hundreds of boats and
+    a hull takes milliseconds to build."""
+    templates = b.__dict__.setdefault("leisure_hulls", [])
+    if len(templates) < _N_TEMPLATES:
+        params = _leisure_hull(b.rng, _TEMPLATE_LENGTH_M)
+        pieces = sorted(generate_hull_mesh(params).split(only_watertight=False), key=lambda m: -m.extents[0])
+        for piece in pieces:
+            piece.apply_translation((-_TEMPLATE_LENGTH_M / 2, 0.0, 0.0))
+        templates.append((params, pieces))
+        params, pieces = templates[-1]
+    else:
+        params, pieces = templates[int(b.rng.integers(len(templates)))]
+    k = length_m / _TEMPLATE_LENGTH_M
+    scaled = [piece.copy() for piece in pieces]
+    for piece in scaled:
+        piece.apply_scale(k)
+    return replace(params, length_m=length_m, beam_m=params.beam_m * k, draft_m=params.draft_m * k,
+                   freeboard_m=params.freeboard_m * k,
+                   deckhouse=(*params.deckhouse[:3], params.deckhouse[3] * k)), scaled
+
+
+def add_leisure_boat(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float,
+                     length_m: float, kind: str | None = None):
+    """A moored or lifted small craft centred at (x_v, y_v): motor boat, sailing boat (mast),
+    covered boat (a tarp over the deck), pontoon boat (two tubes, a flat deck and a bimini) or
+    jet ski. Colours follow :data:`_LEISURE_HULL_RGB`."""
+    rng = b.rng
+    kind = kind or str(rng.choice(["motor", "sail", "covered", "pontoon"], p=[0.4, 0.25, 0.2, 0.15]))
+    tag = f"{kind}{b.next_instance}"
+    hull_mat = b.material(f"{tag}-hull", Material(_jitter(_pick(_LEISURE_HULL_RGB, rng, _LEISURE_HULL_P),
+                                                          rng, 0.08), rng.uniform(0.25, 0.6), 0.0, 0.08))
+    deck_rgb = (0.75, 0.74, 0.7) if rng.random() < 0.6 else (0.45, 0.33, 0.2)
+    deck_mat = b.material(f"{tag}-deck", Material(_jitter(deck_rgb, rng, 0.1), 0.7, 0.0, 0.15, 2.0))
+    parts: list[tuple[trimesh.Trimesh, str]] = []
+    if kind == "pontoon":
+        width = length_m * rng.uniform(0.3, 0.36)
+        for side in (-1, 1):
+            parts.append((_rotated_cylinder_x(0.3, length_m * 0.95, 0.0, side * (width / 2 - 0.35), 0.05),
+                          hull_mat))
+        parts.append((_box(length_m, width, 0.25, 0.0, 0.0, 0.35), deck_mat))
+        if rng.random() < 0.7:
+            bimini = b.material(f"{tag}-bimini", Material(_jitter(_pick(_COVER_RGB, rng), rng), 0.8))
+            parts.append((_box(length_m * 0.4, width * 0.95, 0.05, -0.05 * length_m, 0.0, 2.0), bimini))
+        return b.add(tag, "boat", SHIP, parts, x_v, y_v, rel_heading_deg)
+    if kind == "jetski":
+        length_m = min(length_m, 3.5)
+        parts.append((_box(length_m, 1.2, 0.7, 0.0, 0.0, -0.2), hull_mat))
+        parts.append((_box(length_m * 0.35, 0.4, 0.35, -0.1 * length_m, 0.0, 0.5), deck_mat))
+        return b.add(tag, "boat", SHIP, parts, x_v, y_v, rel_heading_deg)
+    params, pieces = _hull_template(b, length_m)
+    for i, piece in enumerate(pieces):
+        parts.append((piece, hull_mat if i == 0 else deck_mat))
+    top = params.freeboard_m
+    if kind == "covered":
+        cover = b.material(f"{tag}-cover", Material(_jitter(_pick(_COVER_RGB, rng), rng),
+                                                    0.85, 0.0, 0.2, 1.0))
+        parts.append((_gable(length_m * 0.8, params.beam_m * 0.85, 0.4 + 0.3 * rng.random(),
+                             top + params.deckhouse[3] * 0.5), cover))
+    elif kind == "sail":
+        mast_h = length_m * rng.uniform(1.1, 1.5)
+        metal = b.material(f"{tag}-mast", Material((0.6, 0.6, 0.62), 0.3, 0.8, 0.02))
+        x_mast = (0.55 - 0.5) * length_m
+        parts.append((_cylinder(0.06 + 0.004 * length_m, mast_h, x_mast, 0.0, top), metal))
+        parts.append((_rotated_cylinder_x(0.05, length_m * 0.4, x_mast - length_m * 0.2, 0.0, top + 1.2),
+                      metal))
+    return b.add(tag, "boat", SHIP, parts, x_v, y_v, rel_heading_deg)
+
+
+# ------------------------------------------------------------------------ the shore
+
+
+def _local_to_vessel(origin_v: tuple[float, float], along_deg: float, x: float, y: float
+                     ) -> tuple[float, float]:
+    """A point of a feature's local frame (x along ``along_deg`` from the bow, clockwise; y
+    to its left) in the vessel frame (x bow, y starboard)."""
+    a = math.radians(along_deg)
+    return (origin_v[0] + x * math.cos(a) + y * math.sin(a),
+            origin_v[1] + x * math.sin(a) - y * math.cos(a))
+
+
+def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag: str,
+              length_m: float = 360.0, depth_m: float = 140.0):
+    """Land whose waterline runs through ``origin_v`` along ``along_deg`` (water on the left
+    of that direction, land on the right), with a wavy edge, a lawn, a rip-rap or sand band,
+    trees (some over the water), houses, a road and cars. Returns the waterline as a function
+    of the local x (along the shore; local y toward the water), for docks to start from."""
+    rng = b.rng
+    height = rng.uniform(0.4, 1.6)
+    lawn = b.material(f"{tag}-lawn", Material(
+        _jitter(_pick([(0.07, 0.14, 0.03), (0.12, 0.16, 0.05), (0.1, 0.12, 0.06), (0.16, 0.14, 0.08)],
+                      rng), rng, 0.15), 0.9, 0.0, 0.35, rng.uniform(0.2, 0.6)))
+    # the waterline: y_edge(x) wavy, land for y < y_edge
+    xs = np.linspace(-length_m / 2, length_m / 2, 25)
+    wave = rng.uniform(0.5, 4.0)
+    edge = wave * np.sin(xs / rng.uniform(15, 40) + rng.uniform(0, 6)) + rng.normal(0, wave / 3, len(xs))
+    edge = np.clip(edge, -1.5 * wave, 1.5 * wave)     # at most 6 m off the nominal waterline
+    parts = []
+    for k in range(len(xs) - 1):
+        quad = np.array([(xs[k], edge[k]), (xs[k + 1], edge[k + 1]),
+                         (xs[k + 1], -depth_m), (xs[k], -depth_m)])
+        prism = trimesh.convex.convex_hull(np.vstack((np.column_stack((quad, np.full(4, -3.0))),
+                                                      np.column_stack((quad, np.full(4, height))))))
+        parts.append(prism)
+    objects_land = [(p, lawn) for p in parts]
+    x0, y0 = _local_to_vessel(origin_v, along_deg, 0.0, 0.0)
+    b.add(f"{tag}-land", "land", OBSTACLE, objects_land, x0, y0, along_deg)
+
+    def place(x: float, y: float) -> tuple[float, float]:
+        return _local_to_vessel(origin_v, along_deg, x, y)
+
+    def edge_at(x: float) -> float:
+        return float(np.interp(x, xs, edge))
+
+    # rip-rap or sand along parts of the waterline
+    if rng.random() < 0.6:
+        rock = b.material(f"{tag}-riprap", Material(_grey((0.22, 0.2, 0.18), rng, 0.3), 0.95, 0.0, 0.6, 2.5))
+        for k in range(len(xs) - 1):
+            if rng.random() < 0.5:
+                continue
+            w = rng.uniform(1.5, 4.0)
+            quad = np.array([(xs[k], edge[k] + w * 0.6), (xs[k + 1], edge[k + 1] + w * 0.6),
+                             (xs[k + 1], edge[k + 1] - w), (xs[k], edge[k] - w)])
+            slab = trimesh.convex.convex_hull(np.vstack((
+                np.column_stack((quad, np.full(4, -1.0))),
+                np.column_stack((quad[2:], np.full(2, height + 0.3))))))
+            b.add(f"{tag}-riprap{k}", "riprap", OBSTACLE, [(slab, rock)], x0, y0, along_deg)
+    # trees: trunks on land, crowns overhanging the water near the edge (and their shadows)
+    bark = b.material(f"{tag}-bark", Material((0.08, 0.05, 0.03), 0.9))
+    for _ in range(int(rng.integers(8, 30))):
+        x = float(rng.uniform(-length_m / 2 + 10, length_m / 2 - 10))
+        back = float(rng.exponential(12.0)) + 0.5
+        y = edge_at(x) - back
+        r = float(rng.uniform(2.0, 7.0))
+        crown_rgb = _pick([(0.03, 0.08, 0.02), (0.05, 0.1, 0.03), (0.08, 0.1, 0.04), (0.04, 0.06, 0.03),
+                           (0.12, 0.1, 0.04)], rng)
+        crown = b.material(f"{tag}-crown{b.next_instance}", Material(_jitter(crown_rgb, rng), 0.95,
+                                                                     0.0, 0.5, 1.2))
+        tall = float(rng.uniform(1.5, 3.0)) * r
+        xv, yv = place(x, y)
+        b.add(f"{tag}-tree{b.next_instance}", "tree", OBSTACLE,
+              [(_cylinder(0.25 + 0.03 * r, tall - r, 0, 0, height, 6), bark),
+               (_ellipsoid(r, r * rng.uniform(0.6, 0.9), height + tall - 0.5 * r), crown)],
+              xv, yv, along_deg)
+    # a road behind the houses, houses with gabled roofs, cars on drives
+    road_y = -rng.uniform(40.0, 80.0)
+    asphalt = b.material(f"{tag}-asphalt", Material(_grey((0.06, 0.06, 0.065), rng, 0.3), 0.8, 0.0, 0.2, 1.0))
+    xv, yv = place(0.0, road_y)
+    b.add(f"{tag}-road", "road", OBSTACLE, [(_box(length_m, rng.uniform(6, 9), 0.08, 0, 0, height), asphalt)],
+          xv, yv, along_deg)
+    wall = b.material(f"{tag}-wall", Material(_jitter(_pick([(0.6, 0.55, 0.45), (0.7, 0.7, 0.68),
+                                                             (0.35, 0.2, 0.12)], rng), rng), 0.7))
+    x = -length_m / 2 + rng.uniform(5, 25)
+    while x < length_m / 2 - 15:
+        lx, ly = rng.uniform(9, 18), rng.uniform(8, 14)
+        y = road_y + ly / 2 + rng.uniform(8, 25)
+        y = min(y, edge_at(x) - ly / 2 - rng.uniform(12, 30))
+        roof = b.material(f"{tag}-roof{b.next_instance}", Material(_jitter(_pick(_ROOF_RGB, rng), rng), 0.8,
+                                                                   0.0, 0.25, 1.5))
+        wall_h = rng.uniform(3, 6)
+        xv, yv = place(x, y)
+        b.add(f"{tag}-house{b.next_instance}", "house", OBSTACLE,
+              [(_box(lx, ly, wall_h, 0, 0, height), wall), (_gable(lx + 0.6, ly + 0.6, rng.uniform(2, 4),
+                                                                height + wall_h), roof)],
+              xv, yv, along_deg)
+        if rng.random() < 0.6:
+            car_mat = b.material(f"{tag}-car{b.next_instance}",
+                                 Material(_jitter(_pick(_CAR_RGB, rng), rng, 0.1), 0.3, 0.5, 0.05))
+            xv, yv = place(x + lx / 2 + 3.0, road_y + rng.uniform(6, 12))
+            b.add(f"{tag}-car{b.next_instance}", "car", OBSTACLE,
+                  [(_box(4.5, 1.8, 0.8, 0, 0, height + 0.2), car_mat),
+                   (_box(2.4, 1.6, 0.6, -0.2, 0, height + 1.0), car_mat)], xv, yv, along_deg + 90.0)
+        x += lx + rng.uniform(8, 30)
+    return edge_at
+
+
+def _wood(b: _Builder, tag: str):
+    rng = b.rng
+    rgb = _pick([(0.28, 0.2, 0.12), (0.35, 0.3, 0.24), (0.2, 0.14, 0.08), (0.45, 0.42, 0.38)], rng)
+    return b.material(f"{tag}-wood", Material(_jitter(rgb, rng, 0.2), 0.85, 0.0, 0.35, 3.0, pattern="planks"))
+
+
+def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, length_m: float,
+                     tag: str) -> list:
+    """A wooden dock from the shore at ``start_v`` out along ``out_deg`` (from the bow,
+    clockwise): a walkway, a T or L head, a boat lift beside it (a frame of posts and rails,
+    a canopy on most) with a boat in it or not, and a boat or jet ski tied alongside."""
+    rng = b.rng
+    wood = _wood(b, tag)
+    width = rng.uniform(1.2, 2.4)
+    deck_z = rng.uniform(0.3, 0.9)
+    parts = [(_box(length_m, width, 0.25, length_m / 2, 0.0, deck_z), wood)]
+    head = str(rng.choice(["T", "L", "none"], p=[0.4, 0.35, 0.25]))
+    if head != "none":
+        head_len = rng.uniform(6, 14)
+        y_off = 0.0 if head == "T" else rng.choice([-1, 1]) * (head_len / 2 - width / 2)
+        parts.append((_box(width * 1.5, head_len, 0.25, length_m - width * 0.75, y_off, deck_z), wood))
+    dock = b.add(f"{tag}-dock", "dock", OBSTACLE, parts, *start_v, out_deg)
+    placed = [dock]
+    side = float(rng.choice([-1, 1]))
+
+    def beside(x_local: float, y_local: float) -> tuple[float, float]:
+        return _local_to_vessel(start_v, out_deg, x_local, y_local)
+
+    if rng.random() < 0.75 and length_m > 11:
+        # a lift: four posts, two rails, usually a canopy; 3.2-3.8 m wide, 7-9 m long
+        lift_w, lift_l = rng.uniform(3.2, 3.8), rng.uniform(7.0, 9.0)
+        x_c = rng.uniform(lift_l / 2 + 1, length_m - lift_l / 2)
+        y_c = side * (width / 2 + 0.4 + lift_w / 2)
+        steel = b.material(f"{tag}-lift", Material(_grey((0.5, 0.5, 0.52), rng, 0.2), 0.4, 0.7, 0.05))
+        posts = [(_cylinder(0.12, 4.2, sx * lift_l / 2, sy * lift_w / 2, -1.0, 6), steel)
+                 for sx in (-1, 1) for sy in (-1, 1)]
+        rails = [(_box(lift_l, 0.2, 0.2, 0, sy * lift_w / 2, 2.9), steel) for sy in (-1, 1)]
+        lift_parts = posts + rails
+        if rng.random() < 0.75:
+            canopy_rgb = _pick(_COVER_RGB + [(0.75, 0.75, 0.72)] * 2, rng)
+            canopy = b.material(f"{tag}-canopy", Material(_jitter(canopy_rgb, rng), 0.85, 0.0, 0.15, 1.5))
+            lift_parts.append((_gable(lift_l + 0.6, lift_w + 0.5, rng.uniform(0.5, 1.0), 3.2), canopy))
+        xv, yv = beside(x_c, y_c)
+        placed.append(b.add(f"{tag}-lift", "lift", OBSTACLE, lift_parts, xv, yv, out_deg))
+        if rng.random() < 0.6:
+            placed.append(add_leisure_boat(b, xv, yv, out_deg + float(rng.choice([0.0, 180.0])),
+                                           lift_l * rng.uniform(0.7, 0.85)))
+    if rng.random() < 0.6 and length_m > 6:
+        boat_l = rng.uniform(4.0, 8.0)
+        kind = "jetski" if rng.random() < 0.25 else None
+        x_c = rng.uniform(boat_l / 2, max(boat_l / 2 + 0.1, length_m - boat_l / 2))
+        y_c = -side * (width / 2 + 0.5 + boat_l * 0.2)
+        xv, yv = beside(x_c, y_c)
+        boat = add_leisure_boat(b, xv, yv, out_deg + float(rng.choice([0.0, 180.0])), boat_l, kind)
+        if _overlaps_others([boat], b.objects, margin_m=0.2):
+            b.objects.remove(boat)
+        else:
+            placed.append(boat)
+    return placed
+
+
+def build_lakeshore(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap_m: float) -> None:
+    """The vessel of interest off a residential shore on ``side`` (+1 starboard): docks reach
+    toward it; one that would come nearer than ``gap_m`` to its hull is shortened."""
+    rng = b.rng
+    skew = float(rng.uniform(-15, 15))
+    reach = float(rng.uniform(8, 25))             # how far the docks reach out from the shore
+    half_beam = float(hull_xy[:, 1].max() if side > 0 else -hull_xy[:, 1].min())
+    shore_y = side * (half_beam + gap_m + reach)
+    along = skew if side > 0 else 180.0 + skew    # water on the left of the shore's direction
+    edge_at = add_shore(b, (0.0, shore_y), along, "shore")
+    limit = gap_m + 0.05
+    vessel_fp = b.objects[0].footprint()          # W, as every footprint
+    out_deg = along - 90.0                        # from the shore toward the water
+    x = float(rng.uniform(-120, -90))
+    while x < 120:
+        start = _local_to_vessel((0.0, shore_y), along, x, edge_at(x) - 1.5)
+        length = reach * rng.uniform(0.5, 1.0) + 1.5 if abs(x) > 30 else reach + 1.5 + rng.uniform(0, 6)
+        for _ in range(3):                        # shorten the dock until it keeps the gap
+            if length <= 4.0:
+                break
+            n_before = len(b.objects)
+            add_private_dock(b, start, out_deg, length, f"dock{b.next_instance}")
+            new = b.objects[n_before:]
+            nearest = min(o.footprint().distance(vessel_fp) for o in new)
+            if nearest >= limit and not _overlaps_others(new, b.objects):
+                break
+            del b.objects[n_before:]
+            if nearest >= limit:                  # it hit another dock: leave the place empty
+                break
+            length -= limit - nearest + 0.5
+        x += float(rng.uniform(18, 45))
+
+
+_GROUND = ("land", "riprap", "tree", "road", "house", "car")
+
+
+def _overlaps_others(new: list, objects: list, margin_m: float = 0.0) -> bool:
+    """Whether an object of ``new`` comes within ``margin_m`` of an object placed before
+    them (the vessel of interest aside: its gap is kept apart). Docks and pontoons may start
+    on land, so what stands there counts against boats only. Bounding boxes first: a marina
+    has hundreds of objects."""
+    new_ids = {id(o) for o in new}
+    earlier = [o for o in objects if id(o) not in new_ids and o.instance_id != 1]
+    for n in new:
+        fp = n.footprint()
+        x0, y0, x1, y1 = fp.bounds
+        for o in earlier:
+            if o.kind in _GROUND and n.kind != "boat":
+                continue
+            ox0, oy0, ox1, oy1 = o.footprint().bounds
+            if ox0 > x1 + margin_m or ox1 < x0 - margin_m or oy0 > y1 + margin_m or oy1 < y0 - margin_m:
+                continue
+            if fp.distance(o.footprint()) <= margin_m:
+                return True
+    return False
+
+
+# ------------------------------------------------------------------------ the marina
+
+
+def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float, length_m: float,
+                    tag: str, berth_m: float, both_sides: bool, keep_out: Polygon) -> None:
+    """A main pontoon along ``along_deg`` through ``origin_v`` with berths on its left (the
+    fairway side; and on its right with ``both_sides``): boats side by side, bow or stern to
+    the pontoon, a finger pier between every pair of berths and most single ones."""
+    rng = b.rng
+    deck = _wood(b, tag) if rng.random() < 0.6 else b.material(
+        f"{tag}-concrete", Material(_grey((0.45, 0.44, 0.42), rng, 0.25), 0.85, 0.0, 0.2, 1.0))
+    width = rng.uniform(2.0, 3.0)
+    z = rng.uniform(0.3, 0.6)
+    pieces = [(_box(length_m, width, z + 0.4, 0.0, 0.0, -0.4), deck)]
+    finger_len = berth_m * rng.uniform(0.55, 0.8)
+    pitch = 0.45 * berth_m + 1.2                  # a berth's width: the widest boat + room
+    n_berths = int((length_m - 2.0) // pitch)
+    boats = []
+    for s in ((1, -1) if both_sides else (1,)):
+        for j in range(n_berths + 1):
+            x = -length_m / 2 + 1.0 + j * pitch
+            if j % 2 == 0 or rng.random() < 0.5:
+                finger = _box(0.8, finger_len, z + 0.4, x, s * (width / 2 + finger_len / 2), -0.4)
+                pieces.append((finger, deck))
+            if j < n_berths and rng.random() > 0.15:
+                boat_l = float(np.clip(rng.normal(0.85 * berth_m, 0.12 * berth_m), 4.0, berth_m))
+                boats.append((x + pitch / 2, s * (width / 2 + 0.4 + boat_l / 2), boat_l, s))
+    row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
+    if row.footprint().intersects(keep_out) or _overlaps_others([row], b.objects):
+        b.objects.remove(row)
+        return
+    for bx, by, bl, s in boats:
+        xv, yv = _local_to_vessel(origin_v, along_deg, bx, by)
+        heading = along_deg - 90.0 * s + float(rng.choice([0.0, 180.0], p=[0.6, 0.4]))
+        boat = add_leisure_boat(b, xv, yv, heading, bl, "sail" if rng.random() < 0.35 else None)
+        if boat.footprint().intersects(keep_out) or _overlaps_others([boat], b.objects, margin_m=0.05):
+            b.objects.remove(boat)
+
+
+def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap_m: float) -> None:
+    """The vessel of interest in a marina's fairway: rows of pontoons with boats moored stern
+    or bow to the fairway on both sides, the nearest about ``gap_m`` from its hull on
+    ``side``, and often a shore across the fairway's end."""
+    rng = b.rng
+    keep_out = b.objects[0].footprint().buffer(max(gap_m, 0.0) + 0.05)    # W, as footprints
+    skew = float(rng.uniform(-5, 5))
+    berth = float(rng.uniform(8.0, 16.0))
+    lane = 2 * berth + rng.uniform(3.5, 7.0)      # main pontoon to main pontoon
+    shore_x = float(hull_xy[:, 0].max()) + rng.uniform(40, 90) if rng.random() < 0.7 else None
+    if shore_x is not None:
+        add_shore(b, (shore_x, 0.0), -90.0 + skew, "shore")
+    for s in (-1, 1):
+        half_beam = float(hull_xy[:, 1].max() if s > 0 else -hull_xy[:, 1].min())
+        g = gap_m if s == side else float(rng.uniform(4, 20))
+        first_main = s * (half_beam + g + berth + 1.4)   # its boats' outer ends at about g
+        along = skew if s > 0 else 180.0 + skew          # its left side faces the fairway
+        for k in range(int(rng.integers(2, 5))):
+            x_c = float(rng.uniform(-40, 40))
+            length = float(rng.uniform(80, 200))
+            if shore_x is not None:                       # rows end short of the shore
+                far_end = min(x_c + length / 2, shore_x - 8.0)
+                length = far_end - (x_c - length / 2)
+                x_c = far_end - length / 2
+            if length > 20:
+                add_pontoon_row(b, (x_c, first_main + s * k * lane), along, length,
+                                f"row{b.next_instance}", berth, both_sides=k > 0 or rng.random() < 0.2,
+                                keep_out=keep_out)
+
+
+def add_boats_under_way(b: _Builder, hull: Polygon, count: int, gap_m: float) -> None:
+    """``count`` small craft in open water 8-80 m off the vessel (``hull``: its outline in
+    the vessel frame), any heading; dropped where they would touch something or come nearer
+    to the vessel than ``gap_m``."""
+    rng = b.rng
+    vessel_fp = b.objects[0].footprint()
+    for _ in range(count):
+        ring = hull.buffer(rng.uniform(8.0, 80.0), quad_segs=8).exterior
+        p = ring.interpolate(rng.uniform(0, 1), normalized=True)
+        boat = add_leisure_boat(b, p.x, p.y, float(rng.uniform(0, 360)), float(rng.uniform(3.5, 9.0)),
+                                "jetski" if rng.random() < 0.2 else None)
+        if (_overlaps_others([boat], b.objects, margin_m=1.0)
+                or boat.footprint().distance(vessel_fp) < gap_m):
+            b.objects.remove(boat)
+
+
+def keep_gap(b: _Builder, gap_m: float) -> None:
+    """Drop what a family placed nearer to the vessel than ``gap_m`` (a tree crown over the
+    water, a rip-rap stone): the scene's gap is its nearest obstacle."""
+    vessel_fp = b.objects[0].footprint()
+    b.objects[1:] = [o for o in b.objects[1:] if o.footprint().distance(vessel_fp) >= gap_m]
+
+
+# ------------------------------------------------------------------------ the look
+
+
+def sample_realistic_environment(rng: np.random.Generator) -> Environment:
+    """The classic draw (sun, sky, waves, haze) with real harbours' water and a consumer
+    drone's camera: water from clear blue to brown, calmer and with fewer whitecaps; vignetting, white
+    balance off by a few percent, JPEG at quality 60-95, motion blur in a third of frames."""
+    env = sample_environment(rng)
+    return replace(
+        env,
+        water_rgb=_jitter(_pick(_REAL_WATER_RGB, rng), rng, 0.3),
+        wave_scale=float(rng.uniform(0.02, 0.35)),
+        foam_coverage=float(rng.uniform(0.0, 0.15)),       # sheltered water: few whitecaps
+        vignetting=float(rng.uniform(0.0, 0.35)),
+        white_balance=tuple(float(v) for v in rng.uniform(0.9, 1.1, 3)),
+        jpeg_quality=int(rng.integers(60, 96)),
+        motion_blur_px=float(rng.uniform(0.5, 2.5)) if rng.random() < 0.33 else 0.0,
+        motion_blur_deg=float(rng.uniform(0.0, 180.0)),
+    )
