@@ -130,15 +130,29 @@ def contact_sheet_command(
     n: Annotated[int, typer.Option("--n", min=1, help="How many frames (the first N).")] = 8,
     columns: Annotated[int, typer.Option(min=1, help="Frame pairs per row.")] = 2,
     tile_width: Annotated[int, typer.Option(min=64, max=4096, help="Width of each tile, px.")] = 480,
+    beside_real: Annotated[list[Path] | None, typer.Option(
+        help="Real images (files or folders; repeatable): show each render beside one of them, "
+        "cut to the render's aspect, instead of beside its class mask. Renders and real "
+        "images are paired in order until either runs out.")] = None,
 ) -> None:
-    """Tile frames with their class masks and the true clearance of every hull section."""
-    from harborsight.viz.contact_sheet import contact_sheet
+    """Tile frames with their class masks and the true clearance of every hull section, or
+    renders beside real frames (--beside-real)."""
+    from harborsight.viz.contact_sheet import contact_sheet, renders_beside_real
 
     stems = sorted(p.stem for p in (dataset / "frames").glob("*.json"))[:n]
     if not stems:
         err_console.print(f"error: {dataset / 'frames'}: no frames", markup=False)
         raise typer.Exit(2)
-    sheet = contact_sheet(dataset, stems, columns, tile_width)
+    if beside_real:
+        from harborsight.perception.segment_images import collect_images
+
+        real = collect_images(beside_real)
+        if not real:
+            err_console.print("error: --beside-real: no images found", markup=False)
+            raise typer.Exit(2)
+        sheet = renders_beside_real(dataset, stems, real[:n], tile_width)
+    else:
+        sheet = contact_sheet(dataset, stems, columns, tile_width)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

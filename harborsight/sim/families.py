@@ -52,6 +52,10 @@ _ROOF_RGB = [(0.15, 0.15, 0.16), (0.3, 0.08, 0.05), (0.4, 0.4, 0.4), (0.12, 0.14
 _REAL_WATER_RGB = [(0.01, 0.035, 0.07), (0.02, 0.06, 0.08), (0.03, 0.07, 0.04), (0.04, 0.06, 0.03),
                    (0.06, 0.05, 0.025), (0.045, 0.045, 0.03), (0.02, 0.04, 0.035),
                    (0.05, 0.07, 0.06)]
+# turbid lake and river water, tan to olive (the lake-shore photos' water is about sRGB
+# (150, 125, 90): linear (0.30, 0.20, 0.10)); drawn for most lake shores
+_TURBID_WATER_RGB = [(0.26, 0.18, 0.09), (0.2, 0.16, 0.08), (0.16, 0.15, 0.08), (0.12, 0.12, 0.07),
+                     (0.22, 0.2, 0.12), (0.09, 0.1, 0.06)]
 
 
 def _pick(palette: list, rng: np.random.Generator, p: np.ndarray | None = None):
@@ -190,7 +194,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
     rng = b.rng
     height = rng.uniform(0.4, 1.6)
     lawn = b.material(f"{tag}-lawn", Material(
-        _jitter(_pick([(0.07, 0.14, 0.03), (0.12, 0.16, 0.05), (0.1, 0.12, 0.06), (0.16, 0.14, 0.08)],
+        _jitter(_pick([(0.07, 0.14, 0.03), (0.12, 0.2, 0.04), (0.1, 0.16, 0.05), (0.16, 0.16, 0.08)],
                       rng), rng, 0.15), 0.9, 0.0, 0.35, rng.uniform(0.2, 0.6)))
     # the waterline: y_edge(x) wavy, land for y < y_edge
     xs = np.linspace(-length_m / 2, length_m / 2, 25)
@@ -229,13 +233,14 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
             b.add(f"{tag}-riprap{k}", "riprap", OBSTACLE, [(slab, rock)], x0, y0, along_deg)
     # trees: trunks on land, crowns overhanging the water near the edge (and their shadows)
     bark = b.material(f"{tag}-bark", Material((0.08, 0.05, 0.03), 0.9))
-    for _ in range(int(rng.integers(8, 30))):
-        x = float(rng.uniform(-length_m / 2 + 10, length_m / 2 - 10))
+    clumps = rng.uniform(-length_m / 2 + 10, length_m / 2 - 10, int(rng.integers(3, 9)))
+    for _ in range(int(rng.integers(20, 70))):      # in clumps along the shore, as in the photos
+        x = float(np.clip(rng.choice(clumps) + rng.normal(0, 10), -length_m / 2 + 5, length_m / 2 - 5))
         back = float(rng.exponential(12.0)) + 0.5
         y = edge_at(x) - back
         r = float(rng.uniform(2.0, 7.0))
-        crown_rgb = _pick([(0.03, 0.08, 0.02), (0.05, 0.1, 0.03), (0.08, 0.1, 0.04), (0.04, 0.06, 0.03),
-                           (0.12, 0.1, 0.04)], rng)
+        crown_rgb = _pick([(0.04, 0.1, 0.02), (0.07, 0.14, 0.03), (0.1, 0.16, 0.04), (0.05, 0.08, 0.03),
+                           (0.12, 0.13, 0.05)], rng)
         crown = b.material(f"{tag}-crown{b.next_instance}", Material(_jitter(crown_rgb, rng), 0.95,
                                                                      0.0, 0.5, 1.2))
         tall = float(rng.uniform(1.5, 3.0)) * r
@@ -489,14 +494,16 @@ def keep_gap(b: _Builder, gap_m: float) -> None:
 # ------------------------------------------------------------------------ the look
 
 
-def sample_realistic_environment(rng: np.random.Generator) -> Environment:
+def sample_realistic_environment(rng: np.random.Generator, family: str) -> Environment:
     """The classic draw (sun, sky, waves, haze) with real harbours' water and a consumer
-    drone's camera: water from clear blue to brown, calmer and with fewer whitecaps; vignetting, white
-    balance off by a few percent, JPEG at quality 60-95, motion blur in a third of frames."""
+    drone's camera: water from clear blue to brown (turbid tan or olive on 70 % of lake
+    shores), calmer and with fewer whitecaps; vignetting, white balance off by a few percent,
+    JPEG at quality 60-95, motion blur in a third of frames."""
     env = sample_environment(rng)
     return replace(
         env,
-        water_rgb=_jitter(_pick(_REAL_WATER_RGB, rng), rng, 0.3),
+        water_rgb=_jitter(_pick(_TURBID_WATER_RGB if family == "lakeshore" and rng.random() < 0.7
+                                else _REAL_WATER_RGB, rng), rng, 0.3),
         wave_scale=float(rng.uniform(0.02, 0.35)),
         foam_coverage=float(rng.uniform(0.0, 0.15)),       # sheltered water: few whitecaps
         vignetting=float(rng.uniform(0.0, 0.35)),

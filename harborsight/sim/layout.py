@@ -536,7 +536,7 @@ def sample_harbour_scene(
         build(b, hull, hull_xy, side, gap)
         families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
         families.keep_gap(b, gap)
-        env = families.sample_realistic_environment(rng)
+        env = families.sample_realistic_environment(rng, scenario)
         return _with_camera(b, vessel, vessel_dir_name, rng, heading, altitude_m, intrinsics,
                             max_tilt_deg, env, scenario, gap, name, timestamp)
     if scenario in ("alongside", "touching"):

@@ -103,3 +103,40 @@ def contact_sheet(dataset_dir: Path, stems: list[str] | None = None, columns: in
         rows += [np.hstack(parts[:-1]), np.full((gap, columns * w + (columns - 1) * gap, 3), 255,
                                                 np.uint8)]
     return np.vstack(rows[:-1])
+
+
+def _cover(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``image`` scaled to cover ``width`` x ``height`` and cut to it around its centre (a
+    4:3 photo or a square tile shown in a 16:9 tile without stretching)."""
+    scale = max(width / image.shape[1], height / image.shape[0])
+    big = cv2.resize(image, (max(width, round(image.shape[1] * scale)),
+                             max(height, round(image.shape[0] * scale))), interpolation=cv2.INTER_AREA)
+    y0, x0 = (big.shape[0] - height) // 2, (big.shape[1] - width) // 2
+    return big[y0:y0 + height, x0:x0 + width]
+
+
+def renders_beside_real(dataset_dir: Path, stems: list[str], real_images: list[Path],
+                        tile_width: int = 480) -> np.ndarray:
+    """Rows of ``[render | real frame]``: the simulator's images beside real ones at the
+    same tile size (real frames cut to the render's aspect, never stretched), captioned
+    with the render's scenario and height and the real file's name."""
+    if not stems or not real_images:
+        raise FileNotFoundError(f"{dataset_dir}: need renders and real images")
+    rows = []
+    for stem, real_path in zip(stems, real_images, strict=False):
+        doc = json.loads((dataset_dir / "frames" / f"{stem}.json").read_text())
+        render = cv2.imread(str(dataset_dir / "images" / doc["image"]), cv2.IMREAD_COLOR)
+        real = cv2.imread(str(real_path), cv2.IMREAD_COLOR)
+        if render is None or real is None:
+            raise FileNotFoundError(f"cannot read {dataset_dir / 'images' / doc['image']} or {real_path}")
+        height = round(tile_width * render.shape[0] / render.shape[1])
+        left = cv2.resize(render, (tile_width, height), interpolation=cv2.INTER_AREA)
+        right = _cover(real, tile_width, height)
+        captions = (f"render {stem}  {doc.get('ground_truth', {}).get('scenario', '')}  "
+                    f"{doc.get('uav', {}).get('alt_m', 0.0):.0f} m", f"real {real_path.name}")
+        for tile, caption in zip((left, right), captions, strict=True):
+            cv2.putText(tile, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, BLACK, 3, cv2.LINE_AA)
+            cv2.putText(tile, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, WHITE, 1, cv2.LINE_AA)
+        rows += [np.hstack((left, np.full((height, 4, 3), 255, np.uint8), right)),
+                 np.full((4, 2 * tile_width + 4, 3), 255, np.uint8)]
+    return np.vstack(rows[:-1])
