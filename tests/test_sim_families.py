@@ -11,7 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from harborsight.cli.app import app
 from harborsight.errors import InputError
 from harborsight.sim.dataset import (
     SimulationConfig,
@@ -148,3 +150,21 @@ def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path)
         assert set(np.unique(labels)) <= {0, 1, 2, 255}
         assert (labels == 1).any()
     assert Path(out / "dataset.json").is_file()
+    # renders beside real frames: a 4:3 photo and a square tile, cut (not stretched) to 16:9
+    real = tmp_path / "real"
+    real.mkdir()
+    photo = np.zeros((300, 400, 3), np.uint8)
+    photo[:, :200] = 255                                   # left half white
+    cv2.imwrite(str(real / "a_photo.jpg"), photo)
+    tile = np.full((256, 256, 3), 90, np.uint8)
+    tile[:64] = 255                                        # its top quarter white
+    cv2.imwrite(str(real / "b_tile.png"), tile)
+    sheet_path = tmp_path / "sheet.png"
+    result = CliRunner().invoke(app, ["contact-sheet", str(out), "--beside-real", str(real),
+                                      "--tile-width", "160", "--out", str(sheet_path)])
+    assert result.exit_code == 0, result.output
+    sheet = cv2.imread(str(sheet_path))
+    assert sheet.shape == (2 * 90 + 4, 2 * 160 + 4, 3)
+    assert sheet[60, 164 + 40].mean() > 200 and sheet[60, 164 + 120].mean() < 40
+    # the square tile covers 160x160, cut to rows 35-125: 5 white rows left (a stretch: 22)
+    assert sheet[94 + 2, 164 + 80].mean() > 200 and sheet[94 + 15, 164 + 80].mean() < 120
