@@ -12,20 +12,27 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pyproj
 import pytest
 from typer.testing import CliRunner
 
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance, measure_frame
+from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_refinement import (
     PoseRefinementSettings,
+    _Alignment,
+    _homogeneous,
+    _outline_points,
+    _ship_fill,
+    _SignedDistance,
     corrected_geometry,
     refine_vessel_pose,
 )
 from harborsight.cli import app
 from harborsight.frame import FrameGeometry
-from harborsight.sim.schematic import ground_truth, render, sample_scene
+from harborsight.sim.schematic import DEFAULT_INTRINSICS, ground_truth, render, sample_scene
 from harborsight.vessel.spec import load_vessel_spec
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
@@ -120,6 +127,65 @@ def test_a_hull_partly_out_of_view_is_aligned_on_what_is_seen():
     inside = (uv_true[:, 0] >= 0) & (uv_true[:, 0] < w) & (uv_true[:, 1] >= 0) & (uv_true[:, 1] < h)
     assert inside.sum() >= 4
     assert np.hypot(*(uv_found - uv_true)[inside].T).max() < 1.0
+
+
+@pytest.mark.parametrize("distortion", [(), (-0.12, 0.03, 5e-4, -4e-4, 0.0)])
+def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distortion):
+    """The refinement's own projection (one small matrix per pose) against Camera.project of
+    the moved geometry, and its Jacobian against central differences of the signed distance
+    sampled where Camera.project puts the points, with and without lens distortion."""
+    scene = sample_scene(TUG, np.random.default_rng(3), altitude_m=50, tilt_deg=8.0,
+                         scenario="alongside",
+                         intrinsics=replace(DEFAULT_INTRINSICS, distortion=distortion))
+    _, labels = render(scene)[:2]
+    geometry = scene.geometry()
+    window = (slice(20, 350), slice(10, 630))
+    sdf = _SignedDistance(labels[window] == SHIP, (window[1].start, window[0].start))
+    align = _Alignment(geometry, sdf)
+    hull_h = _homogeneous(TUG.hull_points)
+    origin = np.array([window[1].start, window[0].start])
+
+    def distances(params):
+        uv = geometry.camera.project(corrected_geometry(geometry, params).vessel_to_enu(
+            points[:3].T))[0]
+        return sdf.sample((uv - origin).T)[0]
+
+    for params in (np.zeros(3), np.array([0.7, -0.4, math.radians(1.5)])):
+        moved = corrected_geometry(geometry, params)
+        expected = moved.camera.project(moved.vessel_to_enu(hull_h[:3].T))[0]
+        assert np.allclose(align.pixels(hull_h, params), expected, atol=1e-9, equal_nan=True)
+        points = _outline_points(hull_h, expected)
+        assert points.shape[1] > 100
+        value, jac_t = align.linearised(points, params)
+        assert len(value) == points.shape[1]            # all in view and in the window
+        assert np.allclose(value, distances(params), atol=1e-9)
+        assert np.allclose(align.residuals(points, params), value, atol=1e-12)
+        for k, step in enumerate((1e-6, 1e-6, 1e-7)):
+            dp = np.zeros(3)
+            dp[k] = step
+            numeric = (distances(params + dp) - distances(params - dp)) / (2 * step)
+            # the bilinear gradient jumps across pixel edges: a few points may straddle one
+            close = np.isclose(jac_t[k], numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max())
+            assert close.mean() > 0.97, k
+
+
+def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window():
+    scene, labels = scene_and_labels(4, "touching", 60)
+    geometry = scene.geometry()
+    hull_h = _homogeneous(TUG.hull_points)
+    for window in ((slice(0, 360), slice(0, 640)), (slice(40, 300), slice(90, 420))):
+        ship, known = labels[window] == SHIP, labels[window] != IGNORE
+        align = _Alignment(geometry, _SignedDistance(ship, (window[1].start, window[0].start)))
+        for params in (np.zeros(3), np.array([2.0, -3.0, 0.05]), np.array([-9.0, 4.0, -0.2])):
+            uv = align.pixels(hull_h, params)
+            # the whole window, as drawn before
+            corners = cv2.convexHull(np.round((uv - [window[1].start, window[0].start]) * 16)
+                                     .astype(np.int32))
+            inside = np.zeros(ship.shape, np.uint8)
+            cv2.fillConvexPoly(inside, corners, 1, lineType=cv2.LINE_8, shift=4)
+            counted = (inside > 0) & known
+            expected = float((ship & counted).sum()) / counted.sum() if counted.any() else 0.0
+            assert _ship_fill(uv, window, ship, known) == expected
 
 
 def test_exact_poses_are_left_where_they_are():

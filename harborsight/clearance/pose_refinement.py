@@ -20,9 +20,16 @@ each should lie on the boundary of the mask's ship pixels. With the signed dista
 with a robust ``rho`` (Huber, then Tukey's biweight) so that a touching neighbour, a
 partly wrong mask or a mooring line do not pull the outline, and a Gaussian prior from the
 sensors' accuracy. Gauss-Newton on iteratively re-weighted least squares; the Jacobian
-``ds/dp = grad s · dx/dp`` comes from the bilinear gradient of ``s`` and finite differences
-of the projection (exact for any lens model). Outline points outside the image, or within
-a pixel of its border, are left out: a hull partly out of view is aligned on what is seen.
+``ds/dp = grad s · dx/dp`` comes from the bilinear gradient of ``s`` and the analytic
+derivative of the projection (OpenCV's with lens distortion). Outline points outside the
+image, or within a pixel of its border, are left out: a hull partly out of view is aligned
+on what is seen.
+
+**Cost.** Per frame the signed distance is one distance transform of the window the
+outline can reach; per Gauss-Newton step a pose is one ``(6, 4)`` matrix that takes the
+outline's homogeneous vessel-frame points to their pixels and depth and to their derivative
+in ``dpsi`` (:class:`_Alignment`), so a step is a few dozen array operations on about 200
+points, not a new geometry.
 
 **Quality.** ``residual_px`` is the RMS of the inliers' distances after the fit,
 ``inlier_fraction`` the share of visible outline points within :data:`INLIER_PX` of a ship
@@ -156,103 +163,203 @@ class _SignedDistance:
     """Signed distance (px) to the boundary of the ship pixels in a window of the mask,
     positive outside them; the boundary lies on pixel edges, so neighbours across it read
     +0.5 and -0.5. One distance transform (5x5 mask, within 2 % of Euclidean) from the
-    pixels on either side of the boundary, signed by the mask. Sampled bilinearly with its
-    gradient."""
+    pixels on either side of the boundary, signed by the mask, computed once per frame and
+    kept in the transform's float32 (samples are read as float64). Sampled bilinearly with
+    its gradient, at positions ``(x, y) = (u - u0, v - v0)`` relative to the window."""
 
     def __init__(self, ship: np.ndarray, top_left: tuple[int, int]) -> None:
-        inside = ship.astype(np.uint8)
+        inside = ship.view(np.uint8)
         kernel = np.ones((3, 3), np.uint8)
-        edge = cv2.dilate(inside, kernel) != cv2.erode(inside, kernel)
-        to_edge = cv2.distanceTransform((~edge).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
-        self.field = np.where(inside > 0, -0.5 - to_edge, 0.5 + to_edge).astype(np.float64)
-        self.u0, self.v0 = top_left
+        # 255 where the 3x3 neighbourhood is all ship or all not: away from the boundary
+        off_edge = cv2.compare(cv2.dilate(inside, kernel), cv2.erode(inside, kernel), cv2.CMP_EQ)
+        field = cv2.distanceTransform(off_edge, cv2.DIST_L2, cv2.DIST_MASK_5)
+        field += np.float32(0.5)
+        np.negative(field, out=field, where=ship)
+        self.field = field
+        self.u0, self.v0 = int(top_left[0]), int(top_left[1])
+        self._flat = field.ravel()
+        self._strides = np.array([1.0, field.shape[1]])
+        #: flat offsets of a pixel and its right, lower and lower-right neighbours
+        self._neighbours = np.array([[0], [1], [field.shape[1]], [field.shape[1] + 1]])
 
-    def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(value, gradient (N, 2), valid)`` at pixel positions ``uv`` (image coordinates)."""
+    def bounds(self, width: int, height: int) -> tuple[float, float, float, float]:
+        """``(x_lo, x_hi, y_lo, y_hi)``, inclusive, relative to the window: the positions in
+        view (at least :data:`BORDER_PX` inside the ``width`` x ``height`` image) whose four
+        bilinear neighbours are in the window, ``0 <= x < w - 1`` (``x < a`` is
+        ``x <= nextafter(a, -inf)``)."""
         h, w = self.field.shape
-        x = uv[:, 0] - self.u0
-        y = uv[:, 1] - self.v0
-        valid = np.isfinite(x) & np.isfinite(y) & (x >= 0) & (y >= 0) & (x < w - 1) & (y < h - 1)
-        x0 = np.where(valid, np.floor(np.where(valid, x, 0)), 0).astype(int)
-        y0 = np.where(valid, np.floor(np.where(valid, y, 0)), 0).astype(int)
-        fx = np.where(valid, x - x0, 0.0)
-        fy = np.where(valid, y - y0, 0.0)
-        f = self.field
-        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-        v00, v10, v01, v11 = f[y0, x0], f[y0, x1], f[y1, x0], f[y1, x1]
-        value = (v00 * (1 - fx) * (1 - fy) + v10 * fx * (1 - fy) + v01 * (1 - fx) * fy
-                 + v11 * fx * fy)
-        grad = np.column_stack(((v10 - v00) * (1 - fy) + (v11 - v01) * fy,
-                                (v01 - v00) * (1 - fx) + (v11 - v10) * fx))
-        return value, grad, valid
+        return (max(0.0, BORDER_PX - self.u0),
+                min(math.nextafter(w - 1, -math.inf), width - 1 - BORDER_PX - self.u0),
+                max(0.0, BORDER_PX - self.v0),
+                min(math.nextafter(h - 1, -math.inf), height - 1 - BORDER_PX - self.v0))
+
+    def sample(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(value (n,), gradient (2, n))`` at window positions ``xy (2, n)`` within
+        :meth:`bounds`. With the four neighbours ``f00, f10, f01, f11`` of a position and its
+        fractions ``(a, b)``: ``top = f00 + (f10 - f00) a``, ``bottom = f01 + (f11 - f01) a``,
+        ``value = top + (bottom - top) b``, ``d/du = f10 - f00 + ((f11 - f01) - (f10 - f00)) b``
+        and ``d/dv = bottom - top``."""
+        cell = np.floor(xy)
+        fraction = xy - cell
+        a, b = fraction[0], fraction[1]
+        index = (self._strides @ cell).astype(np.intp)          # y w + x
+        f = self._flat.take(index + self._neighbours).astype(np.float64)
+        step = f[1::2] - f[::2]                     # f10 - f00, f11 - f01
+        rows = step * a
+        rows += f[::2]                              # top, bottom
+        gradient = np.empty_like(step)
+        np.subtract(rows[1], rows[0], out=gradient[1])
+        np.subtract(step[1], step[0], out=gradient[0])
+        gradient[0] *= b
+        gradient[0] += step[0]
+        return rows[0] + gradient[1] * b, gradient
 
 
-class _Outline:
-    """Points along the silhouette outline, as fixed blends of two hull points each, so
-    that they can be projected again under a changed pose."""
-
-    def __init__(self, vessel: VesselSpec, geometry: FrameGeometry) -> None:
-        points = vessel.hull_points
-        uv, front = geometry.camera.project(geometry.vessel_to_enu(points))
-        keep = np.flatnonzero(front & np.isfinite(uv).all(axis=1))
-        self.points_v = np.zeros((0, 3))
-        if len(keep) < 3:
-            return
-        corner = keep[cv2.convexHull(uv[keep].astype(np.float32), returnPoints=False).reshape(-1)]
-        following = np.roll(corner, -1)
-        lengths = np.hypot(*(uv[following] - uv[corner]).T)
-        steps = np.clip(np.ceil(lengths / SAMPLE_STEP_PX), 1, 2000).astype(int)
-        t = np.concatenate([np.arange(n) / n for n in steps])
-        a = np.repeat(corner, steps)
-        b = np.repeat(following, steps)
-        p3 = points if points.shape[1] == 3 else np.column_stack((points, np.zeros(len(points))))
-        self.points_v = (1 - t)[:, None] * p3[a] + t[:, None] * p3[b]
-
-    def project(self, geometry: FrameGeometry) -> np.ndarray:
-        return geometry.camera.project(geometry.vessel_to_enu(self.points_v))[0]
+def _homogeneous(points: np.ndarray) -> np.ndarray:
+    """Vessel-frame points ``(N, 2 or 3)`` as rows ``x, y, z, 1`` ``(4, N)`` (``z = 0`` when
+    not given)."""
+    out = np.zeros((4, len(points)))
+    out[:points.shape[1]] = points.T
+    out[3] = 1.0
+    return out
 
 
-def _project_with_jacobian(geometry: FrameGeometry, points_v: np.ndarray
-                           ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of vessel-frame points and their derivatives ``d(u, v)/d(de, dn, dpsi)``
-    ``(N, 2, 3)``. OpenCV gives ``d(u, v)/dX_C`` with the lens model (its Jacobian with
-    respect to the translation), ``dX_C/dX_W = R_C<-W``, and for the pose
-    ``X_W = R(h) X_V + (e, n, 0)``: ``dX_W/d(de, dn) = I``, ``dX_W/dh = R'(h) X_V`` with
-    ``R'(h) X_V = (x cos h - y sin h, -x sin h - y cos h, 0)``."""
-    camera = geometry.camera
-    intr = camera.intrinsics
-    points_c = camera.to_camera_frame(geometry.vessel_to_enu(points_v))
-    if intr.has_distortion:
-        uv, jac = cv2.projectPoints(points_c.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K,
-                                    intr.dist_coeffs)
-        uv = uv.reshape(-1, 2)
-        duv_dc = jac[:, 3:6].reshape(-1, 2, 3)
-    else:   # pinhole: u = fx x/z + cx, v = fy y/z + cy
-        x, y, z = points_c.T
-        inv_z = 1.0 / np.where(np.abs(z) > 1e-9, z, 1e-9)
-        uv = np.column_stack((intr.fx * x * inv_z + intr.cx, intr.fy * y * inv_z + intr.cy))
-        duv_dc = np.zeros((len(points_c), 2, 3))
-        duv_dc[:, 0, 0] = intr.fx * inv_z
-        duv_dc[:, 0, 2] = -intr.fx * x * inv_z ** 2
-        duv_dc[:, 1, 1] = intr.fy * inv_z
-        duv_dc[:, 1, 2] = -intr.fy * y * inv_z ** 2
-    uv[points_c[:, 2] <= 1e-9] = np.nan
-    duv_dw = duv_dc @ camera.camera_from_world
-    h = geometry.vessel_heading_rad
-    s, c = math.sin(h), math.cos(h)
-    x, y = points_v[:, 0], points_v[:, 1]
-    dw_dp = np.zeros((len(points_v), 3, 3))
-    dw_dp[:, 0, 0] = dw_dp[:, 1, 1] = 1.0
-    dw_dp[:, 0, 2] = x * c - y * s
-    dw_dp[:, 1, 2] = -x * s - y * c
-    return uv, duv_dw @ dw_dp
+def _outline_points(hull_h: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Points along the silhouette outline, ``(4, M)`` homogeneous in the vessel frame,
+    given the hull points ``(4, N)`` and their pixels ``(N, 2)`` (NaN where they do not
+    project): every :data:`SAMPLE_STEP_PX` along the convex hull of the pixels, as fixed
+    blends of two hull points each, so that they can be projected again under a changed
+    pose. Empty when fewer than 3 hull points project."""
+    keep = np.isfinite(uv).all(axis=1).nonzero()[0]
+    if len(keep) < 3:
+        return np.zeros((4, 0))
+    corner = keep[cv2.convexHull(uv[keep].astype(np.float32), returnPoints=False).reshape(-1)]
+    following = np.concatenate((corner[1:], corner[:1]))
+    lengths = np.hypot(*(uv[following] - uv[corner]).T)
+    steps = np.minimum(np.maximum(np.ceil(lengths / SAMPLE_STEP_PX), 1), 2000).astype(int)
+    first = np.repeat(np.cumsum(steps) - steps, steps)
+    t = (np.arange(len(first)) - first) / np.repeat(steps, steps)      # k / n along an edge
+    points = hull_h.take(np.repeat(corner, steps), axis=1) * (1 - t)
+    points += hull_h.take(np.repeat(following, steps), axis=1) * t
+    points[3] = 1.0
+    return points
 
 
-def _in_view(uv: np.ndarray, width: int, height: int) -> np.ndarray:
-    ok = np.isfinite(uv).all(axis=1)
-    u, v = np.where(ok, uv[:, 0], -1.0), np.where(ok, uv[:, 1], -1.0)
-    return ok & (u >= BORDER_PX) & (v >= BORDER_PX) & (u <= width - 1 - BORDER_PX) & (
-        v <= height - 1 - BORDER_PX)
+class _Alignment:
+    """Signed distances of vessel-frame points under a pose correction ``p = (de, dn, dpsi)``
+    and their Jacobian, with small-matrix operations per pose instead of a new geometry.
+
+    With ``R = R_C<-W``, the camera centre ``c`` and the sensors' pose ``(e, n, h)``, a point
+    ``X_V`` is in the camera frame at
+
+        X_C = R (R_V(h + dpsi) X_V + (e + de, n + dn, 0) - c),
+
+    ``R_V(h) = [[sin h, cos h, 0], [cos h, -sin h, 0], [0, 0, -1]]`` (bow, starboard and down
+    in ENU), so ``dX_C/d(de, dn) = R[:, :2]`` and ``dX_C/d(dpsi) = R R_V'(h + dpsi) X_V``. A
+    pinhole gives ``(x z, y z, z) = K' X_C`` with ``K`` shifted to the signed distance's
+    window (``cx - u0``, ``cy - v0``): one ``(6, 4)`` matrix per pose takes homogeneous vessel
+    points to ``K' X_C`` and ``d(K' X_C)/d(dpsi)`` together, and with the signed distance's
+    gradient ``(s_x, s_y)``, ``ds/d(K' X_C) = (s_x, s_y, -(s_x x + s_y y)) / z``. With lens
+    distortion ``K'`` is left out and OpenCV gives the pixels and ``d(u, v)/dX_C`` (its
+    Jacobian for the translation). Points behind the camera, out of view (within
+    :data:`BORDER_PX` of the image border) or off the window are left out. Points are
+    columns: ``(4, N)`` homogeneous in, ``(k, N)`` out.
+    """
+
+    def __init__(self, geometry: FrameGeometry, sdf: _SignedDistance) -> None:
+        camera = geometry.camera
+        self.geometry, self.camera, self.sdf = geometry, camera, sdf
+        self.intrinsics = intr = camera.intrinsics
+        self.distorted = intr.has_distortion
+        self.origin = np.array([[sdf.u0], [sdf.v0]], float)
+        lens = np.eye(3) if self.distorted else np.array(
+            [[intr.fx, 0.0, intr.cx - sdf.u0], [0.0, intr.fy, intr.cy - sdf.v0], [0.0, 0.0, 1.0]])
+        lens_rotation = lens @ camera.camera_from_world
+        self.lens_rotation_en_t = np.ascontiguousarray(lens_rotation[:, :2].T)
+        #: blockdiag(L R, L R): world offsets and their derivative to lens coordinates
+        self.to_lens = np.zeros((6, 6))
+        self.to_lens[:3, :3] = self.to_lens[3:, 3:] = lens_rotation
+        self.antenna_from_camera = (np.array([*geometry.vessel_position_enu, 0.0])
+                                    - camera.position_enu).tolist()
+        self.heading_rad = geometry.vessel_heading_rad
+        x_lo, x_hi, y_lo, y_hi = sdf.bounds(intr.width, intr.height)
+        # (x, y, z) within [lo, hi]: in view, in the window and in front (z > 1e-9)
+        self.lo = (float(x_lo), float(y_lo), math.nextafter(1e-9, math.inf))
+        self.hi = (float(x_hi), float(y_hi), math.inf)
+
+    def _project(self, points_h: np.ndarray, params: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(6, N)``: window position ``x, y``, depth ``z`` and ``d(K' X_C)/d(dpsi)``
+        (``dX_C/d(dpsi)`` with distortion) of homogeneous vessel points; with distortion
+        also OpenCV's Jacobian."""
+        de, dn, dpsi = params.tolist()
+        h = self.heading_rad + dpsi
+        s, c = math.sin(h), math.cos(h)
+        e, n, u = self.antenna_from_camera
+        world = np.array([s, c, 0.0, e + de,          # X_W - c, by x, y, z, 1
+                          c, -s, 0.0, n + dn,
+                          0.0, 0.0, -1.0, u,
+                          c, -s, 0.0, 0.0,            # dX_W/dh
+                          -s, -c, 0.0, 0.0,
+                          0.0, 0.0, 0.0, 0.0]).reshape(6, 4)
+        lens = (self.to_lens @ world) @ points_h
+        if not self.distorted:
+            np.divide(lens[:2], lens[2], out=lens[:2], where=lens[2] > 1e-9)
+            return lens, None
+        intr = self.intrinsics
+        uv, jac = cv2.projectPoints(np.ascontiguousarray(lens[:3].T).reshape(-1, 1, 3), np.zeros(3),
+                                    np.zeros(3), intr.K, intr.dist_coeffs)
+        lens[:2] = uv.reshape(-1, 2).T - self.origin
+        return lens, jac
+
+    def _seen(self, xyz: np.ndarray) -> np.ndarray:
+        """Indices of the points ``(x, y, z)`` in view, in the window and in front."""
+        inside = cv2.inRange(np.ascontiguousarray(xyz[:3].T).reshape(-1, 1, 3), self.lo, self.hi)
+        return inside.ravel().nonzero()[0]
+
+    def pixels(self, points_h: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Pixels ``(N, 2)`` of homogeneous vessel points, NaN where they do not project."""
+        if self.distorted:      # Camera.project also refuses points past the lens model's fold
+            moved = corrected_geometry(self.geometry, params)
+            return self.camera.project(moved.vessel_to_enu(points_h[:3].T))[0]
+        xyz = self._project(points_h, params)[0]
+        uv = (xyz[:2] + self.origin).T
+        uv[xyz[2] <= 1e-9] = np.nan
+        return uv
+
+    def residuals(self, points_h: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Signed distances (px) of the points in view."""
+        if self.distorted:
+            xy = self.pixels(points_h, params).T - self.origin
+            xyz = np.vstack((xy, np.ones((1, xy.shape[1]))))
+        else:
+            xyz = self._project(points_h, params)[0]
+        return self.sdf.sample(xyz[:2].take(self._seen(xyz), axis=1))[0]
+
+    def linearised(self, points_h: np.ndarray, params: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(s (n,), ds/dp (3, n))`` of the points in view, or None when fewer than
+        :data:`MIN_EDGE_POINTS` are."""
+        projected, jac = self._project(points_h, params)
+        seen = self._seen(projected)
+        if len(seen) < MIN_EDGE_POINTS:
+            return None
+        projected = projected.take(seen, axis=1)
+        xy = projected[:2]
+        value, gradient = self.sdf.sample(xy)
+        if self.distorted:      # ds/dX_C = s_u du/dX_C + s_v dv/dX_C
+            duv_dc = jac[:, 3:6].reshape(-1, 2, 3)[seen]
+            ds_dlens = (gradient[0][:, None] * duv_dc[:, 0] + gradient[1][:, None] * duv_dc[:, 1]).T
+        else:                   # ds/d(x z, y z, z)
+            ds_dlens = np.empty((3, len(seen)))
+            ds_dlens[:2] = gradient
+            np.einsum("ij,ij->j", gradient, xy, out=ds_dlens[2])
+            np.negative(ds_dlens[2], out=ds_dlens[2])
+            ds_dlens /= projected[2]
+        ds_dp = np.empty((3, len(seen)))
+        np.matmul(self.lens_rotation_en_t, ds_dlens, out=ds_dp[:2])
+        np.einsum("ij,ij->j", ds_dlens, projected[3:], out=ds_dp[2])
+        return value, ds_dp
 
 
 def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
@@ -277,28 +384,34 @@ def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     return slice(v0, v1), slice(u0, u1)
 
 
-def _ship_fill(geometry: FrameGeometry, vessel: VesselSpec, window: tuple[slice, slice],
-               ship: np.ndarray, known: np.ndarray) -> float:
-    """Share of the silhouette's labelled pixels inside ``window`` that are ship pixels."""
-    uv = geometry.camera.project(geometry.vessel_to_enu(vessel.hull_points))[0]
+def _ship_fill(uv: np.ndarray, window: tuple[slice, slice], ship: np.ndarray,
+               known: np.ndarray) -> float:
+    """Share of the silhouette's labelled pixels inside ``window`` that are ship pixels,
+    given the hull points' pixels ``uv`` (NaN where they do not project)."""
     uv = uv[np.isfinite(uv).all(axis=1)]      # the corners' hull: close enough for a share
     if len(uv) < 3:
         return 0.0
     offset = np.array([window[1].start, window[0].start])
     corners = cv2.convexHull(np.round((uv - offset) * 16).astype(np.int32))
-    inside = np.zeros(ship.shape, np.uint8)
-    cv2.fillConvexPoly(inside, corners, 1, lineType=cv2.LINE_8, shift=4)
-    counted = (inside > 0) & known
-    total = int(counted.sum())
-    return float((ship & counted).sum()) / total if total else 0.0
+    # drawn only over its bounding box (a pixel more each side) within the window
+    lo = np.maximum((corners.min(axis=(0, 1)) >> 4) - 1, 0)
+    hi = np.minimum((corners.max(axis=(0, 1)) >> 4) + 2, (ship.shape[1], ship.shape[0]))
+    if (hi <= lo).any():
+        return 0.0
+    box = slice(lo[1], hi[1]), slice(lo[0], hi[0])
+    inside = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+    cv2.fillConvexPoly(inside, (corners - lo * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    counted = inside.view(bool) & known[box]
+    total = np.count_nonzero(counted)
+    return np.count_nonzero(ship[box] & counted) / total if total else 0.0
 
 
 def _weights(residual: np.ndarray, loss: str, scale_px: float) -> np.ndarray:
-    """IRLS weights of the Huber or Tukey biweight loss."""
+    """IRLS weights: Huber ``min(1, c/|r|)``, Tukey's biweight ``(1 - min(|r|/c, 1)²)²``."""
     a = np.abs(residual)
     if loss == "huber":
-        return np.where(a <= scale_px, 1.0, scale_px / np.maximum(a, 1e-12))
-    return np.where(a < scale_px, (1 - (a / scale_px) ** 2) ** 2, 0.0)
+        return np.minimum(scale_px / np.maximum(a, 1e-12), 1.0)
+    return np.square(1 - np.square(np.minimum(a / scale_px, 1.0)))
 
 
 def _tukey_cost(residual: np.ndarray, scale_px: float) -> np.ndarray:
@@ -307,15 +420,16 @@ def _tukey_cost(residual: np.ndarray, scale_px: float) -> np.ndarray:
     return scale_px ** 2 / 6 * (1 - (1 - inside ** 2) ** 3)
 
 
-def _fit(value: np.ndarray, valid: np.ndarray) -> tuple[float, float | None, int]:
-    """``(inlier fraction, RMS of the inliers px, points that can tell)`` of an outline:
-    points in view and not deep inside ship pixels (:data:`DEEP_PX`)."""
-    telling = value[valid & (value > -DEEP_PX)]
+def _fit(value: np.ndarray) -> tuple[float, float | None, int]:
+    """``(inlier fraction, RMS of the inliers px, points that can tell)`` of the signed
+    distances of an outline's points in view: those not deep inside ship pixels
+    (:data:`DEEP_PX`) can tell."""
+    telling = value[value > -DEEP_PX]
     if not len(telling):
         return 0.0, None, 0
-    inlier = np.abs(telling) <= INLIER_PX
-    rms = float(np.sqrt(np.mean(telling[inlier] ** 2))) if inlier.any() else None
-    return float(inlier.mean()), rms, len(telling)
+    inliers = telling[np.abs(telling) <= INLIER_PX]
+    rms = math.sqrt(np.add.reduce(inliers ** 2) / len(inliers)) if len(inliers) else None
+    return len(inliers) / len(telling), rms, len(telling)
 
 
 def refine_vessel_pose(
@@ -329,11 +443,11 @@ def refine_vessel_pose(
     """
     if not settings.enabled:
         return geometry, OFF
-    intr = geometry.camera.intrinsics
-    outline = _Outline(vessel, geometry)
-    if len(outline.points_v) == 0:
+    hull_h = _homogeneous(vessel.hull_points)
+    outline = _outline_points(hull_h, geometry.camera.project(geometry.vessel_to_enu(hull_h[:3].T))[0])
+    if outline.shape[1] == 0:
         return geometry, PoseRefinement(False, reason="the hull does not project into the image")
-    uv0 = outline.project(geometry)
+    uv0 = geometry.camera.project(geometry.vessel_to_enu(outline[:3].T))[0]
     window = _search_window(uv0, geometry, vessel, settings, labels.shape)
     if window is None:
         return geometry, PoseRefinement(False, reason="the hull is not in the image")
@@ -342,76 +456,79 @@ def refine_vessel_pose(
         return geometry, PoseRefinement(False, reason="no ship pixels near the projected hull")
     if ship.all():
         return geometry, PoseRefinement(False, reason="only ship pixels around the projected hull")
-    sdf = _SignedDistance(ship, (window[1].start, window[0].start))
+    align = _Alignment(geometry, _SignedDistance(ship, (window[1].start, window[0].start)))
 
-    def residuals(params: np.ndarray, points: _Outline) -> tuple[np.ndarray, np.ndarray]:
-        uv = points.project(corrected_geometry(geometry, params))
-        value, _, valid = sdf.sample(uv)
-        return value, valid & _in_view(uv, intr.width, intr.height)
-
-    before, before_rms_px, _ = _fit(*residuals(np.zeros(3), outline))
+    before, before_rms_px, _ = _fit(align.residuals(outline, np.zeros(3)))
 
     prior_sigma = np.array([settings.prior_shift_m, settings.prior_shift_m,
                             math.radians(settings.prior_heading_deg)])
-    prior_information = np.diag(prior_sigma ** -2.0)
+    prior_diagonal = prior_sigma ** -2.0
+    prior_information = np.diag(prior_diagonal)
+    edge_weight = settings.edge_sigma_px ** -2.0
 
-    def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
         """Gauss-Newton IRLS through ``schedule`` from ``start``: ``(params, information,
-        final cost)``."""
+        final cost, the outline's signed distances in view)``. Each stage samples the
+        outline afresh (its corners move with the pose)."""
         params, information = start.astype(float), prior_information
+
+        def failed() -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+            return params, information, np.inf, align.residuals(outline, params)
+
         for stage, (loss, scale_px, iterations) in enumerate(schedule):
             tolerance_m = 1e-3 if stage == len(schedule) - 1 else 1e-2
-            points = _Outline(vessel, corrected_geometry(geometry, params))  # corners move
-            n = len(points.points_v)
-            if n == 0:
-                return params, information, np.inf
+            # at the sensors' pose that is the outline already sampled
+            points = _outline_points(hull_h, align.pixels(hull_h, params)) if params.any() else outline
+            if points.shape[1] == 0:
+                return failed()
             for _ in range(iterations):
-                current = corrected_geometry(geometry, params)
-                uv, duv_dp = _project_with_jacobian(current, points.points_v)
-                value, grad, valid = sdf.sample(uv)
-                valid &= _in_view(uv, intr.width, intr.height)
-                if valid.sum() < MIN_EDGE_POINTS:
-                    return params, information, np.inf
-                jac = np.einsum("ij,ijk->ik", grad, duv_dp)
-                r, J = value[valid], jac[valid]
-                w = _weights(r, loss, scale_px) / settings.edge_sigma_px ** 2
-                information = J.T @ (w[:, None] * J) + prior_information
-                gradient = J.T @ (w * r) + prior_information @ params
+                linear = align.linearised(points, params)
+                if linear is None:
+                    return failed()
+                r, jac_t = linear
+                weights = _weights(r, loss, scale_px)
+                if edge_weight != 1.0:
+                    weights *= edge_weight
+                weighted_jac_t = jac_t * weights
+                information = weighted_jac_t @ jac_t.T + prior_information
+                gradient = weighted_jac_t @ r + prior_diagonal * params
                 try:
                     delta = -np.linalg.solve(information, gradient)
                 except np.linalg.LinAlgError:
-                    return params, information, np.inf
-                if not np.isfinite(delta).all():
-                    return params, information, np.inf
+                    return failed()
+                d_e, d_n, d_psi = delta.tolist()
+                if not (math.isfinite(d_e) and math.isfinite(d_n) and math.isfinite(d_psi)):
+                    return failed()
                 params = params + delta
-                if np.hypot(delta[0], delta[1]) < tolerance_m and abs(delta[2]) < tolerance_m / 50:
+                if math.hypot(d_e, d_n) < tolerance_m and abs(d_psi) < tolerance_m / 50:
                     break
         # final cost: Tukey over the whole outline (points out of view count as outliers)
-        value, valid = residuals(params, outline)
-        cost = np.where(valid, _tukey_cost(np.where(valid, value, 0.0), _FINAL_TUKEY_PX),
-                        _FINAL_TUKEY_PX ** 2 / 6).sum() / settings.edge_sigma_px ** 2
-        return params, information, float(cost + params @ prior_information @ params)
+        value = align.residuals(outline, params)
+        out_of_view = outline.shape[1] - len(value)
+        cost = (_tukey_cost(value, _FINAL_TUKEY_PX).sum()
+                + out_of_view * _FINAL_TUKEY_PX ** 2 / 6) * edge_weight
+        return params, information, float(cost + params @ prior_information @ params), value
 
     known = labels[window] != IGNORE
 
     def fill(params: np.ndarray) -> float:
-        return _ship_fill(corrected_geometry(geometry, params), vessel, window, ship, known)
+        return _ship_fill(align.pixels(hull_h, params), window, ship, known)
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side
     first = solve(SCHEDULES[0], np.zeros(3))
-    candidates = [(*first, fill(first[0]))]        # (params, information, cost, fill)
-    if (_fit(*residuals(first[0], outline))[0] < SKIP_SECOND_START_FRACTION
-            or candidates[0][3] < settings.min_ship_fill):
+    candidates = [(*first, fill(first[0]))]     # (params, information, cost, distances, fill)
+    first_fit = _fit(first[3])
+    if first_fit[0] < SKIP_SECOND_START_FRACTION or candidates[0][4] < settings.min_ship_fill:
         h = geometry.vessel_heading_rad
         across = np.array([math.cos(h), -math.sin(h), 0.0]) * settings.prior_shift_m
         for start in (np.zeros(3), across, -across):
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
-    full = [c for c in candidates if c[3] >= settings.min_ship_fill]
-    params, information, _, ship_fill = min(full or candidates, key=lambda c: c[2])
+    full = [c for c in candidates if c[4] >= settings.min_ship_fill]
+    params, information, _, value, ship_fill = best = min(full or candidates, key=lambda c: c[2])
 
-    fraction, residual_px, n_edge = _fit(*residuals(params, outline))
+    fraction, residual_px, n_edge = first_fit if best is candidates[0] else _fit(value)
     shift = (float(params[0]), float(params[1]))
     rotation_deg = math.degrees(float(params[2]))
     if n_edge < MIN_EDGE_POINTS:
