@@ -1,7 +1,7 @@
-"""docs/sim-vs-real.png: lake-shore and marina renders beside real lake-shore photos and marina
+"""docs/sim-vs-real.jpg: lake-shore and marina renders beside real lake-shore photos and marina
 tiles (issue #26, item 4), alternating. ../shared beside the checkout.
 
-    .venv/bin/python scripts/sim_vs_real_sheet.py DATASET [--out docs/sim-vs-real.png] [--pairs 3]
+    .venv/bin/python scripts/sim_vs_real_sheet.py DATASET [--out docs/sim-vs-real.jpg] [--pairs 3]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ MARINA = ["harbor05.tif", "harbor33.tif", "harbor12.tif", "harbor47.tif"]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dataset", type=Path)
-    parser.add_argument("--out", type=Path, default=Path("docs/sim-vs-real.png"))
+    parser.add_argument("--out", type=Path, default=Path("docs/sim-vs-real.jpg"))
     parser.add_argument("--pairs", type=int, default=3, help="rows of each family")
     args = parser.parse_args()
     by_family: dict[str, list[str]] = {"lakeshore": [], "marina": []}
@@ -39,7 +39,7 @@ def main() -> None:
                 real.append(folder / names[k % len(names)])
     sheet = renders_beside_real(args.dataset, stems, real, tile_width=480)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.out), sheet)
+    cv2.imwrite(str(args.out), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85])
     print(f"{args.out}: {len(stems)} pairs")
 
 
