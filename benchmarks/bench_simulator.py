@@ -9,6 +9,11 @@ Targets (issue 3): default (640x360) at most 4 s per frame on 2 cores; tiny at m
 including start-up.
 
     .venv/bin/python benchmarks/bench_simulator.py [--frames 6] [--json out.json]
+    .venv/bin/python benchmarks/bench_simulator.py --presets default --scenarios classic,lakeshore,marina
+
+``--scenarios``: the warm time per frame of each scenario family (``classic``: the five
+classic scenarios drawn as by default) in one run, and its ratio to the first one's (issue
+#26: what the realistic families cost).
 """
 
 from __future__ import annotations
@@ -37,10 +42,28 @@ def cold_start_seconds(preset: str, seed: int) -> float:
         return time.perf_counter() - start
 
 
-def warm_seconds(preset: str, n_frames: int, seed: int) -> list[float]:
+def warm_seconds(preset: str, n_frames: int, seed: int, scenario: str | None = None) -> list[float]:
     with tempfile.TemporaryDirectory() as tmp:
-        summary = simulate(Path(tmp) / "ds", n_frames, SimulationConfig(seed=seed, preset=preset))
+        summary = simulate(Path(tmp) / "ds", n_frames,
+                           SimulationConfig(seed=seed, preset=preset, scenario=scenario))
         return [r.seconds for r in sorted(summary.rendered, key=lambda r: r.index)]
+
+
+def scenario_costs(preset: str, n_frames: int, seed: int, scenarios: list[str]) -> list[dict]:
+    """Warm seconds per frame of each scenario family, interleaved in one run."""
+    rows = []
+    for name in scenarios:
+        warm = warm_seconds(preset, n_frames + 1, seed, None if name == "classic" else name)[1:]
+        rows.append({"scenario": name, "warm_mean_s_per_frame": round(sum(warm) / len(warm), 2),
+                     "warm_min_s": round(min(warm), 2), "warm_max_s": round(max(warm), 2),
+                     "frames": len(warm)})
+    base = rows[0]["warm_mean_s_per_frame"]
+    for row in rows:
+        row["ratio_to_first"] = round(row["warm_mean_s_per_frame"] / base, 2)
+        print(f"{preset:8s} {row['scenario']:10s} warm {row['warm_mean_s_per_frame']:6.2f} s/frame "
+              f"(min {row['warm_min_s']:.2f}, max {row['warm_max_s']:.2f}, {row['frames']} frames)   "
+              f"x{row['ratio_to_first']:.2f} of {rows[0]['scenario']}")
+    return rows
 
 
 def main() -> None:
@@ -49,7 +72,16 @@ def main() -> None:
     parser.add_argument("--presets", default="tiny,default,high")
     parser.add_argument("--seed", type=int, default=404)
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--scenarios", help="e.g. classic,lakeshore,marina: compare their cost")
     args = parser.parse_args()
+    if args.scenarios:
+        rows = [dict(r, preset=preset) for preset in args.presets.split(",")
+                for r in scenario_costs(preset, args.frames, args.seed, args.scenarios.split(","))]
+        if args.json:
+            args.json.write_text(json.dumps({"machine": f"{platform.machine()}, {os.cpu_count()} cores",
+                                             "rows": rows, "load_average_at_end": os.getloadavg()},
+                                            indent=2) + "\n")
+        return
     rows = []
     for preset in args.presets.split(","):
         n = args.frames if preset != "high" else max(2, args.frames // 3)

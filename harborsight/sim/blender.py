@@ -122,14 +122,15 @@ class BlenderRenderer:
     # ------------------------------------------------------------------ building
 
     def _clear(self) -> None:
+        """Remove the last scene's data blocks in one batch (one at a time is quadratic in
+        their number: 4.6 s for a marina's thousand objects)."""
         bpy = self.bpy
-        for obj in list(bpy.data.objects):
-            bpy.data.objects.remove(obj, do_unlink=True)
+        doomed = list(bpy.data.objects)
         for collection in (bpy.data.meshes, bpy.data.materials, bpy.data.lights,
                            bpy.data.cameras, bpy.data.worlds):
-            for block in list(collection):
-                if block is not self.id_material and block is not self.id_world:
-                    collection.remove(block)
+            doomed += [block for block in collection
+                       if block is not self.id_material and block is not self.id_world]
+        bpy.data.batch_remove(doomed)
 
     def _make_id_material(self):
         mat = self.bpy.data.materials.new("harborsight-ids")

@@ -385,18 +385,27 @@ def _overlaps_others(new: list, objects: list, margin_m: float = 0.0) -> bool:
     has hundreds of objects."""
     new_ids = {id(o) for o in new}
     earlier = [o for o in objects if id(o) not in new_ids and o.instance_id != 1]
+    if not earlier:
+        return False
+    bounds = np.array([_bounds(o) for o in earlier])
+    ground = np.array([o.kind in _GROUND for o in earlier])
     for n in new:
         fp = n.footprint()
-        x0, y0, x1, y1 = fp.bounds
-        for o in earlier:
-            if o.kind in _GROUND and n.kind != "boat":
-                continue
-            ox0, oy0, ox1, oy1 = o.footprint().bounds
-            if ox0 > x1 + margin_m or ox1 < x0 - margin_m or oy0 > y1 + margin_m or oy1 < y0 - margin_m:
-                continue
-            if fp.distance(o.footprint()) <= margin_m:
-                return True
+        x0, y0, x1, y1 = _bounds(n)
+        near = ((bounds[:, 0] <= x1 + margin_m) & (bounds[:, 2] >= x0 - margin_m)
+                & (bounds[:, 1] <= y1 + margin_m) & (bounds[:, 3] >= y0 - margin_m))
+        if n.kind != "boat":
+            near &= ~ground
+        if any(fp.distance(earlier[k].footprint()) <= margin_m for k in np.flatnonzero(near)):
+            return True
     return False
+
+
+def _bounds(obj) -> tuple[float, float, float, float]:
+    """An object's footprint bounds, kept on it (objects do not move once placed)."""
+    if "_bounds" not in obj.__dict__:
+        obj.__dict__["_bounds"] = obj.footprint().bounds
+    return obj.__dict__["_bounds"]
 
 
 # ------------------------------------------------------------------------ the marina
