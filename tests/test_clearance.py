@@ -261,3 +261,162 @@ def test_wide_barrel_lens_keeps_the_vessel_inside_its_own_region():
     assert 0.2 < on_vessel.mean() < 0.9
     report = measure_clearance(labels, scene.geometry(), vessel)
     assert {s.status for s in report.sections} <= {"clear", "out_of_view"}
+
+
+def _rim_over_the_whole_box(labels, own, rim_px):
+    """own_rim's formula computed over the region's whole box grown by 2r + 1 (how it was
+    first written, before it looked only at the ship pixels within r of the region)."""
+    import cv2
+
+    from harborsight.clearance.obstacles import _grown_slices
+
+    rim = np.zeros(labels.shape, np.uint8)
+    if rim_px <= 0 or own.bbox is None:
+        return rim
+    roi = _grown_slices(own.bbox, 2 * rim_px + 1, labels.shape)
+    ship_outside = np.where((labels[roi] == SHIP) & (own.mask[roi] == 0), 255, 0).astype(np.uint8)
+    diameter = 2 * int(np.ceil(rim_px / 2)) + 1
+    thick = cv2.morphologyEx(ship_outside, cv2.MORPH_OPEN,
+                             cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter)))
+    near_own = cv2.dilate(own.mask[roi], cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1)))
+    rim[roi] = ship_outside & near_own & ~thick
+    return rim
+
+
+def test_own_rim_looks_only_near_the_region_and_finds_the_whole_rim():
+    """Random masks and regions (near and across the image's edges, margins 0 to 3.5 px,
+    rims 0 to 7 px): own_rim, which opens and dilates only the box of the ship pixels within
+    r of the region's box (and nothing when there are none), equals the formula over the
+    whole search box."""
+    import cv2
+
+    from harborsight.clearance.obstacles import own_rim, own_vessel_region
+
+    rng = np.random.default_rng(5)
+    found = skipped = 0
+    for trial in range(400):
+        h, w = int(rng.integers(20, 120)), int(rng.integers(20, 160))
+        labels = rng.choice([0, 1, 2, 255], size=(h, w), p=[0.6, 0.25, 0.1, 0.05]).astype(np.uint8)
+        if trial % 2:
+            labels = cv2.medianBlur(labels, 3)      # blobs and slivers rather than speckle
+        if trial % 5 == 0:                          # ship pixels only far from the region
+            labels[labels == SHIP] = WATER
+            labels[:4, :4] = SHIP
+        centre = rng.uniform([-20, -20], [w + 20, h + 20]) if trial % 5 else np.array([w - 8.0, h - 8.0])
+        own = own_vessel_region(centre + rng.normal(0, rng.uniform(2, 20), (6, 2)), labels.shape,
+                                float(rng.choice([0, 1, 2, 3.5])))
+        rim_px = int(rng.integers(0, 8))
+        rim = own_rim(labels, own, rim_px)
+        expected = _rim_over_the_whole_box(labels, own, rim_px)
+        assert rim.dtype == np.uint8 and np.array_equal(rim, expected), trial
+        found += bool(expected.any())
+        skipped += trial % 5 == 0 and own.bbox is not None and rim_px > 0
+    assert found > 150 and skipped > 50
+
+
+def test_own_region_dilated_over_a_wider_window_is_the_same():
+    """own_vessel_region dilates a window widened to whole SIMD blocks of columns: random
+    polygons, in and across the image's edges, give the mask and box of the polygon's box
+    dilated alone."""
+    import cv2
+
+    from harborsight.clearance.obstacles import _grown_bbox, own_vessel_region
+
+    rng = np.random.default_rng(7)
+    for trial in range(600):
+        h, w = int(rng.integers(10, 200)), int(rng.integers(10, 300))
+        centre = rng.uniform([-30, -30], [w + 30, h + 30])
+        corners = centre + rng.normal(0, rng.uniform(0.5, 40), (int(rng.integers(3, 12)), 2))
+        margin = float(rng.choice([0, 0.4, 1, 2, 3.5, 6]))
+        own = own_vessel_region(corners, (h, w), margin)
+        expected = np.zeros((h, w), np.uint8)
+        hull = cv2.convexHull(np.round(corners * 16).astype(np.int32))
+        cv2.fillConvexPoly(expected, hull, 255, lineType=cv2.LINE_8, shift=4)
+        radius = int(np.ceil(margin))
+        box = _grown_bbox(hull.reshape(-1, 2) / 16, radius + 1, (h, w))
+        if radius > 0 and box is not None:
+            disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+            expected[box] = cv2.dilate(expected[box], disk)
+        assert own.bbox == box and np.array_equal(own.mask, expected), trial
+
+
+def test_windows_widen_to_whole_simd_blocks_inside_the_image():
+    from harborsight.clearance.obstacles import _SIMD_COLUMNS, _simd_wide
+
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        width = int(rng.integers(1, 400))
+        start = int(rng.integers(0, width))
+        stop = int(rng.integers(start + 1, width + 1))
+        rows = slice(2, 9)
+        wide_rows, wide = _simd_wide((rows, slice(start, stop)), (50, width))
+        assert wide_rows == rows and 0 <= wide.start <= start and stop <= wide.stop <= width
+        assert wide.stop - wide.start == min(-(-(stop - start) // _SIMD_COLUMNS) * _SIMD_COLUMNS, width)
+
+
+def test_own_rim_near_its_reach():
+    """Hand-made edge cases of own_rim's windows (region rows 40-59, cols 40-119, r = 4):
+    a lone ship pixel exactly r above the region is rim (its dilation window must reach r
+    back to the region), and a 4-row strip from 3 to 6 rows above it is too thin for the
+    opening's disk, though only its two nearest rows lie within r of the region's box (the
+    opening's window must reach 2⌈r/2⌉ past them, to the water beyond the strip)."""
+    from harborsight.clearance.obstacles import OwnRegion, own_rim
+
+    own_mask = np.zeros((100, 200), np.uint8)
+    own_mask[40:60, 40:120] = 255
+    own = OwnRegion(own_mask, (slice(40, 60), slice(40, 120)))
+    for rows in (slice(36, 37), slice(34, 38)):
+        labels = np.zeros((100, 200), np.uint8)
+        labels[40:60, 40:120] = SHIP
+        labels[rows, 60:100] = SHIP if rows.stop - rows.start > 1 else WATER
+        labels[36, 80] = SHIP
+        rim = own_rim(labels, own, 4)
+        assert np.array_equal(rim, _rim_over_the_whole_box(labels, own, 4))
+        assert rim[36, 80] == 255 and not rim[:36].any()
+
+
+def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
+    """The hull 2.3 m and 2.5 degrees off, partly out of view: with the refined pose applied,
+    every section's visible share and end pixels, and the sigmas (from the outline's pixels
+    under that pose), are those of the refined pose, computed here on their own, not the
+    sensors' pose's (which differ)."""
+    from dataclasses import replace
+
+    from harborsight.clearance.pose_refinement import corrected_geometry, refine_vessel_pose
+    from harborsight.clearance.uncertainty import add_section_uncertainty
+
+    vessel = flat_box_vessel()
+    scene = sample_scene(vessel, np.random.default_rng(0), altitude_m=22, tilt_deg=8,
+                         scenario="alongside")
+    _, labels, _ = render(scene)
+    off = corrected_geometry(scene.geometry(), np.array([1.8, -1.5, np.radians(2.5)]))
+    settings = ClearanceSettings()
+    report = measure_clearance(labels, off, vessel, settings)
+    assert report.pose_refinement["applied"]
+    refined, refinement = refine_vessel_pose(labels, off, vessel, settings.pose_refinement)
+    sections_v = vessel.sections()
+    n = sections_v.n_sections
+    points, section = sections_v.samples(16 * n)
+
+    def in_view(geometry):
+        uv = geometry.camera.project(geometry.vessel_to_enu(points))[0]
+        share = np.bincount(section, weights=geometry.camera.in_image(uv), minlength=n)
+        ends = geometry.camera.project(geometry.vessel_to_enu(
+            sections_v.section_endpoints().reshape(-1, 2)))[0].reshape(n, 2, 2)
+        return share / np.bincount(section, minlength=n), ends
+
+    share, ends = in_view(refined)
+    share_off, ends_off = in_view(off)
+    assert np.abs(share - share_off).max() > 0.5 and np.abs(ends - ends_off).max() > 5
+    assert ((share > 0) & (share < 1)).any() and (share == 0).any()
+    np.testing.assert_allclose([s.visible_fraction for s in report.sections], share, atol=1e-12)
+    np.testing.assert_allclose([s.hull_px for s in report.sections], ends, atol=1e-9)
+    ok = [s for s in report.sections if s.status == "ok"]
+    assert len(ok) >= 3
+    again = [replace(s, sigma_m=None, sigma_random_m=None, distance_lower_m=None) for s in ok]
+    add_section_uncertainty(again, refined, refined.vessel_to_enu(sections_v.vertices), refinement,
+                            settings.sensor_sigmas())
+    for field in ("sigma_m", "sigma_random_m", "distance_lower_m"):
+        np.testing.assert_allclose([getattr(s, field) for s in ok],
+                                   [getattr(s, field) for s in again], rtol=1e-12)

@@ -1,5 +1,6 @@
 """A sigma for every distance: hand calculations of each term, and a Monte-Carlo check."""
 
+import itertools
 import json
 import math
 from importlib import resources
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
-from harborsight.clearance.pose_refinement import PoseRefinement, PoseRefinementSettings
+from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement, PoseRefinementSettings
 from harborsight.clearance.report import SectionClearance
 from harborsight.clearance.uncertainty import LOWER_BOUND_Z, add_section_uncertainty
 from harborsight.frame import FrameGeometry, parse_frame_metadata
@@ -225,3 +226,169 @@ def test_run_writes_sigmas_and_filtered_values_and_takes_sigma_options(tmp_path)
                               "--out", str(tmp_path / "bad"), "--sigma", "height=1"])
     assert bad.exit_code == 2
     assert "--sigma" in bad.output and "unknown sigma 'height'" in bad.output
+
+
+# --- the batched back-projections against the propagation done one camera at a time ---
+
+def _reference_sigmas(sections, geometry, outline_enu, refinement, sigmas, velocities=None):
+    """``(sigma_m, sigma_random_m)`` of each section by the module docstring's recipe with
+    every back-projection its own Camera.back_project_to_plane call and every rigid fit its
+    own (how add_section_uncertainty was first written, before it shared them)."""
+    from harborsight.clearance.pose_refinement import SENSORS_FIT
+    from harborsight.clearance.uncertainty import (
+        REFINEMENT_COVARIANCE_SCALE,
+        _perturbed_cameras,
+    )
+
+    def back(camera, uv):
+        return camera.back_project_to_plane(uv)[0][:, :2]
+
+    camera = geometry.camera
+    obstacle = np.array([s.obstacle_point_enu for s in sections])
+    hull = np.array([s.hull_point_enu for s in sections])
+    obstacle_px = np.array([s.obstacle_point_px for s in sections])
+    direction = obstacle - hull
+    length = np.hypot(*direction.T)
+    direction = np.where((length > 1e-6)[:, None], direction, hull - geometry.vessel_position_enu)
+    u = direction / np.hypot(*direction.T)[:, None]
+    systematic, random = np.zeros(len(sections)), np.zeros(len(sections))
+    refined = refinement.applied or (refinement.reason == SENSORS_FIT
+                                     and refinement.covariance is not None)
+    outline_px = camera.project(np.column_stack((outline_enu[:, :2], np.zeros(len(outline_enu)))))[0]
+    outline_px = outline_px[np.isfinite(outline_px).all(axis=1)]
+    here, outline_here = back(camera, obstacle_px), back(camera, outline_px)
+    for moved in _perturbed_cameras(camera, sigmas):
+        shift_o, shift_h = back(moved, obstacle_px) - here, np.zeros((len(sections), 2))
+        if refined and len(outline_here) >= 3:
+            moved_by = back(moved, outline_px) - outline_here
+            usable = np.isfinite(moved_by).all(axis=1)
+            if usable.sum() >= 3:
+                points, moved_by = outline_here[usable], moved_by[usable]
+                centre, t = points.mean(axis=0), moved_by.mean(axis=0)
+                rel, rest = points - centre, moved_by - t
+                turn = (rel[:, 0] * rest[:, 1] - rel[:, 1] * rest[:, 0]).sum() / (rel ** 2).sum()
+                offset = hull - centre
+                shift_h = t + turn * np.column_stack((-offset[:, 1], offset[:, 0]))
+        systematic += np.nan_to_num(np.einsum("ij,ij->i", u, shift_o - shift_h)) ** 2
+    r = hull - geometry.vessel_position_enu
+    if not refined:
+        systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
+        turn_h = math.radians(sigmas.vessel_heading_deg) * np.column_stack((r[:, 1], -r[:, 0]))
+        systematic += np.einsum("ij,ij->i", u, turn_h) ** 2
+        if velocities is not None:
+            relative = np.subtract(velocities.uav_en_mps, velocities.vessel_en_mps)
+            systematic += (sigmas.clock_s * (u @ relative)) ** 2
+    elif refinement.covariance is not None:
+        gradient = np.column_stack((u[:, 0], u[:, 1], u[:, 0] * r[:, 1] - u[:, 1] * r[:, 0]))
+        random += np.einsum("ij,jk,ik->i", gradient,
+                            REFINEMENT_COVARIANCE_SCALE * refinement.covariance, gradient)
+    du, dv = np.array([0.5, 0.0]), np.array([0.0, 0.5])
+    step_u = back(camera, obstacle_px + du) - back(camera, obstacle_px - du)
+    step_v = back(camera, obstacle_px + dv) - back(camera, obstacle_px - dv)
+    along_u, along_v = (np.abs(np.einsum("ij,ij->i", u, s)) for s in (step_u, step_v))
+    random += np.nan_to_num(((along_u + along_v) / math.sqrt(12.0)) ** 2
+                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2))
+    return np.sqrt(systematic + random), np.sqrt(random)
+
+
+def _oblique(distortion=(), pitch_deg=-35.0, vessel_north_m=40.0) -> FrameGeometry:
+    """A camera 10 m up looking north, the vessel ``vessel_north_m`` ahead and turned."""
+    intrinsics = CameraIntrinsics(1000, 1000, 500.0, 500.0, 499.5, 499.5, tuple(distortion))
+    rotation = world_from_camera_rotation(0.0, math.radians(pitch_deg), math.radians(3.0))
+    camera = Camera(intrinsics, np.array([1.5, 0.0, 10.0]), rotation)
+    return FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, math.radians(20.0),
+                         np.array([2.0, vessel_north_m]))
+
+
+def _box_outline(geometry: FrameGeometry, per_side: int = 10) -> np.ndarray:
+    """The BOX outline, ``per_side`` points along each side, on the water in ENU."""
+    corners = np.vstack((BOX, BOX[:1]))
+    t = np.arange(per_side)[:, None] / per_side
+    points = np.vstack([a + t * (b - a) for a, b in itertools.pairwise(corners)])
+    return geometry.vessel_to_enu(points)
+
+
+def _sections_around(geometry: FrameGeometry, outline_enu: np.ndarray) -> list[SectionClearance]:
+    """Obstacles 0.5-6 m off a few outline points (and one in contact), measured as
+    measure_clearance does: the obstacle placed on the water from its pixel. Each lies
+    off the line from the antenna through its hull point (35 degrees to it), where a turn
+    of the hull about the antenna moves the hull point toward the obstacle."""
+    centre = geometry.vessel_position_enu
+    c, s = math.cos(math.radians(35.0)), math.sin(math.radians(35.0))
+    sections = []
+    for i, (k, gap) in enumerate([(0, 3.0), (7, 0.5), (13, 6.0), (22, 0.0), (31, 2.0)]):
+        hull = outline_enu[k, :2]
+        east, north = (hull - centre) / np.hypot(*(hull - centre))
+        away = np.array([c * east - s * north, s * east + c * north])
+        obstacle_px = geometry.camera.project(np.array([[*(hull + gap * away), 0.0]]))[0][0]
+        obstacle = geometry.camera.back_project_to_plane(obstacle_px[None])[0][0, :2]
+        sections.append(SectionClearance(
+            i, "ok", [[0, 0], [1, 1]], 1.0, distance_m=float(np.hypot(*(obstacle - hull))),
+            hull_point_enu=hull.tolist(), obstacle_point_enu=obstacle.tolist(),
+            obstacle_point_px=obstacle_px.tolist()))
+    return sections
+
+
+PLACED = PoseRefinement(applied=True, covariance=np.diag([0.01, 0.04, 1e-4]))
+FITTED = PoseRefinement(applied=False, reason=SENSORS_FIT, covariance=np.diag([0.02, 0.01, 4e-4]))
+OFF = PoseRefinement(applied=False, reason="off")
+
+
+@pytest.mark.parametrize("distortion", [(), (-0.12, 0.03, 0.0, 0.0, 0.0)])
+def test_the_plane_points_of_all_cameras_are_each_cameras_back_projection(distortion):
+    from harborsight.clearance.uncertainty import _perturbed_cameras, _plane_points
+
+    geometry = _oblique(distortion, pitch_deg=-8.0)
+    camera = geometry.camera
+    cameras = [camera, *_perturbed_cameras(camera, SensorSigmas(camera_tilt_deg=4.0))]
+    # the whole image: above the horizon (v < 429) too, where the rays miss the water
+    uv = np.stack(np.meshgrid(np.linspace(-3, 1003, 23), np.linspace(-3, 1003, 29)), -1).reshape(-1, 2)
+    planes = _plane_points(cameras, uv)
+    for each, points in zip(cameras, planes, strict=True):
+        expected = each.back_project_to_plane(uv)[0][:, :2]
+        np.testing.assert_array_equal(points, expected)
+    assert np.isnan(planes).any() and np.isfinite(planes).any()
+
+
+@pytest.mark.parametrize("refinement", [PLACED, FITTED, OFF], ids=["placed", "fitted", "off"])
+@pytest.mark.parametrize("distortion", [(), (-0.12, 0.03, 0.0, 0.0, 0.0)])
+def test_shared_back_projections_give_the_sigmas_of_one_camera_at_a_time(refinement, distortion):
+    from harborsight.clearance.uncertainty import FrameVelocities
+
+    geometry = _oblique(distortion)
+    outline_enu = _box_outline(geometry)
+    sigmas = SensorSigmas(camera_tilt_deg=1.0, height_m=0.8)
+    velocities = FrameVelocities((1.0, -0.5), (0.3, 0.2))
+    expected = _reference_sigmas(_sections_around(geometry, outline_enu), geometry, outline_enu,
+                                 refinement, sigmas, velocities)
+    outline_px = geometry.camera.project(outline_enu)[0]
+    for given in (None, outline_px):        # projected here, or handed over by the caller
+        sections = _sections_around(geometry, outline_enu)
+        add_section_uncertainty(sections, geometry, outline_enu, refinement, sigmas, velocities,
+                                outline_px=given)
+        np.testing.assert_allclose([s.sigma_m for s in sections], expected[0], rtol=1e-12)
+        np.testing.assert_allclose([s.sigma_random_m for s in sections], expected[1], rtol=1e-12)
+
+
+def test_rigid_fits_leave_out_what_a_perturbed_camera_puts_past_the_horizon():
+    """The hull 53-73 m ahead of a camera 10 m up (10.7 to 7.8 degrees below the horizon): a
+    9 degree tilt error puts the far part of the outline past the horizon for the camera
+    tilted up, so that camera's rigid fit takes only the points it still places on the water
+    (and the height error's fit still takes all of them)."""
+    from harborsight.clearance.uncertainty import _perturbed_cameras
+
+    geometry = _oblique(pitch_deg=-8.0, vessel_north_m=63.0)
+    outline_enu = _box_outline(geometry)
+    sigmas = SensorSigmas(**{**ZERO.to_dict(), "camera_tilt_deg": 9.0, "height_m": 1.0})
+    outline_px = geometry.camera.project(outline_enu)[0]
+    assert np.isfinite(outline_px).all()
+    lost = [int(np.isnan(moved.back_project_to_plane(outline_px)[0][:, 0]).sum())
+            for moved in _perturbed_cameras(geometry.camera, sigmas)]
+    assert 0 in lost and any(0 < n < len(outline_px) - 3 for n in lost), lost
+    for refinement in (PLACED, FITTED):
+        expected = _reference_sigmas(_sections_around(geometry, outline_enu), geometry,
+                                     outline_enu, refinement, sigmas)
+        sections = _sections_around(geometry, outline_enu)
+        add_section_uncertainty(sections, geometry, outline_enu, refinement, sigmas)
+        np.testing.assert_allclose([s.sigma_m for s in sections], expected[0], rtol=1e-12)
+        np.testing.assert_allclose([s.sigma_random_m for s in sections], expected[1], rtol=1e-12)

@@ -27,6 +27,7 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -131,14 +132,43 @@ def measure_frame(
     return report
 
 
-def _section_visibility(sections_v: SectionedOutline, geometry: FrameGeometry) -> np.ndarray:
-    """Share of each section's length that projects inside the image."""
+@dataclass(frozen=True)
+class _SectionsInImage:
+    """Where the sections lie in the image under one pose (:func:`_sections_in_image`)."""
+
+    #: share of each section's length that projects inside the image
+    visible_fraction: np.ndarray
+    #: pixels of each section's start and end break ``(n, 2, 2)``
+    ends_px: np.ndarray
+    #: pixels of the outline's vertices ``(V, 2)`` (NaN where they do not project)
+    vertices_px: np.ndarray
+
+
+@lru_cache(maxsize=32)
+def _section_points(sections_v: SectionedOutline) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vessel-frame points :func:`_sections_in_image` projects, made once per outline:
+    ``(points, section, count)``, ``points`` the visibility samples (``section`` says whose,
+    ``count`` how many each section has), then the break points, then the vertices."""
     n = sections_v.n_sections
-    points, section = sections_v.samples(_VISIBILITY_SAMPLES_PER_SECTION * n)
+    samples, section = sections_v.samples(_VISIBILITY_SAMPLES_PER_SECTION * n)
+    points = np.concatenate((samples, sections_v.break_points, sections_v.vertices))
+    points.flags.writeable = False
+    return points, section, np.maximum(np.bincount(section, minlength=n), 1)
+
+
+def _sections_in_image(sections_v: SectionedOutline, geometry: FrameGeometry) -> _SectionsInImage:
+    """The sections' visibility (``_VISIBILITY_SAMPLES_PER_SECTION`` samples each), their ends'
+    pixels and the outline vertices' pixels, from one projection of all those points."""
+    n = sections_v.n_sections
+    points, section, count = _section_points(sections_v)
     uv, _ = geometry.camera.project(geometry.vessel_to_enu(points))
-    visible = geometry.camera.in_image(uv)
-    total = np.bincount(section, minlength=n)
-    return np.bincount(section, weights=visible, minlength=n) / np.maximum(total, 1)
+    m = len(section)
+    visible = geometry.camera.in_image(uv[:m])
+    breaks_px = uv[m:m + n]
+    return _SectionsInImage(
+        visible_fraction=np.bincount(section, weights=visible, minlength=n) / count,
+        ends_px=np.stack((breaks_px, np.concatenate((breaks_px[1:], breaks_px[:1]))), axis=1),
+        vertices_px=uv[m + n:])
 
 
 @dataclass(frozen=True)
@@ -158,9 +188,9 @@ class _Candidates:
         return cls(none.astype(int), none, np.zeros((0, 2)), np.zeros((0, 2)),
                    none.astype(bool), none.astype(bool))
 
-    def extended(self, other: _Candidates) -> _Candidates:
-        return _Candidates(*(np.concatenate((getattr(self, f), getattr(other, f)))
-                             for f in self.__dataclass_fields__))
+    @classmethod
+    def joined(cls, *parts: _Candidates) -> _Candidates:
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in cls.__dataclass_fields__))
 
 
 def _band_crossings(
@@ -191,17 +221,20 @@ def _band_crossings(
     det = -seg[:, 0] * ray[:, 1] + seg[:, 1] * ray[:, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (-rhs[:, 0] * ray[:, 1] + rhs[:, 1] * ray[:, 0]) / det
-    t = np.clip(np.nan_to_num(t, nan=0.0), 0.0, 1.0)
+    t = np.clip(t, 0.0, 1.0)
+    t[np.isnan(t)] = 0.0
     cross = p + t[:, None] * seg
     cross_px = points_px[pair] + t[:, None] * (points_px[nxt[pair]] - points_px[pair])
     dist = np.hypot(*(cross - origin).T)
     contact = contours.contact[pair] | contours.contact[nxt[pair]]
     border = contours.on_border[pair] | contours.on_border[nxt[pair]]
-    twice = np.r_
+
+    def twice(first: np.ndarray, second: np.ndarray | None = None) -> np.ndarray:
+        return np.concatenate((first, first if second is None else second))
+
     return _Candidates(
-        section=twice[a[pair], b[pair]], distance=twice[dist, dist],
-        nearest=np.vstack((origin, origin)), points_px=np.vstack((cross_px, cross_px)),
-        contact=twice[contact, contact], on_border=twice[border, border],
+        section=twice(a[pair], b[pair]), distance=twice(dist), nearest=twice(origin),
+        points_px=twice(cross_px), contact=twice(contact), on_border=twice(border),
     )
 
 
@@ -254,8 +287,8 @@ def _band_edge_pixels(
     # outline's units is bounded from the steps to its contour neighbours (1 or 1.4 px each)
     previous = np.empty_like(contours.next_index)
     previous[contours.next_index] = np.arange(len(previous))
-    step_size = np.maximum(np.hypot(*(points[contours.next_index] - points).T),
-                           np.hypot(*(points[previous] - points).T))
+    step_ahead = np.hypot(*(points[contours.next_index] - points).T)
+    step_size = np.maximum(step_ahead, step_ahead[previous])   # the step back: previous's ahead
     own_all = np.maximum(section, 0)
     near_ray = np.zeros(len(points), bool)
     for k in (own_all, (own_all + 1) % n):
@@ -329,13 +362,12 @@ def measure_clearance(
     except ValueError as exc:  # a section count or length from the command line
         option = "--section-length-m" if settings.section_length_m else "--sections"
         raise InputError(None, option, str(exc)) from None
-    n = sections_v.n_sections
 
     def vessel_to_px(points_v: np.ndarray) -> np.ndarray:
         return camera.project(geometry.vessel_to_enu(points_v))[0]
 
-    visible_fraction = _section_visibility(sections_v, geometry)
-    if not np.any(visible_fraction > 0):
+    in_image = _sections_in_image(sections_v, geometry)
+    if not np.any(in_image.visible_fraction > 0):
         centre_px = vessel_to_px(np.zeros((1, 2)))[0]
         raise InputError(
             geometry.source, "vessel",
@@ -345,8 +377,9 @@ def measure_clearance(
 
     # align the vessel to its own pixels; the sensors' pose stays when that is not trustworthy
     geometry, refinement = refine_vessel_pose(labels, geometry, vessel, settings.pose_refinement)
-    if refinement.applied:
-        visible_fraction = _section_visibility(sections_v, geometry)
+    if refinement.applied:      # the hull moved: where its sections lie, once more
+        in_image = _sections_in_image(sections_v, geometry)
+    visible_fraction = in_image.visible_fraction
 
     vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
     finite = vessel_outline_px[np.isfinite(vessel_outline_px).all(axis=1)]
@@ -363,7 +396,11 @@ def measure_clearance(
 
     if settings.method == "ground_plane":
         outline = sections_v
-        to_outline = geometry.pixels_to_vessel_xy
+        # geometry.pixels_to_vessel_xy, with the map to the vessel frame made once
+        vessel_from_world = geometry.vessel_from_world_2d()
+
+        def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return camera.pixels_to_plane_xy(uv, 0.0, post=vessel_from_world)
     else:
         def hull_to_px(points_v: np.ndarray) -> np.ndarray:
             uv = vessel_to_px(points_v)
@@ -383,33 +420,35 @@ def measure_clearance(
     points, valid = to_outline(points_px)
     assignment = outline.assign(np.where(valid[:, None], points, 0.0))
     section = np.where(valid, assignment.section, -1)
-    candidates = _Candidates(
-        section=section, distance=assignment.distance, nearest=assignment.nearest,
-        points_px=points_px, contact=contours.contact, on_border=contours.on_border,
-    ).extended(_band_crossings(outline, points, points_px, section, contours)).extended(
+    candidates = _Candidates.joined(
+        _Candidates(section=section, distance=assignment.distance, nearest=assignment.nearest,
+                    points_px=points_px, contact=contours.contact, on_border=contours.on_border),
+        _band_crossings(outline, points, points_px, section, contours),
         _band_edge_pixels(outline, to_outline, points, points_px, section, contours))
 
     # nearest candidate per visible section
     inband = np.flatnonzero((candidates.section >= 0)
                             & (visible_fraction[np.maximum(candidates.section, 0)] > 0))
     order = inband[np.lexsort((candidates.distance[inband], candidates.section[inband]))]
-    first = np.r_[True, np.diff(candidates.section[order]) != 0] if len(order) else order.astype(bool)
+    first = (np.concatenate(([True], np.diff(candidates.section[order]) != 0)) if len(order)
+             else order.astype(bool))
     best = order[first]
     best_section = candidates.section[best]
 
-    ends_px = vessel_to_px(sections_v.section_endpoints().reshape(-1, 2)).reshape(n, 2, 2)
     results = [
-        SectionClearance(
-            index=k,
-            status=STATUS_OUT_OF_VIEW if visible_fraction[k] == 0 else STATUS_CLEAR,
-            hull_px=ends_px[k].tolist(), visible_fraction=float(visible_fraction[k]),
-        )
-        for k in range(n)
+        SectionClearance(index=k, status=STATUS_OUT_OF_VIEW if fraction == 0 else STATUS_CLEAR,
+                         hull_px=ends, visible_fraction=fraction)
+        for k, (ends, fraction) in enumerate(zip(in_image.ends_px.tolist(),
+                                                 visible_fraction.tolist(), strict=True))
     ]
     if len(best):
         obstacle_px = candidates.points_px[best]
         nearest = candidates.nearest[best]
-        hull_px = vessel_to_px(nearest) if outline is sections_v else nearest
+        if outline is sections_v:
+            hull_enu = geometry.vessel_to_enu(nearest)
+            hull_px = camera.project(hull_enu)[0]
+        else:
+            hull_px = nearest
         # boundary correction: the solid pixel covers its whole square, so the boundary
         # toward the hull lies where that ray leaves the square, 0.5/max(|u_x|, |u_y|) px out
         toward = hull_px - obstacle_px
@@ -427,38 +466,38 @@ def measure_clearance(
             moved_px[back] = obstacle_px[back]
             moved_enu[back] = camera.back_project_to_plane(obstacle_px[back])[0]
         if outline is sections_v:
-            moved_v = geometry.enu_to_vessel_xy(moved_enu)
+            # geometry.enu_to_vessel_xy(moved_enu)
+            moved_v = moved_enu[:, :2] @ vessel_from_world[:2, :2].T + vessel_from_world[:2, 2]
             distance_m = np.hypot(*(moved_v - nearest).T)
             distance_m[norm <= shift] = 0.0
-            hull_enu = geometry.vessel_to_enu(nearest)
             distance_px = np.hypot(*(hull_px - moved_px).T)
         else:
             hull_enu, _ = camera.back_project_to_plane(hull_px)
             distance_px = norm - shift
             distance_m = distance_px * gsd
-        for i, k in enumerate(best_section):
-            j = best[i]
+        # the nearest obstacle point or hull point may have no place in the image or on the
+        # water (past a barrel lens's fold): no distance can be given, and "clear" would
+        # claim there is no obstacle
+        finite = (np.isfinite(distance_m) & np.isfinite(distance_px)
+                  & np.isfinite(hull_px).all(axis=1) & np.isfinite(moved_px).all(axis=1))
+        for k, ok, d_m, d_px, h_px, o_px, h_enu, o_enu, contact, truncated in zip(
+                best_section.tolist(), finite.tolist(), distance_m.tolist(), distance_px.tolist(),
+                hull_px.tolist(), moved_px.tolist(), hull_enu[:, :2].tolist(),
+                moved_enu[:, :2].tolist(), candidates.contact[best].tolist(),
+                candidates.on_border[best].tolist(), strict=True):
             result = results[k]
-            if not (np.isfinite([distance_m[i], distance_px[i]]).all()
-                    and np.isfinite(hull_px[i]).all() and np.isfinite(moved_px[i]).all()):
-                # the nearest obstacle point or hull point has no place in the image or on the
-                # water (past a barrel lens's fold): no distance can be given, and "clear"
-                # would claim there is no obstacle
+            if not ok:
                 result.status = STATUS_OUT_OF_VIEW
                 continue
             result.status = STATUS_OK
-            result.distance_m = float(distance_m[i])
-            result.distance_px = float(distance_px[i])
-            result.hull_point_px = hull_px[i].tolist()
-            result.obstacle_point_px = moved_px[i].tolist()
-            result.hull_point_enu = hull_enu[i, :2].tolist()
-            result.obstacle_point_enu = moved_enu[i, :2].tolist()
-            result.contact = bool(candidates.contact[j])
-            result.truncated = bool(candidates.on_border[j])
+            result.distance_m, result.distance_px = d_m, d_px
+            result.hull_point_px, result.obstacle_point_px = h_px, o_px
+            result.hull_point_enu, result.obstacle_point_enu = h_enu, o_enu
+            result.contact, result.truncated = contact, truncated
 
     sigmas = sigmas or settings.sensor_sigmas()
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
-                            refinement, sigmas, velocities)
+                            refinement, sigmas, velocities, outline_px=in_image.vertices_px)
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,

@@ -97,15 +97,19 @@ def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
     return cameras
 
 
-def _rigid_fit(points: np.ndarray, moved_by: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+def _rigid_fit(points: np.ndarray, moved_by: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray | float, np.ndarray]:
     """Least-squares 2-D rigid motion (shift ``t``, small turn ``ω`` anticlockwise about the
-    centre ``c``) of displacements ``moved_by`` at ``points``: ``δ ≈ t + ω·perp(p - c)``."""
+    centre ``c``) of displacements ``moved_by`` at ``points (M, 2)``: ``δ ≈ t + ω·perp(p - c)``.
+    ``moved_by`` is ``(M, 2)`` or ``(C, M, 2)``, one set per camera: then ``t`` is ``(C, 2)``
+    and ``ω`` ``(C,)``."""
     centre = points.mean(axis=0)
-    shift = moved_by.mean(axis=0)
-    rel, rest = points - centre, moved_by - shift
+    shift = moved_by.mean(axis=-2)
+    rel, rest = points - centre, moved_by - shift[..., None, :]
     spread = float((rel ** 2).sum())
-    turn = float((rel[:, 0] * rest[:, 1] - rel[:, 1] * rest[:, 0]).sum() / spread) if spread else 0.0
-    return shift, turn, centre
+    turn = (rel[:, 0] * rest[..., 1] - rel[:, 1] * rest[..., 0]).sum(axis=-1)
+    turn = turn / spread if spread else np.zeros_like(turn)
+    return shift, (float(turn) if moved_by.ndim == 2 else turn), centre
 
 
 def _perp(vectors: np.ndarray) -> np.ndarray:
@@ -113,18 +117,44 @@ def _perp(vectors: np.ndarray) -> np.ndarray:
     return np.column_stack((-vectors[:, 1], vectors[:, 0]))
 
 
-def _back_project(camera: Camera, uv: np.ndarray) -> np.ndarray:
-    return camera.back_project_to_plane(uv)[0][:, :2]
+def _plane_points(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
+    """Where pixels ``uv (N, 2)`` meet the water plane ``z = 0``, for each of ``cameras``
+    (posed differently, with the same intrinsics): ``(C, N, 2)``, NaN where a ray misses it.
+
+    The same arithmetic as :meth:`Camera.back_project_to_plane`, so the same numbers, but
+    the pixels are undistorted once for all cameras and each camera is one homography
+    applied to all pixels: the propagation back-projects one set of pixels (obstacle points,
+    their Jacobian's neighbours, the outline) with five cameras."""
+    m = cameras[0].normalized_coordinates(uv)
+    x, y = m[:, 0], m[:, 1]
+    # Camera.plane_homography(0) of each camera: rows c_x r_3 + dz r_1, c_y r_3 + dz r_2, r_3
+    rows = np.stack([c.world_from_camera for c in cameras])
+    centre = np.stack([c.position_enu for c in cameras])
+    dz = 0.0 - centre[:, 2:]
+    h = np.empty((len(cameras), 3, 3))
+    h[:, 0] = centre[:, :1] * rows[:, 2] + dz * rows[:, 0]
+    h[:, 1] = centre[:, 1:2] * rows[:, 2] + dz * rows[:, 1]
+    h[:, 2] = rows[:, 2]
+    h = h[..., None]                                                        # (C, 3, 3, 1)
+    down = x * h[:, 2, 0] + y * h[:, 2, 1] + h[:, 2, 2]                    # (C, N)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        valid = np.isfinite(down) & (dz / down > 0)
+        points = np.stack((x * h[:, 0, 0] + y * h[:, 0, 1] + h[:, 0, 2],
+                           x * h[:, 1, 0] + y * h[:, 1, 1] + h[:, 1, 2]), axis=-1) / down[..., None]
+    points[~valid] = np.nan
+    return points
 
 
 def add_section_uncertainty(
     sections: list[SectionClearance], geometry: FrameGeometry, outline_enu: np.ndarray,
     refinement: PoseRefinement, sigmas: SensorSigmas,
-    velocities: FrameVelocities | None = None,
+    velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
 ) -> None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
-    measured with (refined or not); ``outline_enu`` the hull outline's points on the water."""
+    measured with (refined or not); ``outline_enu`` the hull outline's points on the water;
+    ``outline_px`` their pixels with that geometry's camera (NaN where they do not project),
+    when the caller has them already (else they are projected here)."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
           and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
     if not ok:
@@ -146,21 +176,37 @@ def add_section_uncertainty(
     # the sensors' pose fitting as well as any correction would
     refined = refinement.applied or (refinement.reason == SENSORS_FIT
                                      and refinement.covariance is not None)
-    outline = np.asarray(outline_enu, float)[:, :2]
-    outline_px, _ = camera.project(np.column_stack((outline, np.zeros(len(outline)))))
-    seen = np.isfinite(outline_px).all(axis=1)
-    here = _back_project(camera, obstacle_px)
-    outline_here = _back_project(camera, outline_px[seen]) if refined else None
-    for moved_camera in _perturbed_cameras(camera, sigmas):
-        shift_o = _back_project(moved_camera, obstacle_px) - here
-        shift_h = np.zeros_like(shift_o)
-        if refined and len(outline_here) >= 3:
-            moved_outline = _back_project(moved_camera, outline_px[seen]) - outline_here
-            usable = np.isfinite(moved_outline).all(axis=1)
-            if usable.sum() >= 3:
-                t, turn, centre = _rigid_fit(outline_here[usable], moved_outline[usable])
-                shift_h = t + turn * _perp(hull - centre)
-        systematic += np.nan_to_num(np.einsum("ij,ij->i", u, shift_o - shift_h)) ** 2
+    if refined:
+        if outline_px is None:
+            outline = np.asarray(outline_enu, float)[:, :2]
+            outline_px, _ = camera.project(np.column_stack((outline, np.zeros(len(outline)))))
+        outline_px = outline_px[np.isfinite(outline_px).all(axis=1)]
+    else:
+        outline_px = np.zeros((0, 2))
+    # one back-projection of every pixel needed, with the camera and each perturbed camera:
+    # the obstacle points, the outline (its rigid fit) and the obstacle points' neighbours
+    # half a pixel away (the Jacobian, with the camera only)
+    n_ok, n_outline = len(ok), len(outline_px)
+    du, dv = np.array([_PIXEL_STEP, 0.0]), np.array([0.0, _PIXEL_STEP])
+    planes = _plane_points([camera, *_perturbed_cameras(camera, sigmas)], np.concatenate((
+        obstacle_px, outline_px, obstacle_px + du, obstacle_px - du, obstacle_px + dv,
+        obstacle_px - dv)))
+    here, outline_here = planes[0, :n_ok], planes[0, n_ok:n_ok + n_outline]
+    shift_o = planes[1:, :n_ok] - here                      # (cameras, sections, 2)
+    shift_h = np.zeros_like(shift_o)
+    if refined and n_outline >= 3 and len(shift_o):
+        moved_outline = planes[1:, n_ok:n_ok + n_outline] - outline_here
+        usable = np.isfinite(moved_outline).all(axis=2)
+        if usable.all():            # the usual case: all cameras' fits at once
+            t, turn, centre = _rigid_fit(outline_here, moved_outline)
+            shift_h = t[:, None] + turn[:, None, None] * _perp(hull - centre)
+        else:
+            for i in np.flatnonzero(usable.sum(axis=1) >= 3):
+                t, turn, centre = _rigid_fit(outline_here[usable[i]], moved_outline[i, usable[i]])
+                shift_h[i] = t + turn * _perp(hull - centre)
+    # each camera error in turn (summed in order, as independent sources)
+    for along in np.nan_to_num(np.einsum("ij,cij->ci", u, shift_o - shift_h)):
+        systematic += along ** 2
     if not refined:
         # drone shift moves O, vessel shift moves H: both along u in full (|u| = 1)
         systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
@@ -178,11 +224,9 @@ def add_section_uncertainty(
         random += np.einsum("ij,jk,ik->i", gradient, covariance, gradient)
 
     # pixel grid and mask edge, through the local pixel-to-water Jacobian at the obstacle
-    du, dv = np.array([_PIXEL_STEP, 0.0]), np.array([0.0, _PIXEL_STEP])
-    step_u = (_back_project(camera, obstacle_px + du)
-              - _back_project(camera, obstacle_px - du)) / (2 * _PIXEL_STEP)
-    step_v = (_back_project(camera, obstacle_px + dv)
-              - _back_project(camera, obstacle_px - dv)) / (2 * _PIXEL_STEP)
+    right, left, below, above = planes[0, n_ok + n_outline:].reshape(4, n_ok, 2)
+    step_u = (right - left) / (2 * _PIXEL_STEP)
+    step_v = (below - above) / (2 * _PIXEL_STEP)
     along_u = np.abs(np.einsum("ij,ij->i", u, step_u))
     along_v = np.abs(np.einsum("ij,ij->i", u, step_v))
     random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
