@@ -286,9 +286,9 @@ def _rim_over_the_whole_box(labels, own, rim_px):
 
 def test_own_rim_looks_only_near_the_region_and_finds_the_whole_rim():
     """Random masks and regions (near and across the image's edges, margins 0 to 3.5 px,
-    rims 0 to 7 px): own_rim, which opens and dilates only the box of the ship pixels within
-    r of the region's box (and nothing when there are none), equals the formula over the
-    whole search box."""
+    rims 0 to 7 px): own_rim, which opens and dilates only around the box of its candidates
+    as they narrow (and nothing once there are none), equals the formula over the whole
+    search box."""
     import cv2
 
     from harborsight.clearance.obstacles import own_rim, own_vessel_region

@@ -113,34 +113,33 @@ def own_rim(labels: np.ndarray, own: OwnRegion, rim_px: int) -> np.ndarray:
     # 255 where ship-class and outside the region (OpenCV's compare: 255 where true)
     ship_outside = cv2.bitwise_and(cv2.compare(labels[roi], SHIP, cv2.CMP_EQ),
                                    cv2.compare(own.mask[roi], 0, cv2.CMP_EQ))
-    # the rim lies within r of the region: only the ship pixels there (their box) need the
-    # opening and the disk's dilation, each computed over that box grown by its reach
-    # (2⌈r/2⌉ and r), which gives the box the same values as over all of roi. The ship pixels
-    # within r of the region's box, then within a (2r + 1) square of the region (a cheap
-    # dilation that holds the disk's) bound that box; none: no rim (a quay, a neighbour a
-    # few metres off)
+    # the rim's candidates, narrowed step by step to the box that holds them: the ship pixels
+    # within r of the region's box; then within a (2r + 1) square of the region (a cheap
+    # dilation that holds the disk's); outside the opening; within the disk's dilation. Each
+    # step computes its mask over the last box grown by the mask's reach, which gives the box
+    # the values it has over all of roi; no candidate left: no rim (a quay, a neighbour a few
+    # metres off, a thick neighbour against the hull)
+    diameter = 2 * int(np.ceil(rim_px / 2)) + 1
+    opening = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter))
+    square = np.ones((2 * rim_px + 1, 2 * rim_px + 1), np.uint8)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1))
+    steps = ((own.mask[roi], rim_px, lambda window: cv2.dilate(window, square)),
+             (ship_outside, 2 * (diameter // 2),
+              lambda window: cv2.bitwise_not(cv2.morphologyEx(window, cv2.MORPH_OPEN, opening))),
+             (own.mask[roi], rim_px, lambda window: cv2.dilate(window, disk)))
     box = _shifted(_grown_slices(own.bbox, rim_px, labels.shape), roi)
-    for square in (None, np.ones((2 * rim_px + 1, 2 * rim_px + 1), np.uint8)):
-        candidates = ship_outside[box]
-        if square is not None:
-            reached = _simd_wide(_grown_slices(box, rim_px, ship_outside.shape), ship_outside.shape)
-            near_square = cv2.dilate(own.mask[roi][reached], square)[_shifted(box, reached)]
-            candidates = cv2.bitwise_and(candidates, near_square)
+    candidates = ship_outside[box]
+    for source, reach, mask_of in ((None, 0, None), *steps):
+        if source is not None:
+            window = _simd_wide(_grown_slices(box, reach, ship_outside.shape), ship_outside.shape)
+            candidates = cv2.bitwise_and(candidates, mask_of(source[window])[_shifted(box, window)])
         x, y, w, h = cv2.boundingRect(candidates)
         if w == 0 or h == 0:
             return rim
+        candidates = candidates[y:y + h, x:x + w]
         box = (slice(box[0].start + y, box[0].start + y + h),
                slice(box[1].start + x, box[1].start + x + w))
-    diameter = 2 * int(np.ceil(rim_px / 2)) + 1
-    opening = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (diameter, diameter))
-    opened = _simd_wide(_grown_slices(box, 2 * (diameter // 2), ship_outside.shape),
-                        ship_outside.shape)
-    thick = cv2.morphologyEx(ship_outside[opened], cv2.MORPH_OPEN, opening)[_shifted(box, opened)]
-    reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rim_px + 1, 2 * rim_px + 1))
-    reached = _simd_wide(_grown_slices(box, rim_px, ship_outside.shape), ship_outside.shape)
-    near_own = cv2.dilate(own.mask[roi][reached], reach)[_shifted(box, reached)]
-    rim[roi][box] = cv2.bitwise_and(cv2.bitwise_and(ship_outside[box], near_own),
-                                    cv2.bitwise_not(thick))
+    rim[roi][box] = candidates
     return rim
 
 
