@@ -378,9 +378,9 @@ def test_own_rim_near_its_reach():
 
 def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     """The hull 2.3 m and 2.5 degrees off, partly out of view: with the refined pose applied,
-    every section's visible share and end pixels, and the sigmas (from the outline's pixels
-    under that pose), are those of the refined pose, computed here on their own, not the
-    sensors' pose's (which differ)."""
+    every section's visible share and end pixels, the sigmas (from the outline's pixels
+    under that pose) and the gsd method's outline are those of the refined pose, computed
+    here on their own, not the sensors' pose's (which differ)."""
     from dataclasses import replace
 
     from harborsight.clearance.pose_refinement import corrected_geometry, refine_vessel_pose
@@ -420,3 +420,16 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     for field in ("sigma_m", "sigma_random_m", "distance_lower_m"):
         np.testing.assert_allclose([getattr(s, field) for s in ok],
                                    [getattr(s, field) for s in again], rtol=1e-12)
+    # the gsd method's outline in pixels is the refined pose's too: each hull point lies on
+    # its section of it
+    gsd = measure_clearance(labels, off, vessel, ClearanceSettings(method="gsd"))
+    assert gsd.pose_refinement["applied"]
+
+    def off_its_section(geometry):
+        in_pixels = sections_v.transformed(
+            lambda points: geometry.camera.project(geometry.vessel_to_enu(points))[0])
+        return [shapely.LineString(in_pixels.section_polyline(s.index)).distance(
+            shapely.Point(s.hull_point_px)) for s in gsd.sections if s.status == "ok"]
+
+    assert len(off_its_section(refined)) >= 3 and max(off_its_section(refined)) < 1e-9
+    assert max(off_its_section(off)) > 5

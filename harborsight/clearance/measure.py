@@ -402,19 +402,20 @@ def measure_clearance(
         def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return camera.pixels_to_plane_xy(uv, 0.0, post=vessel_from_world)
     else:
-        def hull_to_px(points_v: np.ndarray) -> np.ndarray:
-            uv = vessel_to_px(points_v)
-            if not np.isfinite(uv).all():   # behind the camera or past its lens model's edge
-                raise InputError(geometry.source, "vessel",
-                                 "the hull crosses the camera's horizon or the edge of its lens "
-                                 "model: the gsd method cannot be used; use the ground_plane method")
-            return uv
+        # sections_v.transformed(vessel_to_px), from the pixels projected with the visibility
+        vertices_px, breaks_px = in_image.vertices_px, in_image.ends_px[:, 0]
+        if not (np.isfinite(vertices_px).all() and np.isfinite(breaks_px).all()):
+            # behind the camera or past its lens model's edge
+            raise InputError(geometry.source, "vessel",
+                             "the hull crosses the camera's horizon or the edge of its lens "
+                             "model: the gsd method cannot be used; use the ground_plane method")
         try:
-            outline = sections_v.transformed(hull_to_px)
+            outline = SectionedOutline(vertices_px, breaks_px, sections_v.break_edge)
         except ValueError:      # a distorted lens can fold the outline onto a line
             raise InputError(geometry.source, "vessel",
                              "the hull outline projects to a line in the image: the gsd method "
                              "cannot be used; use the ground_plane method") from None
+
         def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return uv, np.ones(len(uv), bool)
     points, valid = to_outline(points_px)
