@@ -26,12 +26,14 @@ from harborsight.sim.layout import (
     OBSTACLE,
     SHIP,
     Environment,
+    HullRanges,
     Material,
     _box,
     _Builder,
     _cylinder,
     _grey,
     _jitter,
+    random_hull_parameters,
     sample_environment,
 )
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
@@ -87,16 +89,11 @@ def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float) -> trimesh.Tr
 # ------------------------------------------------------------------------ boats
 
 
-def _leisure_hull(rng: np.random.Generator, length_m: float) -> HullParameters:
-    """A small craft: beamier than a ship, a low cabin or none."""
-    beam = length_m * rng.uniform(0.3, 0.4)
-    start = rng.uniform(0.3, 0.5)
-    return HullParameters(
-        length_m=length_m, beam_m=beam, draft_m=max(0.3, 0.06 * length_m),
-        freeboard_m=float(np.clip(length_m * rng.uniform(0.07, 0.11), 0.5, 2.2)),
-        bow_fraction=rng.uniform(0.3, 0.45), flare=rng.uniform(0.0, 0.12),
-        deckhouse=(start, min(start + rng.uniform(0.15, 0.35), 0.8), rng.uniform(0.5, 0.8),
-                   float(np.clip(length_m * rng.uniform(0.05, 0.12), 0.4, 3.0))))
+#: small craft: beamier than ships, with a low cabin
+LEISURE_HULLS = HullRanges(beam=(0.3, 0.4), deckhouse_start=(0.3, 0.5), draft_share=0.06,
+                           draft_min_m=0.3, freeboard=(0.07, 0.11), freeboard_limits_m=(0.5, 2.2),
+                           bow_fraction=(0.3, 0.45), flare=(0.0, 0.12), deckhouse_width=(0.5, 0.8),
+                           deckhouse_height=(0.05, 0.12), deckhouse_height_limits_m=(0.4, 3.0))
 
 
 _TEMPLATE_LENGTH_M = 10.0
@@ -109,7 +106,7 @@ def _hull_template(b: _Builder, length_m: float) -> tuple[HullParameters, list[t
     a hull takes milliseconds to build."""
     templates = b.__dict__.setdefault("leisure_hulls", [])
     if len(templates) < _N_TEMPLATES:
-        params = _leisure_hull(b.rng, _TEMPLATE_LENGTH_M)
+        params = random_hull_parameters(b.rng, _TEMPLATE_LENGTH_M, LEISURE_HULLS)
         pieces = sorted(generate_hull_mesh(params).split(only_watertight=False), key=lambda m: -m.extents[0])
         for piece in pieces:
             piece.apply_translation((-_TEMPLATE_LENGTH_M / 2, 0.0, 0.0))

@@ -241,16 +241,39 @@ def _grey(rgb: tuple[float, float, float], rng: np.random.Generator, amount: flo
     return tuple(float(np.clip(c * s, 0.0, 1.0)) for c, s in zip(rgb, scale, strict=True))
 
 
-def random_hull_parameters(rng: np.random.Generator, length_m: float) -> HullParameters:
+@dataclass(frozen=True)
+class HullRanges:
+    """Where a kind of hull's proportions are drawn from (shares of the length unless said)."""
+
+    beam: tuple[float, float] = (0.17, 0.3)
+    deckhouse_start: tuple[float, float] = (0.1, 0.55)
+    draft_share: float = 0.09
+    draft_min_m: float = 0.5
+    freeboard: tuple[float, float] = (0.04, 0.08)
+    freeboard_limits_m: tuple[float, float] = (0.5, 6.0)
+    bow_fraction: tuple[float, float] = (0.18, 0.4)
+    flare: tuple[float, float] = (0.0, 0.18)       # share of the beam
+    deckhouse_width: tuple[float, float] = (0.45, 0.8)   # share of the beam
+    deckhouse_height: tuple[float, float] = (0.06, 0.15)
+    deckhouse_height_limits_m: tuple[float, float] = (1.5, 12.0)
+
+
+#: ships and workboats (the classic scenes)
+SHIP_HULLS = HullRanges()
+
+
+def random_hull_parameters(rng: np.random.Generator, length_m: float,
+                           ranges: HullRanges = SHIP_HULLS) -> HullParameters:
     """A plausible hull of the given length (beam, draft, freeboard, deckhouse drawn)."""
-    beam = length_m * rng.uniform(0.17, 0.3)
-    start = rng.uniform(0.1, 0.55)
+    beam = length_m * rng.uniform(*ranges.beam)
+    start = rng.uniform(*ranges.deckhouse_start)
     return HullParameters(
-        length_m=length_m, beam_m=beam, draft_m=max(0.5, 0.09 * length_m),
-        freeboard_m=float(np.clip(length_m * rng.uniform(0.04, 0.08), 0.5, 6.0)),
-        bow_fraction=rng.uniform(0.18, 0.4), flare=rng.uniform(0.0, 0.18),
-        deckhouse=(start, min(start + rng.uniform(0.15, 0.35), 0.8), rng.uniform(0.45, 0.8),
-                   float(np.clip(length_m * rng.uniform(0.06, 0.15), 1.5, 12.0))),
+        length_m=length_m, beam_m=beam, draft_m=max(ranges.draft_min_m, ranges.draft_share * length_m),
+        freeboard_m=float(np.clip(length_m * rng.uniform(*ranges.freeboard), *ranges.freeboard_limits_m)),
+        bow_fraction=rng.uniform(*ranges.bow_fraction), flare=rng.uniform(*ranges.flare),
+        deckhouse=(start, min(start + rng.uniform(0.15, 0.35), 0.8), rng.uniform(*ranges.deckhouse_width),
+                   float(np.clip(length_m * rng.uniform(*ranges.deckhouse_height),
+                                 *ranges.deckhouse_height_limits_m))),
     )
 
 
