@@ -125,7 +125,12 @@ def _check_mesh_size(mesh_v: trimesh.Trimesh, spec_path: Path, mesh_name: str) -
 
 
 def _load_mesh(mesh_path: Path, spec_path: Path) -> trimesh.Trimesh:
-    if not mesh_path.is_file():
+    try:
+        found = mesh_path.is_file()
+    except OSError as exc:            # a name too long for the file system, and the like
+        raise InputError(spec_path, "hull_mesh", f"cannot look for {brief(mesh_path.name)}: "
+                         f"{exc.strerror or exc}") from None
+    if not found:
         raise InputError(spec_path, "hull_mesh", f"file not found: {mesh_path}")
     try:
         # unprocessed first: processing drops the faces of NaN vertices without a word, and a
