@@ -43,6 +43,15 @@ def write_image(path: str | Path, image) -> bool:
         return False
 
 
+def is_existing_file(path: str | Path) -> bool:
+    """``Path.is_file()`` that says False, not raises, for a name the file system cannot
+    even look up (longer than its 255 bytes, a NUL byte): names read from users' files."""
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def finite_or_none(value):
     """``value`` with every non-finite float (NaN, ±inf), however deeply nested in dicts,
     lists and tuples, replaced by None: JSON has no NaN, and ``json.dumps`` would write a

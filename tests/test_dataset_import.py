@@ -499,6 +499,22 @@ def test_bad_frames_are_skipped_and_named_while_the_others_are_imported(tmp_path
     assert sorted(p.name for p in (tmp_path / "ds" / "labels").iterdir()) == ["good.png", "outside.png"]
 
 
+
+def test_an_image_name_too_long_to_look_up_is_a_missing_image(tmp_path):
+    """A file_name of 3,000 characters made pathlib raise (ENAMETOOLONG) instead of saying
+    the image is missing; the other frame is still imported."""
+    src = tmp_path / "src"
+    write_image(src / "good.png")
+    poly = [np.ravel(L_SHAPE).tolist()]
+    doc = coco_doc([(1, "good.png"), (2, "x" * 3000 + ".png")],
+                   [{"image_id": i, "category_id": 1, "segmentation": poly} for i in (1, 2)], ["ship"])
+    result = invoke(write_json(src / "instances.json", doc), "-f", "coco", "--out", tmp_path / "ds")
+    assert result.exit_code == 0, result.output
+    meta = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert meta["split"] == {"good": "train"}
+    (skipped,) = meta["skipped"]
+    assert skipped["field"] == "images[1].file_name" and "image file not found" in skipped["reason"]
+
 def test_labelme_size_mismatch_and_empty_files_are_reported(tmp_path):
     write_image(tmp_path / "a.png")
     write_image(tmp_path / "b.png", 30, 60)

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harborsight.files import is_existing_file
+
 
 @dataclass(frozen=True)
 class Issue:
@@ -290,9 +292,9 @@ def find_image(name: str, bases: list[Path]) -> Path | None:
     an absolute ``name`` is taken as it is), or None."""
     name = str(name).replace("\\", "/")
     if Path(name).is_absolute():
-        return Path(name) if Path(name).is_file() else None
+        return Path(name) if is_existing_file(name) else None
     for base in bases:
-        if (base / name).is_file():
+        if is_existing_file(base / name):
             return base / name
     return None
 
