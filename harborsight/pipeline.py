@@ -22,8 +22,8 @@ import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.report import ClearanceReport
-from harborsight.errors import HarborsightError, InputError
-from harborsight.files import natural_key
+from harborsight.errors import HarborsightError, InputError, brief
+from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.images import decode_image_file
@@ -97,9 +97,9 @@ def _find_vessel_spec(meta: FrameMetadata, meta_path: Path) -> Path:
     if not isinstance(ref, str):
         raise InputError(meta_path, "vessel_spec", f"expected a vessel.yaml path, got {ref!r}")
     for base in (meta_path.parent, meta_path.parent.parent):
-        if (base / ref).is_file():
+        if is_existing_file(base / ref):
             return base / ref
-    raise InputError(meta_path, "vessel_spec", f"file not found: {ref}")
+    raise InputError(meta_path, "vessel_spec", f"file not found: {brief(ref)}")
 
 
 class VesselCache:

@@ -141,6 +141,8 @@ BATCH = [
     BatchCase("Latin-1 byte in frame JSON", _bytes_of_frame_2(b'{"image": "caf\xe9.png"}'),
               ("not UTF-8", "0xe9")),
     BatchCase("vessel 180 km away", _far_vessel, ("vessel.lat", "km from the drone")),
+    BatchCase("vessel_spec name too long to look up", _raw_in_frame_2(
+        "vessel_spec", json.dumps("v" * 3000 + ".yaml")), ("vessel_spec", "file not found")),
 ]
 
 

@@ -108,6 +108,9 @@ def test_a_mesh_name_too_long_for_the_file_system_is_a_clear_error(tmp_path):
         load_vessel_spec(spec)
     assert info.value.field == "hull_mesh"
     assert len(str(info.value)) < 400                   # the name is shortened in the message
+    with pytest.raises(InputError, match="cannot look this file name up") as info:
+        load_vessel_spec(tmp_path / ("v" * 3000 + ".yaml"))     # --vessel given such a name
+    assert len(str(info.value)) < 400
 
 def test_outline_height_above_the_mesh_is_an_error(tmp_path):
     trimesh.creation.box(extents=(20, 6, 4)).export(tmp_path / "b.stl")

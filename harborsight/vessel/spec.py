@@ -251,9 +251,14 @@ def above_water_hull_points(mesh_v) -> np.ndarray:
 def load_vessel_spec(path: str | Path) -> VesselSpec:
     """Read and validate a ``vessel.yaml``."""
     path = Path(path)
-    if path.is_dir():
+    try:
+        is_dir, is_file = path.is_dir(), path.is_file()
+    except (OSError, ValueError) as exc:    # a name too long to look up, a NUL byte
+        raise InputError(Path(brief(str(path))), None, "cannot look this file name up: "
+                         f"{getattr(exc, 'strerror', None) or exc}") from None
+    if is_dir:
         raise InputError(path, None, "is a folder, not a file (expected a vessel.yaml)")
-    if not path.is_file():
+    if not is_file:
         raise InputError(path, None, "vessel spec not found")
     try:
         data = path.read_bytes()
