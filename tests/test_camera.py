@@ -215,3 +215,19 @@ def test_pixels_just_inside_a_barrel_fold_back_project():
     pixels, _ = cv2.projectPoints(np.column_stack((ideal, np.ones(len(ideal)))).reshape(-1, 1, 3),
                                   np.zeros(3), np.zeros(3), intr.K, intr.dist_coeffs)
     assert np.allclose(cam.normalized_coordinates(pixels.reshape(-1, 2)), ideal, atol=1e-9)
+
+
+@pytest.mark.parametrize("name, text", [
+    ("deep.yaml", "%YAML:1.0\n---\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
+                  "   cols: 5\n   dt: d\n   data: [ -0.26," + "[" * 100_000 + "\n"),
+    ("deep.xml", '<?xml version="1.0"?>\n<opencv_storage>' + "<a>" * 100_000 + "</opencv_storage>\n"),
+])
+def test_calibration_nested_too_deep_is_refused_before_opencv_crashes(tmp_path, name, text):
+    """Found by the 10,000-case fuzz: OpenCV's FileStorage parser recurses without a limit
+    and a YAML list nested 100,000 deep ends the process with a segmentation fault (no
+    exception to catch). Such files are refused, naming the line, before OpenCV reads them."""
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(InputError, match=r"nested \d+ levels deep: more than 32") as info:
+        load_camera_calibration(path)
+    assert info.value.field.startswith("line ")

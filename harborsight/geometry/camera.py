@@ -287,9 +287,54 @@ def _check_filestorage_numbers(text: str, path: Path) -> None:
                          f"OpenCV FileStorage file (more than {_FILESTORAGE_MAX_DIGITS} digits)")
 
 
+#: deepest nesting passed to OpenCV's FileStorage parser, which recurses without a limit and
+#: crashes the process (a segmentation fault, not an exception) on a few thousand levels; a
+#: calibration file nests three deep
+_FILESTORAGE_MAX_DEPTH = 32
+_XML_TAG = re.compile(r"<(/?)[A-Za-z_][\w.:-]*[^<>]*?(/?)>")
+
+
+def filestorage_nesting_depth(text: str) -> tuple[int, int]:
+    """The deepest nesting in YAML or XML text and the line where it is reached: flow
+    brackets ``[`` ``{`` (outside quotes), block indentation levels, and XML elements."""
+    deepest, where, flow, quote = 0, 1, 0, ""
+    indents: list[int] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.lstrip(" ")
+        if stripped and not stripped.startswith("#") and not quote and flow == 0:
+            width = len(line) - len(stripped)
+            while indents and width < indents[-1]:
+                indents.pop()
+            if not indents or width > indents[-1]:
+                indents.append(width)
+        for char in line:
+            if quote:
+                quote = "" if char == quote else quote
+            elif char in "\"'":
+                quote = char
+            elif char in "[{":
+                flow += 1
+            elif char in "]}":
+                flow = max(0, flow - 1)
+            if len(indents) + flow > deepest:
+                deepest, where = len(indents) + flow, number
+        quote = ""                      # YAML quotes do not span lines in these files
+    depth = 0
+    for match in _XML_TAG.finditer(text):
+        depth += -1 if match[1] else (0 if match[2] else 1)
+        if depth > deepest:
+            deepest, where = depth, text.count("\n", 0, match.start()) + 1
+    return deepest, where
+
+
 def _load_opencv_filestorage(path: Path, text: str) -> CameraIntrinsics:
     """cv2.FileStorage YAML/XML as written by OpenCV's calibration sample."""
     _check_filestorage_numbers(text, path)
+    depth, line = filestorage_nesting_depth(text)
+    if depth > _FILESTORAGE_MAX_DEPTH:
+        raise InputError(path, f"line {line}", f"nested {depth} levels deep: more than "
+                         f"{_FILESTORAGE_MAX_DEPTH}, which OpenCV's FileStorage parser cannot "
+                         "read safely (a calibration file nests 3 deep)")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as exc:     # a parse error comes wrapped in a SystemError
