@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -32,3 +33,12 @@ def brief(value: object, limit: int = 40) -> str:
     if isinstance(value, int) and not isinstance(value, bool):
         return f"{text[:12]}... (a whole number of {len(text.lstrip('-'))} digits)"
     return text[:limit - 3] + "..."
+
+
+def require_positive(settings: object, names: tuple[str, ...]) -> None:
+    """Raise ValueError naming the first of ``names`` on ``settings`` that is not a finite
+    number above 0 (settings dataclasses check themselves with it)."""
+    for name in names:
+        value = getattr(settings, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {value}")

@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.obstacles import IGNORE, SHIP
+from harborsight.errors import require_positive
 from harborsight.frame import FrameGeometry
 from harborsight.vessel.spec import VesselSpec
 
@@ -107,11 +108,8 @@ class PoseRefinementSettings:
     max_residual_px: float = 1.5
 
     def __post_init__(self) -> None:
-        for name in ("prior_shift_m", "prior_heading_deg", "edge_sigma_px", "max_shift_m",
-                     "max_rotation_deg", "max_residual_px"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value}")
+        require_positive(self, ("prior_shift_m", "prior_heading_deg", "edge_sigma_px", "max_shift_m",
+                                "max_rotation_deg", "max_residual_px"))
         for name in ("min_inlier_fraction", "min_ship_fill"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")

@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from harborsight.errors import require_positive
+
 
 @dataclass(frozen=True)
 class TrackerSettings:
@@ -56,11 +58,8 @@ class TrackerSettings:
     max_tracks: int = 3
 
     def __post_init__(self) -> None:
-        for name in ("accel_sigma_mps2", "gate_sigma", "max_coast_s", "initial_speed_sigma_mps",
-                     "drift_time_s", "min_reading_sigma_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value}")
+        require_positive(self, ("accel_sigma_mps2", "gate_sigma", "max_coast_s",
+                                "initial_speed_sigma_mps", "drift_time_s", "min_reading_sigma_m"))
         for name in ("confirm_frames", "min_updates", "max_tracks"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
