@@ -285,3 +285,100 @@ def _label_and_review(items: list, out: Path, splits: dict[str, str], review: Pa
                   f"proposal vs reviewed agreement {100 * sum(agreement) / len(agreement):.2f}% "
                   f"(mean over images); {len(sheets)} review sheet(s) in {escape(str(sheets_dir))}/",
                   highlight=False)
+
+
+@dataset_app.command("label-tiles")
+def label_tiles_command(
+    positions: Annotated[Path, typer.Argument(
+        metavar="POSITIONS_CSV", show_default=False,
+        help="CSV naming each tile (tile_file) and its photo's stem (frame_id), optionally its "
+        "top-left corner in the photo's original (x0/y0 or x0_native_WxH/y0_native_WxH).")],
+    photo_dataset: Annotated[Path, typer.Option(
+        show_default=False, help="The labelled photos: a dataset folder (labels/, dataset.json) "
+        "whose stems are the photos' (e.g. from label-from-boxes).")],
+    out: Annotated[Path, typer.Option(show_default=False, help="Dataset folder to write: new or empty.")],
+    tiles: Annotated[Path | None, typer.Option(
+        help="Folder of the tile images (default: tiles/ beside the CSV).")] = None,
+    photos: Annotated[Path | None, typer.Option(
+        help="Folder of the photos to register against, at the best resolution there is "
+        "(default: the photo dataset's images/).")] = None,
+    original_width: Annotated[int | None, typer.Option(
+        min=1, help="Width of the originals the tiles were cut from (default: read from a "
+        "column named x0_native_WxH, else the tiles are matched at the photos' own scale).")
+    ] = None,
+    max_side: Annotated[int | None, typer.Option(
+        min=16, help="Shrink larger tiles (and their masks) to this long side before writing.")
+    ] = None,
+    min_inliers: Annotated[int, typer.Option(
+        min=4, help="Feature matches a tile's own registration needs; a tile with fewer is "
+        "placed by its photo's model (the other tiles' fits) if two tiles agree on one.")] = 20,
+    min_ncc: Annotated[float, typer.Option(
+        help="Refuse a placement whose tile vs warped photo correlation is lower.")] = 0.8,
+    jpeg_quality: Annotated[int, typer.Option(
+        min=1, max=100, help="JPEG quality of the written tiles.")] = 85,
+    review: Annotated[Path | None, typer.Option(
+        help="Folder for the review sheets (default: OUT/review).")] = None,
+    progress: Annotated[bool, typer.Option(help="Show the progress bar.")] = True,
+) -> None:
+    """Label masks for tiles cut from labelled photos: each tile is registered to its photo
+    (SIFT matches and a RANSAC similarity, or the photo's model from its other tiles, checked
+    by normalised cross-correlation) and the photo's reviewed mask is warped onto it. Each
+    tile goes into its photo's split. Writes images/ (JPEG), labels/, review sheets and
+    dataset.json (every tile's placement, NCC and coverage; the tiles left out, with the
+    reason). Look at the review sheets: the masks inherit the photos' review, and show it at a
+    finer scale. Exit code 0 if a tile was labelled, 1 if none, 2 for a bad option."""
+    import re
+
+    from harborsight.datasets.photo_tiles import (
+        TileRegistrationSettings,
+        place_tiles,
+        read_tile_positions,
+        write_tile_dataset,
+    )
+    from harborsight.errors import InputError
+    from harborsight.perception.segment_images import collect_images
+    from harborsight.training.dataset import read_split_map
+    from harborsight.viz.review_sheet import review_sheets
+
+    try:
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise InputError(out, None, "exists and is not an empty folder: give a new one")
+        tiles_dir = tiles or positions.parent / "tiles"
+        if not tiles_dir.is_dir():
+            raise InputError(tiles_dir, None, "tiles folder not found")
+        sources = read_tile_positions(positions, tiles_dir)
+        photo_splits = read_split_map(photo_dataset)
+        photos_dir = photos or photo_dataset / "images"
+        if not photos_dir.is_dir():
+            raise InputError(photos_dir, None, "photos folder not found")
+        photo_paths = {p.stem: p for p in collect_images([photos_dir])}
+        if original_width is None:
+            header = positions.read_text(encoding="utf-8", errors="replace").splitlines()[0]
+            found = re.search(r"x0_native_(\d+)x\d+", header)
+            original_width = int(found.group(1)) if found else None
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    known = [s for s in sources if s.photo_stem in photo_splits]
+    skipped = [(str(s.tile_path), f"photo {s.photo_stem!r} is not in the photo dataset")
+               for s in sources if s.photo_stem not in photo_splits]
+    settings = TileRegistrationSettings(min_inliers=min_inliers, min_ncc=min_ncc)
+    with progress_report("dataset label-tiles", len(known), console, unit="tiles",
+                         enabled=progress) as bar:
+        placements, refused = place_tiles(known, photo_paths, original_width, settings,
+                                          on_tile=lambda *_: bar.advance())
+        result = write_tile_dataset(placements, photo_dataset, photo_paths, out, max_side,
+                                    skipped_before=skipped + refused, jpeg_quality=jpeg_quality)
+    _print_issues("tile(s) skipped:", "red", [f"{file}: {reason}" for file, reason in result.skipped])
+    if not result.splits:
+        err_console.print(f"no tile labelled; nothing usable in {out}", markup=False, highlight=False)
+        raise typer.Exit(1)
+    sheets_dir = review or out / "review"
+    sheets = review_sheets(out, sheets_dir, sorted(result.splits), rows_per_sheet=12, tile_width=160)
+    methods = ", ".join(f"{n} by {m}" for m, n in sorted(
+        {m: sum(r["method"] == m for r in result.records.values()) for m in
+         {r["method"] for r in result.records.values()}}.items()))
+    console.print(f"[green]{len(result.splits)} tile(s) labelled[/] into {escape(str(out))}/ "
+                  f"({methods}); {len(sheets)} review sheet(s) in {escape(str(sheets_dir))}/",
+                  highlight=False)
+

@@ -49,9 +49,10 @@ def review_row(image_bgr: np.ndarray, labels: np.ndarray, title: str,
 
 
 def review_sheets(dataset_dir: str | Path, out_dir: str | Path, stems: list[str],
-                  rows_per_sheet: int = 4, tile_width: int = 384, suffix: str = ".jpg") -> list[Path]:
-    """Write ``out_dir/review_NN<suffix>`` sheets (JPEG at quality 88 by default, small
-    enough to keep beside a dataset) of ``rows_per_sheet`` frames each; returns their paths.
+                  rows_per_sheet: int = 4, tile_width: int = 384, suffix: str = ".jpg",
+                  jpeg_quality: int = 75) -> list[Path]:
+    """Write ``out_dir/review_NN<suffix>`` sheets (JPEG at ``jpeg_quality``, small enough
+    to keep beside a dataset) of ``rows_per_sheet`` frames each; returns their paths.
     Frames whose image or mask is missing are left out."""
     dataset_dir, out_dir = Path(dataset_dir), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -71,7 +72,7 @@ def review_sheets(dataset_dir: str | Path, out_dir: str | Path, stems: list[str]
         width = max(r.shape[1] for r in chunk)
         chunk = [np.pad(r, ((0, 4), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in chunk]
         path = out_dir / f"review_{k // rows_per_sheet:02d}{suffix}"
-        if not cv2.imwrite(str(path), np.vstack(chunk), [cv2.IMWRITE_JPEG_QUALITY, 88]):
+        if not cv2.imwrite(str(path), np.vstack(chunk), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]):
             raise OSError(f"{path}: could not be written")
         paths.append(path)
     return paths
