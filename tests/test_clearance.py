@@ -383,6 +383,7 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     here on their own, not the sensors' pose's (which differ)."""
     from dataclasses import replace
 
+    from harborsight.clearance.measure import alignment_settings
     from harborsight.clearance.pose_refinement import corrected_geometry, refine_vessel_pose
     from harborsight.clearance.uncertainty import add_section_uncertainty
 
@@ -394,7 +395,8 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     settings = ClearanceSettings()
     report = measure_clearance(labels, off, vessel, settings)
     assert report.pose_refinement["applied"]
-    refined, refinement = refine_vessel_pose(labels, off, vessel, settings.pose_refinement)
+    refined, refinement = refine_vessel_pose(labels, off, vessel,
+                                             alignment_settings(settings, settings.sensor_sigmas()))
     sections_v = vessel.sections()
     n = sections_v.n_sections
     points, section = sections_v.samples(16 * n)

@@ -96,6 +96,55 @@ def test_the_distances_from_a_wrong_pose_come_back_to_the_truth():
     assert refined_report.pose_refinement["applied"] is True
 
 
+@pytest.mark.parametrize(("seed", "scenario", "altitude_m", "height_error_m"), [
+    (1, "alongside", 60, -1.5), (2, "slip", 40, 1.0), (3, "open", 100, 1.0)])
+def test_a_wrong_height_is_found_again(seed, scenario, altitude_m, height_error_m):
+    """A barometric height error scales the scene about the nadir; the hull's known size in
+    pixels measures it, so the camera goes back to its true height."""
+    scene, labels = scene_and_labels(seed, scenario, altitude_m)
+    true = scene.geometry()
+    error = np.array([1.2, -0.8, math.radians(1.5), height_error_m])
+    found, refinement = refine_vessel_pose(labels, corrected_geometry(true, error), TUG)
+    assert refinement.applied, refinement.reason
+    # at 100 m the 33 m tug spans fewer pixels and the 1 m prior holds back a fifth (0.81 m)
+    tolerance_m = 0.15 if altitude_m <= 60 else 0.25
+    assert refinement.height_change_m == pytest.approx(-height_error_m, abs=tolerance_m)
+    assert found.camera.position_enu[2] == pytest.approx(true.camera.position_enu[2], abs=tolerance_m)
+    shift_m, turn_deg = pose_error(found, true)
+    assert shift_m < 0.1 and turn_deg < 0.2
+    assert refinement.to_dict()["height_change_m"] == pytest.approx(refinement.height_change_m, abs=1e-3)
+    # with the height held, it stays where the sensors put it
+    held, kept = refine_vessel_pose(labels, corrected_geometry(true, error), TUG,
+                                    PoseRefinementSettings(refine_height=False))
+    assert kept.height_change_m == 0.0 and kept.covariance.shape in ((3, 3),)
+    assert held.camera.position_enu[2] == pytest.approx(true.camera.position_enu[2] + height_error_m)
+
+
+def test_distances_from_a_wrong_height_come_back_to_the_truth():
+    """A metre of barometer error at 50 m is 2 % of every distance and leaves the hull's
+    ends off its pixels; against shapely's distances on the footprints."""
+    scene, labels = scene_and_labels(21, "alongside", 50)
+    truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+    meta = scene.metadata("frame.png")
+    lon, lat, _ = GEOD.fwd(meta.uav_lon_deg, meta.uav_lat_deg, 90.0, 1.0)
+    noisy = replace(meta, uav_lat_deg=lat, uav_lon_deg=lon, uav_alt_m=meta.uav_alt_m - 1.5,
+                    vessel_heading_deg=meta.vessel_heading_deg + 1.5)
+    held = ClearanceSettings(pose_refinement=PoseRefinementSettings(refine_height=False))
+    off = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+
+    def errors(report):
+        return [abs(s.distance_m - t) for s, t in zip(report.sections, truth, strict=True)
+                if s.status == "ok" and t is not None]
+
+    exact = errors(measure_frame(labels, meta, TUG, off))
+    refined = errors(measure_frame(labels, noisy, TUG))
+    height_held = errors(measure_frame(labels, noisy, TUG, held))
+    assert len(refined) == len(exact) >= 4
+    assert np.median(refined) < 1.5 * np.median(exact) + 0.02
+    assert max(refined) < 0.3
+    assert np.mean(height_held) > 1.5 * np.mean(refined)        # the height error left in
+
+
 def test_nothing_to_align_to_is_a_flag_not_an_error():
     scene, labels = scene_and_labels(5, "alongside", 60)
     geometry = scene.geometry()
@@ -146,11 +195,11 @@ def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distor
     origin = np.array([window[1].start, window[0].start])
 
     def distances(params):
-        uv = geometry.camera.project(corrected_geometry(geometry, params).vessel_to_enu(
-            points[:3].T))[0]
+        moved = corrected_geometry(geometry, params)
+        uv = moved.camera.project(moved.vessel_to_enu(points[:3].T))[0]
         return sdf.sample((uv - origin).T)[0]
 
-    for params in (np.zeros(3), np.array([0.7, -0.4, math.radians(1.5)])):
+    for params in (np.zeros(4), np.array([0.7, -0.4, math.radians(1.5), 0.8])):
         moved = corrected_geometry(geometry, params)
         expected = moved.camera.project(moved.vessel_to_enu(hull_h[:3].T))[0]
         assert np.allclose(align.pixels(hull_h, params), expected, atol=1e-9, equal_nan=True)
@@ -160,8 +209,8 @@ def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distor
         assert len(value) == points.shape[1]            # all in view and in the window
         assert np.allclose(value, distances(params), atol=1e-9)
         assert np.allclose(align.residuals(points, params), value, atol=1e-12)
-        for k, step in enumerate((1e-6, 1e-6, 1e-7)):
-            dp = np.zeros(3)
+        for k, step in enumerate((1e-6, 1e-6, 1e-7, 1e-6)):     # de, dn, dpsi, dh
+            dp = np.zeros(4)
             dp[k] = step
             numeric = (distances(params + dp) - distances(params - dp)) / (2 * step)
             # the bilinear gradient jumps across pixel edges: a few points may straddle one
@@ -176,7 +225,7 @@ def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window()
     for window in ((slice(0, 360), slice(0, 640)), (slice(40, 300), slice(90, 420))):
         ship, known = labels[window] == SHIP, labels[window] != IGNORE
         align = _Alignment(geometry, _SignedDistance(ship, (window[1].start, window[0].start)))
-        for params in (np.zeros(3), np.array([2.0, -3.0, 0.05]), np.array([-9.0, 4.0, -0.2])):
+        for params in (np.zeros(4), np.array([2.0, -3.0, 0.05, 0.0]), np.array([-9.0, 4.0, -0.2, 1.5])):
             uv = align.pixels(hull_h, params)
             # the whole window, as drawn before
             corners = cv2.convexHull(np.round((uv - [window[1].start, window[0].start]) * 16)

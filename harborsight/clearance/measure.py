@@ -26,7 +26,7 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import numpy as np
@@ -346,6 +346,16 @@ def _band_edge_pixels(
 MIN_HULL_SPAN_PX = 8.0
 
 
+def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> PoseRefinementSettings:
+    """The pose refinement's settings for a frame: the height's prior is the frame's own
+    height sigma (an RTK altitude holds the height, a barometer lets the hull's size in
+    pixels correct it)."""
+    alignment = settings.pose_refinement
+    if not alignment.refine_height:
+        return alignment
+    return replace(alignment, prior_height_m=max(sigmas.height_above_water_m, 1e-3))
+
+
 def measure_clearance(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(), *, sigmas: SensorSigmas | None = None,
@@ -376,9 +386,14 @@ def measure_clearance(
         )
 
     # align the vessel to its own pixels; the sensors' pose stays when that is not trustworthy
-    geometry, refinement = refine_vessel_pose(labels, geometry, vessel, settings.pose_refinement)
-    if refinement.applied:      # the hull moved: where its sections lie, once more
+    sigmas = sigmas or settings.sensor_sigmas()
+    geometry, refinement = refine_vessel_pose(labels, geometry, vessel,
+                                              alignment_settings(settings, sigmas))
+    if refinement.applied:      # the hull moved (and the camera's height): all once more
         in_image = _sections_in_image(sections_v, geometry)
+        camera = geometry.camera
+        height_m = float(camera.position_enu[2])
+        gsd = nadir_gsd_m_per_px(height_m, intr.fx, intr.fy)
     visible_fraction = in_image.visible_fraction
 
     vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
@@ -496,7 +511,6 @@ def measure_clearance(
             result.hull_point_enu, result.obstacle_point_enu = h_enu, o_enu
             result.contact, result.truncated = contact, truncated
 
-    sigmas = sigmas or settings.sensor_sigmas()
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px)
     return ClearanceReport(

@@ -4,11 +4,15 @@ Real sensors misplace the vessel in the image: standalone GPS on the drone and o
 vessel is off by 1-3 m each, a compass by 1-3 degrees. The vessel is visible, so its pose
 can be corrected from the label mask.
 
-**Model.** A correction ``p = (de, dn, dpsi)`` of the vessel's pose in the frame's local
-ENU: the antenna moves by ``(de, dn)`` metres and the heading turns by ``dpsi`` about the
-antenna. It absorbs the horizontal errors of both receivers and the yaw errors of both
-compasses (a yaw error of a nadir camera turns the whole scene, which keeps the distances
-between the hull and what surrounds it). The drone's height is not refined.
+**Model.** A correction ``p = (de, dn, dpsi, dh)``: the vessel's antenna moves by
+``(de, dn)`` metres in the frame's local ENU, its heading turns by ``dpsi`` about the
+antenna, and the drone's height above the water changes by ``dh``. The first three absorb
+the horizontal errors of both receivers and the yaw errors of both compasses (a yaw error of
+a nadir camera turns the whole scene, which keeps the distances between the hull and what
+surrounds it). The height scales the whole scene about the nadir (a barometric metre at
+60 m is 1.7 % of every distance); the hull's known size in pixels measures it, so it is
+refined too, with its own prior (``prior_height_m``), and the corrected height is what the
+distances are then measured with.
 
 **Objective.** The vessel's image silhouette is the convex hull of its projected hull
 points (as for the own-vessel region). ``N`` points are sampled along that outline, and
@@ -97,10 +101,15 @@ class PoseRefinementSettings:
     enabled: bool = True
     prior_shift_m: float = 3.0
     prior_heading_deg: float = 3.0
+    #: one sigma of the drone's height above the water (a barometer); refined with the rest
+    prior_height_m: float = 1.0
+    refine_height: bool = True
     edge_sigma_px: float = 1.0
     #: a correction larger than this is refused (4 sigma of the default prior)
     max_shift_m: float = 12.0
     max_rotation_deg: float = 12.0
+    #: a height change larger than this is refused (4 sigma of the default prior)
+    max_height_change_m: float = 4.0
     min_inlier_fraction: float = 0.5
     #: share of the silhouette's pixels in view that must be ship pixels: a rigid outline can
     #: fit straight edges of the wrong blobs, but then it covers water or a quay
@@ -108,8 +117,9 @@ class PoseRefinementSettings:
     max_residual_px: float = 1.5
 
     def __post_init__(self) -> None:
-        require_positive(self, ("prior_shift_m", "prior_heading_deg", "edge_sigma_px", "max_shift_m",
-                                "max_rotation_deg", "max_residual_px"))
+        require_positive(self, ("prior_shift_m", "prior_heading_deg", "prior_height_m", "edge_sigma_px",
+                                "max_shift_m", "max_rotation_deg", "max_height_change_m",
+                                "max_residual_px"))
         for name in ("min_inlier_fraction", "min_ship_fill"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -117,12 +127,14 @@ class PoseRefinementSettings:
 
 @dataclass(frozen=True)
 class PoseRefinement:
-    """What the alignment found. ``shift_m``/``rotation_deg`` are the correction it found
-    (also when not applied); ``covariance`` is its 3x3 posterior covariance in (m, m, rad)."""
+    """What the alignment found. ``shift_m``/``rotation_deg``/``height_change_m`` are the
+    correction it found (also when not applied); ``covariance`` is its 4x4 posterior
+    covariance in (m, m, rad, m), or 3x3 without the height when that was not refined."""
 
     applied: bool
     shift_m: tuple[float, float] = (0.0, 0.0)
     rotation_deg: float = 0.0
+    height_change_m: float = 0.0
     residual_px: float | None = None
     inlier_fraction: float | None = None
     inlier_fraction_before: float | None = None
@@ -139,6 +151,7 @@ class PoseRefinement:
             "applied": self.applied,
             "shift_m": [round(float(v), 3) for v in self.shift_m],
             "rotation_deg": round(float(self.rotation_deg), 3),
+            "height_change_m": round(float(self.height_change_m), 3),
             "residual_px": rounded(self.residual_px, 3),
             "inlier_fraction": rounded(self.inlier_fraction, 3),
             "inlier_fraction_before": rounded(self.inlier_fraction_before, 3),
@@ -152,9 +165,15 @@ OFF = PoseRefinement(applied=False, reason="off")
 
 
 def corrected_geometry(geometry: FrameGeometry, params: np.ndarray) -> FrameGeometry:
-    """The frame's geometry with the vessel moved by ``(de, dn)`` m and turned by ``dpsi`` rad."""
-    return replace(geometry, vessel_position_enu=geometry.vessel_position_enu + params[:2],
-                   vessel_heading_rad=geometry.vessel_heading_rad + float(params[2]))
+    """The frame's geometry with the vessel moved by ``(de, dn)`` m and turned by ``dpsi``
+    rad, and (a fourth parameter) the camera raised by ``dh`` m."""
+    moved = replace(geometry, vessel_position_enu=geometry.vessel_position_enu + params[:2],
+                    vessel_heading_rad=geometry.vessel_heading_rad + float(params[2]))
+    if len(params) > 3 and params[3] != 0.0:
+        camera = geometry.camera
+        moved = replace(moved, camera=replace(
+            camera, position_enu=camera.position_enu + np.array([0.0, 0.0, float(params[3])])))
+    return moved
 
 
 class _SignedDistance:
@@ -244,16 +263,18 @@ def _outline_points(hull_h: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 class _Alignment:
-    """Signed distances of vessel-frame points under a pose correction ``p = (de, dn, dpsi)``
-    and their Jacobian, with small-matrix operations per pose instead of a new geometry.
+    """Signed distances of vessel-frame points under a pose correction
+    ``p = (de, dn, dpsi, dh)`` and their Jacobian, with small-matrix operations per pose
+    instead of a new geometry.
 
     With ``R = R_C<-W``, the camera centre ``c`` and the sensors' pose ``(e, n, h)``, a point
     ``X_V`` is in the camera frame at
 
-        X_C = R (R_V(h + dpsi) X_V + (e + de, n + dn, 0) - c),
+        X_C = R (R_V(h + dpsi) X_V + (e + de, n + dn, 0) - c - (0, 0, dh)),
 
     ``R_V(h) = [[sin h, cos h, 0], [cos h, -sin h, 0], [0, 0, -1]]`` (bow, starboard and down
-    in ENU), so ``dX_C/d(de, dn) = R[:, :2]`` and ``dX_C/d(dpsi) = R R_V'(h + dpsi) X_V``. A
+    in ENU), so ``dX_C/d(de, dn) = R[:, :2]``, ``dX_C/d(dpsi) = R R_V'(h + dpsi) X_V`` and
+    ``dX_C/d(dh) = -R[:, 2]``. A
     pinhole gives ``(x z, y z, z) = K' X_C`` with ``K`` shifted to the signed distance's
     window (``cx - u0``, ``cy - v0``): one ``(6, 4)`` matrix per pose takes homogeneous vessel
     points to ``K' X_C`` and ``d(K' X_C)/d(dpsi)`` together, and with the signed distance's
@@ -274,6 +295,7 @@ class _Alignment:
             [[intr.fx, 0.0, intr.cx - sdf.u0], [0.0, intr.fy, intr.cy - sdf.v0], [0.0, 0.0, 1.0]])
         lens_rotation = lens @ camera.camera_from_world
         self.lens_rotation_en_t = np.ascontiguousarray(lens_rotation[:, :2].T)
+        self.lens_rotation_down = -lens_rotation[:, 2]
         #: blockdiag(L R, L R): world offsets and their derivative to lens coordinates
         self.to_lens = np.zeros((6, 6))
         self.to_lens[:3, :3] = self.to_lens[3:, 3:] = lens_rotation
@@ -290,13 +312,13 @@ class _Alignment:
         """``(6, N)``: window position ``x, y``, depth ``z`` and ``d(K' X_C)/d(dpsi)``
         (``dX_C/d(dpsi)`` with distortion) of homogeneous vessel points; with distortion
         also OpenCV's Jacobian."""
-        de, dn, dpsi = params.tolist()
+        de, dn, dpsi, dh = params.tolist()
         h = self.heading_rad + dpsi
         s, c = math.sin(h), math.cos(h)
         e, n, u = self.antenna_from_camera
         world = np.array([s, c, 0.0, e + de,          # X_W - c, by x, y, z, 1
                           c, -s, 0.0, n + dn,
-                          0.0, 0.0, -1.0, u,
+                          0.0, 0.0, -1.0, u - dh,
                           c, -s, 0.0, 0.0,            # dX_W/dh
                           -s, -c, 0.0, 0.0,
                           0.0, 0.0, 0.0, 0.0]).reshape(6, 4)
@@ -319,7 +341,7 @@ class _Alignment:
         """Pixels ``(N, 2)`` of homogeneous vessel points, NaN where they do not project."""
         if self.distorted:      # Camera.project also refuses points past the lens model's fold
             moved = corrected_geometry(self.geometry, params)
-            return self.camera.project(moved.vessel_to_enu(points_h[:3].T))[0]
+            return moved.camera.project(moved.vessel_to_enu(points_h[:3].T))[0]
         xyz = self._project(points_h, params)[0]
         uv = (xyz[:2] + self.origin).T
         uv[xyz[2] <= 1e-9] = np.nan
@@ -336,7 +358,7 @@ class _Alignment:
 
     def linearised(self, points_h: np.ndarray, params: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(s (n,), ds/dp (3, n))`` of the points in view, or None when fewer than
+        """``(s (n,), ds/dp (4, n))`` of the points in view, or None when fewer than
         :data:`MIN_EDGE_POINTS` are."""
         projected, jac = self._project(points_h, params)
         seen = self._seen(projected)
@@ -354,9 +376,10 @@ class _Alignment:
             np.einsum("ij,ij->j", gradient, xy, out=ds_dlens[2])
             np.negative(ds_dlens[2], out=ds_dlens[2])
             ds_dlens /= projected[2]
-        ds_dp = np.empty((3, len(seen)))
+        ds_dp = np.empty((4, len(seen)))
         np.matmul(self.lens_rotation_en_t, ds_dlens, out=ds_dp[:2])
         np.einsum("ij,ij->j", ds_dlens, projected[3:], out=ds_dp[2])
+        np.matmul(self.lens_rotation_down, ds_dlens, out=ds_dp[3])
         return value, ds_dp
 
 
@@ -456,10 +479,12 @@ def refine_vessel_pose(
         return geometry, PoseRefinement(False, reason="only ship pixels around the projected hull")
     align = _Alignment(geometry, _SignedDistance(ship, (window[1].start, window[0].start)))
 
-    before, before_rms_px, _ = _fit(align.residuals(outline, np.zeros(3)))
+    before, before_rms_px, _ = _fit(align.residuals(outline, np.zeros(4)))
 
+    # without height refinement a prior of a micrometre holds the height where it is
     prior_sigma = np.array([settings.prior_shift_m, settings.prior_shift_m,
-                            math.radians(settings.prior_heading_deg)])
+                            math.radians(settings.prior_heading_deg),
+                            settings.prior_height_m if settings.refine_height else 1e-6])
     prior_diagonal = prior_sigma ** -2.0
     prior_information = np.diag(prior_diagonal)
     edge_weight = settings.edge_sigma_px ** -2.0
@@ -494,11 +519,13 @@ def refine_vessel_pose(
                     delta = -np.linalg.solve(information, gradient)
                 except np.linalg.LinAlgError:
                     return failed()
-                d_e, d_n, d_psi = delta.tolist()
-                if not (math.isfinite(d_e) and math.isfinite(d_n) and math.isfinite(d_psi)):
+                d_e, d_n, d_psi, d_h = delta.tolist()
+                if not (math.isfinite(d_e) and math.isfinite(d_n) and math.isfinite(d_psi)
+                        and math.isfinite(d_h)):
                     return failed()
                 params = params + delta
-                if math.hypot(d_e, d_n) < tolerance_m and abs(d_psi) < tolerance_m / 50:
+                if (math.hypot(d_e, d_n) < tolerance_m and abs(d_psi) < tolerance_m / 50
+                        and abs(d_h) < tolerance_m):
                     break
         # final cost: Tukey over the whole outline (points out of view count as outliers)
         value = align.residuals(outline, params)
@@ -514,13 +541,13 @@ def refine_vessel_pose(
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side
-    first = solve(SCHEDULES[0], np.zeros(3))
+    first = solve(SCHEDULES[0], np.zeros(4))
     candidates = [(*first, fill(first[0]))]     # (params, information, cost, distances, fill)
     first_fit = _fit(first[3])
     if first_fit[0] < SKIP_SECOND_START_FRACTION or candidates[0][4] < settings.min_ship_fill:
         h = geometry.vessel_heading_rad
-        across = np.array([math.cos(h), -math.sin(h), 0.0]) * settings.prior_shift_m
-        for start in (np.zeros(3), across, -across):
+        across = np.array([math.cos(h), -math.sin(h), 0.0, 0.0]) * settings.prior_shift_m
+        for start in (np.zeros(4), across, -across):
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
     full = [c for c in candidates if c[4] >= settings.min_ship_fill]
@@ -529,6 +556,10 @@ def refine_vessel_pose(
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else _fit(value)
     shift = (float(params[0]), float(params[1]))
     rotation_deg = math.degrees(float(params[2]))
+    height_change_m = float(params[3]) if settings.refine_height else 0.0
+    if not settings.refine_height:
+        params = params.copy()
+        params[3] = 0.0
     if n_edge < MIN_EDGE_POINTS:
         return geometry, PoseRefinement(
             False, shift, rotation_deg, edge_points=n_edge, inlier_fraction_before=before,
@@ -536,10 +567,12 @@ def refine_vessel_pose(
                    f"(at least {MIN_EDGE_POINTS} needed)")
     try:
         covariance = np.linalg.inv(information)
+        if not settings.refine_height:
+            covariance = covariance[:3, :3]
     except np.linalg.LinAlgError:
         covariance = None
-    found = PoseRefinement(False, shift, rotation_deg, residual_px, fraction, before, n_edge,
-                           ship_fill=ship_fill, covariance=covariance)
+    found = PoseRefinement(False, shift, rotation_deg, height_change_m, residual_px, fraction, before,
+                           n_edge, ship_fill=ship_fill, covariance=covariance)
     reason = None
     if not np.isfinite(params).all():
         reason = "the alignment diverged"
@@ -547,6 +580,8 @@ def refine_vessel_pose(
         reason = f"shift {math.hypot(*shift):.1f} m beyond {settings.max_shift_m:g} m"
     elif abs(rotation_deg) > settings.max_rotation_deg:
         reason = f"rotation {rotation_deg:.1f} deg beyond {settings.max_rotation_deg:g} deg"
+    elif abs(height_change_m) > settings.max_height_change_m:
+        reason = f"height change {height_change_m:+.1f} m beyond {settings.max_height_change_m:g} m"
     elif fraction < settings.min_inlier_fraction:
         reason = (f"{100 * fraction:.0f} % of the outline fits a ship edge "
                   f"(at least {100 * settings.min_inlier_fraction:.0f} % needed)")

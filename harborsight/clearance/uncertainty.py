@@ -29,7 +29,9 @@ any correction), the hull is placed by the image, not by the vessel's
 sensors. Then each camera error moves the hull as well: by the rigid motion (shift and
 turn) that best fits that error's displacement of the outline's points, which is what the
 alignment absorbs; only what no rigid motion absorbs is left (a height error scales the
-scene about the nadir: ``(d + u·(H - c))·δh / h`` remains, ``c`` the outline's centre). A
+scene about the nadir: ``(d + u·(H - c))·δh / h`` remains, ``c`` the outline's centre,
+unless the alignment refined the height too: then it absorbs that scale, and the height's
+posterior enters with the pose's, through ``∂d/∂h = u·(O - n) / h``, ``n`` the nadir). A
 drone shift or a camera yaw is absorbed entirely, and the vessel's position and heading
 errors are replaced by the alignment's own covariance, scaled by
 :data:`REFINEMENT_COVARIANCE_SCALE` (calibrated on the bench: see docs/results.md).
@@ -97,19 +99,24 @@ def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
     return cameras
 
 
-def _rigid_fit(points: np.ndarray, moved_by: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray | float, np.ndarray]:
+def _rigid_fit(points: np.ndarray, moved_by: np.ndarray, with_scale: bool = False
+               ) -> tuple[np.ndarray, np.ndarray | float, np.ndarray, np.ndarray | float]:
     """Least-squares 2-D rigid motion (shift ``t``, small turn ``ω`` anticlockwise about the
-    centre ``c``) of displacements ``moved_by`` at ``points (M, 2)``: ``δ ≈ t + ω·perp(p - c)``.
-    ``moved_by`` is ``(M, 2)`` or ``(C, M, 2)``, one set per camera: then ``t`` is ``(C, 2)``
-    and ``ω`` ``(C,)``."""
+    centre ``c``; with ``with_scale`` also a small scale ``k``) of displacements ``moved_by``
+    at ``points (M, 2)``: ``δ ≈ t + ω·perp(p - c) + k·(p - c)``. ``moved_by`` is ``(M, 2)``
+    or ``(C, M, 2)``, one set per camera: then ``t`` is ``(C, 2)`` and ``ω``, ``k`` ``(C,)``.
+    Returns ``(t, ω, c, k)``; ``k`` is 0 without ``with_scale``."""
     centre = points.mean(axis=0)
     shift = moved_by.mean(axis=-2)
     rel, rest = points - centre, moved_by - shift[..., None, :]
     spread = float((rel ** 2).sum())
     turn = (rel[:, 0] * rest[..., 1] - rel[:, 1] * rest[..., 0]).sum(axis=-1)
+    scale = (rel[:, 0] * rest[..., 0] + rel[:, 1] * rest[..., 1]).sum(axis=-1)
     turn = turn / spread if spread else np.zeros_like(turn)
-    return shift, (float(turn) if moved_by.ndim == 2 else turn), centre
+    scale = scale / spread if (spread and with_scale) else np.zeros_like(scale)
+    if moved_by.ndim == 2:
+        return shift, float(turn), centre, float(scale)
+    return shift, turn, centre, scale
 
 
 def _perp(vectors: np.ndarray) -> np.ndarray:
@@ -194,16 +201,20 @@ def add_section_uncertainty(
     here, outline_here = planes[0, :n_ok], planes[0, n_ok:n_ok + n_outline]
     shift_o = planes[1:, :n_ok] - here                      # (cameras, sections, 2)
     shift_h = np.zeros_like(shift_o)
+    # the alignment also absorbs a scale when it refined the drone's height
+    height_refined = bool(refined and np.shape(refinement.covariance) == (4, 4))
     if refined and n_outline >= 3 and len(shift_o):
         moved_outline = planes[1:, n_ok:n_ok + n_outline] - outline_here
         usable = np.isfinite(moved_outline).all(axis=2)
         if usable.all():            # the usual case: all cameras' fits at once
-            t, turn, centre = _rigid_fit(outline_here, moved_outline)
-            shift_h = t[:, None] + turn[:, None, None] * _perp(hull - centre)
+            t, turn, centre, scale = _rigid_fit(outline_here, moved_outline, height_refined)
+            shift_h = (t[:, None] + turn[:, None, None] * _perp(hull - centre)
+                       + scale[:, None, None] * (hull - centre))
         else:
             for i in np.flatnonzero(usable.sum(axis=1) >= 3):
-                t, turn, centre = _rigid_fit(outline_here[usable[i]], moved_outline[i, usable[i]])
-                shift_h[i] = t + turn * _perp(hull - centre)
+                t, turn, centre, scale = _rigid_fit(outline_here[usable[i]], moved_outline[i, usable[i]],
+                                                    height_refined)
+                shift_h[i] = t + turn * _perp(hull - centre) + scale * (hull - centre)
     # each camera error in turn (summed in order, as independent sources)
     for along in np.nan_to_num(np.einsum("ij,cij->ci", u, shift_o - shift_h)):
         systematic += along ** 2
@@ -219,7 +230,14 @@ def add_section_uncertainty(
             systematic += (sigmas.clock_s * (u @ relative)) ** 2
     elif refinement.covariance is not None:
         r = hull - geometry.vessel_position_enu
-        gradient = np.column_stack((u[:, 0], u[:, 1], u[:, 0] * r[:, 1] - u[:, 1] * r[:, 0]))
+        columns = [u[:, 0], u[:, 1], u[:, 0] * r[:, 1] - u[:, 1] * r[:, 0]]
+        if height_refined:
+            # a height error dh moves each back-projected obstacle point away from the nadir
+            # by (O - n) dh / h, the hull staying where the alignment put it (the sign as
+            # the columns above: the change of the distance, negated)
+            height_m = max(float(camera.position_enu[2]), 1e-6)
+            columns.append(-np.einsum("ij,ij->i", u, obstacle[:, :2] - camera.position_enu[:2]) / height_m)
+        gradient = np.column_stack(columns)
         covariance = REFINEMENT_COVARIANCE_SCALE * np.asarray(refinement.covariance)
         random += np.einsum("ij,jk,ik->i", gradient, covariance, gradient)
 

@@ -120,8 +120,10 @@ def draw_overlay(
         _label(out, text, mid + outward * 18 * scale / 0.5, colour, scale)
 
     md = report.min_distance_m
+    # the method only when it is not the default (the banner has one line of a 640-px frame)
+    method = "" if report.method == "ground_plane" else f"  {report.method}"
     header = (f"{report.vessel}  alt {report.altitude_m:.0f} m  GSD {report.gsd_m_per_px * 100:.1f} cm/px"
-              f"  {report.method}  min {'--' if md is None else f'{md:.1f} m'}"
+              f"{method}  min {'--' if md is None else f'{md:.1f} m'}"
               f"{_pose_note(report.pose_refinement)}")
     draw_banner(out, header)
     if footer:
@@ -130,13 +132,16 @@ def draw_overlay(
 
 
 def _pose_note(refinement: dict | None) -> str:
-    """``pose +1.3 m 0.8 deg`` when the pose was refined, ``pose: sensors`` when the
-    alignment was not trusted, nothing when it was off."""
+    """``pose +1.3 m 0.8 deg`` (and ``h -0.9 m`` when the height moved by 5 cm or more)
+    when the pose was refined, ``pose: sensors`` when the alignment was not trusted,
+    nothing when it was off."""
     if not refinement or refinement.get("reason") == "off":
         return ""
     if refinement.get("applied"):
         shift = float(np.hypot(*refinement["shift_m"]))
-        return f"  pose {shift:+.1f} m {refinement['rotation_deg']:+.1f} deg"
+        note = f"  pose {shift:+.1f} m {refinement['rotation_deg']:+.1f} deg"
+        height_m = float(refinement.get("height_change_m") or 0.0)
+        return note + (f" h {height_m:+.1f} m" if abs(height_m) >= 0.05 else "")
     return "  pose: sensors"
 
 
