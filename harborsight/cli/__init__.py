@@ -9,6 +9,7 @@ from harborsight.cli import (  # noqa: F401  (each registers its commands)
     dataset,
     demo,
     evaluate,
+    live,
     measure,
     pose_noise,
     run,

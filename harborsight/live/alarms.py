@@ -1,0 +1,88 @@
+"""Per-section alarm states for the live berthing aid: ``ok`` / ``caution`` / ``danger``.
+
+A section's level rises as soon as its distance or its time to contact crosses a threshold,
+and falls only once both are clear of the thresholds by a hysteresis margin, so that a
+distance hovering at a threshold does not make the display and the sound flicker:
+
+* **danger** when ``d <= danger_m``, or the gap closes with ``ttc <= ttc_s`` while
+  ``d <= caution_m`` (fast and already near);
+* **caution** when ``d <= caution_m`` or ``ttc <= ttc_s``;
+* a level is left only when ``d > threshold + hysteresis_m`` and ``ttc > ttc_s +
+  hysteresis_s`` (or the gap is not closing) for every condition that raised it.
+
+``d`` is the section's conservative distance: the 95 % lower bound ``distance_lower_m`` when
+the measurement has one, else the distance. A section with no current measurement keeps its
+level and is marked stale by the caller: a vanished reading never clears an alarm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from harborsight.errors import require_positive
+
+OK, CAUTION, DANGER = "ok", "caution", "danger"
+LEVELS = (OK, CAUTION, DANGER)
+
+
+@dataclass(frozen=True)
+class AlarmSettings:
+    """Thresholds (metres, seconds) and the margins an alarm must clear to fall."""
+
+    caution_m: float = 5.0
+    danger_m: float = 2.0
+    ttc_s: float = 30.0
+    hysteresis_m: float = 0.5
+    hysteresis_s: float = 5.0
+    #: a source older than this is stale (issue #28: video 1 s, drone and vessel 2 s)
+    video_stale_s: float = 1.0
+    telemetry_stale_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        require_positive(self, ("caution_m", "danger_m", "ttc_s", "video_stale_s", "telemetry_stale_s"))
+        for name in ("hysteresis_m", "hysteresis_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a number at least 0, got {value!r}")
+        if self.danger_m >= self.caution_m:
+            raise ValueError(f"danger_m ({self.danger_m:g}) must be below caution_m ({self.caution_m:g})")
+
+
+def _level(distance_m: float | None, ttc_s: float | None, caution_m: float, danger_m: float,
+           ttc_limit_s: float) -> int:
+    """0 ok, 1 caution, 2 danger for one reading against the given thresholds."""
+    near = distance_m is not None and distance_m <= caution_m
+    closing_fast = ttc_s is not None and ttc_s <= ttc_limit_s
+    if (distance_m is not None and distance_m <= danger_m) or (closing_fast and near):
+        return 2
+    if near or closing_fast:
+        return 1
+    return 0
+
+
+@dataclass
+class SectionAlarm:
+    """One section's level with hysteresis; ``since`` is when it took its current level."""
+
+    settings: AlarmSettings = field(default_factory=AlarmSettings)
+    level: int = 0
+    since: float | None = None
+
+    @property
+    def status(self) -> str:
+        return LEVELS[self.level]
+
+    def update(self, time_s: float, distance_m: float | None, ttc_s: float | None) -> str:
+        """The level after a fresh reading at ``time_s`` (distance, time to contact; either
+        may be None when unknown)."""
+        s = self.settings
+        entering = _level(distance_m, ttc_s, s.caution_m, s.danger_m, s.ttc_s)
+        # the level the reading would have with every threshold widened by its margin: the
+        # alarm falls only to that
+        holding = _level(distance_m, ttc_s, s.caution_m + s.hysteresis_m,
+                         s.danger_m + s.hysteresis_m, s.ttc_s + s.hysteresis_s)
+        new = entering if entering > self.level else min(self.level, holding)
+        if new != self.level or self.since is None:
+            self.level, self.since = new, time_s
+        return self.status

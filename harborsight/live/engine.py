@@ -1,0 +1,204 @@
+"""The live berthing aid's core: one frame in, the state the crew sees out.
+
+:class:`LiveEngine` measures a frame (segmentation, clearance with pose refinement and
+uncertainty), runs each section's tracker (filtered distance, closing speed, time to
+contact), updates the alarms (:mod:`harborsight.live.alarms`) and the sources' health
+(:mod:`harborsight.live.health`), and returns a ``harborsight.live/1`` state:
+
+``schema``, ``time`` (UTC ISO 8601), ``frame_index``, ``latency_ms`` (frame arrival to the
+state), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status``
+``ok``/``caution``/``danger`` or the measurement's ``out_of_view``/``not_measured``,
+``distance_m``, ``distance_lower_m``, ``sigma_m``, ``closing_speed_mps``,
+``time_to_contact_s``, ``alarm`` (bool) and ``stale``), ``alarms`` (each ``kind``,
+``message``, ``since``), ``sources`` (``video``, ``drone``, ``vessel``: ``age_s``, ``rate_hz``,
+``stale``, ``count``) and ``pose_refinement``.
+
+When a source is stale (video older than 1 s, drone or vessel data older than 2 s by
+default) every section is marked ``stale`` and a ``stale_*`` alarm is raised: the distances
+shown are the last ones, never current. :meth:`LiveEngine.refresh` re-evaluates that between
+frames, so a stopped stream raises its alarm without a new frame. Times: ``now_s`` is the
+process's monotonic clock; ``time_s`` a frame's time on the flight's clock (for the tracker).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.report import STATUS_OK, ClearanceReport
+from harborsight.errors import HarborsightError
+from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
+from harborsight.frame import FrameMetadata
+from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
+from harborsight.live.health import SourceHealth
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels
+
+SCHEMA = "harborsight.live/1"
+SOURCES = ("video", "drone", "vessel")
+
+
+def _rounded(value: float | None, digits: int) -> float | None:
+    return None if value is None or not math.isfinite(value) else round(float(value), digits)
+
+
+@dataclass
+class LiveEngine:
+    """Measures frames as they come and keeps the state (module docstring). Thread-safe:
+    :meth:`state` may be read from a web server's thread while frames are processed."""
+
+    segmenter: Segmenter | None
+    vessels: VesselCache
+    clearance: ClearanceSettings = field(default_factory=ClearanceSettings)
+    alarm_settings: AlarmSettings = field(default_factory=AlarmSettings)
+    tracker_settings: TrackerSettings = field(default_factory=TrackerSettings)
+
+    def __post_init__(self) -> None:
+        s = self.alarm_settings
+        self.health = {"video": SourceHealth("video", s.video_stale_s),
+                       "drone": SourceHealth("drone", s.telemetry_stale_s),
+                       "vessel": SourceHealth("vessel", s.telemetry_stale_s)}
+        self._trackers: dict[int, SectionTracker] = {}
+        self._alarms: dict[int, SectionAlarm] = {}
+        self._report: ClearanceReport | None = None
+        self._sections: list[dict] = []
+        self._frame_index: int | None = None
+        self._latency_ms: float | None = None
+        self._errors: list[dict] = []
+        self._lock = threading.Lock()
+        self._state: dict = self._build(time.monotonic())
+        self.frames_measured = 0
+        self.frames_failed = 0
+
+    def source_arrived(self, name: str, now_s: float) -> None:
+        """Data from ``video``, ``drone`` or ``vessel`` arrived at ``now_s``."""
+        with self._lock:
+            self.health[name].arrived(now_s)
+
+    def process(self, frame_index: int, image: np.ndarray, meta: FrameMetadata, meta_path: Path,
+                time_s: float | None, arrived_s: float, mask_path: Path | None = None) -> dict:
+        """Measure one frame that arrived at ``arrived_s`` (monotonic) and return the new
+        state. A frame that cannot be measured leaves the sections as they were (they turn
+        stale as the video ages) and adds a warning alarm; it never raises."""
+        try:
+            labels, mask_source = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path)
+            vessel = self.vessels.for_frame(meta, meta_path)
+            report = measure_frame(labels, meta, vessel, self.clearance, mask_source=mask_source,
+                                   mask_from_file=mask_path is not None)
+        except HarborsightError as exc:
+            return self._failed(frame_index, str(exc))
+        except Exception as exc:   # one bad frame must not stop the live aid
+            return self._failed(frame_index, f"unexpected {type(exc).__name__}: {exc}")
+        with self._lock:
+            self._update_sections(report, time_s)
+            self._report, self._frame_index = report, frame_index
+            self.frames_measured += 1
+            now = time.monotonic()
+            self._latency_ms = 1000.0 * (now - arrived_s)
+            self._state = self._build(now)
+            return self._state
+
+    def refresh(self, now_s: float | None = None) -> dict:
+        """The state re-evaluated at ``now_s`` (ages, stale flags and alarms) without a
+        new frame."""
+        with self._lock:
+            self._state = self._build(time.monotonic() if now_s is None else now_s)
+            return self._state
+
+    def state(self) -> dict:
+        with self._lock:
+            return self._state
+
+    def _failed(self, frame_index: int, message: str) -> dict:
+        with self._lock:
+            self.frames_failed += 1
+            self._errors = [{"frame_index": frame_index, "message": message}]
+            self._state = self._build(time.monotonic())
+            return self._state
+
+    def _update_sections(self, report: ClearanceReport, time_s: float | None) -> None:
+        self._errors = []
+        sections = []
+        for section in report.sections:
+            fits = section.status == STATUS_OK and not section.truncated
+            estimate = None
+            if time_s is not None:
+                tracker = self._trackers.setdefault(section.index, SectionTracker(self.tracker_settings))
+                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
+                           if fits else None)
+                estimate = tracker.step(time_s, reading)
+            closing = estimate.closing_speed_mps if estimate is not None else None
+            ttc = estimate.time_to_contact_s if estimate is not None else None
+            alarm = self._alarms.setdefault(section.index, SectionAlarm(self.alarm_settings))
+            if section.status == STATUS_OK:
+                lower = section.distance_lower_m
+                alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
+            sections.append({
+                "index": section.index, "measured": section.status,
+                "distance_m": _rounded(section.distance_m, 3),
+                "distance_lower_m": _rounded(section.distance_lower_m, 3),
+                "sigma_m": _rounded(section.sigma_m, 3),
+                "filtered_distance_m": _rounded(estimate.distance_m if estimate else None, 3),
+                "closing_speed_mps": _rounded(closing, 3),
+                "time_to_contact_s": _rounded(ttc, 1),
+            })
+        self._sections = sections
+
+    def _build(self, now_s: float) -> dict:
+        stale_sources = [name for name in SOURCES if self.health[name].stale(now_s)]
+        stale = bool(stale_sources)
+        sections, alarms = [], []
+        for entry in self._sections:
+            alarm = self._alarms.get(entry["index"])
+            level = alarm.status if alarm is not None else "ok"
+            status = level if entry["measured"] in (STATUS_OK, "clear") else entry["measured"]
+            sections.append({**{k: v for k, v in entry.items() if k != "measured"},
+                             "status": status, "measured": entry["measured"],
+                             "alarm": level in (CAUTION, DANGER), "stale": stale})
+            if alarm is not None and level in (CAUTION, DANGER):
+                distance = entry["distance_m"]
+                closing = entry["closing_speed_mps"]
+                message = (f"section {entry['index']}: {level}, "
+                           + ("distance unknown" if distance is None else f"{distance:.1f} m")
+                           + ("" if closing is None else f", closing at {closing:.2f} m/s"))
+                alarms.append({"kind": level, "section": entry["index"], "message": message,
+                               "since": _wall_iso(now_s, alarm.since)})
+        for name in stale_sources:
+            since = self.health[name].stale_since(now_s)
+            age = self.health[name].age_s(now_s)
+            alarms.append({"kind": f"stale_{name}", "message": (
+                f"no {name} data yet" if age is None else
+                f"{name} data is {age:.1f} s old: distances are not current"),
+                "since": _wall_iso(now_s, since)})
+        for error in self._errors:
+            alarms.append({"kind": "frame_error", "message": error["message"],
+                           "since": _wall_iso(now_s, now_s)})
+        report = self._report
+        distances = [s["distance_m"] for s in sections if s["distance_m"] is not None]
+        return {
+            "schema": SCHEMA,
+            "time": datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+            "frame_index": self._frame_index,
+            "latency_ms": _rounded(self._latency_ms, 1),
+            "vessel": report.vessel if report is not None else None,
+            "min_distance_m": min(distances) if distances else None,
+            "stale": stale,
+            "sections": sections,
+            "alarms": alarms,
+            "sources": {name: self.health[name].to_dict(now_s) for name in SOURCES},
+            "pose_refinement": report.pose_refinement if report is not None else None,
+        }
+
+
+def _wall_iso(now_s: float, at_s: float | None) -> str | None:
+    """A monotonic time as UTC wall time (through the offset between the two clocks now)."""
+    if at_s is None:
+        return None
+    wall = time.time() - (now_s - at_s)
+    return datetime.fromtimestamp(wall, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")

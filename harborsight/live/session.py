@@ -1,0 +1,109 @@
+"""The live loop: frames from a reader thread, the newest measured, every state published.
+
+The reader (:func:`harborsight.live.stream.replay_video`) puts frames into a one-frame box;
+this loop takes the newest, measures it (:class:`~harborsight.live.engine.LiveEngine`) and
+hands the state to ``publish`` (the web server's push) and to the recording. While no frame
+comes it re-evaluates the state every ``idle_refresh_s`` so that a stopped source raises its
+stale alarm on time. ``--record DIR`` writes every state as one line of ``states.jsonl``,
+flushed as it goes, so a killed process loses nothing it published.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from harborsight.errors import InputError
+from harborsight.flight.sources import VideoSource
+from harborsight.flight.timeline import timestamp_seconds
+from harborsight.live.engine import LiveEngine
+from harborsight.live.stream import LatestFrame, replay_video
+
+
+@dataclass
+class LiveSummary:
+    frames_received: int = 0
+    frames_dropped: int = 0
+    frames_measured: int = 0
+    frames_skipped: int = 0
+    latencies_ms: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    interrupted: bool = False
+
+    def latency_percentile_ms(self, q: float) -> float | None:
+        if not self.latencies_ms:
+            return None
+        if len(self.latencies_ms) == 1:
+            return self.latencies_ms[0]
+        return statistics.quantiles(self.latencies_ms, n=100, method="inclusive")[int(q) - 1]
+
+
+def _frame_time_s(frame) -> float | None:
+    """The frame's time on the flight's clock: its metadata timestamp, else its place in the
+    video."""
+    try:
+        stamp = timestamp_seconds(frame.meta) if frame.meta is not None else None
+    except InputError:
+        stamp = None
+    return stamp if stamp is not None else frame.video_time_s
+
+
+def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
+             publish: Callable[[dict], None] | None = None, record: Path | None = None,
+             stop: threading.Event | None = None, idle_refresh_s: float = 0.2) -> LiveSummary:
+    """Run until the source ends or ``stop`` is set (module docstring)."""
+    stop = stop or threading.Event()
+    box = LatestFrame()
+
+    def arrived(frame, now_s: float) -> None:
+        engine.source_arrived("video", now_s)
+        if frame.meta is not None:           # a replayed metadata line: both poses at once
+            engine.source_arrived("drone", now_s)
+            engine.source_arrived("vessel", now_s)
+
+    reader = threading.Thread(target=replay_video, args=(source, box, stop, realtime, arrived),
+                              name="harborsight-live-video", daemon=True)
+    summary = LiveSummary()
+    handle = None
+    if record is not None:
+        record.mkdir(parents=True, exist_ok=True)
+        handle = (record / "states.jsonl").open("w", encoding="utf-8")
+    started = time.monotonic()
+    reader.start()
+    try:
+        while not stop.is_set():
+            item = box.take(idle_refresh_s)
+            if item is None:
+                if box.closed:
+                    break
+                state = engine.refresh()
+            elif item.frame.error is not None or item.frame.meta is None:
+                summary.frames_skipped += 1
+                state = engine.refresh()
+            else:
+                frame = item.frame
+                state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path,
+                                       _frame_time_s(frame), item.arrived_s)
+                summary.frames_measured += 1
+                if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
+                    summary.latencies_ms.append(state["latency_ms"])
+            if publish is not None:
+                publish(state)
+            if handle is not None:
+                handle.write(json.dumps(state) + "\n")
+                handle.flush()
+    except KeyboardInterrupt:           # Ctrl-C: stop, and say what was measured
+        summary.interrupted = True
+    finally:
+        stop.set()
+        reader.join(timeout=5.0)
+        if handle is not None:
+            handle.close()
+        summary.frames_received, summary.frames_dropped = box.received, box.dropped
+        summary.seconds = time.monotonic() - started
+    return summary

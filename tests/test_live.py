@@ -1,0 +1,200 @@
+"""The live berthing aid (issue #28): alarms with hysteresis, stale data, and a replayed
+flight served over HTTP and WebSocket on 127.0.0.1, checked against the flight's truth."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.flight import VideoSource
+from harborsight.frame import load_frame_metadata
+from harborsight.live.alarms import AlarmSettings, SectionAlarm
+from harborsight.live.engine import SCHEMA, LiveEngine
+from harborsight.live.health import SourceHealth
+from harborsight.live.server import LiveServer
+from harborsight.live.session import run_live
+from harborsight.live.stream import Arrival, LatestFrame
+from harborsight.pipeline import VesselCache
+from harborsight.vessel.spec import load_vessel_spec
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+FLIGHT = SAMPLES / "flight"
+TUG = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+
+
+def test_an_alarm_rises_at_once_and_falls_only_past_the_margin():
+    alarm = SectionAlarm(AlarmSettings(caution_m=5.0, danger_m=2.0, ttc_s=30.0,
+                                       hysteresis_m=0.5, hysteresis_s=5.0))
+    steps = [(5.2, None, "ok"), (4.9, None, "caution"), (5.3, None, "caution"),   # within 0.5
+             (4.95, None, "caution"), (5.6, None, "ok"), (1.9, None, "danger"),   # straight up
+             (2.3, None, "danger"), (2.6, None, "caution"), (4.0, 20.0, "danger"),  # near, closing
+             (4.0, 33.0, "danger"), (4.0, 36.0, "caution"), (8.0, 20.0, "caution"),
+             (8.0, 40.0, "ok")]
+    for k, (distance, ttc, expected) in enumerate(steps):
+        assert alarm.update(float(k), distance, ttc) == expected, (k, distance, ttc)
+    assert alarm.since == 12.0
+
+
+def test_alarm_settings_are_checked():
+    with pytest.raises(ValueError, match="danger_m"):
+        AlarmSettings(caution_m=2.0, danger_m=3.0)
+    with pytest.raises(ValueError, match="hysteresis_m"):
+        AlarmSettings(hysteresis_m=-1.0)
+
+
+def test_a_source_turns_stale_after_its_limit_and_recovers_when_it_returns():
+    video = SourceHealth("video", stale_after_s=1.0)
+    assert video.stale(0.0) and video.age_s(0.0) is None        # nothing yet
+    for t in (0.0, 0.1, 0.2, 0.3):
+        video.arrived(t)
+    assert not video.stale(1.2) and video.stale(1.31)
+    assert video.stale_since(2.0) == pytest.approx(1.3)          # when the age passed 1 s
+    assert video.to_dict(0.3)["rate_hz"] == pytest.approx(10.0)
+    video.arrived(2.5)
+    assert not video.stale(2.6) and video.stale_since(2.6) is None
+
+
+def test_the_newest_frame_wins_and_the_others_are_counted_as_dropped():
+    box = LatestFrame()
+    for k in range(3):
+        box.put(Arrival(k, float(k)))
+    assert box.take(0.01).frame == 2 and box.dropped == 2 and box.received == 3
+    assert box.take(0.01) is None and not box.closed
+    box.close()
+    assert box.take(0.01) is None and box.closed
+
+
+@pytest.fixture(scope="module")
+def replay(tmp_path_factory):
+    """The bundled berthing flight as a 10 fps video with its metadata as JSON lines."""
+    folder = tmp_path_factory.mktemp("live")
+    frames = sorted((FLIGHT / "frames").glob("*.json"))
+    first = cv2.imread(str(FLIGHT / "images" / "000000.jpg"))
+    writer = cv2.VideoWriter(str(folder / "flight.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
+                             (first.shape[1], first.shape[0]))
+    truth = {}
+    with (folder / "flight.jsonl").open("w") as out:
+        for index, path in enumerate(frames):
+            record = json.loads(path.read_text())
+            record["frame_index"] = index
+            record.pop("vessel_spec", None)
+            writer.write(cv2.imread(str(FLIGHT / "images" / record["image"])))
+            out.write(json.dumps(record) + "\n")
+            truth[index] = [s["distance_m"] for s in record["ground_truth"]["sections"]]
+    writer.release()
+    return folder, truth
+
+
+def _engine(**alarms) -> LiveEngine:
+    from harborsight.perception.default_model import load_default_segmenter
+
+    return LiveEngine(load_default_segmenter(None), VesselCache(load_vessel_spec(TUG)),
+                      alarm_settings=AlarmSettings(**alarms))
+
+
+def test_stale_video_raises_its_alarm_and_marks_every_distance_stale():
+    engine = _engine()
+    meta = load_frame_metadata(FLIGHT / "frames" / "000030.json")
+    image = cv2.imread(str(FLIGHT / "images" / "000030.jpg"))
+    now = time.monotonic()
+    for name in ("video", "drone", "vessel"):
+        engine.source_arrived(name, now)
+    state = engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
+    assert state["schema"] == SCHEMA and not state["stale"]
+    assert not [a for a in state["alarms"] if a["kind"].startswith("stale")]
+    assert any(s["distance_m"] is not None for s in state["sections"])
+    # the video stops: within 1.5 s of its last frame the alarm is up, and no distance is current
+    later = engine.refresh(now + 1.4)
+    kinds = {a["kind"] for a in later["alarms"]}
+    assert "stale_video" in kinds and "stale_drone" not in kinds
+    assert later["stale"] and all(s["stale"] for s in later["sections"])
+    assert later["sources"]["video"]["stale"] and later["sources"]["video"]["age_s"] >= 1.4
+    # it comes back: the alarm clears at once
+    engine.source_arrived("video", now + 1.6)
+    assert "stale_video" not in {a["kind"] for a in engine.refresh(now + 1.7)["alarms"]}
+    # a frame that cannot be measured is an alarm line, never an exception
+    bad = engine.process(31, image[:10], meta, FLIGHT / "frames" / "000030.json", 15.5, now + 1.7)
+    assert any(a["kind"] == "frame_error" for a in bad["alarms"])
+
+
+def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
+    """Realtime replay at 10 fps through the whole loop, the state read over HTTP while it
+    runs and pushed over a WebSocket; the distances of the frame the state names against
+    the simulator's ground truth for that frame."""
+    from websockets.sync.client import connect
+
+    folder, truth = replay
+    engine = _engine()
+    server = LiveServer(engine.state, "127.0.0.1", 0)
+    server.start()
+    pushed, http_states = [], []
+    done = threading.Event()
+    result = {}
+
+    def live() -> None:
+        result["summary"] = run_live(VideoSource(folder / "flight.mp4", folder / "flight.jsonl"),
+                                     engine, realtime=True, publish=server.publish,
+                                     record=folder / "record")
+        done.set()
+
+    try:
+        with connect(f"ws://127.0.0.1:{server.port}/ws", open_timeout=5) as socket:
+            thread = threading.Thread(target=live, daemon=True)
+            thread.start()
+            while not done.is_set():
+                with contextlib.suppress(TimeoutError):
+                    pushed.append(json.loads(socket.recv(timeout=0.5)))
+                with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/api/state", timeout=5) as r:
+                    http_states.append(json.loads(r.read()))
+            thread.join(5)
+        with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/", timeout=5) as r:
+            page = r.read().decode()
+    finally:
+        server.stop()
+    summary = result["summary"]
+    print(f"measured {summary.frames_measured}, dropped {summary.frames_dropped}, latency p50 "
+          f"{summary.latency_percentile_ms(50):.0f} ms, p95 {summary.latency_percentile_ms(95):.0f} ms")
+    assert summary.frames_received == 48 and summary.frames_measured >= 10
+    assert summary.frames_measured + summary.frames_dropped == 48
+    assert summary.latency_percentile_ms(95) < 1000
+    assert 'id="sections"' in page and "/api/state" in page
+    measured = [s for s in http_states + pushed if s["frame_index"] is not None]
+    assert len(measured) >= 5 and len([s for s in pushed if s["frame_index"] is not None]) >= 5
+    errors = []
+    for state in measured:
+        assert state["schema"] == SCHEMA and set(state["sources"]) == {"video", "drone", "vessel"}
+        for section in state["sections"]:
+            assert {"index", "status", "distance_m", "closing_speed_mps", "time_to_contact_s",
+                    "alarm", "stale"} <= set(section)
+            true = truth[state["frame_index"]][section["index"]]
+            if section["measured"] == "ok" and true is not None:
+                errors.append(abs(section["distance_m"] - true))
+    errors.sort()
+    assert errors and errors[len(errors) // 2] < 0.5          # median, the model's masks
+    # the closest approach (about 0.5 m at the end of the flight) is a danger alarm
+    last = measured[-1]
+    assert any(a["kind"] == "danger" for a in last["alarms"])
+    closing = [s["closing_speed_mps"] for s in last["sections"] if s["closing_speed_mps"] is not None]
+    assert closing
+    recorded = (folder / "record" / "states.jsonl").read_text().splitlines()
+    assert len(recorded) >= summary.frames_measured and json.loads(recorded[-1])["schema"] == SCHEMA
+
+
+def test_the_command_line_refuses_a_bad_address_and_a_missing_video(tmp_path, replay):
+    folder, _ = replay
+    runner = CliRunner()
+    result = runner.invoke(app, ["live", "--video", str(folder / "flight.mp4"), "--metadata",
+                                 str(folder / "flight.jsonl"), "--http", "nowhere"])
+    assert result.exit_code == 2 and "--http" in result.output
+    result = runner.invoke(app, ["live", "--video", str(tmp_path / "none.mp4"), "--metadata",
+                                 str(folder / "flight.jsonl")])
+    assert result.exit_code == 2 and "video file not found" in result.output
