@@ -169,6 +169,9 @@ def test_bad_positions_are_named(tmp_path):
     with pytest.raises(InputError, match="line 2"):
         read_tile_positions(csv_path, tmp_path)
     csv_path.write_text("")
+    with pytest.raises(InputError, match="empty file"):
+        read_tile_positions(csv_path, tmp_path)
+    csv_path.write_text("tile_file,frame_id\n")
     with pytest.raises(InputError, match="no rows"):
         read_tile_positions(csv_path, tmp_path)
 

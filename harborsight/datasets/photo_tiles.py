@@ -103,17 +103,18 @@ def read_tile_positions(path: str | Path, tiles_dir: str | Path,
     path, tiles_dir = Path(path), Path(tiles_dir)
     try:
         with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.DictReader(handle))
+            reader = csv.DictReader(handle)
+            columns = list(reader.fieldnames or [])
+            rows = list(reader)
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise InputError(path, None, f"cannot read the tile positions: {exc}") from None
-    if not rows:
-        raise InputError(path, None, "no rows")
-    columns = set(rows[0])
     for needed in ("tile_file", "frame_id"):
         if needed not in columns:
-            raise InputError(path, needed, "column missing")
-    x_col = next((c for c in rows[0] if c == "x0" or c.startswith("x0_native")), None)
-    y_col = next((c for c in rows[0] if c == "y0" or c.startswith("y0_native")), None)
+            raise InputError(path, needed, "column missing" if columns else "empty file: no header")
+    if not rows:
+        raise InputError(path, None, "no rows")
+    x_col = next((c for c in columns if c == "x0" or c.startswith("x0_native")), None)
+    y_col = next((c for c in columns if c == "y0" or c.startswith("y0_native")), None)
     sources = []
     for line, row in enumerate(rows, start=2):
         if not (row.get("frame_id") or "").strip():
