@@ -1,0 +1,130 @@
+"""The live aid's throughput and latency (issue #28's targets), measured in one run.
+
+The bundled 48-frame berthing flight is scaled to the target resolution (the camera's
+intrinsics scaled with it), looped to the wanted duration and written as an H.264-or-MPEG-4
+file with its metadata as JSON lines; `harborsight live`'s loop (``run_live``) then replays
+it in real time with the default model, and this prints the measured frame rate, the share
+of frames dropped, the latency from a frame's arrival to its state (median, p95, max, and
+p95 of the first and last quarter: a latency that grows with time shows there), and the
+process's resident memory after the first minute and at the end.
+
+    .venv/bin/python benchmarks/bench_live.py [--size 1280x720 --fps 10 --seconds 60]
+    .venv/bin/python benchmarks/bench_live.py --size 1920x1080 --fps 30 --seconds 600
+
+Targets (issue #28, 2 cores): 1280x720 at 10 fps in: at least 10 fps measured, p95 latency at
+most 150 ms; 1920x1080 at 30 fps in: frames dropped, p95 at most 250 ms, no growth over 10
+minutes (memory within 50 MB of its 1-minute value).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import cv2
+
+from harborsight.flight import VideoSource
+from harborsight.live.engine import LiveEngine
+from harborsight.live.session import run_live
+from harborsight.perception.default_model import load_default_segmenter
+from harborsight.pipeline import VesselCache
+from harborsight.vessel.spec import load_vessel_spec
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+
+
+def write_replay(folder: Path, width: int, height: int, fps: float, seconds: float) -> tuple[Path, Path]:
+    """The sample flight at ``width`` x ``height``, looped to ``seconds`` at ``fps``."""
+    frames = sorted((SAMPLES / "flight" / "frames").glob("*.json"))
+    records, images = [], []
+    for path in frames:
+        record = json.loads(path.read_text())
+        record.pop("vessel_spec", None)
+        camera = record["camera"]
+        kx, ky = width / camera["width"], height / camera["height"]
+        camera.update(width=width, height=height, fx=camera["fx"] * kx, fy=camera["fy"] * ky,
+                      cx=(camera["cx"] + 0.5) * kx - 0.5, cy=(camera["cy"] + 0.5) * ky - 0.5)
+        records.append(record)
+        images.append(cv2.resize(cv2.imread(str(SAMPLES / "flight" / "images" / record["image"])),
+                                 (width, height), interpolation=cv2.INTER_CUBIC))
+    video, metadata = folder / "replay.mp4", folder / "replay.jsonl"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    n = max(1, round(seconds * fps))
+    with metadata.open("w") as out:
+        for index in range(n):
+            k = index % len(frames)
+            record = dict(records[k], frame_index=index)
+            record.pop("timestamp", None)           # the loop's time is the video's
+            writer.write(images[k])
+            out.write(json.dumps(record) + "\n")
+    writer.release()
+    return video, metadata
+
+
+def rss_mb() -> float:
+    """Resident memory now (Linux /proc), in MB."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", default="1280x720")
+    parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--p95-target-ms", type=float, default=None)
+    args = parser.parse_args()
+    width, height = (int(v) for v in args.size.lower().split("x"))
+    target = args.p95_target_ms or (150.0 if width * height <= 1280 * 720 else 250.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        video, metadata = write_replay(Path(tmp), width, height, args.fps, args.seconds)
+        tug = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
+        engine = LiveEngine(load_default_segmenter(None), VesselCache(tug))
+        memory = {}
+        stop = threading.Event()
+
+        def sample_memory() -> None:
+            if not stop.wait(60.0):
+                memory["after_60_s"] = rss_mb()
+
+        sampler = threading.Thread(target=sample_memory, daemon=True)
+        sampler.start()
+        started = time.monotonic()
+        summary = run_live(VideoSource(video, metadata), engine, realtime=True)
+        elapsed = time.monotonic() - started
+        stop.set()
+        memory["end"] = rss_mb()
+    latencies = summary.latencies_ms
+    quarter = max(1, len(latencies) // 4)
+
+    def p95(values: list[float]) -> float:
+        return statistics.quantiles(values, n=100, method="inclusive")[94] if len(values) > 1 else values[0]
+
+    measured_fps = summary.frames_measured / elapsed
+    print(f"live replay {width}x{height} at {args.fps:g} fps for {elapsed:.1f} s, default model, "
+          "this machine")
+    print(f"frames in {summary.frames_received}, measured {summary.frames_measured} "
+          f"({measured_fps:.1f} fps), dropped {summary.frames_dropped} "
+          f"({100 * summary.frames_dropped / max(summary.frames_received, 1):.0f} %)")
+    print(f"latency ms: median {statistics.median(latencies):.0f}, p95 {p95(latencies):.0f} "
+          f"(target {target:.0f}: {target / p95(latencies):.2f}x), max {max(latencies):.0f}; "
+          f"p95 first quarter {p95(latencies[:quarter]):.0f}, last quarter {p95(latencies[-quarter:]):.0f}")
+    if "after_60_s" in memory:
+        print(f"memory MB: after 60 s {memory['after_60_s']:.0f}, end {memory['end']:.0f} "
+              f"(growth {memory['end'] - memory['after_60_s']:+.0f}; target within 50)")
+    else:
+        print(f"memory MB: end {memory['end']:.0f} (run shorter than 60 s: no growth measured)")
+    if width * height <= 1280 * 720:
+        print(f"frame rate {measured_fps:.1f} against {args.fps:g} in: {measured_fps / args.fps:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
