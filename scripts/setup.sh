@@ -13,14 +13,16 @@ fi
 
 # Blender (bpy) links against a few X11/GL libraries that a bare Debian/Ubuntu lacks
 BPY_DEBS="libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libxext6 libsm6 libice6 libgl1 libglx0 libglvnd0"
+# the live dashboard's browser test (tests/test_live.py) runs Debian's headless Chromium
+BROWSER_DEBS="chromium chromium-driver"
 missing=""
 if command -v dpkg-query >/dev/null 2>&1; then
-    for deb in $BPY_DEBS; do
+    for deb in $BPY_DEBS $BROWSER_DEBS; do
         dpkg-query -W -f='${Status}' "$deb" 2>/dev/null | grep -q "ok installed" || missing="$missing $deb"
     done
 fi
 if [ -n "$missing" ]; then
-    echo "installing system libraries for Blender:$missing"
+    echo "installing system packages (Blender's libraries, Chromium for the browser test):$missing"
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
     $SUDO apt-get update -qq

@@ -198,3 +198,67 @@ def test_the_command_line_refuses_a_bad_address_and_a_missing_video(tmp_path, re
     result = runner.invoke(app, ["live", "--video", str(tmp_path / "none.mp4"), "--metadata",
                                  str(folder / "flight.jsonl")])
     assert result.exit_code == 2 and "video file not found" in result.output
+
+
+def _chrome():
+    """Headless Chromium through Selenium, or the reason it cannot run here."""
+    import shutil
+
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        return None, "selenium is not installed (scripts/setup.sh installs it)"
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver_path = shutil.which("chromedriver")
+    if browser is None or driver_path is None:
+        return None, ("Debian's chromium and chromium-driver are not installed "
+                      "(scripts/setup.sh installs them)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = browser
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1280,800"):
+        options.add_argument(argument)
+    return webdriver.Chrome(service=Service(driver_path), options=options), None
+
+
+def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
+    """Headless Chromium loads the dashboard while a flight replays; once it has ended, every
+    number on the page equals /api/state's. The screenshot is kept for docs/."""
+    folder, _truth = replay
+    driver, why = _chrome()
+    if driver is None:
+        pytest.skip(why)
+    engine = _engine()
+    server = LiveServer(engine.state, "127.0.0.1", 0)
+    server.start()
+    try:
+        driver.get(f"http://127.0.0.1:{server.port}/")
+        run_live(VideoSource(folder / "flight.mp4", folder / "flight.jsonl"), engine,
+                 realtime=True, publish=server.publish)
+        with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/api/state", timeout=5) as r:
+            state = json.loads(r.read())
+        deadline = time.monotonic() + 5
+        rows = []
+        while time.monotonic() < deadline:      # the last push reaches the page
+            rows = driver.find_elements("css selector", "#sections tr")
+            shown = driver.find_element("id", "minimum").text
+            expected = f"{state['min_distance_m']:.1f} m"
+            if len(rows) == len(state["sections"]) and shown.startswith(expected):
+                break
+            time.sleep(0.1)
+        assert len(rows) == len(state["sections"]) > 0
+        assert driver.find_element("id", "minimum").text.startswith(f"{state['min_distance_m']:.1f} m")
+        for row, section in zip(rows, state["sections"], strict=True):
+            cells = [c.text for c in row.find_elements("css selector", "td")]
+            assert cells[0] == str(section["index"]) and cells[1] == section["status"]
+            distance = section["distance_m"]
+            assert cells[2] == ("--" if distance is None else f"{distance:.1f}")
+        danger = [a for a in state["alarms"] if a["kind"] == "danger"]
+        assert danger and driver.find_element("id", "banner").text == danger[0]["message"]
+        svg_boxes = driver.find_elements("css selector", "#hull rect")
+        assert len(svg_boxes) == len(state["sections"])
+        driver.save_screenshot(str(tmp_path / "dashboard.png"))
+        assert (tmp_path / "dashboard.png").stat().st_size > 10_000
+    finally:
+        driver.quit()
+        server.stop()

@@ -11,8 +11,9 @@ distance hovering at a threshold does not make the display and the sound flicker
   hysteresis_s`` (or the gap is not closing) for every condition that raised it.
 
 ``d`` is the section's conservative distance: the 95 % lower bound ``distance_lower_m`` when
-the measurement has one, else the distance. A section with no current measurement keeps its
-level and is marked stale by the caller: a vanished reading never clears an alarm.
+the measurement has one, else the distance. A section measured clear (nothing solid in its
+band) is a reading with no distance and falls like any other; a section with no measurement
+(out of view, not measured) keeps its level: a vanished reading never clears an alarm.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
-from harborsight.clearance.report import STATUS_OK, ClearanceReport
+from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.errors import HarborsightError
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
 from harborsight.frame import FrameMetadata
@@ -133,12 +133,16 @@ class LiveEngine:
                 reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
                            if fits else None)
                 estimate = tracker.step(time_s, reading)
-            closing = estimate.closing_speed_mps if estimate is not None else None
-            ttc = estimate.time_to_contact_s if estimate is not None else None
+            # a closing speed is shown only beside a current distance (the tracker coasts
+            # through frames without one, but the crew should not read it as measured)
+            closing = estimate.closing_speed_mps if estimate is not None and fits else None
+            ttc = estimate.time_to_contact_s if estimate is not None and fits else None
             alarm = self._alarms.setdefault(section.index, SectionAlarm(self.alarm_settings))
             if section.status == STATUS_OK:
                 lower = section.distance_lower_m
                 alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
+            elif section.status == STATUS_CLEAR:     # measured: nothing solid in its band
+                alarm.update(time.monotonic(), None, None)
             sections.append({
                 "index": section.index, "measured": section.status,
                 "distance_m": _rounded(section.distance_m, 3),
@@ -157,7 +161,7 @@ class LiveEngine:
         for entry in self._sections:
             alarm = self._alarms.get(entry["index"])
             level = alarm.status if alarm is not None else "ok"
-            status = level if entry["measured"] in (STATUS_OK, "clear") else entry["measured"]
+            status = level if entry["measured"] in (STATUS_OK, STATUS_CLEAR) else entry["measured"]
             sections.append({**{k: v for k, v in entry.items() if k != "measured"},
                              "status": status, "measured": entry["measured"],
                              "alarm": level in (CAUTION, DANGER), "stale": stale})
