@@ -60,7 +60,9 @@ def live_command(
         min=0.1, max=3600.0, help="Caution when the time to contact is this short; danger "
         "when also within --caution-m.")] = 30.0,
     record: Annotated[Path | None, typer.Option(
-        help="Write every published state to DIR/states.jsonl, flushed as it goes.")] = None,
+        help="Write every published state to DIR/states.jsonl and every measured frame with "
+        "its metadata to DIR/images and DIR/frames (a flight `harborsight run DIR` replays), "
+        "each file whole as it is written.")] = None,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
 ) -> None:

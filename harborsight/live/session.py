@@ -2,15 +2,14 @@
 
 The reader (:func:`harborsight.live.stream.replay_video`) puts frames into a one-frame box;
 this loop takes the newest, measures it (:class:`~harborsight.live.engine.LiveEngine`) and
-hands the state to ``publish`` (the web server's push) and to the recording. While no frame
-comes it re-evaluates the state every ``idle_refresh_s`` so that a stopped source raises its
-stale alarm on time. ``--record DIR`` writes every state as one line of ``states.jsonl``,
-flushed as it goes, so a killed process loses nothing it published.
+hands the state to ``publish`` (the web server's push) and to the recording
+(:mod:`harborsight.live.record`: every state, and every measured frame with its metadata as a
+flight ``harborsight run`` replays). While no frame comes it re-evaluates the state every
+``idle_refresh_s`` so that a stopped source raises its stale alarm on time.
 """
 
 from __future__ import annotations
 
-import json
 import statistics
 import threading
 import time
@@ -22,6 +21,7 @@ from harborsight.errors import InputError
 from harborsight.flight.sources import VideoSource
 from harborsight.flight.timeline import timestamp_seconds
 from harborsight.live.engine import LiveEngine
+from harborsight.live.record import SessionRecorder
 from harborsight.live.stream import LatestFrame, replay_video
 
 
@@ -69,10 +69,7 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
     reader = threading.Thread(target=replay_video, args=(source, box, stop, realtime, arrived),
                               name="harborsight-live-video", daemon=True)
     summary = LiveSummary()
-    handle = None
-    if record is not None:
-        record.mkdir(parents=True, exist_ok=True)
-        handle = (record / "states.jsonl").open("w", encoding="utf-8")
+    recorder = SessionRecorder(record) if record is not None else None
     started = time.monotonic()
     reader.start()
     try:
@@ -92,18 +89,19 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
                 summary.frames_measured += 1
                 if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
                     summary.latencies_ms.append(state["latency_ms"])
+                    if recorder is not None:
+                        recorder.frame(frame.image, frame.meta, frame.meta_path)
             if publish is not None:
                 publish(state)
-            if handle is not None:
-                handle.write(json.dumps(state) + "\n")
-                handle.flush()
+            if recorder is not None:
+                recorder.state(state)
     except KeyboardInterrupt:           # Ctrl-C: stop, and say what was measured
         summary.interrupted = True
     finally:
         stop.set()
         reader.join(timeout=5.0)
-        if handle is not None:
-            handle.close()
+        if recorder is not None:
+            recorder.close()
         summary.frames_received, summary.frames_dropped = box.received, box.dropped
         summary.seconds = time.monotonic() - started
     return summary
