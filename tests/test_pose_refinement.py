@@ -299,6 +299,38 @@ def test_add_pose_noise_writes_sensor_errors_and_keeps_the_truth(tmp_path):
         add_pose_noise(noisy, noise, rng)
 
 
+def test_drifting_sensor_errors_keep_their_sigma_and_correlate_over_time(tmp_path):
+    """A Gauss-Markov chain over the frames: each frame's error has the stated sigma, and
+    consecutive frames are correlated by exp(-dt / tau)."""
+    from harborsight.sim.pose_noise import PoseNoise, add_pose_noise, write_noisy_dataset
+
+    frame = json.loads(sorted((SAMPLES / "frames").glob("*.json"))[0].read_text())
+    rng = np.random.default_rng(1)
+    noise = PoseNoise(gps_m=2.0, heading_deg=2.0, height_m=1.0, correlation_s=3.0)
+    rho = math.exp(-1.0 / 3.0)      # 0.72: about 800 independent samples' worth in 5000
+    previous, heights, turns = None, [], []
+    for _ in range(5000):
+        errors = add_pose_noise(frame, noise, rng, previous, rho)["ground_truth"]["pose_errors"]
+        heights.append(errors["uav_height_m"])
+        turns.append(errors["vessel_heading_deg"])
+        previous = errors
+    for series, sigma in ((heights, 1.0), (turns, 2.0)):
+        values = np.asarray(series)
+        assert values.std() == pytest.approx(sigma, rel=0.1)
+        assert np.corrcoef(values[:-1], values[1:])[0, 1] == pytest.approx(rho, abs=0.04)
+    # a flight's frames (0.5 s apart by their timestamps) drift: consecutive errors differ by
+    # sqrt(2 (1 - rho)) sigma, about 0.18 of the sigma for tau = 30 s, against 1.4 independent
+    written = write_noisy_dataset(SAMPLES / "flight", tmp_path / "drift",
+                                  PoseNoise(height_m=1.0, correlation_s=30.0), seed=0)
+    assert len(written.written) == 48 and not written.skipped
+    drift = [json.loads(p.read_text())["ground_truth"]["pose_errors"]["uav_height_m"]
+             for p in sorted((tmp_path / "drift" / "frames").glob("*.json"))]
+    steps = np.diff(drift)
+    assert np.sqrt(np.mean(steps ** 2)) < 0.35
+    assert json.loads(sorted((tmp_path / "drift" / "frames").glob("*.json"))[0].read_text())[
+        "ground_truth"]["pose_errors"]["noise"]["correlation_s"] == 30.0
+
+
 def test_the_add_pose_noise_command_skips_a_bad_frame_and_writes_the_rest(tmp_path):
     import shutil
 

@@ -25,6 +25,10 @@ def add_pose_noise_command(
         "heading, degrees.")] = 2.0,
     height_m: Annotated[float, typer.Option(
         min=0.0, max=1000.0, help="One sigma of the drone's height above the water, metres.")] = 0.0,
+    correlation_s: Annotated[float, typer.Option(
+        min=0.0, max=1e6, help="Time constant of the errors' drift over the flight (a Gauss-Markov "
+        "process over the frames in time order, each keeping its sigma); 0: independent per "
+        "frame.")] = 0.0,
     seed: Annotated[int, typer.Option(min=0, max=2**32 - 1, help="Seed of the errors (per frame "
                                       "from this seed and the frame's name).")] = 0,
 ) -> None:
@@ -41,7 +45,8 @@ def add_pose_noise_command(
         if not (data / "frames").is_dir():
             raise InputError(data, None, "not a dataset: no frames/ folder")
         prepare_output_folder(out, "--out", inputs=(data,))
-        noise = PoseNoise(gps_m=gps_m, heading_deg=heading_deg, height_m=height_m)
+        noise = PoseNoise(gps_m=gps_m, heading_deg=heading_deg, height_m=height_m,
+                          correlation_s=correlation_s)
         result = write_noisy_dataset(data, out, noise, seed)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False)
@@ -49,7 +54,9 @@ def add_pose_noise_command(
     for line in result.skipped:
         err_console.print(f"skipped {line}", markup=False, highlight=False)
     console.print(f"{len(result.written)} frame(s) with sensor noise (GPS {gps_m:g} m per receiver, "
-                  f"heading {heading_deg:g} deg, height {height_m:g} m, seed {seed}) in {out}",
+                  f"heading {heading_deg:g} deg, height {height_m:g} m"
+                  + (f", drifting over {correlation_s:g} s" if correlation_s else "")
+                  + f", seed {seed}) in {out}",
                   markup=False, highlight=False)
     if result.skipped:
         raise typer.Exit(1 if result.written else 2)

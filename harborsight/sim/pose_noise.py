@@ -10,6 +10,12 @@ field a sensor delivers is perturbed with independent Gaussian errors, seeded pe
 * drone camera yaw and vessel heading (compasses): sigma ``heading_deg`` each;
 * drone height above the water (barometer, water level): sigma ``height_m``.
 
+Real GPS and compass errors drift slowly rather than jump from frame to frame, and a filter
+cannot average a drift away. With ``correlation_s`` > 0 the errors of a flight's frames (in
+time order) follow a first-order Gauss-Markov process: ``e_k = rho e_(k-1) + sqrt(1 - rho²)
+w_k``, ``rho = exp(-dt / correlation_s)``, ``w_k`` the frame's own draw, so every frame keeps
+the stated sigma and errors ``correlation_s`` apart are correlated by ``1/e``.
+
 Each noisy frame carries the sigmas it was drawn with (``uav.position_sigma_m``,
 ``uav.alt_sigma_m``, ``camera_attitude.yaw_sigma_deg``, ``vessel.position_sigma_m``,
 ``vessel.heading_sigma_deg``), as a telemetry reader writes a receiver's reported accuracy,
@@ -46,15 +52,22 @@ class PoseNoise:
     gps_m: float = 0.0
     heading_deg: float = 0.0
     height_m: float = 0.0
+    #: time constant (s) of the errors' drift over a flight; 0: independent per frame
+    correlation_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("gps_m", "heading_deg", "height_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
                 raise ValueError(f"{name} must be a number from 0 to 1000, got {value}")
+        if not (math.isfinite(self.correlation_s) and 0.0 <= self.correlation_s <= 1e6):
+            raise ValueError(f"correlation_s must be a number from 0 to 1e6, got {self.correlation_s}")
 
     def to_dict(self) -> dict[str, float]:
-        return {"gps_m": self.gps_m, "heading_deg": self.heading_deg, "height_m": self.height_m}
+        data = {"gps_m": self.gps_m, "heading_deg": self.heading_deg, "height_m": self.height_m}
+        if self.correlation_s:
+            data["correlation_s"] = self.correlation_s
+        return data
 
 
 def _moved(lat_deg: float, lon_deg: float, alt_m: float, east_m: float, north_m: float
@@ -64,10 +77,12 @@ def _moved(lat_deg: float, lon_deg: float, alt_m: float, east_m: float, north_m:
     return float(lat), float(lon)
 
 
-def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Generator
-                   ) -> dict[str, Any]:
+def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Generator,
+                   previous: dict[str, Any] | None = None, rho: float = 0.0) -> dict[str, Any]:
     """A copy of a ``harborsight.frame/1`` document with sensor errors drawn from ``rng``
-    (module docstring). ``frame`` must hold ``uav``, ``camera_attitude`` and ``vessel``."""
+    (module docstring). ``frame`` must hold ``uav``, ``camera_attitude`` and ``vessel``.
+    With ``previous`` (the previous frame's ``ground_truth.pose_errors``) and ``rho`` the
+    errors continue that frame's: ``rho previous + sqrt(1 - rho²) draw``."""
     if "true_pose" in (frame.get("ground_truth") or {}):
         raise ValueError("the frame's pose is noisy already (ground_truth.true_pose is set)")
     noisy = copy.deepcopy(frame)
@@ -80,6 +95,13 @@ def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Gener
     uav_height = float(rng.normal(0.0, noise.height_m)) if noise.height_m else 0.0
     yaw_error, heading_error = (rng.normal(0.0, noise.heading_deg, 2) if noise.heading_deg
                                 else np.zeros(2))
+    if previous is not None and rho > 0.0:
+        fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
+        uav_en = rho * np.asarray(previous["uav_en_m"], float) + fresh * uav_en
+        vessel_en = rho * np.asarray(previous["vessel_en_m"], float) + fresh * vessel_en
+        uav_height = rho * float(previous["uav_height_m"]) + fresh * uav_height
+        yaw_error = rho * float(previous["camera_yaw_deg"]) + fresh * float(yaw_error)
+        heading_error = rho * float(previous["vessel_heading_deg"]) + fresh * float(heading_error)
     uav["lat"], uav["lon"] = _moved(uav["lat"], uav["lon"], uav["alt_m"], *uav_en)
     uav["alt_m"] = uav["alt_m"] + uav_height
     attitude["yaw_deg"] = (attitude["yaw_deg"] + float(yaw_error)) % 360.0
@@ -150,6 +172,8 @@ def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
             (shutil.copytree if entry.is_dir() else shutil.copy2)(entry, target)
     (out / "frames").mkdir(exist_ok=True)
     result = NoisyDatasetResult()
+    previous: dict[str, Any] | None = None
+    previous_time_s: float | None = None
     for path in paths:
         try:
             doc = parse_json_text(path.read_text(encoding="utf-8"), path)
@@ -158,11 +182,19 @@ def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
             for key in ("uav", "camera_attitude", "vessel"):
                 if not isinstance(doc.get(key), dict):
                     raise InputError(path, key, "missing: a pose is needed to add noise to")
+            time_s = _time_s(doc)
+            rho = 0.0
+            if noise.correlation_s and previous is not None:
+                # frames in name order are the flight's; without timestamps, 1 s apart
+                dt = (time_s - previous_time_s if time_s is not None and previous_time_s is not None
+                      else 1.0)
+                rho = math.exp(-max(dt, 0.0) / noise.correlation_s)
             try:
-                noisy = add_pose_noise(doc, noise, frame_rng(seed, path.stem))
+                noisy = add_pose_noise(doc, noise, frame_rng(seed, path.stem), previous, rho)
             except (KeyError, TypeError, ValueError) as exc:
                 raise InputError(path, "ground_truth" if isinstance(exc, ValueError) else None,
                                  f"cannot add noise: {exc}") from None
+            previous, previous_time_s = noisy["ground_truth"]["pose_errors"], time_s
             _keep_vessel_spec_reachable(noisy, path, out / "frames" / path.name)
             write_text_atomic(out / "frames" / path.name, strict_json(noisy, indent=1) + "\n")
             result.written.append(path.stem)
@@ -170,3 +202,16 @@ def write_noisy_dataset(source: Path, out: Path, noise: PoseNoise, seed: int = 0
             result.skipped.append(f"{path}: {exc}" if not isinstance(exc, HarborsightError)
                                   else str(exc))
     return result
+
+
+def _time_s(doc: dict[str, Any]) -> float | None:
+    """A frame's ``timestamp`` in seconds, or None when it has none or it does not parse."""
+    from harborsight.flight.timeline import iso_seconds
+
+    stamp = doc.get("timestamp")
+    if not isinstance(stamp, str):
+        return None
+    try:
+        return iso_seconds(stamp)
+    except (ValueError, HarborsightError):
+        return None
