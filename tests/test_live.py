@@ -11,6 +11,7 @@ import urllib.request
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -134,7 +135,8 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
 
     folder, truth = replay
     engine = _engine()
-    server = LiveServer(engine.state, "127.0.0.1", 0)
+    server = LiveServer(engine.state, "127.0.0.1", 0, get_jpeg=engine.annotated_jpeg,
+                        get_frame_index=lambda: engine.frame_index)
     server.start()
     pushed, http_states = [], []
     done = threading.Event()
@@ -158,8 +160,19 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
             thread.join(5)
         with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/", timeout=5) as r:
             page = r.read().decode()
+        # the annotated video: the first part of the MJPEG stream is the last measured frame
+        with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/video.mjpg", timeout=5) as r:
+            assert r.headers["Content-Type"].startswith("multipart/x-mixed-replace")
+            head = b""
+            while b"\r\n\r\n" not in head:
+                head += r.read(1)
+            length = int(head.split(b"Content-Length: ")[1].split(b"\r\n")[0])
+            picture = cv2.imdecode(np.frombuffer(r.read(length), np.uint8), cv2.IMREAD_COLOR)
+        assert picture.shape == (360, 640, 3)
     finally:
+        stopping = time.monotonic()
         server.stop()
+        assert time.monotonic() - stopping < 5
     summary = result["summary"]
     print(f"measured {summary.frames_measured}, dropped {summary.frames_dropped}, latency p50 "
           f"{summary.latency_percentile_ms(50):.0f} ms, p95 {summary.latency_percentile_ms(95):.0f} ms")
@@ -242,7 +255,8 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
     if driver is None:
         pytest.skip(why)
     engine = _engine()
-    server = LiveServer(engine.state, "127.0.0.1", 0)
+    server = LiveServer(engine.state, "127.0.0.1", 0, get_jpeg=engine.annotated_jpeg,
+                        get_frame_index=lambda: engine.frame_index)
     server.start()
     try:
         driver.get(f"http://127.0.0.1:{server.port}/")
@@ -270,6 +284,9 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
         assert danger and driver.find_element("id", "banner").text == danger[0]["message"]
         svg_boxes = driver.find_elements("css selector", "#hull rect")
         assert len(svg_boxes) == len(state["sections"])
+        # the annotated video plays in the page: the image has the frame's proportions
+        video = driver.find_element("id", "video")
+        assert driver.execute_script("return arguments[0].naturalWidth", video) == 640
         driver.save_screenshot(str(tmp_path / "dashboard.png"))
         assert (tmp_path / "dashboard.png").stat().st_size > 10_000
     finally:

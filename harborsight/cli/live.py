@@ -69,8 +69,8 @@ def live_command(
     """Live clearances: the newest frame measured (older ones dropped, so the latency does
     not grow), per-section ok / caution / danger with hysteresis, closing speed and time to
     contact, stale-data alarms when the video is older than 1 s or the poses older than 2 s;
-    the state as JSON (schema harborsight.live/1) at /api/state, pushed on /ws, and a
-    dashboard at /. Ctrl-C stops it."""
+    the state as JSON (schema harborsight.live/1) at /api/state, pushed on /ws, the
+    annotated frames as MJPEG at /video.mjpg, and a dashboard at /. Ctrl-C stops it."""
     from harborsight.flight import VideoSource
     from harborsight.live.alarms import AlarmSettings
     from harborsight.live.engine import LiveEngine
@@ -93,7 +93,8 @@ def live_command(
                                                refine_pose, sigma),
                             alarms)
         if address is not None:
-            server = LiveServer(engine.state, *address)
+            server = LiveServer(engine.state, *address, get_jpeg=engine.annotated_jpeg,
+                                get_frame_index=lambda: engine.frame_index)
             try:
                 server.start()
             except OSError as exc:

@@ -67,6 +67,7 @@ class LiveEngine:
         self._trackers: dict[int, SectionTracker] = {}
         self._alarms: dict[int, SectionAlarm] = {}
         self._report: ClearanceReport | None = None
+        self._image: np.ndarray | None = None          # the measured frame, for the video
         self._sections: list[dict] = []
         self._frame_index: int | None = None
         self._latency_ms: float | None = None
@@ -97,7 +98,7 @@ class LiveEngine:
             return self._failed(frame_index, f"unexpected {type(exc).__name__}: {exc}")
         with self._lock:
             self._update_sections(report, time_s)
-            self._report, self._frame_index = report, frame_index
+            self._report, self._frame_index, self._image = report, frame_index, image
             self.frames_measured += 1
             now = time.monotonic()
             self._latency_ms = 1000.0 * (now - arrived_s)
@@ -114,6 +115,28 @@ class LiveEngine:
     def state(self) -> dict:
         with self._lock:
             return self._state
+
+    @property
+    def frame_index(self) -> int | None:
+        with self._lock:
+            return self._frame_index
+
+    def annotated_jpeg(self, quality: int = 80) -> tuple[int | None, bytes | None]:
+        """The newest measured frame with its sections drawn (the overlay of ``run``), as
+        JPEG, and its frame index. Drawn on demand, by whoever asks (the video stream), so
+        that the drawing never delays a state."""
+        import cv2
+
+        from harborsight.viz.overlay import draw_overlay
+
+        with self._lock:
+            index, image, report = self._frame_index, self._image, self._report
+        if image is None or report is None:
+            return None, None
+        s = self.alarm_settings
+        picture = draw_overlay(image, report, warn_m=s.caution_m, alarm_m=s.danger_m)
+        ok, jpeg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        return index, (jpeg.tobytes() if ok else None)
 
     def _failed(self, frame_index: int, message: str) -> dict:
         with self._lock:

@@ -1,6 +1,7 @@
 """The live aid's web side: ``GET /api/state`` (the ``harborsight.live/1`` state as JSON),
-``/ws`` (a WebSocket that pushes every new state) and ``/`` (the dashboard, one static page
-with no build step: ``dashboard.html`` beside this module).
+``/ws`` (a WebSocket that pushes every new state), ``/video.mjpg`` (the annotated frames as
+MJPEG) and ``/`` (the dashboard, one static page with no build step: ``dashboard.html``
+beside this module).
 
 The measuring loop calls :meth:`LiveServer.publish` from its own thread; the server's event
 loop sends the state to every connected WebSocket. A client that disconnects or stalls is
@@ -20,12 +21,16 @@ DASHBOARD = Path(__file__).with_name("dashboard.html")
 class LiveServer:
     """Starlette app on uvicorn in a background thread (``start``/``stop``)."""
 
-    def __init__(self, get_state: Callable[[], dict], host: str = "127.0.0.1", port: int = 8080):
+    def __init__(self, get_state: Callable[[], dict], host: str = "127.0.0.1", port: int = 8080,
+                 get_jpeg: Callable[[], tuple[int | None, bytes | None]] | None = None,
+                 get_frame_index: Callable[[], int | None] | None = None):
         from starlette.applications import Starlette
         from starlette.responses import HTMLResponse, JSONResponse
         from starlette.routing import Route, WebSocketRoute
 
         self.get_state = get_state
+        self.get_jpeg = get_jpeg or (lambda: (None, None))
+        self.get_frame_index = get_frame_index or (lambda: None)
         self.host, self.port = host, port
         self._clients: set = set()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -37,6 +42,25 @@ class LiveServer:
 
         async def dashboard(_request):
             return HTMLResponse(DASHBOARD.read_text(encoding="utf-8"))
+
+        async def video(_request):
+            """The annotated frames as MJPEG (multipart/x-mixed-replace), each new measured
+            frame once, drawn in a worker thread."""
+            from starlette.responses import StreamingResponse
+
+            async def frames():
+                shown = None
+                while True:
+                    index = self.get_frame_index()
+                    if index is not None and index != shown:
+                        index, jpeg = await asyncio.to_thread(self.get_jpeg)
+                        if jpeg is not None:
+                            shown = index
+                            yield (b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: "
+                                   + str(len(jpeg)).encode() + b"\r\n\r\n" + jpeg + b"\r\n")
+                    await asyncio.sleep(0.05)
+
+            return StreamingResponse(frames(), media_type="multipart/x-mixed-replace; boundary=frame")
 
         async def socket(websocket):
             await websocket.accept()
@@ -51,15 +75,16 @@ class LiveServer:
                 self._clients.discard(websocket)
 
         self.app = Starlette(routes=[Route("/", dashboard), Route("/api/state", state),
-                                     WebSocketRoute("/ws", socket)])
+                                     Route("/video.mjpg", video), WebSocketRoute("/ws", socket)])
 
     def start(self, timeout_s: float = 10.0) -> None:
         """Serve in a background thread; returns once the socket listens (the port is
         then ``self.port``, also when 0 asked for a free one)."""
         import uvicorn
 
+        # the video stream and the sockets never end by themselves: a second to close them
         config = uvicorn.Config(self.app, host=self.host, port=self.port, log_level="warning",
-                                lifespan="off", ws="websockets-sansio")
+                                lifespan="off", ws="websockets-sansio", timeout_graceful_shutdown=1)
         self._server = uvicorn.Server(config)
         started = threading.Event()
 
