@@ -10,6 +10,12 @@ process's resident memory after the first minute and at the end.
 
     .venv/bin/python benchmarks/bench_live.py [--size 1280x720 --fps 10 --seconds 60]
     .venv/bin/python benchmarks/bench_live.py --size 1920x1080 --fps 30 --seconds 600
+    .venv/bin/python benchmarks/bench_live.py --stall-at-s 10 --stall-s 3 --seconds 20
+
+With ``--stall-at-s`` the video stops for ``--stall-s`` seconds at that time (the reader
+holds its next frame, as a stream that drops out): the time from the last frame before the
+stall to the first state with a ``stale_video`` alarm, and from the first frame after it to
+the first state without one, are printed against issue #28's 1.5 s and 1 s.
 
 Targets (issue #28, 2 cores): 1280x720 at 10 fps in: at least 10 fps measured, p95 latency at
 most 150 ms; 1920x1080 at 30 fps in: frames dropped, p95 at most 250 ms, no growth over 10
@@ -67,6 +73,35 @@ def write_replay(folder: Path, width: int, height: int, fps: float, seconds: flo
     return video, metadata
 
 
+class StallingSource:
+    """A video source whose frames stop coming for ``stall_s`` at frame ``at_index``."""
+
+    def __init__(self, source: VideoSource, at_index: int, stall_s: float) -> None:
+        self.source, self.at_index, self.stall_s = source, at_index, stall_s
+        self.fps = source.fps
+        self.resumed_s: float | None = None
+        self.stalled_s: float | None = None
+
+    def frames(self):
+        for frame in self.source.frames():
+            if frame.index == self.at_index:
+                self.stalled_s = time.monotonic()
+                time.sleep(self.stall_s)
+                self.resumed_s = time.monotonic()
+            yield frame
+
+
+def stall_delays(events: list[tuple[float, bool]], source: StallingSource, last_before_s: float
+                 ) -> tuple[float | None, float | None]:
+    """Seconds from the last frame before the stall to the first stale state, and from the
+    first frame after it to the first state that is not stale any more."""
+    raised = next((t for t, stale in events if stale and t >= last_before_s), None)
+    cleared = next((t for t, stale in events if not stale and source.resumed_s is not None
+                    and t >= source.resumed_s), None)
+    return (None if raised is None else raised - last_before_s,
+            None if cleared is None or source.resumed_s is None else cleared - source.resumed_s)
+
+
 def rss_mb() -> float:
     """Resident memory now (Linux /proc), in MB."""
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -81,6 +116,8 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--p95-target-ms", type=float, default=None)
+    parser.add_argument("--stall-at-s", type=float, default=None)
+    parser.add_argument("--stall-s", type=float, default=3.0)
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     target = args.p95_target_ms or (150.0 if width * height <= 1280 * 720 else 250.0)
@@ -97,8 +134,19 @@ def main() -> None:
 
         sampler = threading.Thread(target=sample_memory, daemon=True)
         sampler.start()
+        source = VideoSource(video, metadata)
+        stalling = None
+        if args.stall_at_s is not None:
+            stalling = StallingSource(source, round(args.stall_at_s * args.fps), args.stall_s)
+            source = stalling
+        events: list[tuple[float, bool]] = []
+
+        def publish(state: dict) -> None:
+            stale = any(a["kind"] == "stale_video" for a in state["alarms"])
+            events.append((time.monotonic(), stale))
+
         started = time.monotonic()
-        summary = run_live(VideoSource(video, metadata), engine, realtime=True)
+        summary = run_live(source, engine, realtime=True, publish=publish)
         elapsed = time.monotonic() - started
         stop.set()
         memory["end"] = rss_mb()
@@ -124,6 +172,15 @@ def main() -> None:
         print(f"memory MB: end {memory['end']:.0f} (run shorter than 60 s: no growth measured)")
     if width * height <= 1280 * 720:
         print(f"frame rate {measured_fps:.1f} against {args.fps:g} in: {measured_fps / args.fps:.2f}x")
+    if stalling is not None and stalling.stalled_s is not None:
+        # the reader asks for the stalling frame right after putting the one before it in
+        # the box, so the stall begins as the last frame arrives
+        raised, cleared = stall_delays(events, stalling, stalling.stalled_s)
+        print(f"video stalled {args.stall_s:g} s: stale alarm "
+              + ("never raised" if raised is None else f"{raised:.2f} s after the last frame "
+                 f"(target 1.5 s: {1.5 / raised:.2f}x)")
+              + "; cleared " + ("never" if cleared is None else f"{cleared:.2f} s after the "
+                                f"video came back (target 1 s: {1.0 / max(cleared, 1e-3):.1f}x)"))
 
 
 if __name__ == "__main__":
