@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -367,7 +368,7 @@ def label_tiles_command(
                          enabled=progress) as bar:
         placements, refused = place_tiles(known, photo_paths, original_width, settings,
                                           on_tile=lambda *_: bar.advance())
-        result = write_tile_dataset(placements, photo_dataset, photo_paths, out, max_side,
+        result = write_tile_dataset(placements, photo_dataset, out, max_side,
                                     skipped_before=skipped + refused, jpeg_quality=jpeg_quality)
     _print_issues("tile(s) skipped:", "red", [f"{file}: {reason}" for file, reason in result.skipped])
     if not result.splits:
@@ -376,8 +377,7 @@ def label_tiles_command(
     sheets_dir = review or out / "review"
     sheets = review_sheets(out, sheets_dir, sorted(result.splits), rows_per_sheet=12, tile_width=160)
     methods = ", ".join(f"{n} by {m}" for m, n in sorted(
-        {m: sum(r["method"] == m for r in result.records.values()) for m in
-         {r["method"] for r in result.records.values()}}.items()))
+        Counter(r["method"] for r in result.records.values()).items()))
     console.print(f"[green]{len(result.splits)} tile(s) labelled[/] into {escape(str(out))}/ "
                   f"({methods}); {len(sheets)} review sheet(s) in {escape(str(sheets_dir))}/",
                   highlight=False)

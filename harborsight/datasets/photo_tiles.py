@@ -64,7 +64,7 @@ class TileSource:
 @dataclass(frozen=True)
 class TilePlacement:
     """Where a tile lies in its photo: ``tile_to_photo`` (2x3) maps tile pixels (at the
-    tile's full size) to photo pixels."""
+    tile's full size) to pixels of the photo as registered, ``photo_size`` (width, height)."""
 
     source: TileSource
     tile_to_photo: np.ndarray
@@ -72,6 +72,7 @@ class TilePlacement:
     inliers: int           # RANSAC inliers of the tile's own fit (0: none)
     ncc: float             # tile vs warped photo, over the pixels the photo covers
     photo_coverage: float  # share of the tile's pixels inside the photo
+    photo_size: tuple[int, int]
 
 
 @dataclass
@@ -131,14 +132,9 @@ def read_tile_positions(path: str | Path, tiles_dir: str | Path,
     return sources
 
 
-def _features(sift, gray: np.ndarray):
-    keypoints, descriptors = sift.detectAndCompute(gray, None)
-    return keypoints, descriptors
-
-
 def _own_fit(tile_small, photo_features, sift, settings) -> tuple[np.ndarray | None, int]:
     """Similarity small-tile -> photo from SIFT matches, and its inlier count."""
-    kp_t, des_t = _features(sift, tile_small)
+    kp_t, des_t = sift.detectAndCompute(tile_small, None)
     kp_p, des_p = photo_features
     if des_t is None or des_p is None or len(kp_t) < 4 or len(kp_p) < 4:
         return None, 0
@@ -224,9 +220,10 @@ def place_tiles(sources: list[TileSource], photo_paths: dict[str, Path],
             for source in tiles:
                 skip(source, f"photo {photo_stem!r} not found or unreadable")
             continue
-        photo_features = _features(sift, photo)
+        photo_features = sift.detectAndCompute(photo, None)
+        photo_size = (photo.shape[1], photo.shape[0])
         tile_scale_to_photo = photo.shape[1] / original_width if original_width else 1.0
-        own: dict[int, tuple[np.ndarray, int, np.ndarray]] = {}
+        own: dict[int, tuple[int, np.ndarray]] = {}     # tile: inliers, tile -> photo
         grays: dict[int, np.ndarray] = {}
         for k, source in enumerate(tiles):
             gray = cv2.imread(str(source.tile_path), cv2.IMREAD_GRAYSCALE)
@@ -239,23 +236,23 @@ def place_tiles(sources: list[TileSource], photo_paths: dict[str, Path],
             fit, inliers = _own_fit(small, photo_features, sift, settings)
             if fit is not None:
                 to_small = _scale(small_size[0] / gray.shape[1], small_size[1] / gray.shape[0])
-                own[k] = (fit, inliers, (_h(fit) @ to_small)[:2])
+                own[k] = (inliers, (_h(fit) @ to_small)[:2])
         located = []
-        for k, (_fit, inliers, full) in own.items():
+        for k, (inliers, full) in own.items():
             if inliers >= settings.min_inliers and tiles[k].x0_native is not None:
                 height, width = grays[k].shape
-                points = _apply(_native_offset(tiles[k])[:2], np.array(
-                    [[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1],
-                     [(width - 1) / 2, (height - 1) / 2]], float))
+                points = np.array([[0, 0], [width - 1, 0], [width - 1, height - 1], [0, height - 1],
+                                   [(width - 1) / 2, (height - 1) / 2]], float)
+                points += [tiles[k].x0_native, tiles[k].y0_native]
                 located.append((points, (_h(full) @ np.linalg.inv(_native_offset(tiles[k])))[:2]))
         model, agreeing = _photo_model(located, settings.agree_px) if located else (None, 0)
         for k, source in enumerate(tiles):
             if k not in grays:
                 skip(source, "tile image missing or unreadable")
                 continue
-            fit_inliers = own.get(k, (None, 0, None))[1]
+            fit_inliers = own.get(k, (0, None))[0]
             if fit_inliers >= settings.min_inliers:
-                tile_to_photo, method = own[k][2], "features"
+                tile_to_photo, method = own[k][1], "features"
             elif model is not None and agreeing >= 2 and source.x0_native is not None:
                 tile_to_photo = (_h(model) @ _native_offset(source))[:2]
                 method = "photo model"
@@ -268,7 +265,8 @@ def place_tiles(sources: list[TileSource], photo_paths: dict[str, Path],
                 skip(source, f"registration refused: tile vs photo NCC {ncc:.2f} (need "
                      f"{settings.min_ncc}) by {method}")
                 continue
-            placements.append(TilePlacement(source, tile_to_photo, method, fit_inliers, ncc, coverage))
+            placements.append(TilePlacement(source, tile_to_photo, method, fit_inliers, ncc, coverage,
+                                            photo_size))
             if on_tile is not None:
                 on_tile(source, None)
     return placements, skipped
@@ -291,10 +289,11 @@ def warp_labels(photo_labels: np.ndarray, out_to_labels: np.ndarray, out_size: t
     return np.asarray(_CHANNEL_CLASSES, np.uint8)[np.argmax(warped, axis=-1)]
 
 
-def tile_label(placement: TilePlacement, photo_size: tuple[int, int], photo_labels: np.ndarray,
-               tile_size: tuple[int, int], out_size: tuple[int, int]) -> np.ndarray:
-    """The mask of one placed tile at ``out_size`` (width, height); ``photo_size`` and
-    ``tile_size`` are the (width, height) the placement was measured at."""
+def tile_label(placement: TilePlacement, photo_labels: np.ndarray, tile_size: tuple[int, int],
+               out_size: tuple[int, int]) -> np.ndarray:
+    """The mask of one placed tile at ``out_size`` (width, height); ``tile_size`` is the
+    tile's (width, height) as registered."""
+    photo_size = placement.photo_size
     to_tile = _scale(tile_size[0] / out_size[0], tile_size[1] / out_size[1])
     to_labels = _scale(photo_labels.shape[1] / photo_size[0], photo_labels.shape[0] / photo_size[1])
     out_to_labels = (to_labels @ _h(placement.tile_to_photo) @ to_tile)[:2]
@@ -314,28 +313,27 @@ class TileDatasetResult:
     records: dict[str, dict] = field(default_factory=dict)
 
 
-def write_tile_dataset(placements: list[TilePlacement], photo_dataset: str | Path,
-                       photo_paths: dict[str, Path], out_dir: str | Path,
+def write_tile_dataset(placements: list[TilePlacement], photo_dataset: str | Path, out_dir: str | Path,
                        max_side: int | None = None, skipped_before: list[tuple[str, str]] | None = None,
                        jpeg_quality: int = 85,
                        on_tile: Callable[[str, str | None], None] | None = None) -> TileDatasetResult:
     """Write the placed tiles as a dataset (``images/`` JPEG at ``jpeg_quality``,
     ``labels/`` PNG: the photo dataset's reviewed masks carried over), each tile in its
     photo's split; ``dataset.json`` records every tile's source file, placement method,
-    inliers, NCC and photo coverage. ``photo_paths`` are the images the placements were
-    measured on (their size gives the scale to the photo dataset's masks)."""
+    inliers, NCC and photo coverage. Each placement's ``photo_size`` gives the scale to the
+    photo dataset's masks."""
     photo_dataset, out_dir = Path(photo_dataset), Path(out_dir)
     photo_splits = read_split_map(photo_dataset)
     result = TileDatasetResult(skipped=list(skipped_before or []))
     for sub in ("images", "labels"):
         (out_dir / sub).mkdir(parents=True, exist_ok=True)
-    photo_cache: dict[str, tuple[np.ndarray, tuple[int, int]] | None] = {}
+    photo_cache: dict[str, np.ndarray | None] = {}
     try:
         for placement in placements:
             source = placement.source
             stem = tile_stem(source)
-            problem = _write_tile(placement, stem, photo_dataset, photo_paths, photo_splits,
-                                  photo_cache, out_dir, max_side, jpeg_quality)
+            problem = _write_tile(placement, stem, photo_dataset, photo_splits, photo_cache, out_dir,
+                                  max_side, jpeg_quality)
             if problem is None:
                 result.splits[stem] = photo_splits[source.photo_stem]
                 result.records[stem] = {
@@ -354,23 +352,19 @@ def write_tile_dataset(placements: list[TilePlacement], photo_dataset: str | Pat
 
 
 def _write_tile(placement: TilePlacement, stem: str, photo_dataset: Path,
-                photo_paths: dict[str, Path], photo_splits: dict[str, str],
-                photo_cache: dict, out_dir: Path, max_side: int | None, jpeg_quality: int
-                ) -> str | None:
+                photo_splits: dict[str, str], photo_cache: dict, out_dir: Path,
+                max_side: int | None, jpeg_quality: int) -> str | None:
     source = placement.source
     if source.photo_stem not in photo_splits:
         return f"photo {source.photo_stem!r} is not in {photo_dataset / 'dataset.json'}"
     if source.photo_stem not in photo_cache:
         labels = cv2.imread(str(photo_dataset / "labels" / f"{source.photo_stem}.png"),
                             cv2.IMREAD_UNCHANGED)
-        photo = cv2.imread(str(photo_paths[source.photo_stem]), cv2.IMREAD_GRAYSCALE)
         photo_cache.clear()
-        photo_cache[source.photo_stem] = (None if labels is None or labels.ndim != 2 or photo is None
-                                          else (labels, (photo.shape[1], photo.shape[0])))
-    cached = photo_cache[source.photo_stem]
-    if cached is None:
-        return f"the photo's mask labels/{source.photo_stem}.png (or the photo) is missing or unreadable"
-    labels, photo_size = cached
+        photo_cache[source.photo_stem] = None if labels is None or labels.ndim != 2 else labels
+    labels = photo_cache[source.photo_stem]
+    if labels is None:
+        return f"the photo's mask labels/{source.photo_stem}.png is missing or unreadable"
     tile = cv2.imread(str(source.tile_path), cv2.IMREAD_COLOR)
     if tile is None:
         return "tile image missing or unreadable"
@@ -380,7 +374,7 @@ def _write_tile(placement: TilePlacement, stem: str, photo_dataset: Path,
         k = max_side / max(tile_size)
         out_size = (max(1, round(tile_size[0] * k)), max(1, round(tile_size[1] * k)))
         tile = cv2.resize(tile, out_size, interpolation=cv2.INTER_AREA)
-    mask = tile_label(placement, photo_size, labels, tile_size, out_size)
+    mask = tile_label(placement, labels, tile_size, out_size)
     ok_image, jpeg = cv2.imencode(".jpg", tile, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
     ok_mask, png = cv2.imencode(".png", mask)
     if not (ok_image and ok_mask):

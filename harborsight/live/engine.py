@@ -7,9 +7,11 @@ contact), updates the alarms (:mod:`harborsight.live.alarms`) and the sources' h
 
 ``schema``, ``time`` (UTC ISO 8601), ``frame_index``, ``latency_ms`` (frame arrival to the
 state), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status``
-``ok``/``caution``/``danger`` or the measurement's ``out_of_view``/``not_measured``,
-``distance_m``, ``distance_lower_m``, ``sigma_m``, ``closing_speed_mps``,
-``time_to_contact_s``, ``alarm`` (bool) and ``stale``), ``alarms`` (each ``kind``,
+``ok``/``caution``/``danger``, or the measurement's status when it has no distance to
+judge, e.g. ``out_of_view``; ``measured``, the measurement's own status; ``distance_m``,
+``distance_lower_m``, ``sigma_m``, ``filtered_distance_m``, ``closing_speed_mps``,
+``time_to_contact_s`` (these two only beside a current distance), ``alarm`` (bool) and
+``stale``), ``alarms`` (each ``kind``,
 ``message``, ``since``), ``sources`` (``video``, ``drone``, ``vessel``: ``age_s``, ``rate_hz``,
 ``stale``, ``count``) and ``pose_refinement``.
 

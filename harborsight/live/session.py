@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from harborsight.errors import InputError
+from harborsight.flight.runner import FlightClock
 from harborsight.flight.sources import VideoSource
-from harborsight.flight.timeline import timestamp_seconds
 from harborsight.live.engine import LiveEngine
 from harborsight.live.record import SessionRecorder
 from harborsight.live.stream import LatestFrame, replay_video
@@ -43,16 +43,6 @@ class LiveSummary:
         return statistics.quantiles(self.latencies_ms, n=100, method="inclusive")[int(q) - 1]
 
 
-def _frame_time_s(frame) -> float | None:
-    """The frame's time on the flight's clock: its metadata timestamp, else its place in the
-    video."""
-    try:
-        stamp = timestamp_seconds(frame.meta) if frame.meta is not None else None
-    except InputError:
-        stamp = None
-    return stamp if stamp is not None else frame.video_time_s
-
-
 def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
              publish: Callable[[dict], None] | None = None, record: Path | None = None,
              stop: threading.Event | None = None, idle_refresh_s: float = 0.2) -> LiveSummary:
@@ -69,6 +59,7 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
     reader = threading.Thread(target=replay_video, args=(source, box, stop, realtime, arrived),
                               name="harborsight-live-video", daemon=True)
     summary = LiveSummary()
+    clock = FlightClock()        # one time base for the trackers, as in `run`
     recorder = SessionRecorder(record) if record is not None else None
     started = time.monotonic()
     reader.start()
@@ -84,8 +75,12 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
                 state = engine.refresh()
             else:
                 frame = item.frame
+                try:
+                    time_s = clock.seconds(frame)
+                except InputError:      # off the run's clock: measured, not tracked
+                    time_s = None
                 state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path,
-                                       _frame_time_s(frame), item.arrived_s)
+                                       time_s, item.arrived_s)
                 summary.frames_measured += 1
                 if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
                     summary.latencies_ms.append(state["latency_ms"])
