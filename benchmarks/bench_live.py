@@ -37,7 +37,7 @@ import cv2
 
 from harborsight.flight import VideoSource
 from harborsight.live.engine import LiveEngine
-from harborsight.live.session import run_live
+from harborsight.live.session import file_reader, run_live
 from harborsight.perception.default_model import load_default_segmenter
 from harborsight.pipeline import VesselCache
 from harborsight.vessel.spec import load_vessel_spec
@@ -146,7 +146,7 @@ def main() -> None:
             events.append((time.monotonic(), stale))
 
         started = time.monotonic()
-        summary = run_live(source, engine, realtime=True, publish=publish)
+        summary = run_live(file_reader(source), engine, publish=publish)
         elapsed = time.monotonic() - started
         stop.set()
         memory["end"] = rss_mb()

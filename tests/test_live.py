@@ -22,7 +22,7 @@ from harborsight.live.alarms import AlarmSettings, SectionAlarm
 from harborsight.live.engine import SCHEMA, LiveEngine
 from harborsight.live.health import SourceHealth
 from harborsight.live.server import LiveServer
-from harborsight.live.session import run_live
+from harborsight.live.session import file_reader, run_live
 from harborsight.live.stream import Arrival, LatestFrame
 from harborsight.pipeline import VesselCache
 from harborsight.vessel.spec import load_vessel_spec
@@ -143,8 +143,8 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     result = {}
 
     def live() -> None:
-        result["summary"] = run_live(VideoSource(folder / "flight.mp4", folder / "flight.jsonl"),
-                                     engine, realtime=True, publish=server.publish,
+        result["summary"] = run_live(file_reader(VideoSource(folder / "flight.mp4", folder / "flight.jsonl")),
+                                     engine, publish=server.publish,
                                      record=folder / "record")
         done.set()
 
@@ -260,8 +260,8 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
     server.start()
     try:
         driver.get(f"http://127.0.0.1:{server.port}/")
-        run_live(VideoSource(folder / "flight.mp4", folder / "flight.jsonl"), engine,
-                 realtime=True, publish=server.publish)
+        run_live(file_reader(VideoSource(folder / "flight.mp4", folder / "flight.jsonl")), engine,
+                 publish=server.publish)
         with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/api/state", timeout=5) as r:
             state = json.loads(r.read())
         deadline = time.monotonic() + 5

@@ -75,7 +75,7 @@ def live_command(
     from harborsight.live.alarms import AlarmSettings
     from harborsight.live.engine import LiveEngine
     from harborsight.live.server import LiveServer
-    from harborsight.live.session import run_live
+    from harborsight.live.session import file_reader, run_live
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
 
@@ -105,7 +105,7 @@ def live_command(
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
     try:        # Ctrl-C ends the loop; run_live still returns what it measured
-        summary = run_live(source, engine, realtime=realtime,
+        summary = run_live(file_reader(source, realtime), engine,
                            publish=server.publish if server else None, record=record)
     finally:
         if server is not None:

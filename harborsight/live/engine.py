@@ -12,6 +12,7 @@ judge, e.g. ``out_of_view``; ``measured``, the measurement's own status; ``dista
 ``distance_lower_m``, ``sigma_m``, ``filtered_distance_m``, ``closing_speed_mps``,
 ``time_to_contact_s`` (these two only beside a current distance), ``alarm`` (bool) and
 ``stale``), ``alarms`` (each ``kind``,
+``message``, ``since``), ``warnings`` (recent trouble with an input: each ``source``,
 ``message``, ``since``), ``sources`` (``video``, ``drone``, ``vessel``: ``age_s``, ``rate_hz``,
 ``stale``, ``count``) and ``pose_refinement``.
 
@@ -24,9 +25,11 @@ process's monotonic clock; ``time_s`` a frame's time on the flight's clock (for 
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -44,6 +47,9 @@ from harborsight.pipeline import Segmenter, VesselCache, frame_labels
 
 SCHEMA = "harborsight.live/1"
 SOURCES = ("video", "drone", "vessel")
+#: how long an input's warning stays in the state, and how many are kept
+WARNING_SHOWN_S, WARNINGS_KEPT = 30.0, 8
+logger = logging.getLogger("harborsight.live")
 
 
 def _rounded(value: float | None, digits: int) -> float | None:
@@ -74,10 +80,19 @@ class LiveEngine:
         self._frame_index: int | None = None
         self._latency_ms: float | None = None
         self._errors: list[dict] = []
+        self._warnings: deque = deque(maxlen=WARNINGS_KEPT)
         self._lock = threading.Lock()
         self._state: dict = self._build(time.monotonic())
         self.frames_measured = 0
         self.frames_failed = 0
+
+    def warn(self, source: str, message: str, now_s: float | None = None) -> None:
+        """A warning about an input (a garbled feed, a reconnection, a clock jump): in the
+        state's ``warnings`` for ``WARNING_SHOWN_S`` and in the log."""
+        logger.warning("%s: %s", source, message)
+        with self._lock:
+            self._warnings.append({"source": source, "message": message,
+                                   "at_s": time.monotonic() if now_s is None else now_s})
 
     def source_arrived(self, name: str, now_s: float) -> None:
         """Data from ``video``, ``drone`` or ``vessel`` arrived at ``now_s``."""
@@ -95,9 +110,9 @@ class LiveEngine:
             report = measure_frame(labels, meta, vessel, self.clearance, mask_source=mask_source,
                                    mask_from_file=mask_path is not None)
         except HarborsightError as exc:
-            return self._failed(frame_index, str(exc))
+            return self.frame_failed(frame_index, str(exc))
         except Exception as exc:   # one bad frame must not stop the live aid
-            return self._failed(frame_index, f"unexpected {type(exc).__name__}: {exc}")
+            return self.frame_failed(frame_index, f"unexpected {type(exc).__name__}: {exc}")
         with self._lock:
             self._update_sections(report, time_s)
             self._report, self._frame_index, self._image = report, frame_index, image
@@ -140,7 +155,9 @@ class LiveEngine:
         ok, jpeg = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, quality])
         return index, (jpeg.tobytes() if ok else None)
 
-    def _failed(self, frame_index: int, message: str) -> dict:
+    def frame_failed(self, frame_index: int, message: str) -> dict:
+        """A frame that could not be measured: a ``frame_error`` alarm until the next measured
+        frame; the sections stay as they were."""
         with self._lock:
             self.frames_failed += 1
             self._errors = [{"frame_index": frame_index, "message": message}]
@@ -208,6 +225,9 @@ class LiveEngine:
         for error in self._errors:
             alarms.append({"kind": "frame_error", "message": error["message"],
                            "since": _wall_iso(now_s, now_s)})
+        warnings = [{"source": w["source"], "message": w["message"],
+                     "since": _wall_iso(now_s, w["at_s"])}
+                    for w in self._warnings if now_s - w["at_s"] <= WARNING_SHOWN_S]
         report = self._report
         distances = [s["distance_m"] for s in sections if s["distance_m"] is not None]
         return {
@@ -220,6 +240,7 @@ class LiveEngine:
             "stale": stale,
             "sections": sections,
             "alarms": alarms,
+            "warnings": warnings,
             "sources": {name: self.health[name].to_dict(now_s) for name in SOURCES},
             "pose_refinement": report.pose_refinement if report is not None else None,
         }

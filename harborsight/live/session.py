@@ -1,7 +1,11 @@
 """The live loop: frames from a reader thread, the newest measured, every state published.
 
-The reader (:func:`harborsight.live.stream.replay_video`) puts frames into a one-frame box;
-this loop takes the newest, measures it (:class:`~harborsight.live.engine.LiveEngine`) and
+The reader (:func:`harborsight.live.stream.replay_video` for a recorded flight,
+:func:`harborsight.live.video_in.read_stream` for a live stream) puts frames into a
+one-frame box; the telemetry feeds (MAVLink, NMEA) run in threads of their own. This loop
+takes the newest frame, gives it its metadata (its own, replayed; or composed from the live
+feeds at its time by :class:`~harborsight.live.telemetry.FrameComposer`), measures it
+(:class:`~harborsight.live.engine.LiveEngine`) and
 hands the state to ``publish`` (the web server's push) and to the recording
 (:mod:`harborsight.live.record`: every state, and every measured frame with its metadata as a
 flight ``harborsight run`` replays). While no frame comes it re-evaluates the state every
@@ -13,16 +17,18 @@ from __future__ import annotations
 import statistics
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from harborsight.errors import InputError
 from harborsight.flight.runner import FlightClock
-from harborsight.flight.sources import VideoSource
+from harborsight.flight.sources import FlightFrame, VideoSource
+from harborsight.frame import FrameMetadata, parse_frame_metadata
 from harborsight.live.engine import LiveEngine
 from harborsight.live.record import SessionRecorder
 from harborsight.live.stream import LatestFrame, replay_video
+from harborsight.live.telemetry import FrameComposer
 
 
 @dataclass
@@ -43,10 +49,22 @@ class LiveSummary:
         return statistics.quantiles(self.latencies_ms, n=100, method="inclusive")[int(q) - 1]
 
 
-def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
+#: a frame reader: fills the box until the stream ends or ``stop`` is set, calling
+#: ``on_arrival(frame, now_s)`` for each frame, and closes the box
+FrameReader = Callable[[LatestFrame, threading.Event, Callable[[FlightFrame, float], None]], None]
+
+
+def file_reader(source: VideoSource, realtime: bool = True) -> FrameReader:
+    """A recorded flight (video + metadata lines) as a frame reader."""
+    return lambda box, stop, on_arrival: replay_video(source, box, stop, realtime, on_arrival)
+
+
+def run_live(frames: FrameReader, engine: LiveEngine, *, composer: FrameComposer | None = None,
+             feeds: Iterable[Callable[[threading.Event], None]] = (),
              publish: Callable[[dict], None] | None = None, record: Path | None = None,
              stop: threading.Event | None = None, idle_refresh_s: float = 0.2) -> LiveSummary:
-    """Run until the source ends or ``stop`` is set (module docstring)."""
+    """Run until the frames end or ``stop`` is set (module docstring). ``feeds``: thread
+    bodies of the telemetry readers, run with the same ``stop``."""
     stop = stop or threading.Event()
     box = LatestFrame()
 
@@ -56,13 +74,16 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
             engine.source_arrived("drone", now_s)
             engine.source_arrived("vessel", now_s)
 
-    reader = threading.Thread(target=replay_video, args=(source, box, stop, realtime, arrived),
-                              name="harborsight-live-video", daemon=True)
+    threads = [threading.Thread(target=frames, args=(box, stop, arrived),
+                                name="harborsight-live-video", daemon=True)]
+    threads += [threading.Thread(target=feed, args=(stop,), name=f"harborsight-live-feed-{k}",
+                                 daemon=True) for k, feed in enumerate(feeds)]
     summary = LiveSummary()
     clock = FlightClock()        # one time base for the trackers, as in `run`
     recorder = SessionRecorder(record) if record is not None else None
     started = time.monotonic()
-    reader.start()
+    for thread in threads:
+        thread.start()
     try:
         while not stop.is_set():
             item = box.take(idle_refresh_s)
@@ -70,22 +91,19 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
                 if box.closed:
                     break
                 state = engine.refresh()
-            elif item.frame.error is not None or item.frame.meta is None:
-                summary.frames_skipped += 1
-                state = engine.refresh()
             else:
                 frame = item.frame
-                try:
-                    time_s = clock.seconds(frame)
-                except InputError:      # off the run's clock: measured, not tracked
-                    time_s = None
-                state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path,
-                                       time_s, item.arrived_s)
-                summary.frames_measured += 1
-                if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
-                    summary.latencies_ms.append(state["latency_ms"])
-                    if recorder is not None:
-                        recorder.frame(frame.image, frame.meta, frame.meta_path)
+                if frame.meta is None and frame.error is None and composer is not None:
+                    frame.meta, frame.error = _composed(composer, frame, item.arrived_s)
+                measured = frame.error is None and frame.meta is not None
+                if not measured:
+                    summary.frames_skipped += 1
+                    # a bad frame is reported; a video frame without a metadata line is not
+                    # (telemetry is often slower than the camera)
+                    state = (engine.frame_failed(frame.index, frame.error) if frame.error
+                             else engine.refresh())
+                else:
+                    state = _measure(engine, clock, frame, item.arrived_s, summary, recorder)
             if publish is not None:
                 publish(state)
             if recorder is not None:
@@ -94,9 +112,38 @@ def run_live(source: VideoSource, engine: LiveEngine, *, realtime: bool = True,
         summary.interrupted = True
     finally:
         stop.set()
-        reader.join(timeout=5.0)
+        for thread in threads:
+            thread.join(timeout=5.0)
         if recorder is not None:
             recorder.close()
         summary.frames_received, summary.frames_dropped = box.received, box.dropped
         summary.seconds = time.monotonic() - started
     return summary
+
+
+def _measure(engine: LiveEngine, clock: FlightClock, frame: FlightFrame, arrived_s: float,
+             summary: LiveSummary, recorder: SessionRecorder | None) -> dict:
+    try:
+        time_s = clock.seconds(frame)
+    except InputError:      # off the run's clock: measured, not tracked
+        time_s = None
+    state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path, time_s, arrived_s)
+    summary.frames_measured += 1
+    if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
+        summary.latencies_ms.append(state["latency_ms"])
+        if recorder is not None:
+            recorder.frame(frame.image, frame.meta, frame.meta_path)
+    return state
+
+
+def _composed(composer: FrameComposer, frame: FlightFrame, arrived_s: float
+              ) -> tuple[FrameMetadata | None, str | None]:
+    """The frame's metadata from the live feeds, or why there is none."""
+    height, width = frame.image.shape[:2]
+    record, why = composer.compose(frame.index, arrived_s, width, height)
+    if record is None:
+        return None, f"frame {frame.index} not measured: {why}"
+    try:
+        return parse_frame_metadata(record, frame.source), None
+    except InputError as exc:
+        return None, f"frame {frame.index} not measured: {exc}"

@@ -164,9 +164,23 @@ def build_video_metadata(
                          ) from None
     utc = [start_utc + timedelta(seconds=float(s)) for s in video_s]
     vessel_t = np.array([vessel.seconds_of(u) for u in utc]) + vessel_offset_s
+    return frames_at_times(drone, vessel, camera, drone_t, vessel_t, utc, water_level_m=water_level_m,
+                           mount=mount, max_gap_s=max_gap_s)
 
-    uav = drone.sample(drone_t, max_gap_s)
-    ship = vessel.sample(vessel_t, max_gap_s)
+
+def frames_at_times(
+    drone: Track, vessel: Track, camera: dict, drone_t: np.ndarray, vessel_t: np.ndarray,
+    utc: list[datetime], *, water_level_m: float, mount: CameraMount = CameraMount(),
+    max_gap_s: float = 1.0, hold_s: float | None = None, indices: list[int] | None = None,
+) -> FrameMetadataResult:
+    """One ``harborsight.frame/1`` dict per time: the drone sampled at ``drone_t`` (its
+    track's clock), the vessel at ``vessel_t`` (its clock), stamped ``utc``; ``frame_index``
+    from ``indices`` (default 0, 1, ...). ``hold_s``: see :meth:`Track.sample`. A time
+    without a usable sample is skipped with the reason."""
+    n_frames = len(utc)
+    indices = list(range(n_frames)) if indices is None else indices
+    uav = drone.sample(drone_t, max_gap_s, hold_s)
+    ship = vessel.sample(vessel_t, max_gap_s, hold_s)
     yaw, pitch, roll = camera_attitude_deg(drone, uav, mount)
     frames, skipped = [], []
     for i in range(n_frames):
@@ -176,16 +190,16 @@ def build_video_metadata(
             ("vessel position", ship["lat_deg"][i]), ("vessel heading", ship["heading_deg"][i]),
         ) if not np.isfinite(value)]
         if missing:
-            skipped.append((i, f"no {', '.join(missing)}: none within reach of "
-                               f"{utc[i].isoformat()}"))
+            skipped.append((indices[i], f"no {', '.join(missing)}: none within reach of "
+                                        f"{utc[i].isoformat()}"))
             continue
         height_m = uav["alt_m"][i] - water_level_m
         if height_m <= 0:
-            skipped.append((i, f"drone not above the water level: altitude "
-                               f"{uav['alt_m'][i]:.2f} m, water level {water_level_m:g} m"))
+            skipped.append((indices[i], f"drone not above the water level: altitude "
+                                        f"{uav['alt_m'][i]:.2f} m, water level {water_level_m:g} m"))
             continue
         frames.append({
-            "schema": "harborsight.frame/1", "frame_index": i,
+            "schema": "harborsight.frame/1", "frame_index": indices[i],
             "timestamp": utc[i].isoformat().replace("+00:00", "Z"),
             "camera": camera,
             "uav": {"lat": round(float(uav["lat_deg"][i]), 8), "lon": round(float(uav["lon_deg"][i]), 8),

@@ -35,15 +35,17 @@ QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg",
 SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
 ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
 #: Quantities that may run on their own time axis (``attitude_t_s``): autopilots log attitude
-#: 10-50 times as often as position.
+#: 10-50 times as often as position, and a gyrocompass sends heading more often than a GNSS
+#: receiver sends fixes.
 ATTITUDE = ("yaw_deg", "pitch_deg", "roll_deg")
+ORIENTATION = (*ATTITUDE, "heading_deg", "heading_sigma_deg")
 
 
 @dataclass
 class Track:
     """Samples of one log. ``attitude_of`` says what yaw/pitch/roll describe: ``"gimbal"``
     (the camera, DJI's G.PRY) or ``"vehicle"`` (the airframe's body FRD axes). Attitude
-    samples are at ``attitude_t_s`` where given, else at ``t_s``."""
+    and heading samples are at ``attitude_t_s`` where given, else at ``t_s``."""
 
     source: Path
     kind: str                                # dji-srt, px4-ulog, ardupilot-bin, nmea, csv
@@ -90,7 +92,7 @@ class Track:
             self.notes.append(f"{axis}: samples were out of time order and have been sorted")
 
     def _axis_of(self, name: str) -> str:
-        return "attitude_t_s" if name in ATTITUDE and self.attitude_t_s is not None else "t_s"
+        return "attitude_t_s" if name in ORIENTATION and self.attitude_t_s is not None else "t_s"
 
     def _times_of(self, name: str) -> np.ndarray:
         return getattr(self, self._axis_of(name))
@@ -116,10 +118,13 @@ class Track:
             raise ValueError(f"{self.source}: the log states no UTC time")
         return (utc - self.utc_start).total_seconds()
 
-    def sample(self, times_s: np.ndarray, max_gap_s: float = 1.0) -> dict[str, np.ndarray]:
+    def sample(self, times_s: np.ndarray, max_gap_s: float = 1.0,
+               hold_s: float | None = None) -> dict[str, np.ndarray]:
         """Each present quantity at ``times_s`` (same clock as ``t_s``), NaN where the
         bracketing samples are more than ``2 max_gap_s`` apart, or the time lies outside the
-        samples by more than half the end interval (at most ``max_gap_s``)."""
+        samples by more than half the end interval (at most ``max_gap_s``), or by more than
+        ``hold_s`` where given (a live feed, whose newest sample is up to one interval older
+        than the newest frame, holds it for that long)."""
         times_s = np.atleast_1d(np.asarray(times_s, dtype=float))
         out: dict[str, np.ndarray] = {}
         for name in QUANTITIES:
@@ -138,7 +143,7 @@ class Track:
             sampled = np.interp(times_s, t, v)
             if wraps:
                 sampled = (sampled + 180.0) % 360.0 - 180.0
-            out[name] = np.where(_reachable(t, times_s, max_gap_s), sampled, np.nan)
+            out[name] = np.where(_reachable(t, times_s, max_gap_s, hold_s), sampled, np.nan)
         return out
 
     def summary(self) -> dict:
@@ -162,7 +167,8 @@ class Track:
         }
 
 
-def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float) -> np.ndarray:
+def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float,
+               hold_s: float | None = None) -> np.ndarray:
     """Where interpolation in the samples ``t`` is trusted (see :meth:`Track.sample`)."""
     index = np.searchsorted(t, times_s)
     before = t[np.clip(index - 1, 0, len(t) - 1)]
@@ -171,7 +177,11 @@ def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float) -> np.ndarr
     # outside, the end value is held: for at most half the last sample interval
     first_step = t[1] - t[0] if len(t) > 1 else 0.0
     last_step = t[-1] - t[-2] if len(t) > 1 else 0.0
-    reach = np.where(times_s < t[0], min(max_gap_s, first_step / 2), min(max_gap_s, last_step / 2))
+    if hold_s is not None:
+        reach = np.full(times_s.shape, float(hold_s))
+    else:
+        reach = np.where(times_s < t[0], min(max_gap_s, first_step / 2),
+                         min(max_gap_s, last_step / 2))
     outside_ok = np.minimum(np.abs(times_s - t[0]), np.abs(times_s - t[-1])) <= reach
     return np.where(inside, (after - before <= 2 * max_gap_s) | (times_s == before)
                     | (times_s == after), outside_ok)

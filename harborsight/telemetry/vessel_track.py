@@ -43,9 +43,8 @@ is not a number above 0 and at most 1000 makes the row unreadable (skipped and n
 from __future__ import annotations
 
 import csv
-import functools
 import math
-from datetime import UTC, date, datetime, time, timedelta
+from datetime import UTC, datetime, time
 from pathlib import Path
 
 import numpy as np
@@ -58,13 +57,13 @@ from harborsight.telemetry.accuracy import (
     count_codes,
     none_if_missing,
     per_axis_from_class_m,
-    per_axis_from_gst_m,
 )
 from harborsight.telemetry.declination import (
     decimal_year,
     magnetic_declination_deg,
     wmm_model_name,
 )
+from harborsight.telemetry.nmea import Fix, Heading, NmeaDecoder
 from harborsight.telemetry.track import Track
 
 
@@ -87,118 +86,29 @@ def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: li
                  notes=notes, **{name: none_if_missing(values) for name, values in sigmas.items()})
 
 
-@functools.cache
-def _teach_pynmea2_ths() -> None:
-    """Register THS (true heading and status, NMEA 0183 v3 on), which pynmea2 does not define:
-    heading in degrees true, then a mode: A autonomous, E estimated, M manual, S simulator,
-    V not valid. pynmea2 registers every TalkerSentence subclass by its name."""
-    import pynmea2
-
-    class THS(pynmea2.TalkerSentence):
-        fields = (("Heading", "heading", float), ("Mode indicator", "mode"))
-
-
-_RMC_MODES_NOT_MEASURED = {"E": "RMC mode E (estimated, dead reckoning)", "M": "RMC mode M (manual input)",
-                           "S": "RMC mode S (simulator)", "N": "RMC mode N (data not valid)"}
-_GGA_QUALITIES_NOT_MEASURED = {0: "GGA quality 0 (no fix)",
-                               6: "GGA quality 6 (dead reckoning, not a measured position)",
-                               7: "GGA quality 7 (manual input, not a measured position)",
-                               8: "GGA quality 8 (simulator, not a measured position)"}
-_THS_MODES_NOT_MEASURED = {"E": "THS mode E (estimated heading)", "M": "THS mode M (manual input)",
-                           "S": "THS mode S (simulator)", "V": "THS mode V (heading not valid)"}
-
-
 def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
-    import pynmea2
-
-    _teach_pynmea2_ths()
     path = Path(path)
     try:
         lines = path.read_text(errors="replace").splitlines()
     except OSError as exc:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
-    day: date | None = None
+    decoder = NmeaDecoder()
     fixes: list[tuple[datetime, float, float]] = []       # in arrival order
     headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
     magnetic: list[tuple[int, float]] = []                # HDM / HDG without variation
     qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
     errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
-    bad, undated, unusable_gst = [], 0, 0
-    no_fix = dict.fromkeys(["RMC status V (no fix)", *_RMC_MODES_NOT_MEASURED.values(),
-                            *_GGA_QUALITIES_NOT_MEASURED.values(), *_THS_MODES_NOT_MEASURED.values(),
-                            "GGA quality code the standard does not define",
-                            "headings before the first fix"], 0)
-
-    def add_fix(clock: time, lat: float, lon: float) -> None:
-        if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
-            raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
-        when = _utc(day, clock)
-        if fixes and when < fixes[-1][0] - timedelta(hours=12):
-            when += timedelta(days=1)          # past midnight, before the next date arrives
-        if not fixes or fixes[-1][0] != when:  # RMC and GGA of one fix count once
-            fixes.append((when, lat, lon))
-
     for number, line in enumerate(lines, start=1):
-        line = line.strip()
-        start = line.find("$")
-        if start < 0:
-            continue
-        try:
-            sentence = pynmea2.parse(line[start:], check=True)
-        except pynmea2.ParseError:
-            bad.append(number)
-            continue
-        kind = sentence.sentence_type
-        try:
-            if kind == "ZDA" and sentence.datestamp is not None:
-                day = sentence.datestamp
-            elif kind == "RMC":
-                if sentence.datestamp is not None:
-                    day = sentence.datestamp
-                mode = (getattr(sentence, "mode_indicator", None) or "").strip()[:1]
-                if sentence.status != "A":
-                    no_fix["RMC status V (no fix)"] += 1
-                elif mode in _RMC_MODES_NOT_MEASURED:
-                    no_fix[_RMC_MODES_NOT_MEASURED[mode]] += 1
-                elif sentence.timestamp is not None and day is not None:
-                    add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
-            elif kind == "GGA":
-                quality = int(sentence.gps_qual or 0)
-                if quality in _GGA_QUALITIES_NOT_MEASURED:
-                    no_fix[_GGA_QUALITIES_NOT_MEASURED[quality]] += 1
-                elif quality not in GGA_QUALITY_CLASSES:
-                    no_fix["GGA quality code the standard does not define"] += 1
-                elif sentence.timestamp is not None:
-                    if day is None:
-                        undated += 1
-                        continue
-                    add_fix(sentence.timestamp, sentence.latitude, sentence.longitude)
-                    qualities[len(fixes) - 1] = (quality, _number(sentence.horizontal_dil))
-            elif kind == "GST":
-                sigma_m = per_axis_from_gst_m(_number(sentence.std_dev_latitude),
-                                              _number(sentence.std_dev_longitude))
-                if isinstance(sentence.timestamp, time) and math.isfinite(sigma_m):
-                    errors.append((len(fixes) - 1, sentence.timestamp, sigma_m))
-                else:
-                    unusable_gst += 1
-            elif kind == "THS" and (sentence.mode or "").strip()[:1] != "A":
-                no_fix[_THS_MODES_NOT_MEASURED.get((sentence.mode or "").strip()[:1],
-                                                   "THS mode V (heading not valid)")] += 1
-            elif kind in ("HDT", "THS") and sentence.heading is not None and fixes:
-                headings.append((len(fixes) - 1, _angle(sentence.heading)))
-            elif kind == "HDG" and sentence.heading is not None and fixes:
-                deviation = _angle(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
-                if sentence.variation is None:
-                    magnetic.append((len(fixes) - 1, _angle(sentence.heading) + deviation))
-                    continue
-                variation = _angle(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
-                headings.append((len(fixes) - 1, _angle(sentence.heading) + deviation + variation))
-            elif kind == "HDM" and sentence.heading is not None and fixes:
-                magnetic.append((len(fixes) - 1, _angle(sentence.heading)))
-            elif kind in ("HDT", "THS", "HDG", "HDM") and sentence.heading is not None:
-                no_fix["headings before the first fix"] += 1
-        except (ValueError, TypeError, AttributeError):
-            bad.append(number)
+        for event in decoder.feed(line, number):
+            if isinstance(event, Fix):
+                if event.new:
+                    fixes.append((event.utc, event.lat_deg, event.lon_deg))
+                if event.quality is not None:
+                    qualities[len(fixes) - 1] = (event.quality, event.hdop)
+            elif isinstance(event, Heading):
+                (headings if event.true else magnetic).append((len(fixes) - 1, event.deg))
+            else:
+                errors.append((len(fixes) - 1, event.clock, event.sigma_m))
     if not fixes:
         raise InputError(path, None, "no NMEA position fix with a date (RMC, or GGA after an "
                          "RMC/ZDA) found")
@@ -214,14 +124,8 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     if not headings:
         raise InputError(path, None, "no heading (HDT, THS, HDG or HDM): the vessel's heading "
                          "cannot come from course over ground")
-    if bad:
-        shown = ", ".join(map(str, bad[:5])) + (", ..." if len(bad) > 5 else "")
-        notes.append(f"{len(bad)} unreadable sentence(s) skipped (bad checksum or field; "
-                     f"line{'s' if len(bad) > 1 else ''} {shown})")
-    if undated:
-        notes.append(f"{undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
-    notes += [f"{count} sentence(s) skipped: {what}" for what, count in no_fix.items() if count]
-    position_sigma = _nmea_position_sigma(fixes, qualities, errors, unusable_gst, notes)
+    notes += decoder.notes()
+    position_sigma = _nmea_position_sigma(fixes, qualities, errors, decoder.unusable_gst, notes)
     t0 = min(f[0] for f in fixes)
     arrival_t = np.array([(f[0] - t0).total_seconds() for f in fixes])
     head_t = _heading_times(arrival_t, [epoch for epoch, _ in headings])
@@ -242,14 +146,6 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
                   [f[2] for f in ordered], heading, notes,
                   position_sigma_m=position_sigma[fix_order])
-
-
-def _number(value) -> float:
-    """An NMEA number field as a float; NaN where it is empty or not a number."""
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
@@ -289,15 +185,6 @@ def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
         notes.append(f"{unusable_gst} GST sentence(s) without a time or a usable latitude/"
                      "longitude error skipped")
     return sigma
-
-
-def _angle(value) -> float:
-    """An NMEA angle field in degrees; ValueError (the sentence is skipped as unreadable) for
-    one that is not finite or beyond a turn (a corrupt field such as 1e308)."""
-    degrees = float(value)
-    if not (math.isfinite(degrees) and abs(degrees) <= 360.0):
-        raise ValueError(f"angle {value!r} is not within one turn")
-    return degrees
 
 
 def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datetime, float, float]]
@@ -340,10 +227,6 @@ def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
         step = step if step > 0 else typical
         times[members] = fix_t[epoch] + np.arange(len(members)) * step / len(members)
     return times
-
-
-def _utc(day: date, clock: time) -> datetime:
-    return datetime.combine(day, clock.replace(tzinfo=None)).replace(tzinfo=UTC)
 
 
 def read_vessel_csv(path: str | Path) -> Track:

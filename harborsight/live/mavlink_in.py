@@ -1,0 +1,148 @@
+"""The drone's live telemetry over MAVLink (pymavlink; ``--mavlink udpin:0.0.0.0:14550``,
+``tcp:HOST:PORT``, a serial device, anything ``mavutil.mavlink_connection`` opens).
+
+Messages read (MAVLink common and ArduPilot dialects, v1 and v2 frames):
+
+* ``GLOBAL_POSITION_INT``: position (degE7) and altitude, on the autopilot's boot clock
+  (``time_boot_ms``). Altitude ``relative`` (default): ``relative_alt``, height above the home
+  point, barometer-fused and so steadier than GNSS altitude (give the water level in that
+  datum: e.g. −2.5 for a take-off from a deck 2.5 m above the water); ``amsl``: ``alt``.
+* ``GPS_RAW_INT``: ``h_acc`` (mm), the receiver's horizontal accuracy, as the position's sigma
+  (radial, divided by √2 per axis).
+* ``ATTITUDE``: the airframe's roll, pitch and yaw (radians), used where no gimbal attitude
+  comes (a stabilised or rigid camera mount).
+* ``GIMBAL_DEVICE_ATTITUDE_STATUS``: the gimbal's quaternion (w, x, y, z; FRD to NED). Its yaw
+  is in the vehicle frame when the flags say ``YAW_IN_VEHICLE_FRAME`` (or neither frame flag and
+  no ``YAW_LOCK``): the camera's rotation is then ``Rz(vehicle yaw) · R(q)``. ``MOUNT_STATUS``
+  (ArduPilot's older message: pitch, roll, yaw in centidegrees, yaw relative to the vehicle)
+  likewise.
+* ``SYSTEM_TIME``: UTC of the boot clock (the frames' timestamps).
+
+Every message's boot time goes through :class:`harborsight.live.telemetry.ClockMap`; a
+message without one (``MOUNT_STATUS``) takes its arrival time. Frames that fail their CRC are
+counted and warned about, never read.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import threading
+import time
+from collections.abc import Callable
+
+from harborsight.errors import InputError
+from harborsight.live.telemetry import ClockMap, LiveTrack
+from harborsight.telemetry.accuracy import per_axis_from_radial_m
+
+ALTITUDES = ("relative", "amsl")
+#: GIMBAL_DEVICE_FLAGS bits
+_YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
+
+
+def open_mavlink(address: str):
+    """A pymavlink connection; :class:`InputError` naming ``--mavlink`` if it cannot open."""
+    os.environ.setdefault("MAVLINK20", "1")      # parse v2 frames (v1 ones too)
+    from pymavlink import mavutil
+
+    try:
+        return mavutil.mavlink_connection(address, source_system=254, autoreconnect=True)
+    except Exception as exc:                     # pymavlink raises what its transport raises
+        raise InputError(None, "--mavlink", f"cannot open {address!r}: {exc}") from None
+
+
+def _euler_deg(q_wxyz, vehicle_yaw_deg: float | None) -> tuple[float, float, float]:
+    from scipy.spatial.transform import Rotation
+
+    w, x, y, z = (float(v) for v in q_wxyz)
+    rotation = Rotation.from_quat([x, y, z, w])
+    if vehicle_yaw_deg is not None:
+        rotation = Rotation.from_euler("Z", vehicle_yaw_deg, degrees=True) * rotation
+    yaw, pitch, roll = rotation.as_euler("ZYX", degrees=True)
+    return float(yaw) % 360.0, float(pitch), float(roll)
+
+
+class MavlinkDrone:
+    """Reads a MAVLink connection into a :class:`LiveTrack` (module docstring)."""
+
+    def __init__(self, connection, track: LiveTrack, *, altitude: str = "relative",
+                 on_position: Callable[[float], None] | None = None) -> None:
+        if altitude not in ALTITUDES:
+            raise InputError(None, "--mavlink-altitude", f"{altitude!r}: expected one of "
+                             + ", ".join(ALTITUDES))
+        self.connection, self.track, self.altitude = connection, track, altitude
+        self.on_position = on_position
+        self.track.utc_clock = None
+        self._vehicle_yaw_deg: float | None = None
+        self._sigma_m = math.nan
+        self.bad_frames = 0
+        self.messages = 0
+
+    def _warn(self, message: str) -> None:
+        self.track.warn(message)
+
+    def handle(self, message, now_s: float) -> None:
+        kind = message.get_type()
+        if kind == "BAD_DATA":
+            self.bad_frames += 1
+            if self.bad_frames in (1, 10, 100) or self.bad_frames % 1000 == 0:
+                self._warn(f"{self.bad_frames} unreadable MAVLink frame(s) skipped (bad CRC or "
+                           "garbage)")
+            return
+        self.messages += 1
+        track, clock = self.track, self.track.clock
+        jumps = clock.jumps
+        if kind == "GLOBAL_POSITION_INT":
+            if message.lat == 0 and message.lon == 0:
+                return                                   # no position yet
+            t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
+            alt_m = (message.relative_alt if self.altitude == "relative" else message.alt) / 1000.0
+            track.add_position(t_s, message.lat / 1e7, message.lon / 1e7, alt_m, self._sigma_m)
+            if self.on_position is not None:
+                self.on_position(now_s)
+        elif kind == "GPS_RAW_INT":
+            h_acc = getattr(message, "h_acc", 0) or 0
+            self._sigma_m = float(per_axis_from_radial_m([h_acc / 1000.0])[0]) if h_acc > 0 else math.nan
+        elif kind == "ATTITUDE":
+            t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
+            self._vehicle_yaw_deg = math.degrees(message.yaw) % 360.0
+            track.add_attitude(t_s, self._vehicle_yaw_deg, math.degrees(message.pitch),
+                               math.degrees(message.roll), "vehicle")
+        elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+            flags = int(message.flags)
+            in_vehicle = bool(flags & _YAW_IN_VEHICLE_FRAME) or (
+                not flags & (_YAW_IN_VEHICLE_FRAME | _YAW_IN_EARTH_FRAME) and not flags & _YAW_LOCK)
+            if in_vehicle and self._vehicle_yaw_deg is None:
+                return                   # its yaw is relative to the airframe's: wait for ATTITUDE
+            if any(not math.isfinite(v) for v in message.q):
+                return
+            t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
+            track.add_attitude(t_s, *_euler_deg(message.q, self._vehicle_yaw_deg if in_vehicle else None),
+                               "gimbal")
+        elif kind == "MOUNT_STATUS":
+            if self._vehicle_yaw_deg is None:
+                return
+            track.add_attitude(now_s, (self._vehicle_yaw_deg + message.pointing_c / 100.0) % 360.0,
+                               message.pointing_a / 100.0, message.pointing_b / 100.0, "gimbal")
+        elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0:
+            if track.utc_clock is None:
+                track.utc_clock = ClockMap(jump_s=1.0)
+            track.utc_clock.observe(message.time_boot_ms / 1000.0, message.time_unix_usec / 1e6)
+        if clock.jumps != jumps:
+            self._warn("the drone's clock jumped (autopilot reboot or time reset): its time "
+                       "alignment starts again")
+
+    def run(self, stop: threading.Event) -> None:
+        """Read until ``stop`` is set (the reader thread's body)."""
+        while not stop.is_set():
+            try:
+                message = self.connection.recv_match(blocking=True, timeout=0.2)
+            except Exception as exc:     # a transport error: say so and keep listening
+                self._warn(f"MAVLink read failed: {exc}")
+                stop.wait(0.5)
+                continue
+            if message is not None:
+                self.handle(message, time.monotonic())
+        with contextlib.suppress(Exception):     # closing a dead transport may raise anything
+            self.connection.close()

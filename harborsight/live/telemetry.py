@@ -1,0 +1,224 @@
+"""Live telemetry: drone and vessel samples as they arrive, on one clock, and a frame's
+``harborsight.frame/1`` metadata composed from them at the frame's time.
+
+Clocks. Every feed stamps its samples on its own clock: MAVLink on the autopilot's boot time,
+NMEA on the fix's UTC time. :class:`ClockMap` places them on this process's monotonic clock
+with ``offset = min(arrival − source time)`` over the last ``window`` samples: transport
+delays only ever add, so the least-delayed sample gives the best estimate of the difference
+(the one-way half of NTP's filter), and jitter does not reach the samples' times. A sample
+whose offset lies more than ``jump_s`` from the estimate means the source's clock jumped (a
+reboot, a GPS time fix, a replay restarted): the estimate starts again from it and the jump
+is counted. A source's own delay (a GNSS receiver that sends its fix 0.2 s after the epoch)
+is a configurable ``offset_s`` added to its mapped times.
+
+A frame's time is its arrival less ``video_delay_s`` (encoder, link and decoder; a DJI or
+RTSP feed is 0.1-0.5 s behind). Drone and vessel are sampled there by
+:func:`harborsight.telemetry.metadata.frames_at_times` (linear interpolation, angles
+unwrapped: :meth:`harborsight.telemetry.track.Track.sample`). The newest sample of a feed is
+usually older than the newest frame, so it is held for up to ``hold_s`` (default 1 s; the
+pose refinement absorbs the few decimetres a berthing ship moves in that time); a frame later
+than that is not measured and the reason is shown.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import HarborsightError
+from harborsight.telemetry.metadata import CameraMount, frames_at_times
+from harborsight.telemetry.track import Track
+
+#: seconds of samples a live track keeps (interpolation needs the last few only)
+HORIZON_S = 30.0
+
+
+@dataclass
+class ClockMap:
+    """Maps a source's clock to the monotonic clock (module docstring)."""
+
+    window: int = 64
+    jump_s: float = 2.0
+    offset_s: float = 0.0                 # added to every mapped time (the source's own delay)
+    jumps: int = 0
+    _offsets: deque = field(default_factory=deque, repr=False)
+    _best: float | None = field(default=None, repr=False)
+
+    def observe(self, source_s: float, arrival_s: float) -> float:
+        """Record a sample that arrived at ``arrival_s`` stamped ``source_s``; its time on the
+        monotonic clock."""
+        offset = arrival_s - source_s
+        if self._best is not None and abs(offset - self._best) > self.jump_s:
+            self._offsets.clear()
+            self.jumps += 1
+        self._offsets.append(offset)
+        if len(self._offsets) > self.window:
+            self._offsets.popleft()
+        self._best = min(self._offsets)
+        return source_s + self._best + self.offset_s
+
+    def to_local(self, source_s: float) -> float | None:
+        return None if self._best is None else source_s + self._best + self.offset_s
+
+    def to_source(self, local_s: float) -> float | None:
+        return None if self._best is None else local_s - self._best - self.offset_s
+
+
+class LiveTrack:
+    """A feed's samples of the last ``HORIZON_S`` seconds on the monotonic clock, written by
+    the feed's reader thread and read as a :class:`Track` by the measuring loop."""
+
+    def __init__(self, source: str, kind: str, *, alt_reference: str | None = None) -> None:
+        self.source, self.kind, self.alt_reference = source, kind, alt_reference
+        self.clock = ClockMap()
+        self.utc_clock: ClockMap | None = None     # source seconds -> UTC epoch, where known
+        self.attitude_of: str | None = None
+        self._positions: deque = deque()           # (t, lat, lon, alt, sigma)
+        self._orientation: deque = deque()         # (t, yaw, pitch, roll) or (t, heading)
+        self._lock = threading.Lock()
+        #: called with (source name, message) for every warning (the dashboard and the log)
+        self.on_warning: Callable[[str, str], None] | None = None
+
+    def warn(self, message: str) -> None:
+        if self.on_warning is not None:
+            self.on_warning(self.source, message)
+
+    @staticmethod
+    def _trim(samples: deque, newest_s: float) -> None:
+        while samples and samples[0][0] < newest_s - HORIZON_S:
+            samples.popleft()
+
+    def _append(self, samples: deque, row: tuple) -> None:
+        with self._lock:
+            if samples and row[0] < samples[-1][0]:      # out of order: jitter past a sample
+                if samples[-1][0] - row[0] > 1.0:          # or the clock went back: start again
+                    samples.clear()
+                else:
+                    return
+            if samples and row[0] == samples[-1][0]:
+                samples[-1] = row
+            else:
+                samples.append(row)
+            self._trim(samples, row[0])
+
+    def add_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float = math.nan,
+                     sigma_m: float = math.nan) -> None:
+        self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m))
+
+    def add_attitude(self, t_s: float, yaw_deg: float, pitch_deg: float, roll_deg: float,
+                     of: str) -> None:
+        """Camera (``gimbal``) or airframe (``vehicle``) attitude; a gimbal's replaces the
+        airframe's once it is heard (the camera's own is the one to measure with)."""
+        with self._lock:
+            if of == "vehicle" and self.attitude_of == "gimbal":
+                return
+            if of != self.attitude_of:
+                self._orientation.clear()
+                self.attitude_of = of
+        self._append(self._orientation, (t_s, yaw_deg, pitch_deg, roll_deg))
+
+    def add_heading(self, t_s: float, heading_deg: float) -> None:
+        self._append(self._orientation, (t_s, heading_deg))
+
+    @property
+    def newest_position_s(self) -> float | None:
+        with self._lock:
+            return self._positions[-1][0] if self._positions else None
+
+    def latest_position(self) -> tuple[float, float] | None:
+        with self._lock:
+            return self._positions[-1][1:3] if self._positions else None
+
+    def track(self) -> Track | None:
+        """The samples held now as a :class:`Track` (None before the first position)."""
+        with self._lock:
+            positions, orientation = list(self._positions), list(self._orientation)
+            attitude_of = self.attitude_of
+        if not positions:
+            return None
+        p = np.array(positions, dtype=float)
+        o = np.array(orientation, dtype=float).reshape(len(orientation), -1)
+        extra: dict = {}
+        if len(o) and o.shape[1] == 4:
+            extra = {"yaw_deg": o[:, 1], "pitch_deg": o[:, 2], "roll_deg": o[:, 3],
+                     "attitude_of": attitude_of, "attitude_t_s": o[:, 0]}
+        elif len(o):
+            extra = {"heading_deg": o[:, 1], "attitude_t_s": o[:, 0]}
+        alt = p[:, 3] if np.isfinite(p[:, 3]).any() else None
+        sigma = p[:, 4] if np.isfinite(p[:, 4]).any() else None
+        return Track(source=Path(self.source), kind=self.kind, t_s=p[:, 0], lat_deg=p[:, 1],
+                     lon_deg=p[:, 2], alt_m=alt, alt_reference=self.alt_reference,
+                     position_sigma_m=sigma, clock="monotonic seconds of this process", **extra)
+
+
+@dataclass
+class FrameComposer:
+    """A frame's metadata from the live drone and vessel tracks at the frame's time."""
+
+    drone: LiveTrack
+    vessel: LiveTrack
+    camera: dict | None = None                 # frame/1 camera block; None: from camera_for
+    camera_for: object = None                  # callable (width, height) -> camera block
+    water_level_m: float = 0.0
+    mount: CameraMount = field(default_factory=CameraMount)
+    video_delay_s: float = 0.0
+    hold_s: float = 1.0
+    max_gap_s: float = 1.0
+
+    def frame_time_s(self, arrived_s: float) -> float:
+        return arrived_s - self.video_delay_s
+
+    def utc_at(self, t_s: float) -> datetime:
+        """UTC of a monotonic time: from a feed that states UTC (the vessel's GNSS, the
+        drone's SYSTEM_TIME), else this machine's clock."""
+        for track in (self.vessel, self.drone):
+            if track.utc_clock is not None:
+                source_s = track.clock.to_source(t_s)
+                epoch = None if source_s is None else track.utc_clock.to_local(source_s)
+                if epoch is not None:
+                    return datetime.fromtimestamp(epoch, tz=UTC)
+        return datetime.now(UTC) - timedelta(seconds=time.monotonic() - t_s)
+
+    def compose(self, frame_index: int, arrived_s: float, width: int, height: int
+                ) -> tuple[dict | None, str | None]:
+        """``(frame/1 dict, None)``, or ``(None, why not)``."""
+        drone, vessel = self.drone.track(), self.vessel.track()
+        if drone is None or vessel is None:
+            missing = [name for name, track in (("drone", drone), ("vessel", vessel)) if track is None]
+            return None, f"no {' or '.join(missing)} position received yet"
+        if drone.alt_m is None:
+            return None, "the drone's feed has no altitude"
+        if not drone.has_attitude and self.mount.yaw_deg is None:
+            return None, "no drone or camera attitude received yet"
+        camera = self.camera if self.camera is not None else self.camera_for(width, height)
+        if (camera["width"], camera["height"]) != (width, height):
+            return None, (f"the video is {width}x{height}, the camera calibration "
+                          f"{camera['width']}x{camera['height']}")
+        t_s = self.frame_time_s(arrived_s)
+        try:
+            result = frames_at_times(drone, vessel, camera, np.array([t_s]), np.array([t_s]),
+                                     [self.utc_at(t_s)], water_level_m=self.water_level_m,
+                                     mount=self.mount, max_gap_s=self.max_gap_s,
+                                     hold_s=self.hold_s, indices=[frame_index])
+        except (ValueError, HarborsightError) as exc:     # a mount the feed cannot serve
+            return None, str(exc)
+        if not result.frames:
+            return None, result.skipped[0][1]
+        frame = result.frames[0]
+        frame["image"] = f"live-{frame_index:06d}.jpg"
+        frame["telemetry"].update({
+            "drone_age_s": _age(drone, t_s), "vessel_age_s": _age(vessel, t_s)})
+        return frame, None
+
+
+def _age(track: Track, t_s: float) -> float:
+    """How much older than ``t_s`` the track's newest position is (negative: newer)."""
+    return round(float(t_s - track.t_s[-1]), 3)

@@ -1,0 +1,217 @@
+"""NMEA 0183 sentence by sentence: what a vessel's feed says, one line at a time.
+
+:class:`NmeaDecoder` is shared by the file reader (:func:`harborsight.telemetry.vessel_track.
+read_vessel_nmea`) and the live feed (:mod:`harborsight.live.nmea_in`, UDP, TCP or serial).
+It keeps the little state a feed needs (the date from the last ``RMC``/``ZDA``, the last fix's
+time) and turns each line into events:
+
+* :class:`Fix`: a measured position at a UTC time. ``RMC`` and ``GGA`` of one epoch give one
+  fix (``new`` is False for the second); a ``GGA`` also carries its quality and HDOP. A fix
+  whose time of day is over 12 h before the previous one's is in the next day (a ``GGA`` after
+  midnight, before the next ``RMC``/``ZDA`` brings the date).
+* :class:`Heading`: ``HDT``/``THS`` (true), ``HDG`` with variation (made true with its deviation
+  and variation), ``HDM`` and ``HDG`` without variation (``true`` False: magnetic, deviation
+  applied). Headings before the first fix are counted, not emitted.
+* :class:`Gst`: the latitude/longitude error RMS (per axis, m) of the fix at ``clock``.
+
+Sentences that are not measurements are counted in ``skipped`` (RMC status V or mode E/M/S/N,
+GGA quality 0/6/7/8 or undefined, THS mode other than A); unreadable lines (bad checksum,
+corrupt field) in ``bad_count`` with the first few line numbers in ``bad_lines``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from datetime import UTC, date, datetime, time, timedelta
+
+from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_gst_m
+
+RMC_MODES_NOT_MEASURED = {"E": "RMC mode E (estimated, dead reckoning)", "M": "RMC mode M (manual input)",
+                          "S": "RMC mode S (simulator)", "N": "RMC mode N (data not valid)"}
+GGA_QUALITIES_NOT_MEASURED = {0: "GGA quality 0 (no fix)",
+                              6: "GGA quality 6 (dead reckoning, not a measured position)",
+                              7: "GGA quality 7 (manual input, not a measured position)",
+                              8: "GGA quality 8 (simulator, not a measured position)"}
+THS_MODES_NOT_MEASURED = {"E": "THS mode E (estimated heading)", "M": "THS mode M (manual input)",
+                          "S": "THS mode S (simulator)", "V": "THS mode V (heading not valid)"}
+#: how many unreadable lines are named one by one
+BAD_LINES_KEPT = 5
+
+
+@dataclass(frozen=True)
+class Fix:
+    utc: datetime
+    lat_deg: float
+    lon_deg: float
+    new: bool                        # False: the same epoch as the previous fix (RMC + GGA)
+    quality: int | None = None       # GGA fix quality
+    hdop: float = math.nan
+
+
+@dataclass(frozen=True)
+class Heading:
+    deg: float
+    true: bool                       # False: magnetic (deviation applied), needs the declination
+
+
+@dataclass(frozen=True)
+class Gst:
+    clock: time                      # the UTC time of the fix it belongs to
+    sigma_m: float                   # per horizontal axis
+
+
+Event = Fix | Heading | Gst
+
+
+@functools.cache
+def teach_pynmea2_ths() -> None:
+    """Register THS (true heading and status, NMEA 0183 v3 on), which pynmea2 does not define:
+    heading in degrees true, then a mode: A autonomous, E estimated, M manual, S simulator,
+    V not valid. pynmea2 registers every TalkerSentence subclass by its name."""
+    import pynmea2
+
+    class THS(pynmea2.TalkerSentence):
+        fields = (("Heading", "heading", float), ("Mode indicator", "mode"))
+
+
+def number(value) -> float:
+    """An NMEA number field as a float; NaN where it is empty or not a number."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def angle(value) -> float:
+    """An NMEA angle field in degrees; ValueError (the sentence is skipped as unreadable) for
+    one that is not finite or beyond a turn (a corrupt field such as 1e308)."""
+    degrees = float(value)
+    if not (math.isfinite(degrees) and abs(degrees) <= 360.0):
+        raise ValueError(f"angle {value!r} is not within one turn")
+    return degrees
+
+
+def utc_of(day: date, clock: time) -> datetime:
+    return datetime.combine(day, clock.replace(tzinfo=None)).replace(tzinfo=UTC)
+
+
+@dataclass
+class NmeaDecoder:
+    """Lines in, events out (module docstring)."""
+
+    day: date | None = None
+    last_fix_utc: datetime | None = None
+    bad_count: int = 0
+    bad_lines: list[int] = field(default_factory=list)
+    undated: int = 0                 # GGA fixes before the first date
+    unusable_gst: int = 0
+    skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
+        ["RMC status V (no fix)", *RMC_MODES_NOT_MEASURED.values(),
+         *GGA_QUALITIES_NOT_MEASURED.values(), *THS_MODES_NOT_MEASURED.values(),
+         "GGA quality code the standard does not define", "headings before the first fix"], 0))
+
+    def __post_init__(self) -> None:
+        teach_pynmea2_ths()
+
+    def _bad(self, number_: int | None) -> None:
+        self.bad_count += 1
+        if number_ is not None and len(self.bad_lines) < BAD_LINES_KEPT:
+            self.bad_lines.append(number_)
+
+    def feed(self, line: str, line_number: int | None = None) -> list[Event]:
+        """The events of one line (text before a ``$`` is ignored; a line without one is not
+        a sentence and yields nothing)."""
+        import pynmea2
+
+        line = line.strip()
+        start = line.find("$")
+        if start < 0:
+            return []
+        try:
+            sentence = pynmea2.parse(line[start:], check=True)
+        except pynmea2.ParseError:
+            self._bad(line_number)
+            return []
+        try:
+            return self._events(sentence)
+        except (ValueError, TypeError, AttributeError):
+            self._bad(line_number)
+            return []
+
+    def _fix(self, clock: time, lat: float, lon: float, quality: int | None = None,
+             hdop: float = math.nan) -> Fix:
+        if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+            raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
+        when = utc_of(self.day, clock)
+        last = self.last_fix_utc
+        if last is not None and when < last - timedelta(hours=12):
+            when += timedelta(days=1)          # past midnight, before the next date arrives
+        new = last is None or last != when     # RMC and GGA of one fix count once
+        self.last_fix_utc = when
+        return Fix(when, lat, lon, new, quality, hdop)
+
+    def _events(self, sentence) -> list[Event]:
+        kind = sentence.sentence_type
+        skipped = self.skipped
+        if kind == "ZDA" and sentence.datestamp is not None:
+            self.day = sentence.datestamp
+        elif kind == "RMC":
+            if sentence.datestamp is not None:
+                self.day = sentence.datestamp
+            mode = (getattr(sentence, "mode_indicator", None) or "").strip()[:1]
+            if sentence.status != "A":
+                skipped["RMC status V (no fix)"] += 1
+            elif mode in RMC_MODES_NOT_MEASURED:
+                skipped[RMC_MODES_NOT_MEASURED[mode]] += 1
+            elif sentence.timestamp is not None and self.day is not None:
+                return [self._fix(sentence.timestamp, sentence.latitude, sentence.longitude)]
+        elif kind == "GGA":
+            quality = int(sentence.gps_qual or 0)
+            if quality in GGA_QUALITIES_NOT_MEASURED:
+                skipped[GGA_QUALITIES_NOT_MEASURED[quality]] += 1
+            elif quality not in GGA_QUALITY_CLASSES:
+                skipped["GGA quality code the standard does not define"] += 1
+            elif sentence.timestamp is not None:
+                if self.day is None:
+                    self.undated += 1
+                    return []
+                return [self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
+                                  quality, number(sentence.horizontal_dil))]
+        elif kind == "GST":
+            sigma_m = per_axis_from_gst_m(number(sentence.std_dev_latitude),
+                                          number(sentence.std_dev_longitude))
+            if isinstance(sentence.timestamp, time) and math.isfinite(sigma_m):
+                return [Gst(sentence.timestamp, sigma_m)]
+            self.unusable_gst += 1
+        elif kind == "THS" and (sentence.mode or "").strip()[:1] != "A":
+            skipped[THS_MODES_NOT_MEASURED.get((sentence.mode or "").strip()[:1],
+                                               "THS mode V (heading not valid)")] += 1
+        elif kind in ("HDT", "THS", "HDG", "HDM") and sentence.heading is not None:
+            if self.last_fix_utc is None:
+                skipped["headings before the first fix"] += 1
+            elif kind in ("HDT", "THS"):
+                return [Heading(angle(sentence.heading), True)]
+            elif kind == "HDM":
+                return [Heading(angle(sentence.heading), False)]
+            else:
+                deviation = angle(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
+                if sentence.variation is None:
+                    return [Heading(angle(sentence.heading) + deviation, False)]
+                variation = angle(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
+                return [Heading(angle(sentence.heading) + deviation + variation, True)]
+        return []
+
+    def notes(self) -> list[str]:
+        """What was left out, in words (for a track's notes or a live warning)."""
+        out = []
+        if self.bad_count:
+            shown = ", ".join(map(str, self.bad_lines)) + (
+                ", ..." if self.bad_count > len(self.bad_lines) else "")
+            out.append(f"{self.bad_count} unreadable sentence(s) skipped (bad checksum or field"
+                       + (f"; line{'s' if self.bad_count > 1 else ''} {shown})" if shown else ")"))
+        if self.undated:
+            out.append(f"{self.undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
+        out += [f"{count} sentence(s) skipped: {what}" for what, count in self.skipped.items() if count]
+        return out
