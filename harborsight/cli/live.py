@@ -34,14 +34,88 @@ def _host_port(text: str) -> tuple[str, int]:
     return host, number
 
 
+def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str, camera: str,
+                 water_level_m: float, mount: str, camera_pitch_deg: float,
+                 camera_yaw_deg: float | None, video_delay_s: float, drone_offset_s: float,
+                 vessel_offset_s: float, hold_s: float):
+    """The live telemetry readers (opened here, so that a bad address ends the command with
+    its option named) and the composer of the frames' metadata."""
+    from harborsight.live.mavlink_in import MavlinkDrone, open_mavlink
+    from harborsight.live.nmea_in import NmeaVessel, open_udp, parse_nmea_address, run_nmea
+    from harborsight.live.telemetry import FrameComposer, LiveTrack
+    from harborsight.sim.cameras import CAMERA_PRESETS
+    from harborsight.telemetry.metadata import MOUNTS, CameraMount, camera_block_for
+
+    if mount not in MOUNTS:
+        raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
+    if camera not in CAMERA_PRESETS:
+        camera_block_for(camera, None, None, None)       # a missing or bad file: say so now
+    address = parse_nmea_address(nmea)
+    drone = LiveTrack(f"mavlink {mavlink}", "mavlink",
+                      alt_reference=("height above the home point (GLOBAL_POSITION_INT.relative_alt)"
+                                     if mavlink_altitude == "relative" else
+                                     "above mean sea level (GLOBAL_POSITION_INT.alt)"))
+    vessel = LiveTrack(f"nmea {address}", "nmea")
+    drone.clock.offset_s, vessel.clock.offset_s = drone_offset_s, vessel_offset_s
+    for track, name in ((drone, "drone"), (vessel, "vessel")):
+        track.on_warning = lambda source, message, name=name: engine.warn(name, message)
+    reader = MavlinkDrone(open_mavlink(mavlink), drone, altitude=mavlink_altitude,
+                          on_position=lambda now: engine.source_arrived("drone", now))
+    listener = NmeaVessel(vessel, on_fix=lambda now: engine.source_arrived("vessel", now))
+    sock = open_udp(address) if address.kind == "udp" else None     # a port in use: say so now
+
+    def nmea_feed(stop):
+        run_nmea(address, listener, stop, sock)
+    composer = FrameComposer(
+        drone, vessel, camera_for=lambda width, height: camera_block_for(camera, width, height, camera),
+        water_level_m=water_level_m, mount=CameraMount(mount, camera_pitch_deg, camera_yaw_deg),
+        video_delay_s=video_delay_s, hold_s=hold_s)
+    return [reader.run, nmea_feed], composer
+
+
 @app.command("live")
 def live_command(
-    video: Annotated[Path, typer.Option(
+    video: Annotated[str, typer.Option(
         help="The drone's video: a file (with --realtime it plays at its own frame rate, as a "
-        "stream would arrive).")],
-    metadata: Annotated[Path, typer.Option(
-        help="JSON lines, one harborsight.frame/1 object per video frame (drone and vessel "
-        "poses), replayed on the video's clock.")],
+        "stream would arrive), or a stream: rtsp://, rtmp://, srt://, udp:// (MPEG-TS), "
+        "http(s):// or a capture device (/dev/video0). A stream that drops is reopened.")],
+    metadata: Annotated[Path | None, typer.Option(
+        help="A file's telemetry: JSON lines, one harborsight.frame/1 object per video frame "
+        "(drone and vessel poses), replayed on the video's clock. Without it: --mavlink and "
+        "--nmea.")] = None,
+    mavlink: Annotated[str | None, typer.Option(
+        help="The drone's live MAVLink (pymavlink address, e.g. udpin:0.0.0.0:14550, "
+        "tcp:HOST:PORT, /dev/ttyACM0): GLOBAL_POSITION_INT, GPS_RAW_INT, ATTITUDE, "
+        "GIMBAL_DEVICE_ATTITUDE_STATUS or MOUNT_STATUS, SYSTEM_TIME.")] = None,
+    mavlink_altitude: Annotated[str, typer.Option(
+        help="relative: GLOBAL_POSITION_INT.relative_alt (above home; give --water-level-m in "
+        "that datum), or amsl: .alt.")] = "relative",
+    nmea: Annotated[str | None, typer.Option(
+        help="The vessel's live NMEA 0183: udp:PORT, udp:HOST:PORT, tcp:HOST:PORT or a serial "
+        "device /dev/ttyUSB0[@BAUD] (RMC/GGA position, HDT/THS/HDG/HDM heading).")] = None,
+    camera: Annotated[str | None, typer.Option(
+        help="With live telemetry: a camera preset (dji-mavic3, dji-p4rtk, dji-m30-wide; "
+        "follows the stream's size) or a calibration file of the stream's size.")] = None,
+    water_level_m: Annotated[float | None, typer.Option(
+        min=-1000.0, max=1000.0,
+        help="With live telemetry: the water surface in the drone altitude's datum.")] = None,
+    mount: Annotated[str, typer.Option(
+        help="auto (the gimbal's attitude once it is heard, else stabilised), gimbal, "
+        "stabilised or rigid, as in `telemetry video`.")] = "auto",
+    camera_pitch_deg: Annotated[float, typer.Option(
+        min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch.")] = -90.0,
+    camera_yaw_deg: Annotated[float | None, typer.Option(
+        min=-360.0, max=360.0, help="A fixed camera yaw, for a feed without attitude.")] = None,
+    video_delay_s: Annotated[float, typer.Option(
+        min=0.0, max=10.0, help="How long frames take from the camera to here (encoder, link, "
+        "decoder): a frame's time is its arrival less this.")] = 0.0,
+    drone_offset_s: Annotated[float, typer.Option(
+        min=-60.0, max=60.0, help="Added to the drone's sample times (its own delay).")] = 0.0,
+    vessel_offset_s: Annotated[float, typer.Option(
+        min=-60.0, max=60.0, help="Added to the vessel's fix times (its own delay).")] = 0.0,
+    hold_s: Annotated[float, typer.Option(
+        min=0.0, max=10.0, help="How long a feed's newest sample stands for a newer frame; "
+        "later frames are not measured.")] = 1.0,
     http: Annotated[str | None, typer.Option(
         help="Serve the dashboard, GET /api/state and the /ws WebSocket here, e.g. "
         "127.0.0.1:8080 (port 0: a free one).")] = None,
@@ -51,7 +125,8 @@ def live_command(
     model: Annotated[Path | None, typer.Option(
         help="ONNX segmentation model. Default: the packaged model.")] = None,
     vessel: Annotated[Path | None, typer.Option(
-        help="Vessel spec (vessel.yaml). Default: each frame's vessel_spec key.")] = None,
+        help="Vessel spec (vessel.yaml). Default: each frame's vessel_spec key (needed with "
+        "live telemetry).")] = None,
     caution_m: Annotated[float, typer.Option(min=0.01, max=1000.0,
                                              help="Caution at or below this distance.")] = 5.0,
     danger_m: Annotated[float, typer.Option(min=0.01, max=1000.0,
@@ -70,12 +145,15 @@ def live_command(
     not grow), per-section ok / caution / danger with hysteresis, closing speed and time to
     contact, stale-data alarms when the video is older than 1 s or the poses older than 2 s;
     the state as JSON (schema harborsight.live/1) at /api/state, pushed on /ws, the
-    annotated frames as MJPEG at /video.mjpg, and a dashboard at /. Ctrl-C stops it."""
+    annotated frames as MJPEG at /video.mjpg, and a dashboard at /. The poses come from the
+    file's metadata (--metadata), or live from the drone (--mavlink) and the vessel (--nmea),
+    time-aligned to the frames. Ctrl-C stops it."""
     from harborsight.flight import VideoSource
     from harborsight.live.alarms import AlarmSettings
     from harborsight.live.engine import LiveEngine
     from harborsight.live.server import LiveServer
     from harborsight.live.session import file_reader, run_live
+    from harborsight.live.video_in import is_stream, read_stream
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
 
@@ -86,12 +164,41 @@ def live_command(
             alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s)
         except ValueError as exc:
             raise InputError(None, "--danger-m", str(exc)) from None
-        source = VideoSource(video, metadata)
+        live_telemetry = mavlink is not None or nmea is not None
+        if live_telemetry and metadata is not None:
+            raise InputError(None, "--metadata", "give the file's metadata or live telemetry "
+                             "(--mavlink, --nmea), not both")
+        if not live_telemetry and metadata is None:
+            raise InputError(None, "--metadata", "give the video's metadata, or live telemetry "
+                             "with --mavlink and --nmea")
+        if live_telemetry:
+            for option, value in (("--mavlink", mavlink), ("--nmea", nmea), ("--camera", camera),
+                                  ("--water-level-m", water_level_m), ("--vessel", vessel)):
+                if value is None:
+                    raise InputError(None, option, "needed with live telemetry")
+        elif is_stream(video):
+            raise InputError(None, "--metadata", "a stream's poses come live: give --mavlink "
+                             "and --nmea instead")
         engine = LiveEngine(load_segmenter(model),
                             VesselCache(load_vessel_spec(vessel) if vessel else None),
                             clearance_settings(Method.ground_plane, None, None, POSE_MARGIN_PX, OWN_RIM_PX,
                                                refine_pose, sigma),
                             alarms)
+        feeds, composer = [], None
+        if live_telemetry:
+            feeds, composer = _feeds_setup(
+                engine, mavlink=mavlink, mavlink_altitude=mavlink_altitude, nmea=nmea,
+                camera=camera, water_level_m=water_level_m, mount=mount,
+                camera_pitch_deg=camera_pitch_deg, camera_yaw_deg=camera_yaw_deg,
+                video_delay_s=video_delay_s, drone_offset_s=drone_offset_s,
+                vessel_offset_s=vessel_offset_s, hold_s=hold_s)
+        if is_stream(video):
+            def frames(box, stop, on_arrival):
+                read_stream(video, box, stop, on_arrival, lambda message: engine.warn("video", message))
+        elif metadata is not None:
+            frames = file_reader(VideoSource(Path(video), metadata), realtime)
+        else:
+            frames = _file_frames(Path(video), realtime, engine)
         if address is not None:
             server = LiveServer(engine.state, *address, get_jpeg=engine.annotated_jpeg,
                                 get_frame_index=lambda: engine.frame_index)
@@ -104,8 +211,9 @@ def live_command(
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
-    try:        # Ctrl-C ends the loop; run_live still returns what it measured
-        summary = run_live(file_reader(source, realtime), engine,
+    _stop_on_sigterm()
+    try:        # Ctrl-C (or SIGTERM) ends the loop; run_live still returns what it measured
+        summary = run_live(frames, engine, composer=composer, feeds=feeds,
                            publish=server.publish if server else None, record=record)
     finally:
         if server is not None:
@@ -113,6 +221,108 @@ def live_command(
     p50, p95 = summary.latency_percentile_ms(50), summary.latency_percentile_ms(95)
     console.print(
         f"{summary.frames_measured} frame(s) measured of {summary.frames_received} received "
-        f"({summary.frames_dropped} dropped to keep up) in {summary.seconds:.1f} s"
+        f"({summary.frames_dropped} dropped to keep up, {summary.frames_skipped} not measurable) "
+        f"in {summary.seconds:.1f} s"
         + ("" if p95 is None else f"; latency median {p50:.0f} ms, p95 {p95:.0f} ms"),
         highlight=False)
+
+
+def _stop_on_sigterm() -> None:
+    """SIGTERM (a service manager stopping the aid) ends it as Ctrl-C does: cleanly, with the
+    record closed and the summary printed."""
+    import signal
+    import threading
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():     # not when called in a test's thread
+        signal.signal(signal.SIGTERM, interrupt)
+
+
+def _file_frames(video: Path, realtime: bool, engine):
+    """A video file's frames without metadata (their poses come from the live feeds), played
+    at the file's frame rate: a rehearsal of a stream."""
+    import time
+
+    import cv2
+
+    from harborsight.flight.sources import FlightFrame
+    from harborsight.live.stream import Arrival
+
+    capture = cv2.VideoCapture(str(video))
+    if not capture.isOpened():
+        raise InputError(video, None, "cannot open the video")
+    fps = capture.get(cv2.CAP_PROP_FPS) or 10.0
+
+    def frames(box, stop, on_arrival):
+        started, index = time.monotonic(), 0
+        try:
+            while not stop.is_set():
+                ok, image = capture.read()
+                if not ok:
+                    break
+                if realtime and stop.wait(max(0.0, started + index / fps - time.monotonic())):
+                    break
+                now = time.monotonic()
+                frame = FlightFrame(index=index, source=f"{video} frame {index}", image=image)
+                on_arrival(frame, now)
+                box.put(Arrival(frame, now))
+                index += 1
+        finally:
+            capture.release()
+            box.close()
+    return frames
+
+
+@app.command("live-feed")
+def live_feed_command(
+    video: Annotated[Path, typer.Argument(help="The flight's video.")],
+    drone_log: Annotated[Path, typer.Option(
+        help="The drone's log (DJI .srt, PX4 .ulg, ArduPilot .bin), sent as MAVLink.")],
+    vessel_track: Annotated[Path, typer.Option(
+        help="The vessel's NMEA 0183 log, sent line by line at its fixes' times.")],
+    video_to: Annotated[str, typer.Option(
+        help="Where the video goes: an MPEG-TS URL (udp://HOST:PORT).")] = "udp://127.0.0.1:5600",
+    mavlink_to: Annotated[str, typer.Option(
+        help="Where MAVLink goes (pymavlink address).")] = "udpout:127.0.0.1:14550",
+    nmea_to: Annotated[str, typer.Option(
+        help="Where NMEA goes: UDP HOST:PORT.")] = "127.0.0.1:10110",
+    start_s: Annotated[float, typer.Option(min=0.0, help="Flight time to start at.")] = 0.0,
+    duration_s: Annotated[float | None, typer.Option(
+        min=0.1, help="How much of the flight to send (default: to the video's end).")] = None,
+    video_start: Annotated[str | None, typer.Option(
+        help="UTC time of the video's first frame, ISO 8601 (default: the SRT's date lines, "
+        "else the vessel's first fix).")] = None,
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0, help="A DJI SRT's local date lines: hours ahead of UTC.")] = None,
+) -> None:
+    """Play a recorded flight as the live feeds a drone and a ship send, in real time: video
+    as H.264 MPEG-TS over UDP, the drone's log as MAVLink, the vessel's NMEA over UDP. For
+    rehearsing `harborsight live --video udp://... --mavlink ... --nmea ...`."""
+    from harborsight.live.feed import FeedPlan, play_flight
+    from harborsight.telemetry.metadata import parse_utc_time
+
+    try:
+        for path, option in ((video, "VIDEO"), (drone_log, "--drone-log"),
+                             (vessel_track, "--vessel-track")):
+            if not path.is_file():
+                raise InputError(path, option, "file not found")
+        host, _, port = nmea_to.rpartition(":")
+        if not host or not port.isdigit() or not 0 < int(port) <= 65535:
+            raise InputError(None, "--nmea-to", f"expected HOST:PORT, got {nmea_to!r}")
+        if not video_to.startswith(("udp://", "rtp://", "srt://", "tcp://")):
+            raise InputError(None, "--video-to", f"expected an MPEG-TS URL such as "
+                             f"udp://127.0.0.1:5600, got {video_to!r}")
+        plan = FeedPlan(video, drone_log, vessel_track, video_to, mavlink_to, nmea_to, start_s,
+                        duration_s, parse_utc_time(video_start, "--video-start") if video_start else None,
+                        utc_offset_h)
+        console.print(f"sending {video.name} to {video_to}, {drone_log.name} as MAVLink to "
+                      f"{mavlink_to}, {vessel_track.name} to udp {nmea_to}", highlight=False)
+        summary = play_flight(plan)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    console.print(f"sent {summary.frames} frame(s), {summary.mavlink_messages} MAVLink "
+                  f"message(s), {summary.nmea_lines} NMEA line(s); 95 % went out within "
+                  f"{summary.lateness_p95_ms():.0f} ms of their time", highlight=False)

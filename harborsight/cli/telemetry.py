@@ -104,29 +104,6 @@ def telemetry_show(
     raise typer.Exit(1 if failed else 0)
 
 
-def _telemetry_camera(camera: str, width: int | None, height: int | None, source: Path) -> dict:
-    """A frame/1 camera block from a preset name (with the video's size) or a calibration."""
-    from harborsight.geometry.camera import load_camera_calibration
-    from harborsight.sim.cameras import CAMERA_PRESETS
-
-    if camera in CAMERA_PRESETS:
-        if not width or not height:
-            raise InputError(source, "size", f"camera preset {camera!r} needs the image size: "
-                             "give --video or --image-size")
-        intrinsics = CAMERA_PRESETS[camera].intrinsics(width, height)
-    else:
-        if not Path(camera).is_file():
-            raise InputError(camera, "--camera", "neither a camera preset ("
-                             + ", ".join(CAMERA_PRESETS) + ") nor a calibration file")
-        intrinsics = load_camera_calibration(Path(camera))
-        if width and height and (intrinsics.width, intrinsics.height) != (width, height):
-            raise InputError(camera, "calibration", f"calibrated for {intrinsics.width}x"
-                             f"{intrinsics.height}, the video is {width}x{height}")
-    return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
-            "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
-            "distortion": list(intrinsics.distortion)}
-
-
 @telemetry_app.command("video")
 def telemetry_video(
     drone_log: Annotated[Path, typer.Argument(metavar="DRONE_LOG",
@@ -188,6 +165,7 @@ def telemetry_video(
         MOUNTS,
         CameraMount,
         build_video_metadata,
+        camera_block_for,
         parse_utc_time,
     )
     from harborsight.telemetry.vessel_track import read_vessel_track
@@ -224,7 +202,7 @@ def telemetry_video(
         start = parse_utc_time(video_start, "--video-start") if video_start else None
         drone = read_drone_log(drone_log, utc_offset_h)
         vessel = read_vessel_track(vessel_track)
-        camera_block = _telemetry_camera(camera, width, height, drone_log)
+        camera_block = camera_block_for(camera, width, height, drone_log)
         result = build_video_metadata(
             drone, vessel, camera_block, frames, fps, water_level_m=water_level_m,
             mount=CameraMount(mount, camera_pitch_deg, camera_yaw_deg), video_start_utc=start,

@@ -5,7 +5,8 @@ uncertainty), runs each section's tracker (filtered distance, closing speed, tim
 contact), updates the alarms (:mod:`harborsight.live.alarms`) and the sources' health
 (:mod:`harborsight.live.health`), and returns a ``harborsight.live/1`` state:
 
-``schema``, ``time`` (UTC ISO 8601), ``frame_index``, ``latency_ms`` (frame arrival to the
+``schema``, ``time`` (UTC ISO 8601), ``frame_index``, ``frame_time`` (the measured frame's
+timestamp), ``latency_ms`` (frame arrival to the
 state), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status``
 ``ok``/``caution``/``danger``, or the measurement's status when it has no distance to
 judge, e.g. ``out_of_view``; ``measured``, the measurement's own status; ``distance_m``,
@@ -78,6 +79,7 @@ class LiveEngine:
         self._image: np.ndarray | None = None          # the measured frame, for the video
         self._sections: list[dict] = []
         self._frame_index: int | None = None
+        self._frame_time: str | None = None
         self._latency_ms: float | None = None
         self._errors: list[dict] = []
         self._warnings: deque = deque(maxlen=WARNINGS_KEPT)
@@ -116,6 +118,7 @@ class LiveEngine:
         with self._lock:
             self._update_sections(report, time_s)
             self._report, self._frame_index, self._image = report, frame_index, image
+            self._frame_time = meta.timestamp
             self.frames_measured += 1
             now = time.monotonic()
             self._latency_ms = 1000.0 * (now - arrived_s)
@@ -234,6 +237,7 @@ class LiveEngine:
             "schema": SCHEMA,
             "time": datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
             "frame_index": self._frame_index,
+            "frame_time": self._frame_time,
             "latency_ms": _rounded(self._latency_ms, 1),
             "vessel": report.vessel if report is not None else None,
             "min_distance_m": min(distances) if distances else None,

@@ -129,10 +129,12 @@ class NmeaVessel:
         return magnetic_deg + self._declination[1]
 
 
-def run_nmea(address: NmeaAddress, vessel: NmeaVessel, stop: threading.Event) -> None:
-    """Read ``address`` until ``stop`` is set, reconnecting when a connection drops."""
+def run_nmea(address: NmeaAddress, vessel: NmeaVessel, stop: threading.Event,
+             sock: socket.socket | None = None) -> None:
+    """Read ``address`` until ``stop`` is set, reconnecting when a connection drops; a UDP
+    address on ``sock`` where it was opened beforehand (:func:`open_udp`)."""
     if address.kind == "udp":
-        _run_udp(address, vessel, stop)
+        _run_udp(address, vessel, stop, sock)
     elif address.kind == "tcp":
         _run_tcp(address, vessel, stop)
     else:

@@ -165,8 +165,8 @@ class FrameComposer:
 
     drone: LiveTrack
     vessel: LiveTrack
-    camera: dict | None = None                 # frame/1 camera block; None: from camera_for
-    camera_for: object = None                  # callable (width, height) -> camera block
+    #: the frame/1 camera block for a frame size (InputError where the calibration is of another)
+    camera_for: Callable[[int, int], dict]
     water_level_m: float = 0.0
     mount: CameraMount = field(default_factory=CameraMount)
     video_delay_s: float = 0.0
@@ -198,10 +198,10 @@ class FrameComposer:
             return None, "the drone's feed has no altitude"
         if not drone.has_attitude and self.mount.yaw_deg is None:
             return None, "no drone or camera attitude received yet"
-        camera = self.camera if self.camera is not None else self.camera_for(width, height)
-        if (camera["width"], camera["height"]) != (width, height):
-            return None, (f"the video is {width}x{height}, the camera calibration "
-                          f"{camera['width']}x{camera['height']}")
+        try:
+            camera = self.camera_for(width, height)
+        except HarborsightError as exc:
+            return None, str(exc)
         t_s = self.frame_time_s(arrived_s)
         try:
             result = frames_at_times(drone, vessel, camera, np.array([t_s]), np.array([t_s]),

@@ -29,6 +29,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -113,6 +114,32 @@ def parse_utc_time(text: str, field: str) -> datetime:
     except OverflowError:
         raise InputError(None, field, f"{text.strip()} is before the year 1 or after 9999 in UTC"
                          ) from None
+
+
+def camera_block_for(camera: str, width: int | None, height: int | None,
+                     source: str | Path | None) -> dict:
+    """A frame/1 ``camera`` block from a preset name (at the video's size) or a calibration
+    file (which must be of the video's size, where that is known). :class:`InputError`
+    naming ``--camera`` or the calibration otherwise."""
+    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.sim.cameras import CAMERA_PRESETS
+
+    if camera in CAMERA_PRESETS:
+        if not width or not height:
+            raise InputError(source, "size", f"camera preset {camera!r} needs the image size: "
+                             "give --video or --image-size")
+        intrinsics = CAMERA_PRESETS[camera].intrinsics(width, height)
+    else:
+        if not Path(camera).is_file():
+            raise InputError(camera, "--camera", "neither a camera preset ("
+                             + ", ".join(CAMERA_PRESETS) + ") nor a calibration file")
+        intrinsics = load_camera_calibration(Path(camera))
+        if width and height and (intrinsics.width, intrinsics.height) != (width, height):
+            raise InputError(camera, "calibration", f"calibrated for {intrinsics.width}x"
+                             f"{intrinsics.height}, the video is {width}x{height}")
+    return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
+            "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
+            "distortion": list(intrinsics.distortion)}
 
 
 @dataclass

@@ -1,0 +1,275 @@
+"""The live aid's inputs (issue #28): NMEA and MAVLink decoded as they come, clocks aligned,
+frames composed at their time; and the bundled flight streamed as UDP MPEG-TS video, MAVLink
+and NMEA on 127.0.0.1 into a running `harborsight live`, checked against the flight's truth."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harborsight.live.feed import FeedPlan, play_flight
+from harborsight.live.mavlink_in import MavlinkDrone
+from harborsight.live.nmea_in import NmeaVessel, parse_nmea_address
+from harborsight.live.telemetry import ClockMap, FrameComposer, LiveTrack
+from harborsight.telemetry.nmea import Fix, Heading, NmeaDecoder
+from harborsight.telemetry.track import Track
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+FLIGHT = SAMPLES / "flight"
+LOGS = FLIGHT / "logs"
+TUG = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+
+
+def _nmea(body: str) -> str:
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"${body}*{checksum:02X}"
+
+
+def test_the_decoder_turns_lines_into_fixes_and_headings():
+    decoder = NmeaDecoder()
+    events = [e for line in (
+        _nmea("HEHDT,117.7,T"),                                       # before any fix: counted
+        _nmea("GPRMC,120000.00,A,5609.10200,N,01013.69800,E,0.8,117.7,010526,,"),
+        _nmea("GPGGA,120000.00,5609.10200,N,01013.69800,E,4,12,0.8,1.0,M,40.0,M,,"),
+        _nmea("HEHDT,117.71,T"), _nmea("HCHDM,115.0,M"),
+        "$GPRMC,120001.00,A,5609.10190,N,01013.69792,E,0.8,117.7,010526,,*00",   # bad checksum
+        _nmea("GPRMC,120001.00,V,,,,,,,010526,,"),                    # no fix
+    ) for e in decoder.feed(line, 1)]
+    fixes = [e for e in events if isinstance(e, Fix)]
+    assert [f.new for f in fixes] == [True, False]          # RMC and GGA of one epoch: one fix
+    assert fixes[0].utc == datetime(2026, 5, 1, 12, 0, tzinfo=UTC)
+    assert fixes[0].lat_deg == pytest.approx(56 + 9.102 / 60) and fixes[1].quality == 4
+    assert [(h.deg, h.true) for h in events if isinstance(h, Heading)] == [(117.71, True), (115.0, False)]
+    assert decoder.bad_count == 1
+    assert decoder.skipped["headings before the first fix"] == 1
+    assert decoder.skipped["RMC status V (no fix)"] == 1
+
+
+def test_the_clock_map_takes_the_least_delayed_sample_and_restarts_after_a_jump():
+    clock = ClockMap(window=16, jump_s=2.0)
+    rng = np.random.default_rng(3)
+    for k in range(40):          # source clock = local - 100 s; delays of 20-200 ms
+        mapped = clock.observe(k * 0.1, 100.0 + k * 0.1 + 0.02 + rng.uniform(0, 0.18))
+    assert mapped == pytest.approx(100.0 + 39 * 0.1, abs=0.03)   # within the least delay
+    assert clock.to_source(103.9) == pytest.approx(3.9, abs=0.03)
+    clock.observe(500.0, 104.0)                                  # the source rebooted/jumped
+    assert clock.jumps == 1 and clock.to_local(500.0) == pytest.approx(104.0)
+
+
+def _camera(width: int, height: int) -> dict:
+    return {"width": width, "height": height, "fx": 500.0, "fy": 500.0, "cx": width / 2 - 0.5,
+            "cy": height / 2 - 0.5, "distortion": [0, 0, 0, 0, 0]}
+
+
+def test_a_frame_is_composed_from_both_feeds_at_its_time():
+    drone, vessel = LiveTrack("drone", "mavlink"), LiveTrack("vessel", "nmea")
+    for k in range(5):           # 2 Hz drone moving north, 1 Hz vessel moving east, heading 90
+        drone.add_position(10.0 + 0.5 * k, 56.0 + 1e-5 * k, 10.0, 50.0 + k)
+        drone.add_attitude(10.0 + 0.5 * k, 350.0 + 5.0 * k, -90.0, 0.0, "gimbal")
+    for k in range(3):
+        vessel.add_position(10.0 + k, 56.0001, 10.0 + 1e-5 * k)
+        vessel.add_heading(10.0 + k, 90.0)
+    composer = FrameComposer(drone, vessel, camera_for=_camera, water_level_m=-2.0, hold_s=0.6)
+    frame, why = composer.compose(7, arrived_s=11.25, width=640, height=360)
+    assert why is None and frame["frame_index"] == 7
+    assert frame["uav"]["lat"] == pytest.approx(56.0 + 2.5e-5)          # halfway, by hand
+    assert frame["uav"]["alt_m"] == pytest.approx(52.5)
+    assert frame["camera_attitude"]["yaw_deg"] == pytest.approx(2.5)    # 360 + 2.5, unwrapped
+    assert frame["vessel"]["lon"] == pytest.approx(10.0 + 1.25e-5)
+    assert frame["water_level_m"] == -2.0
+    # the newest vessel fix (t = 12) stands for 0.6 s, not longer
+    assert composer.compose(8, 12.5, 640, 360)[1] is None
+    frame, why = composer.compose(9, 12.7, 640, 360)
+    assert frame is None and "vessel position" in why
+    # a calibration of another size refuses the frame, saying so
+    from harborsight.errors import InputError
+
+    def fixed(width, height):
+        raise InputError("cam.yaml", "calibration", f"calibrated for 1280x720, the video is {width}x{height}")
+    frame, why = FrameComposer(drone, vessel, camera_for=fixed).compose(1, 11.0, 640, 360)
+    assert frame is None and "1280x720" in why
+
+
+def test_a_track_holds_its_newest_sample_only_as_long_as_asked():
+    track = Track(source=Path("x"), kind="csv", t_s=[0.0, 1.0], lat_deg=[0.0, 1.0], lon_deg=[0.0, 0.0])
+    assert math.isnan(track.sample([1.8])["lat_deg"][0])                  # half an interval
+    assert track.sample([1.8], hold_s=1.0)["lat_deg"][0] == 1.0
+
+
+def _mavlink_bytes(build) -> bytes:
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    class Sink:
+        data = b""
+
+        def write(self, chunk):
+            Sink.data += chunk
+    mav = dialect.MAVLink(Sink(), srcSystem=1, srcComponent=1)
+    build(mav)
+    return Sink.data
+
+
+def _decoded(data: bytes) -> list:
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    parser = dialect.MAVLink(None)
+    parser.robust_parsing = True
+    return [m for m in (parser.parse_buffer(data) or [])]
+
+
+def test_mavlink_messages_become_the_drone_track_with_the_gimbal_yaw_on_the_airframe_yaw():
+    from scipy.spatial.transform import Rotation
+
+    # the gimbal 10 deg right of the nose and 60 deg down, the nose at 30 deg: camera at 40
+    x, y, z, w = Rotation.from_euler("ZYX", [10.0, -60.0, 0.0], degrees=True).as_quat()
+    data = _mavlink_bytes(lambda mav: (
+        mav.system_time_send(1_777_636_800_000_000, 5000),
+        mav.attitude_send(5000, 0.0, 0.0, math.radians(30.0), 0, 0, 0),
+        mav.gimbal_device_attitude_status_send(0, 0, 5000, 32, [w, x, y, z], 0, 0, 0, 0),
+        mav.gps_raw_int_send(0, 3, 0, 0, 0, 0, 0, 0, 0, 12, 0, 2000, 0, 0, 0),
+        mav.global_position_int_send(5000, 561516256, 102282340, 75000, 60000, 0, 0, 0, 65535)))
+    garbage = data[:20] + bytes([data[20] ^ 0xFF]) + data[21:]          # one frame's CRC fails
+    track = LiveTrack("drone", "mavlink")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = MavlinkDrone(None, track, altitude="relative")
+    for message in _decoded(garbage + data):
+        reader.handle(message, 100.0)
+    assert reader.bad_frames >= 1 and any("unreadable MAVLink" in w for w in warnings)
+    sampled = track.track().sample([100.0], hold_s=1.0)
+    assert sampled["yaw_deg"][0] == pytest.approx(40.0, abs=1e-4)     # float32 quaternion
+    assert sampled["pitch_deg"][0] == pytest.approx(-60.0, abs=1e-4)
+    assert sampled["alt_m"][0] == pytest.approx(60.0)                    # relative_alt
+    assert sampled["lat_deg"][0] == pytest.approx(56.1516256)
+    assert sampled["position_sigma_m"][0] == pytest.approx(2.0 / math.sqrt(2))
+    assert track.attitude_of == "gimbal"
+    # SYSTEM_TIME: the boot clock's 5 s is 2026-05-01T12:00:00Z
+    assert track.utc_clock.to_local(5.0) == pytest.approx(1_777_636_800.0)
+
+
+def test_the_nmea_listener_times_headings_by_the_fix_before_them():
+    track = LiveTrack("vessel", "nmea")
+    listener = NmeaVessel(track)
+    listener.feed(_nmea("GPRMC,120000.00,A,5609.10200,N,01013.69800,E,0.8,117.7,010526,,"), 50.3)
+    listener.feed(_nmea("HEHDT,117.71,T"), 50.35)
+    listener.feed("garbage $GP,,,*77", 50.4)
+    t = track.track()
+    assert t.t_s[0] == pytest.approx(50.3)               # the first fix: its own arrival
+    assert t.attitude_t_s[0] == pytest.approx(50.35)     # the heading: arrival less no delay
+    assert listener.decoder.bad_count == 1
+    assert parse_nmea_address("udp:10110").host == "0.0.0.0"
+    assert parse_nmea_address("tcp:10.0.0.2:2000").port == 2000
+    assert parse_nmea_address("/dev/ttyUSB0@38400").port == 38400
+    with pytest.raises(Exception, match="--nmea"):
+        parse_nmea_address("10110")
+
+
+def _free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _state(port: int) -> dict | None:
+    with contextlib.suppress(OSError, ValueError), urllib.request.urlopen(
+            f"http://127.0.0.1:{port}/api/state", timeout=2) as response:
+        return json.loads(response.read())
+    return None
+
+
+def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_path):
+    """The bundled flight's video as H.264 MPEG-TS over UDP, its SRT as MAVLink over UDP, the
+    ship's NMEA over UDP, into `harborsight live` run as a user would; garbage on both
+    telemetry ports mid-flight."""
+    truth = {}
+    for path in sorted((FLIGHT / "frames").glob("*.json")):
+        record = json.loads(path.read_text())
+        stamp = datetime.fromisoformat(record["timestamp"].replace("Z", "+00:00")).timestamp()
+        truth[stamp] = {s["index"]: s["distance_m"] for s in record["ground_truth"]["sections"]}
+    video_port, mavlink_port, nmea_port, http_port = (
+        _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM),
+        _free_port())
+    command = [sys.executable, "-m", "harborsight.cli", "live",
+               "--video", f"udp://127.0.0.1:{video_port}",
+               "--mavlink", f"udpin:127.0.0.1:{mavlink_port}", "--nmea", f"udp:127.0.0.1:{nmea_port}",
+               "--camera", "dji-mavic3", "--water-level-m", "0", "--vessel", str(TUG),
+               "--http", f"127.0.0.1:{http_port}", "--record", str(tmp_path / "record")]
+    live = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while _state(http_port) is None:
+            assert live.poll() is None and time.monotonic() < deadline, live.stdout.read()
+            time.sleep(0.2)
+        import threading
+
+        states: list[dict] = []
+        done = threading.Event()
+
+        def poll() -> None:
+            while not done.is_set():
+                state = _state(http_port)
+                if state is not None:
+                    states.append(state)
+                time.sleep(0.15)
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as junk:
+            timer = threading.Timer(6.0, lambda: (
+                junk.sendto(b"$GPRMC,garbage*00\r\nnot nmea at all\r\n", ("127.0.0.1", nmea_port)),
+                junk.sendto(bytes([0xFD, 9, 0, 0, 7, 1, 1, 33, 0, 0]) + os.urandom(20),
+                            ("127.0.0.1", mavlink_port))))
+            timer.start()
+            summary = play_flight(FeedPlan(
+                LOGS / "flight.mp4", LOGS / "flight.SRT", LOGS / "ship.nmea",
+                video_to=f"udp://127.0.0.1:{video_port}", mavlink_to=f"udpout:127.0.0.1:{mavlink_port}",
+                nmea_to=f"127.0.0.1:{nmea_port}", start_s=0.0, duration_s=14.0))
+            timer.join()
+        time.sleep(0.5)
+        done.set()
+        poller.join(5)
+    finally:
+        live.send_signal(signal.SIGTERM)
+        output = live.communicate(timeout=30)[0]
+    assert live.returncode == 0, output
+    assert summary.frames == 28 and summary.nmea_lines == 56
+    assert "frame(s) measured" in output
+    measured = [s for s in states if s["frame_time"] is not None]
+    assert len({s["frame_index"] for s in measured}) >= 8, output
+    errors, lags = [], []
+    for state in measured:
+        stamp = datetime.fromisoformat(state["frame_time"].replace("Z", "+00:00")).timestamp()
+        nearest = min(truth, key=lambda t: abs(t - stamp))
+        lags.append(stamp - nearest)
+        for section in state["sections"]:
+            true = truth[nearest][section["index"]]
+            if section["measured"] == "ok" and true is not None:
+                errors.append(abs(section["distance_m"] - true))
+        assert state["latency_ms"] < 1000
+    errors.sort()
+    print(f"{len(measured)} states, frame time - truth time {min(lags):+.3f}..{max(lags):+.3f} s, "
+          f"median error {errors[len(errors) // 2]:.3f} m")
+    assert max(abs(lag) for lag in lags) < 0.2         # the frames' times: UTC of the vessel's clock
+    assert errors and errors[len(errors) // 2] < 0.5
+    sources = measured[-1]["sources"]
+    assert sources["drone"]["rate_hz"] == pytest.approx(2.0, rel=0.2)
+    assert sources["vessel"]["rate_hz"] == pytest.approx(2.0, rel=0.2)
+    warned = " ".join(w["message"] for s in states for w in s["warnings"])
+    assert "unreadable sentence" in warned and "unreadable MAVLink" in warned
+    # the record replays as a flight
+    assert len(list((tmp_path / "record" / "frames").glob("*.json"))) >= 8
