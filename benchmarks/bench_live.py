@@ -11,6 +11,14 @@ process's resident memory after the first minute and at the end.
     .venv/bin/python benchmarks/bench_live.py [--size 1280x720 --fps 10 --seconds 60]
     .venv/bin/python benchmarks/bench_live.py --size 1920x1080 --fps 30 --seconds 600
     .venv/bin/python benchmarks/bench_live.py --stall-at-s 10 --stall-s 3 --seconds 20
+    .venv/bin/python benchmarks/bench_live.py --stream [--size 1280x720 --fps 10]
+
+With ``--stream`` the flight goes over the wire instead (its 24 s, the telemetry cannot be
+looped): ``live-feed``'s sender encodes the scaled video as H.264 MPEG-TS over UDP on
+127.0.0.1 (x264 on the same two cores: a drone would do that part) with the SRT as MAVLink and
+the NMEA over UDP; the live loop decodes the stream (PyAV), composes each frame's metadata
+from the feeds and measures it, as ``harborsight live --video udp://... --mavlink ... --nmea
+...`` does.
 
 With ``--stall-at-s`` the video stops for ``--stall-s`` seconds at that time (the reader
 holds its next frame, as a stream that drops out): the time from the last frame before the
@@ -102,6 +110,67 @@ def stall_delays(events: list[tuple[float, bool]], source: StallingSource, last_
             None if cleared is None or source.resumed_s is None else cleared - source.resumed_s)
 
 
+def write_stream_video(folder: Path, width: int, height: int, fps: float) -> Path:
+    """The sample flight's 24 s at ``fps`` (each 2 fps frame repeated) and ``width`` x
+    ``height``: what a drone's camera would send while the flight's logs were written."""
+    images = [cv2.resize(cv2.imread(str(path)), (width, height), interpolation=cv2.INTER_CUBIC)
+              for path in sorted((SAMPLES / "flight" / "images").glob("*.jpg"))]
+    video = folder / "stream.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    for index in range(int(len(images) / 2.0 * fps)):
+        writer.write(images[min(int(index / fps * 2.0), len(images) - 1)])
+    writer.release()
+    return video
+
+
+def stream_live(folder: Path, engine: LiveEngine, width: int, height: int, fps: float, publish):
+    """Send the flight over UDP and run the live loop on it (module docstring)."""
+    import socket
+
+    from harborsight.live.feed import FeedPlan, play_flight
+    from harborsight.live.mavlink_in import MavlinkDrone, open_mavlink
+    from harborsight.live.nmea_in import NmeaVessel, open_udp, parse_nmea_address, run_nmea
+    from harborsight.live.telemetry import FrameComposer, LiveTrack
+    from harborsight.live.video_in import read_stream
+    from harborsight.telemetry.metadata import camera_block_for
+
+    ports = []
+    for _ in range(3):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.bind(("127.0.0.1", 0))
+            ports.append(sock.getsockname()[1])
+    video = write_stream_video(folder, width, height, fps)
+    logs = SAMPLES / "flight" / "logs"
+    drone, vessel = LiveTrack("drone", "mavlink"), LiveTrack("vessel", "nmea")
+    mavlink = MavlinkDrone(open_mavlink(f"udpin:127.0.0.1:{ports[1]}"), drone,
+                           on_position=lambda now: engine.source_arrived("drone", now))
+    address = parse_nmea_address(f"udp:127.0.0.1:{ports[2]}")
+    sock = open_udp(address)
+    nmea = NmeaVessel(vessel, on_fix=lambda now: engine.source_arrived("vessel", now))
+    composer = FrameComposer(drone, vessel,
+                             camera_for=lambda w, h: camera_block_for("dji-mavic3", w, h, None))
+    stop = threading.Event()
+
+    def frames(box, halt, on_arrival):
+        read_stream(f"udp://127.0.0.1:{ports[0]}", box, halt, on_arrival)
+
+    def send() -> None:
+        time.sleep(1.0)           # the receiver listening first
+        play_flight(FeedPlan(video, logs / "flight.SRT", logs / "ship.nmea",
+                             video_to=f"udp://127.0.0.1:{ports[0]}",
+                             mavlink_to=f"udpout:127.0.0.1:{ports[1]}",
+                             nmea_to=f"127.0.0.1:{ports[2]}"))
+        time.sleep(1.0)
+        stop.set()
+
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    summary = run_live(frames, engine, composer=composer, publish=publish, stop=stop,
+                       feeds=[mavlink.run, lambda halt: run_nmea(address, nmea, halt, sock)])
+    sender.join()
+    return summary
+
+
 def rss_mb() -> float:
     """Resident memory now (Linux /proc), in MB."""
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -118,6 +187,8 @@ def main() -> None:
     parser.add_argument("--p95-target-ms", type=float, default=None)
     parser.add_argument("--stall-at-s", type=float, default=None)
     parser.add_argument("--stall-s", type=float, default=3.0)
+    parser.add_argument("--stream", action="store_true",
+                        help="over UDP: H.264 MPEG-TS video, MAVLink, NMEA (the flight's 24 s)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     target = args.p95_target_ms or (150.0 if width * height <= 1280 * 720 else 250.0)
@@ -140,13 +211,22 @@ def main() -> None:
             stalling = StallingSource(source, round(args.stall_at_s * args.fps), args.stall_s)
             source = stalling
         events: list[tuple[float, bool]] = []
+        measured_at: list[float] = []           # when each newly measured frame's state came
 
         def publish(state: dict) -> None:
             stale = any(a["kind"] == "stale_video" for a in state["alarms"])
             events.append((time.monotonic(), stale))
+            if state["frame_index"] is not None and (
+                    not measured_at or state["frame_index"] != publish.last_index):
+                measured_at.append(time.monotonic())
+                publish.last_index = state["frame_index"]
+        publish.last_index = None
 
         started = time.monotonic()
-        summary = run_live(file_reader(source), engine, publish=publish)
+        if args.stream:
+            summary = stream_live(Path(tmp), engine, width, height, args.fps, publish)
+        else:
+            summary = run_live(file_reader(source), engine, publish=publish)
         elapsed = time.monotonic() - started
         stop.set()
         memory["end"] = rss_mb()
@@ -156,9 +236,11 @@ def main() -> None:
     def p95(values: list[float]) -> float:
         return statistics.quantiles(values, n=100, method="inclusive")[94] if len(values) > 1 else values[0]
 
-    measured_fps = summary.frames_measured / elapsed
-    print(f"live replay {width}x{height} at {args.fps:g} fps for {elapsed:.1f} s, default model, "
-          "this machine")
+    # the rate while frames came (a stream's set-up and tail are not the loop's speed)
+    measured_fps = ((len(measured_at) - 1) / (measured_at[-1] - measured_at[0])
+                    if len(measured_at) > 1 else summary.frames_measured / elapsed)
+    print(f"live {'stream (H.264 MPEG-TS, MAVLink, NMEA over UDP)' if args.stream else 'replay'} "
+          f"{width}x{height} at {args.fps:g} fps for {elapsed:.1f} s, default model, this machine")
     print(f"frames in {summary.frames_received}, measured {summary.frames_measured} "
           f"({measured_fps:.1f} fps), dropped {summary.frames_dropped} "
           f"({100 * summary.frames_dropped / max(summary.frames_received, 1):.0f} %)")

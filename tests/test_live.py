@@ -260,6 +260,7 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
     server.start()
     try:
         driver.get(f"http://127.0.0.1:{server.port}/")
+        engine.warn("vessel", "NMEA: 2 unreadable sentence(s) skipped (bad checksum or field)")
         run_live(file_reader(VideoSource(folder / "flight.mp4", folder / "flight.jsonl")), engine,
                  publish=server.publish)
         with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/api/state", timeout=5) as r:
@@ -282,6 +283,10 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
             assert cells[2] == ("--" if distance is None else f"{distance:.1f}")
         danger = [a for a in state["alarms"] if a["kind"] == "danger"]
         assert danger and driver.find_element("id", "banner").text == danger[0]["message"]
+        # an input's warning is shown as the state gives it
+        assert [f"{w['source']}: {w['message']}" for w in state["warnings"]] == [
+            item.text for item in driver.find_elements("css selector", "#warnings li")]
+        assert state["warnings"]
         svg_boxes = driver.find_elements("css selector", "#hull rect")
         assert len(svg_boxes) == len(state["sections"])
         # the annotated video plays in the page: the image has the frame's proportions

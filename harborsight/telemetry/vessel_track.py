@@ -1,5 +1,6 @@
 """The vessel's own track: position and true heading over time, from the ship's NMEA 0183 feed
-(read with pynmea2) or from a CSV.
+(read with pynmea2, sentence by sentence by :class:`harborsight.telemetry.nmea.NmeaDecoder`,
+which the live feed shares) or from a CSV.
 
 NMEA: ``RMC`` gives UTC date, time and position; ``GGA`` time and position (its date comes from
 the last ``RMC`` or ``ZDA``); ``HDT`` and ``THS`` the true heading; ``HDG`` a magnetic heading that becomes
