@@ -21,8 +21,12 @@ if command -v dpkg-query >/dev/null 2>&1; then
         dpkg-query -W -f='${Status}' "$deb" 2>/dev/null | grep -q "ok installed" || missing="$missing $deb"
     done
 fi
+# the live aid's Signal K test runs a real signalk-server (npm)
+if ! command -v npm >/dev/null 2>&1; then
+    missing="$missing nodejs npm"
+fi
 if [ -n "$missing" ]; then
-    echo "installing system packages (Blender's libraries, Chromium for the browser test):$missing"
+    echo "installing system packages (Blender's libraries, Chromium for the browser test, Node.js for Signal K):$missing"
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
     $SUDO apt-get update -qq
@@ -38,4 +42,14 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     .venv/bin/python -m pip install --quiet -e ".[dev,train,sim]"
     touch "$stamp"
+fi
+
+# signalk-server for tests/test_signalk.py, in .tools/signalk (2.23.0: the newest whose
+# dependencies all resolve on the npm registry today; 2.32.0 needs an unpublished @signalk/streams)
+SIGNALK_VERSION=2.23.0
+if [ ! -f ".tools/signalk/.installed-$SIGNALK_VERSION" ]; then
+    echo "installing signalk-server $SIGNALK_VERSION (npm) into .tools/signalk"
+    mkdir -p .tools/signalk
+    npm install --silent --no-audit --no-fund --prefix .tools/signalk "signalk-server@$SIGNALK_VERSION"
+    touch ".tools/signalk/.installed-$SIGNALK_VERSION"
 fi

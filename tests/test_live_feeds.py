@@ -112,7 +112,6 @@ def test_a_track_holds_its_newest_sample_only_as_long_as_asked():
 
 
 def _mavlink_bytes(build) -> bytes:
-    os.environ.setdefault("MAVLINK20", "1")
     from pymavlink.dialects.v20 import ardupilotmega as dialect
 
     class Sink:
@@ -235,11 +234,15 @@ def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_pat
                 junk.sendto(bytes([0xFD, 9, 0, 0, 7, 1, 1, 33, 0, 0]) + os.urandom(20),
                             ("127.0.0.1", mavlink_port))))
             timer.start()
-            summary = play_flight(FeedPlan(
-                LOGS / "flight.mp4", LOGS / "flight.SRT", LOGS / "ship.nmea",
-                video_to=f"udp://127.0.0.1:{video_port}", mavlink_to=f"udpout:127.0.0.1:{mavlink_port}",
-                nmea_to=f"127.0.0.1:{nmea_port}", start_s=0.0, duration_s=14.0))
-            timer.join()
+            try:
+                summary = play_flight(FeedPlan(
+                    LOGS / "flight.mp4", LOGS / "flight.SRT", LOGS / "ship.nmea",
+                    video_to=f"udp://127.0.0.1:{video_port}",
+                    mavlink_to=f"udpout:127.0.0.1:{mavlink_port}",
+                    nmea_to=f"127.0.0.1:{nmea_port}", start_s=0.0, duration_s=14.0))
+            finally:
+                timer.cancel()
+                timer.join()
         time.sleep(0.5)
         done.set()
         poller.join(5)

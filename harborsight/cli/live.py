@@ -34,7 +34,8 @@ def _host_port(text: str) -> tuple[str, int]:
     return host, number
 
 
-def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str, camera: str,
+def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str | None,
+                 signalk: str | None, signalk_token: str | None, camera: str,
                  water_level_m: float, mount: str, camera_pitch_deg: float,
                  camera_yaw_deg: float | None, video_delay_s: float, drone_offset_s: float,
                  vessel_offset_s: float, hold_s: float):
@@ -42,6 +43,7 @@ def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str, came
     its option named) and the composer of the frames' metadata."""
     from harborsight.live.mavlink_in import MavlinkDrone, open_mavlink
     from harborsight.live.nmea_in import NmeaVessel, open_udp, parse_nmea_address, run_nmea
+    from harborsight.live.signalk import SignalKVessel, stream_url
     from harborsight.live.telemetry import FrameComposer, LiveTrack
     from harborsight.sim.cameras import CAMERA_PRESETS
     from harborsight.telemetry.metadata import MOUNTS, CameraMount, camera_block_for
@@ -50,27 +52,33 @@ def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str, came
         raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
     if camera not in CAMERA_PRESETS:
         camera_block_for(camera, None, None, None)       # a missing or bad file: say so now
-    address = parse_nmea_address(nmea)
+    address = parse_nmea_address(nmea) if nmea is not None else None
+    signalk_url = stream_url(signalk, "--signalk") if signalk is not None else None
     drone = LiveTrack(f"mavlink {mavlink}", "mavlink",
                       alt_reference=("height above the home point (GLOBAL_POSITION_INT.relative_alt)"
                                      if mavlink_altitude == "relative" else
                                      "above mean sea level (GLOBAL_POSITION_INT.alt)"))
-    vessel = LiveTrack(f"nmea {address}", "nmea")
+    vessel = (LiveTrack(f"nmea {address}", "nmea") if address is not None
+              else LiveTrack(f"signalk {signalk_url}", "signalk"))
     drone.clock.offset_s, vessel.clock.offset_s = drone_offset_s, vessel_offset_s
     for track, name in ((drone, "drone"), (vessel, "vessel")):
         track.on_warning = lambda source, message, name=name: engine.warn(name, message)
     reader = MavlinkDrone(open_mavlink(mavlink), drone, altitude=mavlink_altitude,
                           on_position=lambda now: engine.source_arrived("drone", now))
-    listener = NmeaVessel(vessel, on_fix=lambda now: engine.source_arrived("vessel", now))
-    sock = open_udp(address) if address.kind == "udp" else None     # a port in use: say so now
+    on_fix = lambda now: engine.source_arrived("vessel", now)      # noqa: E731
+    if address is not None:
+        listener = NmeaVessel(vessel, on_fix=on_fix)
+        sock = open_udp(address) if address.kind == "udp" else None     # a port in use: say so now
 
-    def nmea_feed(stop):
-        run_nmea(address, listener, stop, sock)
+        def vessel_feed(stop):
+            run_nmea(address, listener, stop, sock)
+    else:
+        vessel_feed = SignalKVessel(signalk_url, vessel, token=signalk_token, on_fix=on_fix).run
     composer = FrameComposer(
         drone, vessel, camera_for=lambda width, height: camera_block_for(camera, width, height, camera),
         water_level_m=water_level_m, mount=CameraMount(mount, camera_pitch_deg, camera_yaw_deg),
         video_delay_s=video_delay_s, hold_s=hold_s)
-    return [reader.run, nmea_feed], composer
+    return [reader.run, vessel_feed], composer
 
 
 @app.command("live")
@@ -93,6 +101,15 @@ def live_command(
     nmea: Annotated[str | None, typer.Option(
         help="The vessel's live NMEA 0183: udp:PORT, udp:HOST:PORT, tcp:HOST:PORT or a serial "
         "device /dev/ttyUSB0[@BAUD] (RMC/GGA position, HDT/THS/HDG/HDM heading).")] = None,
+    signalk: Annotated[str | None, typer.Option(
+        help="The vessel from a Signal K server instead of --nmea: ws://HOST:3000 "
+        "(navigation.position, navigation.headingTrue of the self vessel).")] = None,
+    signalk_out: Annotated[str | None, typer.Option(
+        help="Publish to a Signal K server, ws://HOST:3000: notifications.harborsight.* "
+        "(normal / warn / alarm per section, alert while data is stale) and the clearances "
+        "(harborsight.clearance.*), for chart plotters and MFDs.")] = None,
+    signalk_token: Annotated[str | None, typer.Option(
+        help="A Signal K access token, for a server with security on.")] = None,
     camera: Annotated[str | None, typer.Option(
         help="With live telemetry: a camera preset (dji-mavic3, dji-p4rtk, dji-m30-wide; "
         "follows the stream's size) or a calibration file of the stream's size.")] = None,
@@ -164,7 +181,7 @@ def live_command(
             alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s)
         except ValueError as exc:
             raise InputError(None, "--danger-m", str(exc)) from None
-        live_telemetry = mavlink is not None or nmea is not None
+        live_telemetry = mavlink is not None or nmea is not None or signalk is not None
         if live_telemetry and metadata is not None:
             raise InputError(None, "--metadata", "give the file's metadata or live telemetry "
                              "(--mavlink, --nmea), not both")
@@ -172,10 +189,16 @@ def live_command(
             raise InputError(None, "--metadata", "give the video's metadata, or live telemetry "
                              "with --mavlink and --nmea")
         if live_telemetry:
-            for option, value in (("--mavlink", mavlink), ("--nmea", nmea), ("--camera", camera),
-                                  ("--water-level-m", water_level_m), ("--vessel", vessel)):
+            if nmea is not None and signalk is not None:
+                raise InputError(None, "--signalk", "the vessel comes from --nmea or --signalk, "
+                                 "not both")
+            for option, value in (("--mavlink", mavlink), ("--nmea", nmea or signalk),
+                                  ("--camera", camera), ("--water-level-m", water_level_m),
+                                  ("--vessel", vessel)):
                 if value is None:
-                    raise InputError(None, option, "needed with live telemetry")
+                    raise InputError(None, option, "needed with live telemetry (the vessel: "
+                                     "--nmea or --signalk)" if option == "--nmea" else
+                                     "needed with live telemetry")
         elif is_stream(video):
             raise InputError(None, "--metadata", "a stream's poses come live: give --mavlink "
                              "and --nmea instead")
@@ -188,6 +211,7 @@ def live_command(
         if live_telemetry:
             feeds, composer = _feeds_setup(
                 engine, mavlink=mavlink, mavlink_altitude=mavlink_altitude, nmea=nmea,
+                signalk=signalk, signalk_token=signalk_token,
                 camera=camera, water_level_m=water_level_m, mount=mount,
                 camera_pitch_deg=camera_pitch_deg, camera_yaw_deg=camera_yaw_deg,
                 video_delay_s=video_delay_s, drone_offset_s=drone_offset_s,
@@ -199,6 +223,15 @@ def live_command(
             frames = file_reader(VideoSource(Path(video), metadata), realtime)
         else:
             frames = _file_frames(Path(video), realtime, engine)
+        publishers = []
+        if signalk_out is not None:
+            from harborsight.live.signalk import SignalKPublisher, stream_url
+
+            signalk_publisher = SignalKPublisher(stream_url(signalk_out, "--signalk-out"),
+                                                 token=signalk_token,
+                                                 warn=lambda message: engine.warn("signalk", message))
+            publishers.append(signalk_publisher.publish)
+            feeds = [*feeds, signalk_publisher.run]
         if address is not None:
             server = LiveServer(engine.state, *address, get_jpeg=engine.annotated_jpeg,
                                 get_frame_index=lambda: engine.frame_index)
@@ -213,8 +246,14 @@ def live_command(
         raise typer.Exit(2) from None
     _stop_on_sigterm()
     try:        # Ctrl-C (or SIGTERM) ends the loop; run_live still returns what it measured
+        if server is not None:
+            publishers.append(server.publish)
+
+        def publish(state: dict) -> None:
+            for send in publishers:
+                send(state)
         summary = run_live(frames, engine, composer=composer, feeds=feeds,
-                           publish=server.publish if server else None, record=record)
+                           publish=publish if publishers else None, record=record)
     finally:
         if server is not None:
             server.stop()

@@ -158,12 +158,10 @@ def _quaternion_wxyz(yaw_deg: float, pitch_deg: float, roll_deg: float) -> list[
 
 
 def _send_mavlink(plan: FeedPlan, drone: Track, video_start: datetime, clock: _Clock) -> None:
-    import os
+    from harborsight.live.mavlink_in import mavlink2
 
-    os.environ.setdefault("MAVLINK20", "1")
-    from pymavlink import mavutil
-
-    connection = mavutil.mavlink_connection(plan.mavlink_to, source_system=1, source_component=1)
+    connection = mavlink2().mavlink_connection(plan.mavlink_to, source_system=1, source_component=1,
+                                               dialect="ardupilotmega")
     mav = connection.mav
     # flight time of each log time
     shift = 0.0 if drone.kind == "dji-srt" else -drone.seconds_of(video_start)

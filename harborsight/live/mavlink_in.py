@@ -41,13 +41,23 @@ ALTITUDES = ("relative", "amsl")
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 
 
-def open_mavlink(address: str):
-    """A pymavlink connection; :class:`InputError` naming ``--mavlink`` if it cannot open."""
-    os.environ.setdefault("MAVLINK20", "1")      # parse v2 frames (v1 ones too)
+def mavlink2():
+    """pymavlink's ``mavutil`` with the MAVLink 2 ArduPilot dialect (a superset of common,
+    parsing v1 frames too). mavutil picks v1 or v2 from ``MAVLINK20`` when a dialect is set,
+    so it is set here whatever imported pymavlink first (v1 has no message above id 255, such
+    as GIMBAL_DEVICE_ATTITUDE_STATUS)."""
+    os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
 
+    return mavutil
+
+
+def open_mavlink(address: str):
+    """A pymavlink connection; :class:`InputError` naming ``--mavlink`` if it cannot open."""
+    mavutil = mavlink2()
     try:
-        return mavutil.mavlink_connection(address, source_system=254, autoreconnect=True)
+        return mavutil.mavlink_connection(address, source_system=254, autoreconnect=True,
+                                          dialect="ardupilotmega")
     except Exception as exc:                     # pymavlink raises what its transport raises
         raise InputError(None, "--mavlink", f"cannot open {address!r}: {exc}") from None
 

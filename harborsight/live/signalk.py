@@ -1,0 +1,215 @@
+"""Signal K, the boat's data bus (a ``signalk-server``; chart plotters and MFDs read it):
+the vessel's pose in (``--signalk ws://HOST:3000``), the clearances and alarms out
+(``--signalk-out ws://HOST:3000``), over the server's WebSocket stream
+(``/signalk/v1/stream``, the ``websockets`` client; ``--signalk-token`` for a server with
+security on). Both reconnect when the server goes away and warn about it.
+
+In: the self vessel's ``navigation.position`` (``latitude``, ``longitude`` in degrees) and
+``navigation.headingTrue`` (radians), each at its update's ``timestamp`` (UTC, mapped to the
+monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`).
+
+Out, as deltas from source ``harborsight`` to the self vessel:
+
+* ``notifications.harborsight.section<k>``: ``state`` ``normal`` (ok), ``warn`` (caution),
+  ``alarm`` (danger), with ``method`` (visual; sound too for an alarm) and ``message``; sent
+  when a section's state changes;
+* ``notifications.harborsight.stale``: ``alert`` while a source is stale (the distances are
+  not current), ``normal`` when none is;
+* ``harborsight.clearance.minimum`` and ``harborsight.clearance.section<k>.distance`` (m),
+  ``.closingSpeed`` (m/s), ``.timeToContact`` (s), at most every ``interval_s`` (0.5 s); a
+  value not known now is sent as null.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from datetime import datetime
+from urllib.parse import urlsplit, urlunsplit
+
+from harborsight.errors import InputError
+from harborsight.live.telemetry import ClockMap, LiveTrack
+
+STREAM_PATH = "/signalk/v1/stream"
+#: a section's status as a Signal K notification state
+NOTIFICATION_STATES = {"ok": "normal", "caution": "warn", "danger": "alarm"}
+
+
+def stream_url(text: str, option: str) -> str:
+    """The server's stream URL from ``ws://HOST:PORT`` (or ``wss://``, or a full stream
+    URL); :class:`InputError` naming ``option`` otherwise."""
+    parts = urlsplit(text)
+    if parts.scheme not in ("ws", "wss") or not parts.hostname:
+        raise InputError(None, option, f"expected ws://HOST:PORT of a Signal K server, got {text!r}")
+    try:
+        _ = parts.port
+    except ValueError:
+        raise InputError(None, option, f"bad port in {text!r}") from None
+    path = parts.path.rstrip("/")
+    if not path.endswith(STREAM_PATH):
+        path = path + STREAM_PATH
+    return urlunsplit((parts.scheme, parts.netloc, path, "subscribe=none", ""))
+
+
+def _connect(url: str, token: str | None):
+    from websockets.sync.client import connect
+
+    headers = {"Authorization": f"Bearer {token}"} if token else None
+    return connect(url, open_timeout=5, additional_headers=headers)
+
+
+class SignalKVessel:
+    """The self vessel's position and heading from a Signal K server into a live track."""
+
+    def __init__(self, url: str, track: LiveTrack, *, token: str | None = None,
+                 on_fix=None) -> None:
+        self.url, self.track, self.token, self.on_fix = url, track, token, on_fix
+        track.utc_clock = ClockMap()              # update timestamps are UTC
+        track.utc_clock.observe(0.0, 0.0)
+        self.updates = 0
+        self.unreadable = 0
+
+    def handle(self, message: str, now_s: float) -> None:
+        try:
+            delta = json.loads(message)
+        except ValueError:
+            self.unreadable += 1
+            return
+        if not isinstance(delta, dict) or not isinstance(delta.get("updates"), list):
+            return                                  # the hello, or not a delta
+        for update in delta["updates"]:
+            try:
+                stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
+                t_s = self.track.clock.observe(stamp.timestamp(), now_s)
+                for item in update.get("values", []):
+                    self._value(item.get("path"), item.get("value"), t_s, now_s)
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
+                self.unreadable += 1
+                if self.unreadable in (1, 10, 100):
+                    self.track.warn(f"Signal K: {self.unreadable} unreadable update(s) skipped ({exc})")
+
+    def _value(self, path, value, t_s: float, now_s: float) -> None:
+        if path == "navigation.position":
+            lat, lon = float(value["latitude"]), float(value["longitude"])
+            if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+                raise ValueError(f"position {lat}, {lon} is off the globe")
+            self.track.add_position(t_s, lat, lon)
+            self.updates += 1
+            if self.on_fix is not None:
+                self.on_fix(now_s)
+        elif path == "navigation.headingTrue" and value is not None:
+            heading = math.degrees(float(value))
+            if not math.isfinite(heading):
+                raise ValueError(f"heading {value!r}")
+            self.track.add_heading(t_s, heading % 360.0)
+
+    def run(self, stop: threading.Event) -> None:
+        subscribe = json.dumps({"context": "vessels.self", "subscribe": [
+            {"path": "navigation.position", "policy": "instant"},
+            {"path": "navigation.headingTrue", "policy": "instant"}]})
+        while not stop.is_set():
+            try:
+                with _connect(self.url, self.token) as socket:
+                    socket.send(subscribe)
+                    while not stop.is_set():
+                        try:
+                            message = socket.recv(timeout=0.2)
+                        except TimeoutError:
+                            continue
+                        self.handle(message, time.monotonic())
+            except Exception as exc:      # refused, dropped, closed by the server
+                if stop.is_set():
+                    break
+                self.track.warn(f"Signal K {self.url}: {exc}; reconnecting")
+                stop.wait(1.0)
+
+
+def _number(value, digits: int):
+    return None if value is None or not math.isfinite(value) else round(float(value), digits)
+
+
+class SignalKPublisher:
+    """Publishes the live state to a Signal K server (module docstring). :meth:`publish`
+    only keeps the newest state; a thread of its own sends, so a slow or absent server never
+    delays the measuring loop."""
+
+    def __init__(self, url: str, *, token: str | None = None, interval_s: float = 0.5,
+                 warn=None) -> None:
+        self.url, self.token, self.interval_s = url, token, interval_s
+        self.warn = warn or (lambda message: None)
+        self._state: dict | None = None
+        self._changed = threading.Event()
+        self._sent_states: dict[str, str] = {}
+        self._last_values_s = -math.inf
+        self.deltas_sent = 0
+
+    def publish(self, state: dict) -> None:
+        self._state = state
+        self._changed.set()
+
+    def deltas(self, state: dict, now_s: float) -> list[dict]:
+        """The deltas for ``state``: changed notifications, and the values when due."""
+        values = []
+        for section in state["sections"]:
+            level = NOTIFICATION_STATES.get(section["status"], "normal")
+            path = f"notifications.harborsight.section{section['index']}"
+            if self._sent_states.get(path) != level:
+                distance = section.get("distance_m")
+                message = (f"harborsight section {section['index']}: {section['status']}"
+                           + ("" if distance is None else f", {distance:.1f} m"))
+                values.append({"path": path, "value": {
+                    "state": level, "message": message,
+                    "method": ["visual", "sound"] if level == "alarm" else ["visual"]}})
+                self._sent_states[path] = level
+        stale = [a["message"] for a in state["alarms"] if a["kind"].startswith("stale_")]
+        level = "alert" if stale else "normal"
+        if self._sent_states.get("notifications.harborsight.stale") != level:
+            values.append({"path": "notifications.harborsight.stale", "value": {
+                "state": level, "method": ["visual"] if stale else [],
+                "message": "; ".join(stale) if stale else "harborsight: all sources current"}})
+            self._sent_states["notifications.harborsight.stale"] = level
+        if now_s - self._last_values_s >= self.interval_s:
+            self._last_values_s = now_s
+            current = not state.get("stale")
+            values.append({"path": "harborsight.clearance.minimum",
+                           "value": _number(state.get("min_distance_m"), 3) if current else None})
+            for section in state["sections"]:
+                base = f"harborsight.clearance.section{section['index']}"
+                for key, name, digits in (("distance_m", "distance", 3),
+                                          ("closing_speed_mps", "closingSpeed", 3),
+                                          ("time_to_contact_s", "timeToContact", 1)):
+                    values.append({"path": f"{base}.{name}",
+                                   "value": _number(section.get(key), digits) if current else None})
+        if not values:
+            return []
+        return [{"context": "vessels.self",
+                 "updates": [{"source": {"label": "harborsight"}, "values": values}]}]
+
+    def run(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            try:
+                with _connect(self.url, self.token) as socket:
+                    self._sent_states.clear()        # a new connection: say everything again
+                    while not stop.is_set():
+                        if not self._changed.wait(0.2):
+                            continue
+                        self._changed.clear()
+                        state = self._state
+                        for delta in self.deltas(state, time.monotonic()):
+                            socket.send(json.dumps(delta))
+                            self.deltas_sent += 1
+                    self._flush(socket)
+            except Exception as exc:      # refused, dropped, closed by the server
+                if stop.is_set():
+                    break
+                self.warn(f"Signal K out {self.url}: {exc}; reconnecting")
+                stop.wait(1.0)
+
+    def _flush(self, socket) -> None:
+        """On stopping: the last state's changes go out before the connection closes."""
+        if self._state is not None:
+            for delta in self.deltas(self._state, math.inf):
+                socket.send(json.dumps(delta))
+                self.deltas_sent += 1

@@ -1,0 +1,195 @@
+"""Signal K in and out (issue #28) against a real signalk-server (npm, installed by
+scripts/setup.sh into .tools/signalk), started on 127.0.0.1 for these tests and stopped after:
+the vessel's pose read from it, the alarms and clearances published to it and read back by its
+REST API as a chart plotter would."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import socket
+import subprocess
+import threading
+import time
+import urllib.request
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+
+from harborsight.live.signalk import SignalKPublisher, SignalKVessel, stream_url
+from harborsight.live.telemetry import LiveTrack
+
+ROOT = Path(__file__).resolve().parents[1]
+SERVER = ROOT / ".tools" / "signalk" / "node_modules" / ".bin" / "signalk-server"
+
+
+@pytest.fixture(scope="module")
+def signalk(tmp_path_factory):
+    """A signalk-server on a socket bound to 127.0.0.1 (passed as systemd socket activation
+    does, so that it never listens anywhere else), with its other interfaces off."""
+    if not SERVER.exists() or shutil.which("node") is None:
+        pytest.skip("signalk-server is not installed (scripts/setup.sh installs it with npm)")
+    config = tmp_path_factory.mktemp("signalk")
+    (config / "settings.json").write_text(json.dumps({
+        "interfaces": {name: False for name in ("tcp", "nmea-tcp", "mdns", "playground",
+                                                "appstore", "plugins", "logfiles", "webapps")},
+        "mdns": False, "pipedProviders": []}))
+    (config / "package.json").write_text(json.dumps({"name": "harborsight-test"}))
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(16)
+    port = listener.getsockname()[1]
+    fd = listener.fileno()
+    log = (config / "server.log").open("w")
+    # the child's fd 3 is the socket (dup2 runs before the child closes what it does not keep)
+    server = subprocess.Popen(
+        [str(SERVER)], env=dict(os.environ, LISTEN_FDS="1", SIGNALK_NODE_CONFIG_DIR=str(config)),
+        preexec_fn=lambda: os.dup2(fd, 3), pass_fds=(fd, 3), stdout=log, stderr=subprocess.STDOUT)
+    listener.close()
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/signalk", timeout=1):
+                    break
+            except OSError:
+                assert server.poll() is None, (config / "server.log").read_text()
+                assert time.monotonic() < deadline, "signalk-server did not start in 60 s"
+                time.sleep(0.3)
+        yield port
+    finally:
+        server.terminate()
+        server.wait(timeout=20)
+        log.close()
+
+
+def _get(port: int, path: str):
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/signalk/v1/api/vessels/self/{path}",
+                                timeout=3) as response:
+        return json.loads(response.read())
+
+
+def test_stream_urls_are_checked():
+    assert stream_url("ws://10.0.0.5:3000", "--signalk") == \
+        "ws://10.0.0.5:3000/signalk/v1/stream?subscribe=none"
+    with pytest.raises(Exception, match="--signalk-out"):
+        stream_url("http://10.0.0.5:3000", "--signalk-out")
+
+
+def test_the_vessel_pose_comes_from_the_server(signalk):
+    """The ship's GPS and gyro publish to the server; harborsight reads the self vessel."""
+    from websockets.sync.client import connect
+
+    url = stream_url(f"ws://127.0.0.1:{signalk}", "--signalk")
+    track = LiveTrack("vessel", "signalk")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = SignalKVessel(url, track)
+    stop = threading.Event()
+    thread = threading.Thread(target=reader.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        time.sleep(1.0)                    # subscribed
+        with connect(url) as ship:
+            for k in range(3):
+                stamp = datetime.now(UTC).isoformat().replace("+00:00", "Z")
+                ship.send(json.dumps({"context": "vessels.self", "updates": [{
+                    "source": {"label": "ship-gps"}, "timestamp": stamp, "values": [
+                        {"path": "navigation.position",
+                         "value": {"latitude": 56.1517 + k * 1e-5, "longitude": 10.2283}},
+                        {"path": "navigation.headingTrue", "value": math.radians(117.7)}]}]}))
+                time.sleep(0.3)
+        deadline = time.monotonic() + 5
+        while reader.updates < 3 and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert reader.updates == 3, warnings
+    vessel = track.track()
+    assert vessel.lat_deg[-1] == pytest.approx(56.1517 + 2e-5)
+    assert vessel.heading_deg[-1] == pytest.approx(117.7)
+    # the updates' UTC times map onto this process's clock within the delivery delay
+    assert abs(vessel.t_s[-1] - time.monotonic()) < 10
+
+
+def test_alarms_and_clearances_reach_the_server(signalk):
+    """States go out as notifications and values; the server's REST API gives them back."""
+    url = stream_url(f"ws://127.0.0.1:{signalk}", "--signalk-out")
+    publisher = SignalKPublisher(url, interval_s=0.0)
+    stop = threading.Event()
+    thread = threading.Thread(target=publisher.run, args=(stop,), daemon=True)
+    thread.start()
+
+    def state(distance: float, status: str, stale: bool = False) -> dict:
+        return {"min_distance_m": distance, "stale": stale,
+                "sections": [{"index": 0, "status": "ok", "distance_m": 9.5,
+                              "closing_speed_mps": 0.0, "time_to_contact_s": None},
+                             {"index": 1, "status": status, "distance_m": distance,
+                              "closing_speed_mps": 0.4, "time_to_contact_s": distance / 0.4}],
+                "alarms": [{"kind": "stale_vessel", "message": "vessel data is 2.5 s old"}] if stale else []}
+    try:
+        for distance, status in ((6.0, "ok"), (4.0, "caution"), (1.5, "danger")):
+            publisher.publish(state(distance, status))
+            time.sleep(0.4)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            notes = _get(signalk, "notifications").get("harborsight", {})
+            if notes.get("section1", {}).get("value", {}).get("state") == "alarm":
+                break
+            time.sleep(0.2)
+        assert notes["section1"]["value"]["state"] == "alarm"
+        assert "sound" in notes["section1"]["value"]["method"]
+        assert notes["section0"]["value"]["state"] == "normal"
+        assert notes["stale"]["value"]["state"] == "normal"
+        clearance = _get(signalk, "harborsight/clearance")
+        assert clearance["minimum"]["value"] == 1.5
+        assert clearance["section1"]["distance"]["value"] == 1.5
+        assert clearance["section1"]["timeToContact"]["value"] == 3.8
+        assert clearance["section1"]["closingSpeed"]["value"] == 0.4
+        # stale data: an alert, and the distances withdrawn (null), never left as current
+        publisher.publish(state(1.5, "danger", stale=True))
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:
+            if _get(signalk, "notifications/harborsight/stale")["value"]["state"] == "alert":
+                break
+            time.sleep(0.2)
+        assert _get(signalk, "notifications/harborsight/stale")["value"]["state"] == "alert"
+        assert _get(signalk, "harborsight/clearance/minimum")["value"] is None
+    finally:
+        stop.set()
+        thread.join(5)
+    assert publisher.deltas_sent >= 4
+
+
+def test_live_publishes_a_replayed_flight_to_signal_k(signalk, tmp_path):
+    """`harborsight live --signalk-out`: the bundled flight's closest approach is a danger
+    alarm on the server, and its clearances are the aid's last state's."""
+    from typer.testing import CliRunner
+
+    from harborsight.cli import app
+
+    flight = ROOT / "harborsight" / "data" / "samples" / "flight"
+    lines = []
+    for k, path in enumerate(sorted((flight / "frames").glob("*.json"))):
+        record = json.loads(path.read_text())
+        record.pop("vessel_spec", None)
+        lines.append(json.dumps(dict(record, frame_index=k)))
+    (tmp_path / "flight.jsonl").write_text("\n".join(lines) + "\n")
+    tug = ROOT / "harborsight" / "data" / "samples" / "vessels" / "harbour-tug" / "vessel.yaml"
+    result = CliRunner().invoke(app, [
+        "live", "--video", str(flight / "logs" / "flight.mp4"), "--metadata",
+        str(tmp_path / "flight.jsonl"), "--vessel", str(tug), "--no-realtime",
+        "--signalk-out", f"ws://127.0.0.1:{signalk}", "--record", str(tmp_path / "record")])
+    assert result.exit_code == 0, result.output
+    last = json.loads((tmp_path / "record" / "states.jsonl").read_text().splitlines()[-1])
+    notes = _get(signalk, "notifications/harborsight")
+    for section in last["sections"]:
+        expected = {"ok": "normal", "caution": "warn", "danger": "alarm"}.get(section["status"], "normal")
+        assert notes[f"section{section['index']}"]["value"]["state"] == expected
+    assert any(notes[f"section{s['index']}"]["value"]["state"] == "alarm" for s in last["sections"])
+    assert _get(signalk, "harborsight/clearance/minimum")["value"] == pytest.approx(
+        last["min_distance_m"], abs=1e-3)
