@@ -276,3 +276,50 @@ def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_pat
     assert "unreadable sentence" in warned and "unreadable MAVLink" in warned
     # the record replays as a flight
     assert len(list((tmp_path / "record" / "frames").glob("*.json"))) >= 8
+
+
+def test_a_stream_that_cannot_be_opened_is_warned_about_and_retried():
+    import threading
+
+    from harborsight.live.stream import LatestFrame
+    from harborsight.live.video_in import read_stream
+
+    box, stop, warnings = LatestFrame(), threading.Event(), []
+    port = _free_port(socket.SOCK_DGRAM)
+    thread = threading.Thread(target=read_stream, args=(f"udp://127.0.0.1:{port}", box, stop),
+                              kwargs={"warn": warnings.append, "retry_s": 0.2, "open_timeout_s": 0.5},
+                              daemon=True)
+    thread.start()
+    time.sleep(1.8)
+    stop.set()
+    thread.join(5)
+    assert not thread.is_alive() and box.closed
+    assert len(warnings) >= 2 and all("cannot open" in w for w in warnings)
+
+
+@pytest.mark.parametrize(("arguments", "option"), [
+    (["--video", "udp://127.0.0.1:5600", "--metadata", "flight.jsonl"], "--metadata"),
+    (["--video", "udp://127.0.0.1:5600", "--mavlink", "udpin:127.0.0.1:14550",
+      "--nmea", "udp:10110"], "--camera"),
+    (["--video", "udp://127.0.0.1:5600", "--mavlink", "udpin:127.0.0.1:14550",
+      "--nmea", "10110", "--camera", "dji-mavic3", "--water-level-m", "0", "--vessel", str(TUG)],
+     "--nmea"),
+    (["--video", "udp://127.0.0.1:5600", "--mavlink", "udpin:127.0.0.1:14550", "--nmea", "udp:1",
+      "--signalk", "ws://127.0.0.1:3000", "--camera", "dji-mavic3", "--water-level-m", "0",
+      "--vessel", str(TUG)], "--signalk"),
+    (["--video", "flight.mp4", "--metadata", "flight.jsonl", "--signalk-out", "http://x:3000",
+      "--vessel", str(TUG)], "--signalk-out"),
+])
+def test_a_wrong_command_line_ends_live_with_one_line_naming_the_option(arguments, option, tmp_path,
+                                                                         monkeypatch):
+    from typer.testing import CliRunner
+
+    from harborsight.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "flight.jsonl").write_text("")
+    (tmp_path / "flight.mp4").write_bytes(b"")
+    result = CliRunner().invoke(app, ["live", *arguments])
+    assert result.exit_code == 2, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and option in errors[0], result.output

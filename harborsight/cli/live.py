@@ -170,6 +170,7 @@ def live_command(
     from harborsight.live.engine import LiveEngine
     from harborsight.live.server import LiveServer
     from harborsight.live.session import file_reader, run_live
+    from harborsight.live.signalk import SignalKPublisher, stream_url
     from harborsight.live.video_in import is_stream, read_stream
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
@@ -181,6 +182,7 @@ def live_command(
             alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s)
         except ValueError as exc:
             raise InputError(None, "--danger-m", str(exc)) from None
+        signalk_out_url = stream_url(signalk_out, "--signalk-out") if signalk_out else None
         live_telemetry = mavlink is not None or nmea is not None or signalk is not None
         if live_telemetry and metadata is not None:
             raise InputError(None, "--metadata", "give the file's metadata or live telemetry "
@@ -224,11 +226,8 @@ def live_command(
         else:
             frames = _file_frames(Path(video), realtime, engine)
         publishers = []
-        if signalk_out is not None:
-            from harborsight.live.signalk import SignalKPublisher, stream_url
-
-            signalk_publisher = SignalKPublisher(stream_url(signalk_out, "--signalk-out"),
-                                                 token=signalk_token,
+        if signalk_out_url is not None:
+            signalk_publisher = SignalKPublisher(signalk_out_url, token=signalk_token,
                                                  warn=lambda message: engine.warn("signalk", message))
             publishers.append(signalk_publisher.publish)
             feeds = [*feeds, signalk_publisher.run]
