@@ -17,6 +17,7 @@ from harborsight.cli import (  # noqa: F401  (each registers its commands)
     simulate,
     telemetry,
     training,
+    vessel,
 )
 from harborsight.cli.app import OWN_RIM_PX, app, console, err_console, main
 from harborsight.cli.numbers import refuse_non_finite_numbers

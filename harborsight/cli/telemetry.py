@@ -38,9 +38,12 @@ _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of
 def telemetry_show(
     logs: Annotated[list[Path], typer.Argument(
         metavar="LOG...",
-        help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, .csv).")],
+        help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, AIS, "
+        ".csv).")],
     utc_offset_h: Annotated[float | None, typer.Option(
         min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
+    mmsi: Annotated[int | None, typer.Option(
+        min=1, max=999_999_999, help="AIS logs: the vessel to show.")] = None,
     json_out: Annotated[Path | None, typer.Option(
         "--json", help="Also write the summaries as JSON.")] = None,
 ) -> None:
@@ -60,7 +63,7 @@ def telemetry_show(
     for path in logs:
         try:
             track = (read_drone_log(path, utc_offset_h) if path.suffix.lower() in DRONE_LOG_SUFFIXES
-                     else read_vessel_track(path))
+                     else read_vessel_track(path, mmsi=mmsi))
         except HarborsightError as exc:
             err_console.print(f"error: {exc}", markup=False, highlight=False)
             failed += 1
@@ -111,8 +114,8 @@ def telemetry_video(
                                               "PX4 .ulg or ArduPilot .bin.")],
     vessel_track: Annotated[Path, typer.Option(
         help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, "
-        "magnetic made true with the WMM) or CSV (time, lat, lon, heading_deg or "
-        "heading_mag_deg).")],
+        "magnetic made true with the WMM), AIS (AIVDM/AIVDO with receiver times; --mmsi) or "
+        "CSV (time, lat, lon, heading_deg or heading_mag_deg).")],
     camera: Annotated[str, typer.Option(
         help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
         "(OpenCV YAML/XML or ROS camera_info).")],
@@ -155,6 +158,13 @@ def telemetry_video(
     max_gap_s: Annotated[float, typer.Option(
         min=0.01, max=3600.0,
         help="Longest gap in a track bridged by interpolation.")] = 1.0,
+    mmsi: Annotated[int | None, typer.Option(
+        min=1, max=999_999_999,
+        help="An AIS vessel track: the vessel (default: the file's own AIVDO reports, or its "
+        "only vessel).")] = None,
+    allow_cog_heading: Annotated[bool, typer.Option(
+        help="An AIS track: where the true heading is not available (511), use the course "
+        "over ground (wrong wherever the vessel moves sideways, as when berthing).")] = False,
 ) -> None:
     """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
     vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
@@ -201,7 +211,7 @@ def telemetry_video(
             raise InputError(None, "--frames", "give --video, or --frames and --fps")
         start = parse_utc_time(video_start, "--video-start") if video_start else None
         drone = read_drone_log(drone_log, utc_offset_h)
-        vessel = read_vessel_track(vessel_track)
+        vessel = read_vessel_track(vessel_track, mmsi=mmsi, allow_cog_heading=allow_cog_heading)
         camera_block = camera_block_for(camera, width, height, drone_log)
         result = build_video_metadata(
             drone, vessel, camera_block, frames, fps, water_level_m=water_level_m,

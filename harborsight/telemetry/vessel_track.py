@@ -68,12 +68,36 @@ from harborsight.telemetry.nmea import Fix, Heading, NmeaDecoder
 from harborsight.telemetry.track import Track
 
 
-def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
-    """NMEA 0183 (``.nmea``, ``.txt``, ``.log``) or CSV (``.csv``) by extension."""
+def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0, *, mmsi: int | None = None,
+                      allow_cog_heading: bool = False) -> Track:
+    """CSV (``.csv``) by extension; else AIS (:mod:`harborsight.telemetry.ais`: ``.ais``, or
+    AIVDM/AIVDO sentences and no RMC/GGA in the file's first 64 kB) for the vessel ``mmsi``;
+    else NMEA 0183."""
     path = Path(path)
     if path.suffix.lower() == ".csv":
         return read_vessel_csv(path)
+    if _is_ais(path):
+        from harborsight.telemetry.ais import read_ais_track
+
+        return read_ais_track(path, mmsi, allow_cog_heading)
+    if mmsi is not None:
+        raise InputError(path, "--mmsi", "an MMSI picks a vessel in an AIS file; this is not one "
+                         "(no AIVDM/AIVDO sentences)")
     return read_vessel_nmea(path, max_heading_gap_s)
+
+
+def _is_ais(path: Path) -> bool:
+    if path.suffix.lower() == ".ais":
+        return True
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(65536).decode("ascii", errors="replace")
+    except OSError:
+        return False                  # the NMEA reader says why it cannot read it
+    has_ais = any(tag in head for tag in ("!AIVDM", "!AIVDO", "!ABVDM", "!BSVDM"))
+    has_fixes = any(f"{talker}{kind}," in head for talker in ("$GP", "$GN", "$GL", "$GA", "$II", "$IN")
+                    for kind in ("RMC", "GGA"))
+    return has_ais and not has_fixes
 
 
 def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: list[float],

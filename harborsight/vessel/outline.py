@@ -104,14 +104,23 @@ def outline_from_mesh(mesh_v: trimesh.Trimesh, mode: str | float) -> np.ndarray:
     return convex_outline(np.asarray(segments).reshape(-1, 3)[:, :2])
 
 
-def outline_from_dimensions(
-    to_bow: float, to_stern: float, to_port: float, to_starboard: float
-) -> np.ndarray:
-    """AIS-style box with a pointed bow, in V (x bow, y starboard).
+BOW_SHAPES = ("pointed", "box")
 
-    The bow is a triangle whose tip lies on the hull's centreline; its length is one beam,
-    at most 35 % of the overall length.
+
+def outline_from_dimensions(
+    to_bow: float, to_stern: float, to_port: float, to_starboard: float, bow: str = "pointed"
+) -> np.ndarray:
+    """AIS-style box with a pointed bow (or a square one: ``bow="box"``, a barge or pontoon),
+    in V (x bow, y starboard).
+
+    The pointed bow is a triangle whose tip lies on the hull's centreline; its length is one
+    beam, at most 35 % of the overall length.
     """
+    if bow not in BOW_SHAPES:
+        raise ValueError(f"bow {bow!r}: expected one of {', '.join(BOW_SHAPES)}")
+    if bow == "box":
+        return convex_outline(np.array([(to_bow, -to_port), (-to_stern, -to_port),
+                                        (-to_stern, to_starboard), (to_bow, to_starboard)]))
     length = to_bow + to_stern
     beam = to_port + to_starboard
     bow_length = min(beam, 0.35 * length)

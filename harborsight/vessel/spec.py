@@ -14,6 +14,7 @@ import trimesh
 from harborsight.errors import InputError, brief
 from harborsight.geometry.camera import load_yaml_text
 from harborsight.vessel.outline import (
+    BOW_SHAPES,
     mesh_in_vessel_frame,
     outline_from_dimensions,
     outline_from_mesh,
@@ -201,7 +202,11 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
             if not MIN_VESSEL_SIZE_M <= total <= MAX_VESSEL_SIZE_M:
                 raise InputError(path, "dimensions", f"{what} is {total:g} m: expected "
                                  f"{MIN_VESSEL_SIZE_M:g} to {MAX_VESSEL_SIZE_M:g} m")
-        outline = outline_from_dimensions(**values)
+        bow = dims.get("bow", "pointed")
+        if bow not in BOW_SHAPES:
+            raise InputError(path, "dimensions.bow", f"expected one of {', '.join(BOW_SHAPES)}, "
+                             f"got {brief(bow)}")
+        outline = outline_from_dimensions(**values, bow=bow)
         air_draft = _positive(doc, "air_draft_m", path) if "air_draft_m" in doc else 0.0
         hull_points = np.vstack((
             np.column_stack((outline, np.zeros(len(outline)))),

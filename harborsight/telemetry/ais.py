@@ -1,0 +1,284 @@
+"""AIS (AIVDM/AIVDO, decoded with pyais): the vessel's track from its own transponder, and its
+hull's dimensions.
+
+Sentences are read line by line; a line that cannot be read (bad checksum, a corrupt payload,
+a message type pyais does not know) is counted and skipped, and multi-part messages are
+assembled from their fragments (by sequence id and channel; a fragment whose partners never
+come is counted). Messages of other vessels are counted and left out: ``mmsi`` picks the
+vessel, and without it the file must hold one vessel's own reports (``!AIVDO``) or one MMSI.
+
+Time. A position report holds only the second of the minute of its fix (``second``, 60 = not
+available). Its UTC time comes from the receiver: an NMEA 4.10 tag block's ``c:`` (Unix
+seconds, or milliseconds) before the sentence, or an ISO 8601 time at the start of the line
+(as many loggers write), moved to the nearest time whose second is the report's (the
+transponder's delay removed, up to ±30 s). A file with neither has no usable time and is
+refused.
+
+Position reports: types 1, 2, 3 (class A), 18 and 19 (class B); a longitude of 181 or latitude
+of 91 means none. Heading: the true heading (511 = not available); without one the report is
+refused, or, with ``allow_cog_heading``, takes the course over ground (3600 = none) with a
+note, since a vessel berthing moves sideways and its course is not its heading.
+
+Dimensions (types 5 and 24 part B, and 19): A to the bow, B to the stern, C to port, D to
+starboard, in metres from the position reference point: exactly the vessel frame's origin
+(design.md). 0 means not available; 511 (A, B) and 63 (C, D) mean that many metres or more.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.telemetry.track import Track
+
+POSITION_TYPES = frozenset({1, 2, 3, 18, 19})
+DIMENSION_TYPES = frozenset({5, 19, 24})
+_LEADING_TIME = re.compile(r"^\s*(\d{4}-\d\d-\d\d[T ]\d\d:\d\d:\d\d(?:\.\d+)?(?:Z|[+-]\d\d:?\d\d)?)")
+
+
+@dataclass
+class AisReport:
+    mmsi: int
+    msg_type: int
+    received: datetime | None
+    own: bool                                   # !AIVDO: the receiving vessel's own report
+    fields: dict
+
+
+@dataclass
+class AisFile:
+    """The decoded messages of a file, and what was left out."""
+
+    path: Path
+    reports: list[AisReport] = field(default_factory=list)
+    unreadable: int = 0
+    unsupported: int = 0
+    orphan_fragments: int = 0
+
+    def notes(self) -> list[str]:
+        out = []
+        if self.unreadable:
+            out.append(f"{self.unreadable} unreadable AIS line(s) skipped (bad checksum or payload)")
+        if self.unsupported:
+            out.append(f"{self.unsupported} AIS message(s) of types pyais does not decode skipped")
+        if self.orphan_fragments:
+            out.append(f"{self.orphan_fragments} fragment(s) of multi-part messages whose other "
+                       "parts never came skipped")
+        return out
+
+
+def _tag_block_time(block: str) -> datetime | None:
+    """``c:`` of an NMEA 4.10 tag block (``s:rx1,c:1777636800*hh``), checksum checked."""
+    body, _, checksum = block.partition("*")
+    expected = 0
+    for char in body:
+        expected ^= ord(char)
+    if checksum and checksum[:2].upper() != f"{expected:02X}":
+        return None
+    match = re.search(r"(?:^|,)c:(\d{1,14}(?:\.\d+)?)(?:,|$)", body)
+    if not match:
+        return None
+    value = float(match[1])
+    if value > 1e11:               # milliseconds
+        value /= 1000.0
+    return datetime.fromtimestamp(value, UTC) if 0 < value < 253402300800 else None
+
+
+def _received(line: str, start: int) -> datetime | None:
+    """The receiver's time of the sentence starting at ``start`` (module docstring)."""
+    block = re.search(r"\\([^\\]*)\\\s*$", line[:start])
+    if block:
+        when = _tag_block_time(block[1])
+        if when is not None:
+            return when
+    match = _LEADING_TIME.match(line)
+    if match:
+        try:
+            when = datetime.fromisoformat(match[1].replace("Z", "+00:00").replace(" ", "T"))
+        except ValueError:
+            return None
+        return when if when.tzinfo else when.replace(tzinfo=UTC)
+    return None
+
+
+def read_ais_file(path: str | Path) -> AisFile:
+    """Every decodable message of an AIS log (module docstring)."""
+    from pyais.messages import NMEAMessage
+
+    path = Path(path)
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    result = AisFile(path)
+    pending: dict[tuple, list] = {}
+    for line in text.splitlines():
+        start = max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
+        if start < 0:
+            continue
+        sentence = line[start:].strip()
+        try:
+            message = NMEAMessage.from_string(sentence)
+            if not message.is_valid:
+                raise ValueError("checksum")
+        except Exception:          # pyais's parse errors are many types
+            result.unreadable += 1
+            continue
+        received = _received(line, start)
+        if message.frag_cnt > 1:
+            key = (message.seq_id, message.channel, message.frag_cnt)
+            parts = pending.setdefault(key, [])
+            if message.frag_num == 1 and parts:
+                result.orphan_fragments += len(parts)
+                parts.clear()
+            parts.append((message, received))
+            if len(parts) < message.frag_cnt:
+                continue
+            del pending[key]
+            try:
+                message = NMEAMessage.assemble_from_iterable([p for p, _ in parts])
+            except Exception:
+                result.orphan_fragments += len(parts)
+                continue
+            received = next((r for _, r in parts if r is not None), None)
+        try:
+            decoded = message.decode()
+        except Exception as exc:
+            if type(exc).__name__ == "UnknownMessageException":
+                result.unsupported += 1
+            else:
+                result.unreadable += 1
+            continue
+        values = decoded.asdict()
+        result.reports.append(AisReport(int(values.get("mmsi", 0)), int(values["msg_type"]), received,
+                                        sentence[3:6] == "VDO",
+                                        values))
+    result.orphan_fragments += sum(len(parts) for parts in pending.values())
+    return result
+
+
+def pick_mmsi(ais: AisFile, mmsi: int | None) -> int:
+    """The vessel's MMSI: the one asked for, else the file's own (VDO) reports', else its
+    only vessel's; :class:`InputError` saying which to choose from otherwise."""
+    seen = Counter(r.mmsi for r in ais.reports)
+    if mmsi is not None:
+        if mmsi not in seen:
+            raise InputError(ais.path, "--mmsi", f"no message from MMSI {mmsi}; the file has "
+                             + (", ".join(f"{m} ({n})" for m, n in seen.most_common(8)) or "none"))
+        return mmsi
+    own = {r.mmsi for r in ais.reports if r.own}
+    if len(own) == 1:
+        return own.pop()
+    if len(seen) == 1:
+        return next(iter(seen))
+    if not seen:
+        raise InputError(ais.path, None, "no decodable AIS message")
+    raise InputError(ais.path, "--mmsi", f"{len(seen)} vessels in the file: give --mmsi, one of "
+                     + ", ".join(f"{m} ({n} messages)" for m, n in seen.most_common(8)))
+
+
+def _fix_time(received: datetime, second: int | None) -> datetime:
+    """The receiver's time moved to the nearest time whose second of the minute is the
+    report's (module docstring)."""
+    if second is None or not 0 <= second <= 59:
+        return received
+    base = received.replace(second=second, microsecond=0)
+    candidates = [base + timedelta(minutes=k) for k in (-1, 0, 1)]
+    return min(candidates, key=lambda c: abs((c - received).total_seconds()))
+
+
+def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading: bool = False
+                   ) -> Track:
+    """The position reports of one vessel as a vessel track (module docstring)."""
+    ais = read_ais_file(path)
+    chosen = pick_mmsi(ais, mmsi)
+    others = sum(1 for r in ais.reports if r.mmsi != chosen)
+    rows, untimed, no_position, no_heading, cog_used = [], 0, 0, 0, 0
+    for report in ais.reports:
+        if report.mmsi != chosen or report.msg_type not in POSITION_TYPES:
+            continue
+        f = report.fields
+        lat, lon = f.get("lat"), f.get("lon")
+        if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
+            no_position += 1
+            continue
+        if report.received is None:
+            untimed += 1
+            continue
+        heading = f.get("heading")
+        if heading is None or heading == 511 or not 0 <= heading < 360:
+            course = f.get("course")
+            if allow_cog_heading and course is not None and 0 <= course < 360:
+                heading = course
+                cog_used += 1
+            else:
+                no_heading += 1
+                continue
+        second = f.get("second")
+        rows.append((_fix_time(report.received, second), float(lat), float(lon), float(heading)))
+    if untimed and not rows:
+        raise InputError(ais.path, None, "AIS position reports carry only the second of the "
+                         "minute: the file needs receiver times (NMEA 4.10 tag blocks with c:, or "
+                         "an ISO 8601 time before each sentence)")
+    if not rows:
+        why = (f"{no_heading} report(s) without a true heading (511): a berthing vessel's "
+               "course is not its heading; --allow-cog-heading uses it anyway" if no_heading
+               else "no position report (types 1, 2, 3, 18, 19) with a position")
+        raise InputError(ais.path, None, f"MMSI {chosen}: {why}")
+    rows.sort(key=lambda r: r[0])
+    notes = ais.notes()
+    if others:
+        notes.append(f"{others} message(s) of other vessels left out (MMSI {chosen} kept)")
+    for count, what in ((no_position, "without a position (lat 91 / lon 181)"),
+                        (untimed, "without a receiver time"),
+                        (no_heading, "without a true heading (511)")):
+        if count:
+            notes.append(f"{count} position report(s) {what} skipped")
+    if cog_used:
+        notes.append(f"WARNING: {cog_used} report(s) without a true heading use the course over "
+                     "ground instead (--allow-cog-heading): wrong wherever the vessel moves "
+                     "sideways")
+    start = rows[0][0]
+    return Track(source=ais.path, kind="ais", t_s=np.array([(r[0] - start).total_seconds() for r in rows]),
+                 lat_deg=np.array([r[1] for r in rows]), lon_deg=np.array([r[2] for r in rows]),
+                 heading_deg=np.array([r[3] for r in rows]), utc_start=start,
+                 clock="seconds since the first report (UTC, receiver time)", notes=notes)
+
+
+@dataclass(frozen=True)
+class AisDimensions:
+    mmsi: int
+    to_bow: int
+    to_stern: int
+    to_port: int
+    to_starboard: int
+    name: str | None = None
+    at_least: tuple[str, ...] = ()            # fields at their largest code: that or more
+
+
+def read_ais_dimensions(path: str | Path, mmsi: int | None = None) -> tuple[AisDimensions, list[str]]:
+    """The vessel's newest complete dimensions (types 5, 19, 24 B) and the file's notes."""
+    ais = read_ais_file(path)
+    chosen = pick_mmsi(ais, mmsi)
+    name, found = None, None
+    for report in ais.reports:
+        if report.mmsi != chosen:
+            continue
+        f = report.fields
+        name = (f.get("shipname") or "").strip(" @") or name
+        if report.msg_type in DIMENSION_TYPES and all(
+                f.get(k) for k in ("to_bow", "to_stern", "to_port", "to_starboard")):
+            found = f
+    if found is None:
+        raise InputError(ais.path, None, f"MMSI {chosen}: no static report (type 5, 19 or 24 "
+                         "part B) with all four dimensions A, B, C, D (0 = not available)")
+    at_least = tuple(k for k, top in (("to_bow", 511), ("to_stern", 511), ("to_port", 63),
+                                      ("to_starboard", 63)) if found[k] >= top)
+    return AisDimensions(chosen, int(found["to_bow"]), int(found["to_stern"]), int(found["to_port"]),
+                         int(found["to_starboard"]), name, at_least), ais.notes()
