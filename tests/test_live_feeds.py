@@ -323,3 +323,27 @@ def test_a_wrong_command_line_ends_live_with_one_line_naming_the_option(argument
     assert result.exit_code == 2, result.output
     errors = [line for line in result.output.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and option in errors[0], result.output
+
+
+def test_the_vessel_from_its_ais_transponder_live():
+    from pyais.encode import encode_dict
+
+    from harborsight.live.ais_in import AisVessel
+
+    track = LiveTrack("vessel", "ais")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    listener = AisVessel(track, mmsi=219000001)
+    second = datetime.now(UTC).second
+    own = {"type": 1, "mmsi": 219000001, "lat": 56.1517, "lon": 10.2283, "heading": 118, "second": second}
+    other = dict(own, mmsi=219999999)
+    listener.feed(encode_dict(own, sentence_type="VDM")[0], 20.0)
+    listener.feed(encode_dict(other, sentence_type="VDM")[0], 20.1)
+    listener.feed(encode_dict(dict(own, heading=511), sentence_type="VDM")[0], 20.2)
+    listener.feed("!AIVDM,1,1,,B,13@ndh@P080flT`P8ES4VCd1P000,0*00", 20.3)
+    vessel = track.track()
+    assert len(vessel) == 1 and vessel.heading_deg[0] == 118.0
+    assert vessel.lat_deg[0] == pytest.approx(56.1517, abs=2e-6)
+    assert abs(vessel.t_s[0] - 20.0) <= 1.5             # the fix's second: at most a second back
+    assert listener.others == 1 and listener.no_heading == 1 and listener.unreadable == 1
+    assert any("true heading" in w for w in warnings) and any("unreadable" in w for w in warnings)

@@ -35,12 +35,14 @@ def _host_port(text: str) -> tuple[str, int]:
 
 
 def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str | None,
-                 signalk: str | None, signalk_token: str | None, camera: str,
+                 signalk: str | None, signalk_token: str | None, ais: str | None,
+                 mmsi: int | None, allow_cog_heading: bool, camera: str,
                  water_level_m: float, mount: str, camera_pitch_deg: float,
                  camera_yaw_deg: float | None, video_delay_s: float, drone_offset_s: float,
                  vessel_offset_s: float, hold_s: float):
     """The live telemetry readers (opened here, so that a bad address ends the command with
     its option named) and the composer of the frames' metadata."""
+    from harborsight.live.ais_in import AisVessel
     from harborsight.live.mavlink_in import MavlinkDrone, open_mavlink
     from harborsight.live.nmea_in import NmeaVessel, open_udp, parse_nmea_address, run_nmea
     from harborsight.live.signalk import SignalKVessel, stream_url
@@ -52,13 +54,15 @@ def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str | Non
         raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
     if camera not in CAMERA_PRESETS:
         camera_block_for(camera, None, None, None)       # a missing or bad file: say so now
-    address = parse_nmea_address(nmea) if nmea is not None else None
+    address = (parse_nmea_address(nmea) if nmea is not None else
+               parse_nmea_address(ais, "--ais") if ais is not None else None)
     signalk_url = stream_url(signalk, "--signalk") if signalk is not None else None
     drone = LiveTrack(f"mavlink {mavlink}", "mavlink",
                       alt_reference=("height above the home point (GLOBAL_POSITION_INT.relative_alt)"
                                      if mavlink_altitude == "relative" else
                                      "above mean sea level (GLOBAL_POSITION_INT.alt)"))
-    vessel = (LiveTrack(f"nmea {address}", "nmea") if address is not None
+    vessel = (LiveTrack(f"{'nmea' if nmea else 'ais'} {address}", "nmea" if nmea else "ais")
+              if address is not None
               else LiveTrack(f"signalk {signalk_url}", "signalk"))
     drone.clock.offset_s, vessel.clock.offset_s = drone_offset_s, vessel_offset_s
     for track, name in ((drone, "drone"), (vessel, "vessel")):
@@ -67,8 +71,10 @@ def _feeds_setup(engine, *, mavlink: str, mavlink_altitude: str, nmea: str | Non
                           on_position=lambda now: engine.source_arrived("drone", now))
     on_fix = lambda now: engine.source_arrived("vessel", now)      # noqa: E731
     if address is not None:
-        listener = NmeaVessel(vessel, on_fix=on_fix)
-        sock = open_udp(address) if address.kind == "udp" else None     # a port in use: say so now
+        listener = (NmeaVessel(vessel, on_fix=on_fix) if nmea is not None else
+                    AisVessel(vessel, mmsi, allow_cog_heading=allow_cog_heading, on_fix=on_fix))
+        # a port in use: say so now
+        sock = open_udp(address, "--nmea" if nmea else "--ais") if address.kind == "udp" else None
 
         def vessel_feed(stop):
             run_nmea(address, listener, stop, sock)
@@ -104,6 +110,14 @@ def live_command(
     signalk: Annotated[str | None, typer.Option(
         help="The vessel from a Signal K server instead of --nmea: ws://HOST:3000 "
         "(navigation.position, navigation.headingTrue of the self vessel).")] = None,
+    ais: Annotated[str | None, typer.Option(
+        help="The vessel from its AIS transponder instead of --nmea: udp:PORT, tcp:HOST:PORT "
+        "or a serial device (AIVDO, or --mmsi's AIVDM position reports).")] = None,
+    mmsi: Annotated[int | None, typer.Option(
+        min=1, max=999_999_999, help="With --ais: the vessel (default: its own AIVDO).")] = None,
+    allow_cog_heading: Annotated[bool, typer.Option(
+        help="With --ais: a report without a true heading takes its course over ground "
+        "(wrong wherever the vessel moves sideways).")] = False,
     signalk_out: Annotated[str | None, typer.Option(
         help="Publish to a Signal K server, ws://HOST:3000: notifications.harborsight.* "
         "(normal / warn / alarm per section, alert while data is stale) and the clearances "
@@ -183,7 +197,7 @@ def live_command(
         except ValueError as exc:
             raise InputError(None, "--danger-m", str(exc)) from None
         signalk_out_url = stream_url(signalk_out, "--signalk-out") if signalk_out else None
-        live_telemetry = mavlink is not None or nmea is not None or signalk is not None
+        live_telemetry = any(v is not None for v in (mavlink, nmea, signalk, ais))
         if live_telemetry and metadata is not None:
             raise InputError(None, "--metadata", "give the file's metadata or live telemetry "
                              "(--mavlink, --nmea), not both")
@@ -191,15 +205,15 @@ def live_command(
             raise InputError(None, "--metadata", "give the video's metadata, or live telemetry "
                              "with --mavlink and --nmea")
         if live_telemetry:
-            if nmea is not None and signalk is not None:
-                raise InputError(None, "--signalk", "the vessel comes from --nmea or --signalk, "
-                                 "not both")
-            for option, value in (("--mavlink", mavlink), ("--nmea", nmea or signalk),
+            if sum(v is not None for v in (nmea, signalk, ais)) > 1:
+                raise InputError(None, "--signalk" if signalk else "--ais", "the vessel comes "
+                                 "from one of --nmea, --signalk and --ais")
+            for option, value in (("--mavlink", mavlink), ("--nmea", nmea or signalk or ais),
                                   ("--camera", camera), ("--water-level-m", water_level_m),
                                   ("--vessel", vessel)):
                 if value is None:
                     raise InputError(None, option, "needed with live telemetry (the vessel: "
-                                     "--nmea or --signalk)" if option == "--nmea" else
+                                     "--nmea, --signalk or --ais)" if option == "--nmea" else
                                      "needed with live telemetry")
         elif is_stream(video):
             raise InputError(None, "--metadata", "a stream's poses come live: give --mavlink "
@@ -213,7 +227,8 @@ def live_command(
         if live_telemetry:
             feeds, composer = _feeds_setup(
                 engine, mavlink=mavlink, mavlink_altitude=mavlink_altitude, nmea=nmea,
-                signalk=signalk, signalk_token=signalk_token,
+                signalk=signalk, signalk_token=signalk_token, ais=ais, mmsi=mmsi,
+                allow_cog_heading=allow_cog_heading,
                 camera=camera, water_level_m=water_level_m, mount=mount,
                 camera_pitch_deg=camera_pitch_deg, camera_yaw_deg=camera_yaw_deg,
                 video_delay_s=video_delay_s, drone_offset_s=drone_offset_s,

@@ -37,8 +37,9 @@ class NmeaAddress:
         return f"{self.kind}:{self.host}:{self.port}"
 
 
-def parse_nmea_address(text: str) -> NmeaAddress:
-    """``udp:PORT``, ``udp:HOST:PORT``, ``tcp:HOST:PORT`` or ``DEVICE[@BAUD]``."""
+def parse_nmea_address(text: str, option: str = "--nmea") -> NmeaAddress:
+    """``udp:PORT``, ``udp:HOST:PORT``, ``tcp:HOST:PORT`` or ``DEVICE[@BAUD]`` (an error
+    names ``option``)."""
     kind, _, rest = text.partition(":")
     try:
         if kind == "udp":
@@ -55,10 +56,10 @@ def parse_nmea_address(text: str) -> NmeaAddress:
         else:
             raise ValueError
     except ValueError:
-        raise InputError(None, "--nmea", f"expected udp:PORT, udp:HOST:PORT, tcp:HOST:PORT or a "
+        raise InputError(None, option, f"expected udp:PORT, udp:HOST:PORT, tcp:HOST:PORT or a "
                          f"serial device such as /dev/ttyUSB0@4800, got {text!r}") from None
     if not 0 < address.port <= 65535:
-        raise InputError(None, "--nmea", f"port {address.port} is not 1-65535")
+        raise InputError(None, option, f"port {address.port} is not 1-65535")
     return address
 
 
@@ -141,7 +142,7 @@ def run_nmea(address: NmeaAddress, vessel: NmeaVessel, stop: threading.Event,
         _run_serial(address, vessel, stop)
 
 
-def open_udp(address: NmeaAddress) -> socket.socket:
+def open_udp(address: NmeaAddress, option: str = "--nmea") -> socket.socket:
     """The bound UDP socket (:class:`InputError` naming ``--nmea`` if the port is taken)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -149,7 +150,7 @@ def open_udp(address: NmeaAddress) -> socket.socket:
         sock.bind((address.host, address.port))
     except OSError as exc:
         sock.close()
-        raise InputError(None, "--nmea", f"cannot listen on {address}: {exc.strerror or exc}") from None
+        raise InputError(None, option, f"cannot listen on {address}: {exc.strerror or exc}") from None
     sock.settimeout(0.2)
     return sock
 

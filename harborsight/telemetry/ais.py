@@ -183,7 +183,7 @@ def pick_mmsi(ais: AisFile, mmsi: int | None) -> int:
                      + ", ".join(f"{m} ({n} messages)" for m, n in seen.most_common(8)))
 
 
-def _fix_time(received: datetime, second: int | None) -> datetime:
+def fix_time(received: datetime, second: int | None) -> datetime:
     """The receiver's time moved to the nearest time whose second of the minute is the
     report's (module docstring)."""
     if second is None or not 0 <= second <= 59:
@@ -221,7 +221,7 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
                 no_heading += 1
                 continue
         second = f.get("second")
-        rows.append((_fix_time(report.received, second), float(lat), float(lon), float(heading)))
+        rows.append((fix_time(report.received, second), float(lat), float(lon), float(heading)))
     if untimed and not rows:
         raise InputError(ais.path, None, "AIS position reports carry only the second of the "
                          "minute: the file needs receiver times (NMEA 4.10 tag blocks with c:, or "

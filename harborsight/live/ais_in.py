@@ -1,0 +1,80 @@
+"""The vessel from its AIS transponder, live: ``--ais udp:PORT`` (or ``tcp:HOST:PORT``, a
+serial device; the transports of :mod:`harborsight.live.nmea_in`) with ``--mmsi``.
+
+Each position report (types 1, 2, 3, 18, 19) of the vessel goes into its live track at its
+fix time: the arrival, moved back to the report's second of the minute (this machine's clock
+gives the minute; a transponder sends within a few seconds of its fix). Reports without a
+true heading (511) are skipped and warned about, or take the course over ground with
+``--allow-cog-heading``. Other vessels' messages and unreadable lines are counted.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+
+from harborsight.live.telemetry import ClockMap, LiveTrack
+from harborsight.telemetry.ais import POSITION_TYPES, fix_time
+
+
+class AisVessel:
+    """Feeds AIVDM/AIVDO lines into the vessel's live track (module docstring)."""
+
+    def __init__(self, track: LiveTrack, mmsi: int | None, *, allow_cog_heading: bool = False,
+                 on_fix: Callable[[float], None] | None = None) -> None:
+        self.track, self.mmsi, self.allow_cog_heading, self.on_fix = track, mmsi, allow_cog_heading, on_fix
+        track.utc_clock = ClockMap()              # fix times are UTC
+        track.utc_clock.observe(0.0, 0.0)
+        self.reports = 0
+        self.others = 0
+        self.unreadable = 0
+        self.no_heading = 0
+
+    def feed(self, line: str, now_s: float) -> None:
+        from pyais.messages import NMEAMessage
+
+        start = max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
+        if start < 0:
+            return
+        try:
+            message = NMEAMessage.from_string(line[start:].strip())
+            if not message.is_valid or message.frag_cnt != 1:
+                if message.is_valid:
+                    return                   # multi-part: static data, not a position
+                raise ValueError("checksum")
+            fields = message.decode().asdict()
+        except Exception:                    # pyais's errors are many types
+            self.unreadable += 1
+            if self.unreadable in (1, 10, 100) or self.unreadable % 1000 == 0:
+                self.track.warn(f"AIS: {self.unreadable} unreadable sentence(s) skipped")
+            return
+        own = line[start + 3:start + 6] == "VDO"
+        mmsi = int(fields.get("mmsi", 0))
+        if (self.mmsi is not None and mmsi != self.mmsi) or (self.mmsi is None and not own):
+            self.others += 1
+            return
+        if int(fields["msg_type"]) not in POSITION_TYPES:
+            return
+        lat, lon = fields.get("lat"), fields.get("lon")
+        if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
+            return
+        heading = fields.get("heading")
+        if heading is None or heading == 511 or not 0 <= heading < 360:
+            course = fields.get("course")
+            if self.allow_cog_heading and course is not None and 0 <= course < 360:
+                heading = course
+            else:
+                self.no_heading += 1
+                if self.no_heading in (1, 10, 100):
+                    self.track.warn(f"AIS: {self.no_heading} report(s) without a true heading "
+                                    "(511) skipped (--allow-cog-heading takes the course)")
+                return
+        now_utc = datetime.fromtimestamp(time.time(), UTC)
+        fix = fix_time(now_utc, fields.get("second"))
+        t_s = self.track.clock.observe(fix.timestamp(), now_s)
+        self.track.add_position(t_s, float(lat), float(lon))
+        self.track.add_heading(t_s, float(heading) % 360.0)
+        self.reports += 1
+        if self.on_fix is not None:
+            self.on_fix(now_s)
