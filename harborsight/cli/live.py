@@ -185,6 +185,7 @@ def live_command(
     from harborsight.live.server import LiveServer
     from harborsight.live.session import file_reader, run_live
     from harborsight.live.signalk import SignalKPublisher, stream_url
+    from harborsight.live.stream import VideoFrames
     from harborsight.live.video_in import is_stream, read_stream
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
@@ -239,7 +240,7 @@ def live_command(
         elif metadata is not None:
             frames = file_reader(VideoSource(Path(video), metadata), realtime)
         else:
-            frames = _file_frames(Path(video), realtime, engine)
+            frames = file_reader(VideoFrames(Path(video)), realtime)
         publishers = []
         if signalk_out_url is not None:
             signalk_publisher = SignalKPublisher(signalk_out_url, token=signalk_token,
@@ -291,41 +292,6 @@ def _stop_on_sigterm() -> None:
 
     if threading.current_thread() is threading.main_thread():     # not when called in a test's thread
         signal.signal(signal.SIGTERM, interrupt)
-
-
-def _file_frames(video: Path, realtime: bool, engine):
-    """A video file's frames without metadata (their poses come from the live feeds), played
-    at the file's frame rate: a rehearsal of a stream."""
-    import time
-
-    import cv2
-
-    from harborsight.flight.sources import FlightFrame
-    from harborsight.live.stream import Arrival
-
-    capture = cv2.VideoCapture(str(video))
-    if not capture.isOpened():
-        raise InputError(video, None, "cannot open the video")
-    fps = capture.get(cv2.CAP_PROP_FPS) or 10.0
-
-    def frames(box, stop, on_arrival):
-        started, index = time.monotonic(), 0
-        try:
-            while not stop.is_set():
-                ok, image = capture.read()
-                if not ok:
-                    break
-                if realtime and stop.wait(max(0.0, started + index / fps - time.monotonic())):
-                    break
-                now = time.monotonic()
-                frame = FlightFrame(index=index, source=f"{video} frame {index}", image=image)
-                on_arrival(frame, now)
-                box.put(Arrival(frame, now))
-                index += 1
-        finally:
-            capture.release()
-            box.close()
-    return frames
 
 
 @app.command("live-feed")

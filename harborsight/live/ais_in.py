@@ -14,8 +14,14 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 
-from harborsight.live.telemetry import ClockMap, LiveTrack
-from harborsight.telemetry.ais import POSITION_TYPES, fix_time
+from harborsight.live.telemetry import LiveTrack
+from harborsight.telemetry.ais import (
+    POSITION_TYPES,
+    fix_time,
+    report_heading,
+    report_position,
+    sentence_start,
+)
 
 
 class AisVessel:
@@ -24,8 +30,7 @@ class AisVessel:
     def __init__(self, track: LiveTrack, mmsi: int | None, *, allow_cog_heading: bool = False,
                  on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.mmsi, self.allow_cog_heading, self.on_fix = track, mmsi, allow_cog_heading, on_fix
-        track.utc_clock = ClockMap()              # fix times are UTC
-        track.utc_clock.observe(0.0, 0.0)
+        track.source_clock_is_utc()
         self.reports = 0
         self.others = 0
         self.unreadable = 0
@@ -34,7 +39,7 @@ class AisVessel:
     def feed(self, line: str, now_s: float) -> None:
         from pyais.messages import NMEAMessage
 
-        start = max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
+        start = sentence_start(line)
         if start < 0:
             return
         try:
@@ -56,25 +61,21 @@ class AisVessel:
             return
         if int(fields["msg_type"]) not in POSITION_TYPES:
             return
-        lat, lon = fields.get("lat"), fields.get("lon")
-        if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
+        position = report_position(fields)
+        if position is None:
             return
-        heading = fields.get("heading")
-        if heading is None or heading == 511 or not 0 <= heading < 360:
-            course = fields.get("course")
-            if self.allow_cog_heading and course is not None and 0 <= course < 360:
-                heading = course
-            else:
-                self.no_heading += 1
-                if self.no_heading in (1, 10, 100):
-                    self.track.warn(f"AIS: {self.no_heading} report(s) without a true heading "
-                                    "(511) skipped (--allow-cog-heading takes the course)")
-                return
+        heading, _ = report_heading(fields, self.allow_cog_heading)
+        if heading is None:
+            self.no_heading += 1
+            if self.no_heading in (1, 10, 100):
+                self.track.warn(f"AIS: {self.no_heading} report(s) without a true heading "
+                                "(511) skipped (--allow-cog-heading takes the course)")
+            return
         now_utc = datetime.fromtimestamp(time.time(), UTC)
         fix = fix_time(now_utc, fields.get("second"))
         t_s = self.track.clock.observe(fix.timestamp(), now_s)
-        self.track.add_position(t_s, float(lat), float(lon))
-        self.track.add_heading(t_s, float(heading) % 360.0)
+        self.track.add_position(t_s, *position)
+        self.track.add_heading(t_s, heading % 360.0)
         self.reports += 1
         if self.on_fix is not None:
             self.on_fix(now_s)

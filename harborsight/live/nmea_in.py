@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import ClockMap, LiveTrack
+from harborsight.live.telemetry import LiveTrack
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_class_m
 from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder
 
@@ -69,8 +69,7 @@ class NmeaVessel:
     def __init__(self, track: LiveTrack, *, on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.on_fix = track, on_fix
         self.decoder = NmeaDecoder()
-        track.utc_clock = ClockMap()              # fix times are UTC already
-        track.utc_clock.observe(0.0, 0.0)
+        track.source_clock_is_utc()
         self._fix_delay_s = 0.0                   # mapped time − arrival of the last fix
         self._last_fix: Fix | None = None
         self._declination: tuple[tuple[float, float], float] | None = None

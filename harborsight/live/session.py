@@ -27,7 +27,7 @@ from harborsight.flight.sources import FlightFrame, VideoSource
 from harborsight.frame import FrameMetadata, parse_frame_metadata
 from harborsight.live.engine import LiveEngine
 from harborsight.live.record import SessionRecorder
-from harborsight.live.stream import LatestFrame, replay_video
+from harborsight.live.stream import LatestFrame, VideoFrames, replay_video
 from harborsight.live.telemetry import FrameComposer
 
 
@@ -54,8 +54,8 @@ class LiveSummary:
 FrameReader = Callable[[LatestFrame, threading.Event, Callable[[FlightFrame, float], None]], None]
 
 
-def file_reader(source: VideoSource, realtime: bool = True) -> FrameReader:
-    """A recorded flight (video + metadata lines) as a frame reader."""
+def file_reader(source: VideoSource | VideoFrames, realtime: bool = True) -> FrameReader:
+    """A recorded flight (video + metadata lines), or a video alone, as a frame reader."""
     return lambda box, stop, on_arrival: replay_video(source, box, stop, realtime, on_arrival)
 
 

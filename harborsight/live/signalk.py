@@ -30,7 +30,7 @@ from datetime import datetime
 from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import ClockMap, LiveTrack
+from harborsight.live.telemetry import LiveTrack
 
 STREAM_PATH = "/signalk/v1/stream"
 #: a section's status as a Signal K notification state
@@ -66,8 +66,7 @@ class SignalKVessel:
     def __init__(self, url: str, track: LiveTrack, *, token: str | None = None,
                  on_fix=None) -> None:
         self.url, self.track, self.token, self.on_fix = url, track, token, on_fix
-        track.utc_clock = ClockMap()              # update timestamps are UTC
-        track.utc_clock.observe(0.0, 0.0)
+        track.source_clock_is_utc()
         self.updates = 0
         self.unreadable = 0
 

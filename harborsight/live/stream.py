@@ -12,9 +12,13 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
+import cv2
+
+from harborsight.errors import InputError
 from harborsight.flight.sources import FlightFrame, VideoSource
 
 
@@ -66,7 +70,33 @@ class LatestFrame:
             return self._closed and self._item is None
 
 
-def replay_video(source: VideoSource, box: LatestFrame, stop: threading.Event, realtime: bool = True,
+class VideoFrames:
+    """A video file's frames without metadata (their poses come from the live feeds): a
+    source for :func:`replay_video`, to rehearse a stream from a file."""
+
+    def __init__(self, video: Path) -> None:
+        capture = cv2.VideoCapture(str(video))
+        if not capture.isOpened():
+            raise InputError(video, None, "cannot open the video")
+        self.video, self.fps = video, capture.get(cv2.CAP_PROP_FPS) or None
+        capture.release()
+
+    def frames(self) -> Iterator[FlightFrame]:
+        capture = cv2.VideoCapture(str(self.video))
+        try:
+            index = 0
+            while True:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                yield FlightFrame(index=index, source=f"{self.video} frame {index}", image=image)
+                index += 1
+        finally:
+            capture.release()
+
+
+def replay_video(source: VideoSource | VideoFrames, box: LatestFrame, stop: threading.Event,
+                 realtime: bool = True,
                  on_arrival: Callable[[FlightFrame, float], None] | None = None) -> None:
     """Read ``source``'s frames into ``box`` until the video ends or ``stop`` is set; with
     ``realtime`` each frame is put in at its time in the video (its index over the frame

@@ -87,6 +87,11 @@ class LiveTrack:
         #: called with (source name, message) for every warning (the dashboard and the log)
         self.on_warning: Callable[[str, str], None] | None = None
 
+    def source_clock_is_utc(self) -> None:
+        """The feed's own times are UTC epoch seconds (NMEA fixes, AIS, Signal K updates)."""
+        self.utc_clock = ClockMap()
+        self.utc_clock.observe(0.0, 0.0)
+
     def warn(self, message: str) -> None:
         if self.on_warning is not None:
             self.on_warning(self.source, message)

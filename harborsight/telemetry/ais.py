@@ -107,6 +107,32 @@ def _received(line: str, start: int) -> datetime | None:
     return None
 
 
+def sentence_start(line: str) -> int:
+    """Where a line's AIS sentence (``!AIVDM``/``!AIVDO``, base station ``!ABVD``/``!BSVD``)
+    starts; −1 for a line without one."""
+    return max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
+
+
+def report_position(fields: dict) -> tuple[float, float] | None:
+    """A report's latitude and longitude, or None where it has none (91 / 181)."""
+    lat, lon = fields.get("lat"), fields.get("lon")
+    if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
+        return None
+    return float(lat), float(lon)
+
+
+def report_heading(fields: dict, allow_cog_heading: bool) -> tuple[float | None, bool]:
+    """A report's true heading (module docstring), or with ``allow_cog_heading`` its course
+    over ground where the heading is 511; and whether the course was used."""
+    heading = fields.get("heading")
+    if heading is not None and heading != 511 and 0 <= heading < 360:
+        return float(heading), False
+    course = fields.get("course")
+    if allow_cog_heading and course is not None and 0 <= course < 360:
+        return float(course), True
+    return None, False
+
+
 def read_ais_file(path: str | Path) -> AisFile:
     """Every decodable message of an AIS log (module docstring)."""
     from pyais.messages import NMEAMessage
@@ -119,7 +145,7 @@ def read_ais_file(path: str | Path) -> AisFile:
     result = AisFile(path)
     pending: dict[tuple, list] = {}
     for line in text.splitlines():
-        start = max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
+        start = sentence_start(line)
         if start < 0:
             continue
         sentence = line[start:].strip()
@@ -204,24 +230,20 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
         if report.mmsi != chosen or report.msg_type not in POSITION_TYPES:
             continue
         f = report.fields
-        lat, lon = f.get("lat"), f.get("lon")
-        if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
+        position = report_position(f)
+        if position is None:
             no_position += 1
             continue
         if report.received is None:
             untimed += 1
             continue
-        heading = f.get("heading")
-        if heading is None or heading == 511 or not 0 <= heading < 360:
-            course = f.get("course")
-            if allow_cog_heading and course is not None and 0 <= course < 360:
-                heading = course
-                cog_used += 1
-            else:
-                no_heading += 1
-                continue
+        heading, from_course = report_heading(f, allow_cog_heading)
+        if heading is None:
+            no_heading += 1
+            continue
+        cog_used += from_course
         second = f.get("second")
-        rows.append((fix_time(report.received, second), float(lat), float(lon), float(heading)))
+        rows.append((fix_time(report.received, second), *position, heading))
     if untimed and not rows:
         raise InputError(ais.path, None, "AIS position reports carry only the second of the "
                          "minute: the file needs receiver times (NMEA 4.10 tag blocks with c:, or "
