@@ -23,8 +23,9 @@ from harborsight.files import prepare_output_file, strict_json
 
 telemetry_app = typer.Typer(rich_markup_mode=None,
     no_args_is_help=True,
-    help="Real flight logs (DJI SRT, PX4 ULog, ArduPilot BIN) and vessel tracks (NMEA 0183, "
-    "CSV): inspect them, and write a video's per-frame metadata for `run`.")
+    help="Real flight logs (DJI SRT, PX4 ULog, ArduPilot BIN), DJI photos and vessel tracks "
+    "(NMEA 0183, AIS, CSV): inspect them, and write per-frame metadata for `run` and "
+    "`measure`.")
 
 
 app.add_typer(telemetry_app, name="telemetry")
@@ -38,8 +39,8 @@ _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of
 def telemetry_show(
     logs: Annotated[list[Path], typer.Argument(
         metavar="LOG...",
-        help="Drone logs (.srt, .ulg, .bin) or vessel tracks (.nmea/.txt/.log NMEA 0183, AIS, "
-        ".csv).")],
+        help="Drone logs (.srt, .ulg, .bin), DJI photos (.jpg: XMP and EXIF) or vessel tracks "
+        "(.nmea/.txt/.log NMEA 0183, AIS, .csv).")],
     utc_offset_h: Annotated[float | None, typer.Option(
         min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
     mmsi: Annotated[int | None, typer.Option(
@@ -51,6 +52,7 @@ def telemetry_show(
     attitude, the accuracy figures it states (one sigma: their range), and what was skipped.
     Exit code 1 if any log could not be read."""
     from harborsight.telemetry import DRONE_LOG_SUFFIXES, read_drone_log
+    from harborsight.telemetry.dji_photo import PHOTO_SUFFIXES
     from harborsight.telemetry.vessel_track import read_vessel_track
 
     if json_out:
@@ -61,6 +63,12 @@ def telemetry_show(
             raise typer.Exit(2) from None
     summaries, failed = [], 0
     for path in logs:
+        if path.suffix.lower() in PHOTO_SUFFIXES:
+            summary = _show_photo(path)
+            failed += summary is None
+            if summary is not None:
+                summaries.append(summary)
+            continue
         try:
             track = (read_drone_log(path, utc_offset_h) if path.suffix.lower() in DRONE_LOG_SUFFIXES
                      else read_vessel_track(path, mmsi=mmsi))
@@ -233,3 +241,135 @@ def telemetry_video(
         for reason, count in reasons.most_common():
             err_console.print(f"  {count} x {reason}", markup=False, highlight=False)
     raise typer.Exit(1 if not result.frames else 0)
+
+
+def _show_photo(path: Path) -> dict | None:
+    """Print what a DJI photo holds; its summary, or None (error printed) if unreadable."""
+    from harborsight.telemetry.dji_photo import read_dji_photo
+
+    try:
+        photo = read_dji_photo(path)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        return None
+    summary = photo.summary()
+    table = Table(title=f"{path} (DJI photo)", title_justify="left", show_header=False)
+    table.add_column("what")
+    table.add_column("value")
+
+    def number(value, digits, unit=""):
+        return "—" if value is None else f"{value:.{digits}f}{unit}"
+
+    table.add_row("camera", " ".join(v for v in (summary["make"], summary["model"],
+                                                 summary["drone_model"]) if v) or "unknown")
+    table.add_row("image", f"{photo.width}x{photo.height}"
+                  + ("" if photo.image_whole else " (image data cut short)"))
+    table.add_row("position", "—" if summary["lat_deg"] is None else
+                  f"{summary['lat_deg']:.8f}°, {summary['lon_deg']:.8f}°")
+    table.add_row("altitude", f"relative {number(summary['relative_altitude_m'], 2, ' m')} "
+                  "(above the take-off point), absolute "
+                  f"{number(summary['absolute_altitude_m'], 2, ' m')}")
+    for key, what in (("gimbal_ypr_deg", "gimbal yaw/pitch/roll"),
+                      ("flight_ypr_deg", "airframe yaw/pitch/roll")):
+        angles = summary[key]
+        table.add_row(what, "—" if angles is None else " / ".join(f"{a:.2f}°" for a in angles))
+    camera = summary["camera"]
+    table.add_row("intrinsics", summary["camera_from"] if camera is None else
+                  f"fx {camera['fx']:.1f}, fy {camera['fy']:.1f}, cx {camera['cx']:.1f}, "
+                  f"cy {camera['cy']:.1f} px; " + summary["camera_from"])
+    table.add_row("capture time", (f"{summary['utc']} UTC; " if summary["utc"] else "")
+                  + summary["clock"])
+    table.add_row("accuracy (1σ)", summary["accuracy"] if summary["position_sigma_m"] is None
+                  else f"position {summary['position_sigma_m']:.3f} m per axis ({summary['accuracy']})")
+    for note in summary["notes"]:
+        table.add_row("note", note)
+    console.print(table)
+    return summary
+
+
+@telemetry_app.command("photos")
+def telemetry_photos(
+    photos: Annotated[list[Path], typer.Argument(
+        metavar="PHOTO_OR_DIR...", help="DJI photos (.jpg) or folders of them.")],
+    vessel_track: Annotated[Path, typer.Option(
+        help="The vessel's track: NMEA 0183, AIS (with receiver times; --mmsi) or CSV.")],
+    water_level_m: Annotated[float, typer.Option(
+        min=-10000.0, max=10000.0,
+        help="The water surface in the altitude's datum: with the default relative altitude, "
+        "metres above the take-off point (-3.5 for a take-off from a deck 3.5 m above the "
+        "water).")],
+    out: Annotated[Path, typer.Option(
+        help="Folder for the frame files (<photo stem>.json, `image` pointing at the photo).")],
+    utc_offset_h: Annotated[float | None, typer.Option(
+        min=-14.0, max=14.0,
+        help="Hours the drone's clock (EXIF DateTimeOriginal: local time, set from the "
+        "remote's phone or tablet) is ahead of UTC, e.g. 2 for CEST. Needed when the photo "
+        "states no zone (OffsetTimeOriginal) and no UTC time (UTCAtExposure, GPS time stamp); "
+        "wins over OffsetTimeOriginal.")] = None,
+    altitude: Annotated[str, typer.Option(
+        help="relative (RelativeAltitude: barometric, above the take-off point) or absolute "
+        "(AbsoluteAltitude: mean sea level on most DJI models, the ellipsoid on RTK ones).")
+    ] = "relative",
+    gimbal_yaw_reference: Annotated[str, typer.Option(
+        help="true: GimbalYawDegree is from true north (DJI corrects its compass for the "
+        "declination); magnetic: add the World Magnetic Model's declination.")] = "true",
+    camera: Annotated[Path | None, typer.Option(
+        help="A calibration file (OpenCV YAML/XML or ROS camera_info) of the photos' size, "
+        "instead of the intrinsics the photos give (DewarpData, calibrated focal length, the "
+        "model's sensor or the 35 mm equivalent).")] = None,
+    vessel_offset_s: Annotated[float, typer.Option(
+        min=-86400.0, max=86400.0,
+        help="Seconds added to each photo's UTC time before reading the vessel track.")] = 0.0,
+    max_gap_s: Annotated[float, typer.Option(
+        min=0.01, max=3600.0, help="Longest gap in the vessel track bridged by interpolation.")
+    ] = 1.0,
+    mmsi: Annotated[int | None, typer.Option(
+        min=1, max=999_999_999, help="An AIS vessel track: the vessel.")] = None,
+    allow_cog_heading: Annotated[bool, typer.Option(
+        help="An AIS track: use the course over ground where the heading is not available.")
+    ] = False,
+) -> None:
+    """Write one harborsight.frame/1 file per DJI photo (pose, gimbal attitude, intrinsics and
+    accuracy from its XMP and EXIF; the vessel sampled at its capture time) for
+    `harborsight measure OUT --vessel ...`. A photo that cannot be a frame is listed with its
+    reason and skipped. Exit code 1 when no frame was written, 2 for a bad option or track."""
+    from harborsight.cli.progress import progress_report
+    from harborsight.files import prepare_output_folder
+    from harborsight.telemetry.dji_photo import ALTITUDES, YAW_REFERENCES
+    from harborsight.telemetry.metadata import camera_block_for
+    from harborsight.telemetry.photo_batch import find_photos, write_photo_frames
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    try:
+        if altitude not in ALTITUDES:
+            raise InputError(None, "--altitude", f"{altitude!r}: expected {' or '.join(ALTITUDES)}")
+        if gimbal_yaw_reference not in YAW_REFERENCES:
+            raise InputError(None, "--gimbal-yaw-reference", f"{gimbal_yaw_reference!r}: "
+                             f"expected {' or '.join(YAW_REFERENCES)}")
+        paths = find_photos(photos)
+        prepare_output_folder(out, "--out")
+        camera_block = None if camera is None else camera_block_for(str(camera), None, None, None)
+        vessel = read_vessel_track(vessel_track, mmsi=mmsi, allow_cog_heading=allow_cog_heading)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    with progress_report("photos", len(paths), console, unit="photos") as progress:
+        batch = write_photo_frames(
+            paths, vessel, out, water_level_m=water_level_m, utc_offset_h=utc_offset_h,
+            altitude=altitude, yaw_reference=gimbal_yaw_reference,
+            vessel_offset_s=vessel_offset_s, max_gap_s=max_gap_s, camera=camera_block,
+            on_photo=lambda _: progress.advance())
+    for note in vessel.notes:
+        err_console.print(f"note: {vessel.source}: {note}", markup=False, highlight=False)
+    for note, names in list(batch.notes.items())[:12]:
+        where = names[0] if len(names) == 1 else f"{len(names)} photos"
+        err_console.print(f"note: {note} ({where})", markup=False, highlight=False)
+    if len(batch.notes) > 12:
+        err_console.print(f"note: ... and {len(batch.notes) - 12} other notes", highlight=False)
+    console.print(f"{len(batch.written)} of {len(paths)} photo(s) written as frames to {out}",
+                  highlight=False)
+    if batch.skipped:
+        err_console.print(f"[red]{len(batch.skipped)} photo(s) left out:[/]")
+        for path, reason in batch.skipped:
+            err_console.print(f"  {path.name}: {reason}", markup=False, highlight=False)
+    raise typer.Exit(0 if batch.written else 1)
