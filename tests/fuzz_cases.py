@@ -453,6 +453,72 @@ def run_dataflash(data: bytes) -> str:
     return _refused(lambda: _check_track(read_ardupilot_bin(path)))
 
 
+
+@functools.cache
+def photo_seed() -> bytes:
+    """A DJI photo with a full XMP packet (a Phantom 4 RTK's calibration and RTK fields) and
+    EXIF, written by ElementTree and Pillow (tests/dji_photos.py)."""
+    from tests.dji_photos import P4RTK_CALIBRATION, write_dji_photo
+
+    rgb = np.random.default_rng(29).integers(0, 255, (48, 64, 3), np.uint8)
+    xmp = {**P4RTK_CALIBRATION, "GpsLatitude": "+56.151608098", "GpsLongtitude": "+10.228217041",
+           "RelativeAltitude": "+59.92", "AbsoluteAltitude": "+104.92",
+           "GimbalYawDegree": "-30.33", "GimbalPitchDegree": "-87.57", "GimbalRollDegree": "+0.00",
+           "RtkFlag": "50", "RtkStdLon": "0.01274", "RtkStdLat": "0.01122", "RtkStdHgt": "0.02394",
+           "CalibratedOpticalCenterX": "32.0", "CalibratedOpticalCenterY": "24.0"}
+    path = write_dji_photo(scratch() / "seed.jpg", rgb, xmp, exif={
+        "DateTimeOriginal": "2026:05:01 14:00:05", "OffsetTimeOriginal": "+02:00",
+        "FocalLength": 8.8, "FocalLengthIn35mmFilm": 24}, gps=(56.1516, 10.2282))
+    return path.read_bytes()
+
+
+def run_dji_photo(data: bytes) -> str:
+    """A photo read, summarised and (where it has a pose) made a drone track: checked
+    finite where it is taken."""
+    from harborsight.telemetry.dji_photo import capture_utc, photo_track, read_dji_photo
+
+    def read() -> None:
+        photo = read_dji_photo(write_case("DJI_0001.JPG", data))
+        json.dumps(photo.summary(), allow_nan=False, default=str)
+        when, _ = capture_utc(photo, 2.0)
+        _check_track(photo_track(photo, when=when))
+
+    return _refused(read)
+
+
+@functools.cache
+def ais_seed() -> str:
+    """An own-vessel AIS log with receiver tag blocks, another vessel and a two-part static
+    report, written by pyais's encoder."""
+    from pyais.encode import encode_dict
+
+    def tag(seconds: float) -> str:
+        body = f"s:rx1,c:{seconds:.0f}"
+        checksum = 0
+        for char in body:
+            checksum ^= ord(char)
+        return f"\\{body}*{checksum:02X}\\"
+
+    start, lines = 1_777_636_800, []
+    for k in range(12):
+        report = {"type": 1, "mmsi": 219000001, "lat": 56.1517 - 1e-5 * k, "lon": 10.2283,
+                  "heading": 118, "course": 117.7, "speed": 0.8, "second": (2 * k) % 60}
+        lines.append(tag(start + 2 * k + 1.4) + encode_dict(report)[0])
+        other = {"type": 18, "mmsi": 219999999, "lat": 56.2, "lon": 10.3, "heading": 10,
+                 "second": 5}
+        lines.append(tag(start + 2 * k + 1.5) + encode_dict(other, radio_channel="B")[0])
+    lines += encode_dict({"type": 5, "mmsi": 219000001, "shipname": "HARBOUR TUG", "to_bow": 20,
+                          "to_stern": 12, "to_port": 5, "to_starboard": 5}, seq_id=3)
+    return "\n".join(lines) + "\n"
+
+
+def run_ais(data: bytes) -> str:
+    from harborsight.telemetry.ais import read_ais_dimensions, read_ais_track
+
+    path = write_case("ship.ais", data)
+    _refused(lambda: read_ais_dimensions(path, mmsi=219000001))
+    return _refused(lambda: _check_track(read_ais_track(path, mmsi=219000001)))
+
 # -- measure_frame on valid poses --------------------------------------------------------------
 
 #: radial distortion k1 of the generated cameras: none, mild barrel or pincushion, and a
@@ -581,5 +647,7 @@ TARGETS = {
                  run_ulog),
     "ardupilot-bin": (st.deferred(lambda: mutated_bytes(log_seed("ardupilot/test.BIN"))),
                       run_dataflash),
+    "dji-photo": (st.deferred(lambda: mutated_bytes(photo_seed())), run_dji_photo),
+    "ais": (st.deferred(lambda: text_bytes([ais_seed()])), run_ais),
     "measure-frame": (pose_case(), run_measure),
 }

@@ -175,3 +175,26 @@ def test_a_torn_or_salted_ais_log_never_raises_and_keeps_what_came_before(tmp_pa
         if trial % 2 == 0:      # only cut: every whole line before the cut was read
             assert len(ais.reports) >= min(complete, lines_before) - 2
             assert len(track) >= lines_before // 2 - 1
+
+
+def _with_checksum(body: str) -> str:
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"!{body}*{checksum:02X}"
+
+
+def test_a_payload_cut_inside_its_mmsi_and_a_receiver_time_at_the_end_of_time(tmp_path):
+    """Found by benchmarks/fuzz_parsers.py: a payload of one character decodes with no MMSI
+    (it was int(None)), and a receiver time in the last minute of the year 9999 overflowed
+    while being moved to the report's second."""
+    own = _own_log(tmp_path).read_text().splitlines()
+    lines = [_tag(START) + _with_checksum("AIVDO,1,1,,A,1,0"),
+             "9999-12-31T23:59:59Z " + encode_dict(_report(0))[0], *own]
+    path = _log(tmp_path, lines, "odd.ais")
+    ais = read_ais_file(path)
+    assert ais.unreadable >= 2                  # the cut payload and the bad checksum
+    track = read_ais_track(path, mmsi=OWN)
+    assert len(track) == 11                     # the year-9999 fix kept, at a time of its own
+    at = track.seconds_of(datetime.fromtimestamp(START + 5, UTC))
+    assert np.isfinite(track.sample(np.array([at]))["lat_deg"]).all()

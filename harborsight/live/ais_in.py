@@ -19,6 +19,7 @@ from harborsight.telemetry.ais import (
     POSITION_TYPES,
     fix_time,
     report_heading,
+    report_identity,
     report_position,
     sentence_start,
 )
@@ -55,11 +56,15 @@ class AisVessel:
                 self.track.warn(f"AIS: {self.unreadable} unreadable sentence(s) skipped")
             return
         own = line[start + 3:start + 6] == "VDO"
-        mmsi = int(fields.get("mmsi", 0))
+        identity = report_identity(fields)
+        if identity is None:
+            self.unreadable += 1
+            return
+        mmsi, kind = identity
         if (self.mmsi is not None and mmsi != self.mmsi) or (self.mmsi is None and not own):
             self.others += 1
             return
-        if int(fields["msg_type"]) not in POSITION_TYPES:
+        if kind not in POSITION_TYPES:
             return
         position = report_position(fields)
         if position is None:

@@ -113,6 +113,13 @@ def sentence_start(line: str) -> int:
     return max(line.find("!AIVD"), line.find("!ABVD"), line.find("!BSVD"))
 
 
+def report_identity(fields: dict) -> tuple[int, int] | None:
+    """A decoded message's MMSI and type, or None where its payload was cut inside them
+    (pyais then decodes them as None)."""
+    mmsi, kind = fields.get("mmsi"), fields.get("msg_type")
+    return (mmsi, kind) if isinstance(mmsi, int) and isinstance(kind, int) else None
+
+
 def report_position(fields: dict) -> tuple[float, float] | None:
     """A report's latitude and longitude, or None where it has none (91 / 181)."""
     lat, lon = fields.get("lat"), fields.get("lon")
@@ -182,9 +189,11 @@ def read_ais_file(path: str | Path) -> AisFile:
                 result.unreadable += 1
             continue
         values = decoded.asdict()
-        result.reports.append(AisReport(int(values.get("mmsi", 0)), int(values["msg_type"]), received,
-                                        sentence[3:6] == "VDO",
-                                        values))
+        identity = report_identity(values)
+        if identity is None:
+            result.unreadable += 1
+            continue
+        result.reports.append(AisReport(*identity, received, sentence[3:6] == "VDO", values))
     result.orphan_fragments += sum(len(parts) for parts in pending.values())
     return result
 
@@ -215,7 +224,12 @@ def fix_time(received: datetime, second: int | None) -> datetime:
     if second is None or not 0 <= second <= 59:
         return received
     base = received.replace(second=second, microsecond=0)
-    candidates = [base + timedelta(minutes=k) for k in (-1, 0, 1)]
+    candidates = []
+    for minutes in (-1, 0, 1):
+        try:
+            candidates.append(base + timedelta(minutes=minutes))
+        except OverflowError:           # a receiver time in the first or last minute of 1-9999
+            continue
     return min(candidates, key=lambda c: abs((c - received).total_seconds()))
 
 
