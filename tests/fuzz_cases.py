@@ -519,6 +519,31 @@ def run_ais(data: bytes) -> str:
     _refused(lambda: read_ais_dimensions(path, mmsi=219000001))
     return _refused(lambda: _check_track(read_ais_track(path, mmsi=219000001)))
 
+
+@functools.cache
+def bag_seed(kind: str) -> bytes:
+    """The storage file of a bag of the bundled flight's poses (no images), written by
+    rosbags (tests/ros_bags.py): ``ros1`` (.bag), ``sqlite3`` (.db3) or ``mcap``."""
+    from tests.ros_bags import write_flight_bag
+
+    folder = scratch() / f"seed-{kind}"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    bag = write_flight_bag(folder / ("flight.bag" if kind == "ros1" else "bag"), kind,
+                           range(0, 48, 4), with_images=False)
+    storage = bag if kind == "ros1" else next(p for p in bag.iterdir() if p.suffix != ".yaml")
+    return storage.read_bytes()
+
+
+def run_bag(suffix: str):
+    def run(data: bytes) -> str:
+        from harborsight.telemetry.rosbag import read_bag_track
+
+        path = write_case("flight" + suffix, data)
+        return _refused(lambda: _check_track(read_bag_track(path)))
+
+    return run
+
 # -- measure_frame on valid poses --------------------------------------------------------------
 
 #: radial distortion k1 of the generated cameras: none, mild barrel or pincushion, and a
@@ -649,5 +674,8 @@ TARGETS = {
                       run_dataflash),
     "dji-photo": (st.deferred(lambda: mutated_bytes(photo_seed())), run_dji_photo),
     "ais": (st.deferred(lambda: text_bytes([ais_seed()])), run_ais),
+    "rosbag1": (st.deferred(lambda: mutated_bytes(bag_seed("ros1"))), run_bag(".bag")),
+    "rosbag2-db3": (st.deferred(lambda: mutated_bytes(bag_seed("sqlite3"))), run_bag(".db3")),
+    "rosbag2-mcap": (st.deferred(lambda: mutated_bytes(bag_seed("mcap"))), run_bag(".mcap")),
     "measure-frame": (pose_case(), run_measure),
 }

@@ -54,6 +54,9 @@ test_nmea = _property("nmea", 200)
 test_vessel_csv = _property("vessel-csv", 200)
 test_dji_photo = _property("dji-photo", 200)
 test_ais = _property("ais", 200)
+test_rosbag1 = _property("rosbag1", 100)
+test_rosbag2_db3 = _property("rosbag2-db3", 100)
+test_rosbag2_mcap = _property("rosbag2-mcap", 100)
 test_px4_ulog = pytest.mark.skipif(not log_seed("px4/sample_log_small.ulg"),
                                    reason="no PX4 sample in ../shared/data/telemetry")(
     _property("px4-ulog", 25))

@@ -39,7 +39,8 @@ _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of
 def telemetry_show(
     logs: Annotated[list[Path], typer.Argument(
         metavar="LOG...",
-        help="Drone logs (.srt, .ulg, .bin), DJI photos (.jpg: XMP and EXIF) or vessel tracks "
+        help="Drone logs (.srt, .ulg, .bin, ROS bags .bag/.db3/.mcap or a ROS 2 bag folder: "
+        "its topics are listed), DJI photos (.jpg: XMP and EXIF) or vessel tracks "
         "(.nmea/.txt/.log NMEA 0183, AIS, .csv).")],
     utc_offset_h: Annotated[float | None, typer.Option(
         min=-14.0, max=14.0, help=_UTC_OFFSET_HELP)] = None,
@@ -51,7 +52,7 @@ def telemetry_show(
     """What each log holds: samples, rate, duration, UTC start, extent, altitude datum,
     attitude, the accuracy figures it states (one sigma: their range), and what was skipped.
     Exit code 1 if any log could not be read."""
-    from harborsight.telemetry import DRONE_LOG_SUFFIXES, read_drone_log
+    from harborsight.telemetry import is_drone_log, read_drone_log
     from harborsight.telemetry.dji_photo import PHOTO_SUFFIXES
     from harborsight.telemetry.vessel_track import read_vessel_track
 
@@ -70,7 +71,9 @@ def telemetry_show(
                 summaries.append(summary)
             continue
         try:
-            track = (read_drone_log(path, utc_offset_h) if path.suffix.lower() in DRONE_LOG_SUFFIXES
+            if path.suffix.lower() in (".bag", ".db3", ".mcap") or path.is_dir():
+                _show_bag_topics(path)
+            track = (read_drone_log(path, utc_offset_h) if is_drone_log(path)
                      else read_vessel_track(path, mmsi=mmsi))
         except HarborsightError as exc:
             err_console.print(f"error: {exc}", markup=False, highlight=False)
@@ -373,3 +376,129 @@ def telemetry_photos(
         for path, reason in batch.skipped:
             err_console.print(f"  {path.name}: {reason}", markup=False, highlight=False)
     raise typer.Exit(0 if batch.written else 1)
+
+
+def _show_bag_topics(path: Path) -> None:
+    """Print a bag's topics, and which each role would use."""
+    from harborsight.telemetry.rosbag import choose_topics
+    from harborsight.telemetry.rosbag_io import open_bag
+
+    reader = open_bag(path)
+    topics = choose_topics(reader)
+    roles = {topics.image: "image", topics.fix: "position", topics.rel_alt: "height",
+             topics.camera_info: "intrinsics",
+             topics.attitude: f"attitude ({topics.attitude_of})" if topics.attitude else None}
+    table = Table(title=f"{path} ({reader.kind} bag{', damaged' if reader.damaged else ''})",
+                  title_justify="left")
+    for column in ("topic", "type", "messages", "used as"):
+        table.add_column(column)
+    for name in sorted(reader.topics):
+        info = reader.topics[name]
+        table.add_row(name, info.msgtype, str(info.count), roles.get(name) or "")
+    console.print(table)
+
+
+@telemetry_app.command("bag")
+def telemetry_bag(
+    bag: Annotated[Path, typer.Argument(
+        metavar="BAG", help="A ROS 1 .bag, a ROS 2 bag folder, or its .db3 / .mcap file.")],
+    vessel_track: Annotated[Path, typer.Option(
+        help="The vessel's track: NMEA 0183, AIS (with receiver times; --mmsi) or CSV.")],
+    water_level_m: Annotated[float, typer.Option(
+        min=-10000.0, max=10000.0,
+        help="The water surface in the altitude's datum: the WGS-84 ellipsoid for a "
+        "NavSatFix altitude, the take-off point for a rel_alt topic (`telemetry show BAG` "
+        "says which).")],
+    out: Annotated[Path, typer.Option(
+        help="Flight folder to write: images/ and frames/ (then `harborsight run OUT`).")],
+    image_topic: Annotated[str | None, typer.Option(
+        help="sensor_msgs/Image or CompressedImage topic (default: the one with most "
+        "messages).")] = None,
+    fix_topic: Annotated[str | None, typer.Option(
+        help="sensor_msgs/NavSatFix topic.")] = None,
+    attitude_topic: Annotated[str | None, typer.Option(
+        help="Imu, QuaternionStamped or PoseStamped topic (default: one named like "
+        "gimbal/camera, else the one with most messages).")] = None,
+    attitude_of: Annotated[str, typer.Option(
+        help="What the attitude topic describes: auto (gimbal when its name says gimbal, "
+        "camera or mount), gimbal (the camera: x its optical axis) or vehicle (the "
+        "airframe).")] = "auto",
+    attitude_frame: Annotated[str, typer.Option(
+        help="enu: ROS's REP 103 (world east-north-up, body forward-left-up; MAVROS); ned: "
+        "north-east-down and forward-right-down (PX4, DJI).")] = "enu",
+    camera_info_topic: Annotated[str | None, typer.Option(
+        help="sensor_msgs/CameraInfo topic.")] = None,
+    rel_alt_topic: Annotated[str | None, typer.Option(
+        help="std_msgs/Float64 or Float32 height above the take-off point (default: a topic "
+        "named like rel_alt; without one, the NavSatFix altitude).")] = None,
+    camera: Annotated[Path | None, typer.Option(
+        help="A calibration file (OpenCV YAML/XML or ROS camera_info) instead of the bag's "
+        "CameraInfo.")] = None,
+    mount: Annotated[str, typer.Option(
+        help="auto (the gimbal's attitude where the topic is the camera's, else stabilised), "
+        "gimbal, stabilised or rigid, as for `telemetry video`.")] = "auto",
+    camera_pitch_deg: Annotated[float, typer.Option(
+        min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch.")] = -90.0,
+    vessel_offset_s: Annotated[float, typer.Option(
+        min=-86400.0, max=86400.0,
+        help="Seconds added to each image's UTC time before reading the vessel track.")] = 0.0,
+    max_gap_s: Annotated[float, typer.Option(
+        min=0.01, max=3600.0, help="Longest gap in a track bridged by interpolation.")] = 1.0,
+    every: Annotated[int, typer.Option(
+        min=1, max=100_000, help="Write every N-th image of the topic.")] = 1,
+    mmsi: Annotated[int | None, typer.Option(
+        min=1, max=999_999_999, help="An AIS vessel track: the vessel.")] = None,
+    allow_cog_heading: Annotated[bool, typer.Option(
+        help="An AIS track: use the course over ground where the heading is not available.")
+    ] = False,
+) -> None:
+    """Turn a ROS bag into a flight folder for `harborsight run`: each image of the image
+    topic with the drone's pose (NavSatFix, rel_alt, attitude) and the vessel's sampled at
+    its header stamp, intrinsics from CameraInfo. An image that cannot be a frame is listed
+    and skipped. Exit code 1 when no frame was written."""
+    from harborsight.cli.progress import progress_report
+    from harborsight.files import prepare_output_folder
+    from harborsight.telemetry.metadata import MOUNTS, CameraMount, camera_block_for
+    from harborsight.telemetry.rosbag import choose_topics, read_bag_track, write_bag_frames
+    from harborsight.telemetry.rosbag_io import open_bag
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    try:
+        if mount not in MOUNTS:
+            raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
+        prepare_output_folder(out, "--out")
+        camera_block = None if camera is None else camera_block_for(str(camera), None, None, None)
+        vessel = read_vessel_track(vessel_track, mmsi=mmsi, allow_cog_heading=allow_cog_heading)
+        reader = open_bag(bag)
+        topics = choose_topics(reader, image=image_topic, fix=fix_topic, attitude=attitude_topic,
+                               camera_info=camera_info_topic, rel_alt=rel_alt_topic,
+                               attitude_of=attitude_of)
+        drone = read_bag_track(bag, reader=reader, topics=topics, attitude_frame=attitude_frame)
+        total = reader.topics[topics.image].count if topics.image else None
+        with progress_report("bag", total, console, unit="images") as progress:
+            result = write_bag_frames(
+                reader, topics, drone, vessel, out, water_level_m=water_level_m,
+                mount=CameraMount(mount, camera_pitch_deg), camera=camera_block,
+                vessel_offset_s=vessel_offset_s, max_gap_s=max_gap_s, every=every,
+                on_image=lambda _: progress.advance())
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    for track in (drone, vessel):
+        for note in track.notes:
+            err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
+    for role, others in topics.others.items():
+        if others:
+            err_console.print(f"note: other {role} topics not used: {', '.join(others)}",
+                              markup=False, highlight=False)
+    console.print(f"{result.written} of {result.images} image(s) of {topics.image} written as "
+                  f"frames to {out} (position {topics.fix}, attitude {topics.attitude or 'none'}"
+                  f", intrinsics {result.camera_from}, altitude {drone.alt_reference})",
+                  highlight=False)
+    if result.skipped:
+        reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
+        err_console.print(f"[red]{len(result.skipped)} image(s) left out[/] (images "
+                          f"{result.skipped[0][0]}..{result.skipped[-1][0]}):")
+        for reason, count in reasons.most_common():
+            err_console.print(f"  {count} x {reason}", markup=False, highlight=False)
+    raise typer.Exit(0 if result.written else 1)

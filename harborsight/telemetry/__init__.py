@@ -1,7 +1,8 @@
 """Readers that turn real logs into tracks, and tracks into ``harborsight.frame/1`` metadata.
 
 Drone: DJI video ``.SRT`` (:mod:`.dji_srt`), PX4 ``.ulg`` and ArduPilot DataFlash ``.bin``
-(:mod:`.autopilot`). Vessel: NMEA 0183 or CSV (:mod:`.vessel_track`). A video's per-frame
+(:mod:`.autopilot`), ROS 1 and ROS 2 bags (:mod:`.rosbag`), DJI still photos
+(:mod:`.dji_photo`). Vessel: NMEA 0183 or CSV (:mod:`.vessel_track`). A video's per-frame
 metadata: :mod:`.metadata`.
 """
 
@@ -13,16 +14,29 @@ from harborsight.errors import InputError
 from harborsight.telemetry.track import Track
 
 DRONE_LOG_SUFFIXES = {".srt": "DJI video telemetry", ".ulg": "PX4 ULog",
-                      ".bin": "ArduPilot DataFlash"}
+                      ".bin": "ArduPilot DataFlash", ".bag": "ROS 1 bag",
+                      ".db3": "ROS 2 bag (SQLite)", ".mcap": "ROS 2 bag (MCAP)"}
+
+
+def is_drone_log(path: str | Path) -> bool:
+    """Whether ``path`` is read as a drone log: by its suffix, or a ROS 2 bag folder."""
+    path = Path(path)
+    return path.suffix.lower() in DRONE_LOG_SUFFIXES or (
+        path.is_dir() and (path / "metadata.yaml").is_file())
 
 
 def read_drone_log(path: str | Path, utc_offset_h: float | None = None) -> Track:
-    """A drone log by its extension: ``.srt`` (DJI), ``.ulg`` (PX4), ``.bin`` (ArduPilot).
-    ``utc_offset_h`` places a DJI SRT's local date lines in UTC."""
+    """A drone log by its extension: ``.srt`` (DJI), ``.ulg`` (PX4), ``.bin`` (ArduPilot),
+    ``.bag``/``.db3``/``.mcap`` or a ROS 2 bag folder (topics found by type:
+    :mod:`.rosbag`). ``utc_offset_h`` places a DJI SRT's local date lines in UTC."""
     path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".bag", ".db3", ".mcap") or (path.is_dir() and is_drone_log(path)):
+        from harborsight.telemetry.rosbag import read_bag_track
+
+        return read_bag_track(path)
     if not path.is_file():
         raise InputError(path, None, "file not found")
-    suffix = path.suffix.lower()
     if suffix == ".srt":
         from harborsight.telemetry.dji_srt import read_dji_srt
 
@@ -39,4 +53,4 @@ def read_drone_log(path: str | Path, utc_offset_h: float | None = None) -> Track
     raise InputError(path, None, f"unknown drone log type {suffix!r}: expected {known}")
 
 
-__all__ = ["DRONE_LOG_SUFFIXES", "Track", "read_drone_log"]
+__all__ = ["DRONE_LOG_SUFFIXES", "Track", "is_drone_log", "read_drone_log"]
