@@ -122,9 +122,9 @@ def test_vessel_from_ais_writes_a_spec_of_the_hull(tmp_path, bow):
     assert spec.sections().n_sections == 12 and spec.name == "harbour-tug"
 
 
-def test_an_ais_track_drives_telemetry_video_like_the_nmea_one(tmp_path):
-    """The bundled flight's ship track, re-sent as its AIS reports (heading rounded to a degree
-    as AIS does), gives the same frames as its NMEA within AIS's resolution."""
+def _flight_ais(tmp_path: Path) -> Path:
+    """The bundled flight's ship track re-sent as AIS position reports (whole seconds, heading
+    rounded to a degree as AIS does), received 0.3 s after each fix."""
     nmea = read_vessel_track(LOGS / "ship.nmea")
     lines = []
     for t, lat, lon, heading in zip(nmea.t_s, nmea.lat_deg, nmea.lon_deg, nmea.heading_deg, strict=True):
@@ -134,7 +134,13 @@ def test_an_ais_track_drives_telemetry_video_like_the_nmea_one(tmp_path):
         report = {"type": 1, "mmsi": OWN, "lat": lat, "lon": lon, "heading": round(heading),
                   "second": round(when) % 60}
         lines.append(_tag(when + 0.3) + encode_dict(report)[0])
-    ais = _log(tmp_path, lines)
+    return _log(tmp_path, lines)
+
+
+def test_an_ais_track_drives_telemetry_video_like_the_nmea_one(tmp_path):
+    """The bundled flight's ship track, re-sent as its AIS reports (heading rounded to a degree
+    as AIS does), gives the same frames as its NMEA within AIS's resolution."""
+    ais = _flight_ais(tmp_path)
     outputs = {}
     for name, track in (("nmea", LOGS / "ship.nmea"), ("ais", ais)):
         out = tmp_path / f"{name}.jsonl"
@@ -198,3 +204,35 @@ def test_a_payload_cut_inside_its_mmsi_and_a_receiver_time_at_the_end_of_time(tm
     assert len(track) == 11                     # the year-9999 fix kept, at a time of its own
     at = track.seconds_of(datetime.fromtimestamp(START + 5, UTC))
     assert np.isfinite(track.sample(np.array([at]))["lat_deg"]).all()
+
+
+def test_an_ais_vessel_track_through_to_reports(tmp_path):
+    """AIS to a report: DJI photos of the flight (tests/test_dji_photo.py), the vessel from its
+    AIS reports, measured with the exact masks, against the ground truth."""
+    import shutil
+
+    from tests.test_dji_photo import _flight_photo
+
+    indices = (10, 24, 38)                   # whole seconds: AIS reports whole seconds
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for index in indices:
+        _flight_photo(tmp_path, index)
+        shutil.copy(SAMPLES / "flight" / "labels" / f"{index:06d}.png", masks / f"DJI_{index:04d}.png")
+    runner = CliRunner()
+    result = runner.invoke(app, ["telemetry", "photos", str(tmp_path / "photos"), "--vessel-track",
+                                 str(_flight_ais(tmp_path)), "--mmsi", str(OWN),
+                                 "--water-level-m", "0", "--out", str(tmp_path / "frames")])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(app, ["measure", str(tmp_path / "frames"), "--masks", str(masks),
+                                 "--vessel", str(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"),
+                                 "--out", str(tmp_path / "out"), "--no-tables"])
+    assert result.exit_code == 0, result.output
+    errors = []
+    for index in indices:
+        report = json.loads((tmp_path / "out" / f"DJI_{index:04d}.json").read_text())
+        truth = json.loads((SAMPLES / "flight" / "frames" / f"{index:06d}.json").read_text())
+        expected = {s["index"]: s["distance_m"] for s in truth["ground_truth"]["sections"]}
+        errors += [abs(s["distance_m"] - expected[s["index"]]) for s in report["sections"]
+                   if s["status"] == "ok" and expected.get(s["index"]) is not None]
+    assert len(errors) >= 12 and np.median(errors) < 0.2
