@@ -12,6 +12,12 @@ process's resident memory after the first minute and at the end.
     .venv/bin/python benchmarks/bench_live.py --size 1920x1080 --fps 30 --seconds 600
     .venv/bin/python benchmarks/bench_live.py --stall-at-s 10 --stall-s 3 --seconds 20
     .venv/bin/python benchmarks/bench_live.py --stream [--size 1280x720 --fps 10]
+    .venv/bin/python benchmarks/bench_live.py --websocket [--stream]
+
+With ``--websocket`` the states are also pushed by the dashboard's server (Starlette + uvicorn
+on 127.0.0.1, as ``--http`` runs it) to a WebSocket client in this process, and the latency
+from a frame's arrival to the client's receipt of its state is printed (the issue's measure):
+the state's own latency plus the push (publish to receipt, one monotonic clock).
 
 With ``--stream`` the flight goes over the wire instead (its 24 s, the telemetry cannot be
 looped): ``live-feed``'s sender encodes the scaled video as H.264 MPEG-TS over UDP on
@@ -171,6 +177,54 @@ def stream_live(folder: Path, engine: LiveEngine, width: int, height: int, fps: 
     return summary
 
 
+class WebSocketTimes:
+    """The dashboard's server on 127.0.0.1 with a WebSocket client in a thread: for each newly
+    measured frame, the state's latency plus the time from its publication to its receipt."""
+
+    def __init__(self, engine: LiveEngine) -> None:
+        from websockets.sync.client import connect
+
+        from harborsight.live.server import LiveServer
+
+        self.server = LiveServer(engine.state, "127.0.0.1", 0)
+        self.server.start()
+        self.published_s: dict[int, float] = {}
+        self.totals_ms: list[float] = []
+        self.push_ms: list[float] = []
+        self._seen: set[int] = set()
+        self._socket = connect(f"ws://127.0.0.1:{self.server.port}/ws")
+        self._thread = threading.Thread(target=self._receive, daemon=True)
+        self._thread.start()
+        time.sleep(0.3)                                     # the server registers the client
+
+    def publish(self, state: dict) -> None:
+        index = state.get("frame_index")
+        if index is not None and index not in self.published_s:
+            self.published_s[index] = time.monotonic()
+        self.server.publish(state)
+
+    def _receive(self) -> None:
+        try:
+            for text in self._socket:
+                received = time.monotonic()
+                state = json.loads(text)
+                index = state.get("frame_index")
+                if index is None or index in self._seen or index not in self.published_s \
+                        or state.get("latency_ms") is None:
+                    continue
+                self._seen.add(index)
+                push = (received - self.published_s[index]) * 1000.0
+                self.push_ms.append(push)
+                self.totals_ms.append(state["latency_ms"] + push)
+        except Exception:            # closed at the end
+            return
+
+    def close(self) -> None:
+        time.sleep(0.3)
+        self._socket.close()
+        self.server.stop()
+
+
 def rss_mb() -> float:
     """Resident memory now (Linux /proc), in MB."""
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -189,6 +243,8 @@ def main() -> None:
     parser.add_argument("--stall-s", type=float, default=3.0)
     parser.add_argument("--stream", action="store_true",
                         help="over UDP: H.264 MPEG-TS video, MAVLink, NMEA (the flight's 24 s)")
+    parser.add_argument("--websocket", action="store_true",
+                        help="push the states to a WebSocket client and time their receipt")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     target = args.p95_target_ms or (150.0 if width * height <= 1280 * 720 else 250.0)
@@ -222,13 +278,21 @@ def main() -> None:
                 publish.last_index = state["frame_index"]
         publish.last_index = None
 
+        pushed = WebSocketTimes(engine) if args.websocket else None
+
+        def deliver(state: dict) -> None:
+            publish(state)
+            if pushed is not None:
+                pushed.publish(state)
         started = time.monotonic()
         if args.stream:
-            summary = stream_live(Path(tmp), engine, width, height, args.fps, publish)
+            summary = stream_live(Path(tmp), engine, width, height, args.fps, deliver)
         else:
-            summary = run_live(file_reader(source), engine, publish=publish)
+            summary = run_live(file_reader(source), engine, publish=deliver)
         elapsed = time.monotonic() - started
         stop.set()
+        if pushed is not None:
+            pushed.close()
         memory["end"] = rss_mb()
     latencies = summary.latencies_ms
     quarter = max(1, len(latencies) // 4)
@@ -247,6 +311,12 @@ def main() -> None:
     print(f"latency ms: median {statistics.median(latencies):.0f}, p95 {p95(latencies):.0f} "
           f"(target {target:.0f}: {target / p95(latencies):.2f}x), max {max(latencies):.0f}; "
           f"p95 first quarter {p95(latencies[:quarter]):.0f}, last quarter {p95(latencies[-quarter:]):.0f}")
+    if pushed is not None and pushed.totals_ms:
+        totals, pushes = pushed.totals_ms, pushed.push_ms
+        print(f"to a WebSocket client, ms: arrival to receipt median {statistics.median(totals):.0f}, "
+              f"p95 {p95(totals):.0f} (target {target:.0f}: {target / p95(totals):.2f}x), max "
+              f"{max(totals):.0f}; the push alone median {statistics.median(pushes):.1f}, p95 "
+              f"{p95(pushes):.1f}; {len(totals)} measured frames received")
     if "after_60_s" in memory:
         print(f"memory MB: after 60 s {memory['after_60_s']:.0f}, end {memory['end']:.0f} "
               f"(growth {memory['end'] - memory['after_60_s']:+.0f}; target within 50)")

@@ -21,7 +21,7 @@ if command -v dpkg-query >/dev/null 2>&1; then
         dpkg-query -W -f='${Status}' "$deb" 2>/dev/null | grep -q "ok installed" || missing="$missing $deb"
     done
 fi
-# the live aid's Signal K test runs a real signalk-server (npm)
+# the live aid's Signal K and RTSP tests run real servers from npm (signalk-server, rtsp-streaming-server)
 if ! command -v npm >/dev/null 2>&1; then
     missing="$missing nodejs npm"
 fi
@@ -52,4 +52,13 @@ if [ ! -f ".tools/signalk/.installed-$SIGNALK_VERSION" ]; then
     mkdir -p .tools/signalk
     npm install --silent --no-audit --no-fund --prefix .tools/signalk "signalk-server@$SIGNALK_VERSION"
     touch ".tools/signalk/.installed-$SIGNALK_VERSION"
+fi
+
+# rtsp-streaming-server for the live aid's RTSP test (tests/test_live_feeds.py), in .tools/rtsp
+RTSP_SERVER_VERSION=2.1.0
+if [ ! -f ".tools/rtsp/.installed-$RTSP_SERVER_VERSION" ]; then
+    echo "installing rtsp-streaming-server $RTSP_SERVER_VERSION (npm) into .tools/rtsp"
+    mkdir -p .tools/rtsp
+    npm install --silent --no-audit --no-fund --prefix .tools/rtsp "rtsp-streaming-server@$RTSP_SERVER_VERSION"
+    touch ".tools/rtsp/.installed-$RTSP_SERVER_VERSION"
 fi

@@ -192,20 +192,67 @@ def _state(port: int) -> dict | None:
     return None
 
 
+RTSP_SERVER = (Path(__file__).resolve().parents[1] / ".tools" / "rtsp" / "node_modules"
+               / "rtsp-streaming-server")
+
+
+@pytest.fixture
+def rtsp_server():
+    """An RTSP server (rtsp-streaming-server from npm, installed by scripts/setup.sh into
+    .tools/rtsp) on 127.0.0.1: (publish URL, receive URL). It carries RTP over UDP only."""
+    import shutil
+    import threading
+
+    node = shutil.which("node")
+    if node is None or not RTSP_SERVER.is_dir():
+        pytest.skip("rtsp-streaming-server (npm) or node is missing: scripts/setup.sh installs them")
+    publish_port, client_port = _free_port(), _free_port()
+    rtp_start = 20000 + 2 * (os.getpid() % 4000)
+    server = subprocess.Popen([node, str(Path(__file__).parent / "servers" / "rtsp_server.js"),
+                               str(RTSP_SERVER), str(publish_port), str(client_port), str(rtp_start)],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ready = threading.Event()
+    threading.Thread(target=lambda: ready.set() if "ready" in server.stdout.readline() else None,
+                     daemon=True).start()
+    try:
+        assert ready.wait(20), "the RTSP server did not start in 20 s"
+        yield (f"rtsp://127.0.0.1:{publish_port}/flight", f"rtsp://127.0.0.1:{client_port}/flight")
+    finally:
+        server.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            server.wait(5)
+        if server.poll() is None:
+            server.kill()
+
+
 def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_path):
     """The bundled flight's video as H.264 MPEG-TS over UDP, its SRT as MAVLink over UDP, the
     ship's NMEA over UDP, into `harborsight live` run as a user would; garbage on both
     telemetry ports mid-flight."""
+    video_port = _free_port(socket.SOCK_DGRAM)
+    _stream_flight_into_live(tmp_path, f"udp://127.0.0.1:{video_port}",
+                             f"udp://127.0.0.1:{video_port}", [], "tcp")
+
+
+def test_the_flight_published_to_an_rtsp_server_is_measured_against_its_truth(tmp_path, rtsp_server):
+    """As above, with the video published to a real RTSP server and `live` reading it from
+    there (RTP over UDP: the server has no TCP transport)."""
+    publish_url, receive_url = rtsp_server
+    _stream_flight_into_live(tmp_path, publish_url, receive_url,
+                             ["--rtsp-transport", "udp"], "udp", min_frames=6)
+
+
+def _stream_flight_into_live(tmp_path, video_to: str, video_from: str, live_options: list[str],
+                             rtsp_transport: str, min_frames: int = 8) -> None:
     truth = {}
     for path in sorted((FLIGHT / "frames").glob("*.json")):
         record = json.loads(path.read_text())
         stamp = datetime.fromisoformat(record["timestamp"].replace("Z", "+00:00")).timestamp()
         truth[stamp] = {s["index"]: s["distance_m"] for s in record["ground_truth"]["sections"]}
-    video_port, mavlink_port, nmea_port, http_port = (
-        _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM),
-        _free_port())
-    command = [sys.executable, "-m", "harborsight.cli", "live",
-               "--video", f"udp://127.0.0.1:{video_port}",
+    mavlink_port, nmea_port, http_port = (
+        _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM), _free_port())
+    command = [sys.executable, "-m", "harborsight.cli", "live", *live_options,
+               "--video", video_from,
                "--mavlink", f"udpin:127.0.0.1:{mavlink_port}", "--nmea", f"udp:127.0.0.1:{nmea_port}",
                "--camera", "dji-mavic3", "--water-level-m", "0", "--vessel", str(TUG),
                "--http", f"127.0.0.1:{http_port}", "--record", str(tmp_path / "record")]
@@ -237,9 +284,9 @@ def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_pat
             try:
                 summary = play_flight(FeedPlan(
                     LOGS / "flight.mp4", LOGS / "flight.SRT", LOGS / "ship.nmea",
-                    video_to=f"udp://127.0.0.1:{video_port}",
-                    mavlink_to=f"udpout:127.0.0.1:{mavlink_port}",
-                    nmea_to=f"127.0.0.1:{nmea_port}", start_s=0.0, duration_s=14.0))
+                    video_to=video_to, mavlink_to=f"udpout:127.0.0.1:{mavlink_port}",
+                    nmea_to=f"127.0.0.1:{nmea_port}", start_s=0.0, duration_s=14.0,
+                    rtsp_transport=rtsp_transport))
             finally:
                 timer.cancel()
                 timer.join()
@@ -253,7 +300,7 @@ def test_the_flight_streamed_live_over_udp_is_measured_against_its_truth(tmp_pat
     assert summary.frames == 28 and summary.nmea_lines == 56
     assert "frame(s) measured" in output
     measured = [s for s in states if s["frame_time"] is not None]
-    assert len({s["frame_index"] for s in measured}) >= 8, output
+    assert len({s["frame_index"] for s in measured}) >= min_frames, output
     errors, lags = [], []
     for state in measured:
         stamp = datetime.fromisoformat(state["frame_time"].replace("Z", "+00:00")).timestamp()

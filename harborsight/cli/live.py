@@ -93,6 +93,9 @@ def live_command(
         help="The drone's video: a file (with --realtime it plays at its own frame rate, as a "
         "stream would arrive), or a stream: rtsp://, rtmp://, srt://, udp:// (MPEG-TS), "
         "http(s):// or a capture device (/dev/video0). A stream that drops is reopened.")],
+    rtsp_transport: Annotated[str, typer.Option(
+        help="An rtsp:// video: tcp (RTP inside the RTSP connection; survives a lossy link "
+        "and NAT) or udp (for servers without TCP).")] = "tcp",
     metadata: Annotated[Path | None, typer.Option(
         help="A file's telemetry: JSON lines, one harborsight.frame/1 object per video frame "
         "(drone and vessel poses), replayed on the video's clock. Without it: --mavlink and "
@@ -186,13 +189,15 @@ def live_command(
     from harborsight.live.session import file_reader, run_live
     from harborsight.live.signalk import SignalKPublisher, stream_url
     from harborsight.live.stream import VideoFrames
-    from harborsight.live.video_in import is_stream, read_stream
+    from harborsight.live.video_in import RTSP_TRANSPORTS, is_stream, read_stream
     from harborsight.pipeline import VesselCache
     from harborsight.vessel.spec import load_vessel_spec
 
     server = None
     try:
         address = _host_port(http) if http else None
+        if rtsp_transport not in RTSP_TRANSPORTS:
+            raise InputError(None, "--rtsp-transport", f"{rtsp_transport!r}: expected tcp or udp")
         try:
             alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s)
         except ValueError as exc:
@@ -236,7 +241,8 @@ def live_command(
                 vessel_offset_s=vessel_offset_s, hold_s=hold_s)
         if is_stream(video):
             def frames(box, stop, on_arrival):
-                read_stream(video, box, stop, on_arrival, lambda message: engine.warn("video", message))
+                read_stream(video, box, stop, on_arrival, lambda message: engine.warn("video", message),
+                            rtsp_transport=rtsp_transport)
         elif metadata is not None:
             frames = file_reader(VideoSource(Path(video), metadata), realtime)
         else:
@@ -302,7 +308,10 @@ def live_feed_command(
     vessel_track: Annotated[Path, typer.Option(
         help="The vessel's NMEA 0183 log, sent line by line at its fixes' times.")],
     video_to: Annotated[str, typer.Option(
-        help="Where the video goes: an MPEG-TS URL (udp://HOST:PORT).")] = "udp://127.0.0.1:5600",
+        help="Where the video goes: an MPEG-TS URL (udp://HOST:PORT), or an RTSP server to "
+        "publish to (rtsp://HOST:PORT/PATH).")] = "udp://127.0.0.1:5600",
+    rtsp_transport: Annotated[str, typer.Option(
+        help="Publishing to rtsp://: RTP over tcp or udp.")] = "tcp",
     mavlink_to: Annotated[str, typer.Option(
         help="Where MAVLink goes (pymavlink address).")] = "udpout:127.0.0.1:14550",
     nmea_to: Annotated[str, typer.Option(
@@ -317,7 +326,8 @@ def live_feed_command(
         min=-14.0, max=14.0, help="A DJI SRT's local date lines: hours ahead of UTC.")] = None,
 ) -> None:
     """Play a recorded flight as the live feeds a drone and a ship send, in real time: video
-    as H.264 MPEG-TS over UDP, the drone's log as MAVLink, the vessel's NMEA over UDP. For
+    as H.264 MPEG-TS over UDP (or published to an RTSP server), the drone's log as MAVLink,
+    the vessel's NMEA over UDP. For
     rehearsing `harborsight live --video udp://... --mavlink ... --nmea ...`."""
     from harborsight.live.feed import FeedPlan, play_flight
     from harborsight.telemetry.metadata import parse_utc_time
@@ -330,12 +340,14 @@ def live_feed_command(
         host, _, port = nmea_to.rpartition(":")
         if not host or not port.isdigit() or not 0 < int(port) <= 65535:
             raise InputError(None, "--nmea-to", f"expected HOST:PORT, got {nmea_to!r}")
-        if not video_to.startswith(("udp://", "rtp://", "srt://", "tcp://")):
+        if not video_to.startswith(("udp://", "rtp://", "srt://", "tcp://", "rtsp://")):
             raise InputError(None, "--video-to", f"expected an MPEG-TS URL such as "
-                             f"udp://127.0.0.1:5600, got {video_to!r}")
+                             f"udp://127.0.0.1:5600 or an rtsp:// server, got {video_to!r}")
+        if rtsp_transport not in ("tcp", "udp"):
+            raise InputError(None, "--rtsp-transport", f"{rtsp_transport!r}: expected tcp or udp")
         plan = FeedPlan(video, drone_log, vessel_track, video_to, mavlink_to, nmea_to, start_s,
                         duration_s, parse_utc_time(video_start, "--video-start") if video_start else None,
-                        utc_offset_h)
+                        utc_offset_h, rtsp_transport=rtsp_transport)
         console.print(f"sending {video.name} to {video_to}, {drone_log.name} as MAVLink to "
                       f"{mavlink_to}, {vessel_track.name} to udp {nmea_to}", highlight=False)
         summary = play_flight(plan)

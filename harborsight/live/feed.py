@@ -43,7 +43,7 @@ class FeedPlan:
     video: Path
     drone_log: Path
     vessel_nmea: Path
-    video_to: str = "udp://127.0.0.1:5600"          # MPEG-TS over UDP
+    video_to: str = "udp://127.0.0.1:5600"          # MPEG-TS over UDP, or rtsp:// (published)
     mavlink_to: str = "udpout:127.0.0.1:14550"      # pymavlink address
     nmea_to: str = "127.0.0.1:10110"                # UDP HOST:PORT
     start_s: float = 0.0                            # flight time to start at
@@ -51,6 +51,7 @@ class FeedPlan:
     video_start_utc: datetime | None = None
     utc_offset_h: float | None = None               # of a DJI SRT's local date lines
     keyframe_s: float = 1.0                         # a receiver joining waits at most this
+    rtsp_transport: str = "tcp"                     # an rtsp:// video_to: RTP over tcp or udp
 
 
 @dataclass
@@ -118,11 +119,17 @@ def _send_video(plan: FeedPlan, clock: _Clock) -> None:
     fps = capture.get(cv2.CAP_PROP_FPS) or 10.0
     width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
     height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
-    url = plan.video_to + ("&" if "?" in plan.video_to else "?") + "pkt_size=1316"
-    # each packet flushed at once; the PES length written, so that a receiver's demuxer hands
-    # a frame on when it is complete instead of when the next one starts (one frame later)
-    container = av.open(url, mode="w", format="mpegts",
-                        container_options={"flush_packets": "1", "omit_video_pes_length": "0"})
+    if plan.video_to.lower().startswith("rtsp://"):
+        # published to an RTSP server (ANNOUNCE, RECORD), which serves it to the receivers
+        container = av.open(plan.video_to, mode="w", format="rtsp",
+                            options={"rtsp_transport": plan.rtsp_transport})
+    else:
+        url = plan.video_to + ("&" if "?" in plan.video_to else "?") + "pkt_size=1316"
+        # each packet flushed at once; the PES length written, so that a receiver's demuxer
+        # hands a frame on when it is complete instead of when the next one starts (one frame
+        # later)
+        container = av.open(url, mode="w", format="mpegts",
+                            container_options={"flush_packets": "1", "omit_video_pes_length": "0"})
     stream = container.add_stream("libx264", rate=round(fps))
     stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
     stream.options = {"preset": "ultrafast", "tune": "zerolatency",

@@ -32,12 +32,18 @@ def is_stream(source: str) -> bool:
     return source.lower().startswith(STREAM_SCHEMES) or source.startswith("/dev/video")
 
 
-def _open(source: str, open_timeout_s: float, read_timeout_s: float):
+#: how RTP travels from an RTSP server: interleaved in the TCP connection (the default: UDP
+#: loses packets on a drone's radio link and through NAT), or UDP (servers without TCP)
+RTSP_TRANSPORTS = ("tcp", "udp")
+
+
+def _open(source: str, open_timeout_s: float, read_timeout_s: float, rtsp_transport: str = "tcp"):
     import av
 
     options = dict(LOW_DELAY_OPTIONS)
     if source.lower().startswith(("rtsp://", "rtsps://")):
-        options["rtsp_transport"] = "tcp"          # UDP RTP loses packets on a drone's link
+        options["rtsp_transport"] = rtsp_transport
+        options["reorder_queue_size"] = "0"      # hand on each packet, do not hold them back
     if source.lower().startswith("udp://"):
         options.update({"fifo_size": "1000000", "overrun_nonfatal": "1"})
     return av.open(source, format="v4l2" if source.startswith("/dev/video") else None,
@@ -47,7 +53,8 @@ def _open(source: str, open_timeout_s: float, read_timeout_s: float):
 def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 on_arrival: Callable[[FlightFrame, float], None] | None = None,
                 warn: Callable[[str], None] | None = None, *, retry_s: float = 1.0,
-                open_timeout_s: float = 5.0, read_timeout_s: float = 2.0) -> None:
+                open_timeout_s: float = 5.0, read_timeout_s: float = 2.0,
+                rtsp_transport: str = "tcp") -> None:
     """Read ``source`` into ``box`` until ``stop`` is set (module docstring). Frames are
     numbered from 0 over the whole session, across reconnections."""
     warn = warn or (lambda message: None)
@@ -56,7 +63,7 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
     try:
         while not stop.is_set():
             try:
-                container = _open(source, open_timeout_s, read_timeout_s)
+                container = _open(source, open_timeout_s, read_timeout_s, rtsp_transport)
             except Exception as exc:      # FFmpeg's errors (av.error.*) and OSError
                 warn(f"cannot open {source} ({exc}); retrying every {retry_s:g} s")
                 stop.wait(retry_s)
