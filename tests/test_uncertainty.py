@@ -27,7 +27,8 @@ HEIGHT_M, FOCAL_PX = 50.0, 500.0
 GSD_M = HEIGHT_M / FOCAL_PX
 QUANTISATION_M = GSD_M / math.sqrt(12.0)
 ZERO = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
-                    camera_tilt_deg=0, height_m=0, water_level_m=0, clock_s=0, edge_px=0)
+                    camera_tilt_deg=0, height_m=0, water_level_m=0, clock_s=0, edge_px=0,
+                    edge_m=0)
 BOX = np.array([[10.0, 3.0], [10.0, -3.0], [-10.0, -3.0], [-10.0, 3.0]])   # centred on (0, 0)
 
 
@@ -97,6 +98,13 @@ def test_mask_edge_adds_its_pixels_in_metres():
     assert section.sigma_m == pytest.approx(math.hypot(2.0 * GSD_M, QUANTISATION_M), rel=1e-3)
 
 
+def test_the_edges_metric_floor_adds_in_quadrature_at_any_pixel_size():
+    section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0], SensorSigmas(**{**ZERO.to_dict(),
+                                                                      "edge_m": 0.5}))
+    assert section.sigma_m == pytest.approx(math.hypot(0.5, QUANTISATION_M), rel=1e-3)
+    assert section.sigma_random_m == pytest.approx(section.sigma_m)
+
+
 def test_an_image_placed_hull_absorbs_drone_shift_and_yaw_but_not_height():
     placed = PoseRefinement(applied=True, covariance=np.zeros((3, 3)))
     gps_and_yaw = SensorSigmas(**{**ZERO.to_dict(), "uav_gps": 2.0, "vessel_gps": 2.0,
@@ -146,6 +154,7 @@ def test_the_report_and_the_frame_fields(tmp_path):
     report = measure_frame(labels, meta, vessel, ClearanceSettings(), mask_from_file=True)
     assert report.uncertainty["from_frame"] == ["uav_gps", "vessel_gps"]
     assert report.uncertainty["sigmas"]["edge_px"] == 1.0          # a mask file's default
+    assert report.uncertainty["sigmas"]["edge_m"] == 0.0           # and no metric floor
     ok = [s for s in report.sections if s.status == "ok"]
     assert ok and all(0 < s.sigma_random_m <= s.sigma_m for s in ok)
     assert all(s.distance_lower_m == pytest.approx(max(0.0, s.distance_m - LOWER_BOUND_Z * s.sigma_m))
@@ -287,7 +296,7 @@ def _reference_sigmas(sections, geometry, outline_enu, refinement, sigmas, veloc
     step_v = back(camera, obstacle_px + dv) - back(camera, obstacle_px - dv)
     along_u, along_v = (np.abs(np.einsum("ij,ij->i", u, s)) for s in (step_u, step_v))
     random += np.nan_to_num(((along_u + along_v) / math.sqrt(12.0)) ** 2
-                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2))
+                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2)) + sigmas.edge_m ** 2
     return np.sqrt(systematic + random), np.sqrt(random)
 
 

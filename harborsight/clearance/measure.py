@@ -48,7 +48,12 @@ from harborsight.clearance.uncertainty import (
 from harborsight.errors import InputError
 from harborsight.frame import FrameGeometry, FrameMetadata
 from harborsight.geometry.gsd import nadir_gsd_m_per_px
-from harborsight.geometry.sensor_sigmas import LABEL_FILE_EDGE_PX, SensorSigmas, sigmas_for_frame
+from harborsight.geometry.sensor_sigmas import (
+    LABEL_FILE_EDGE_M,
+    LABEL_FILE_EDGE_PX,
+    SensorSigmas,
+    sigmas_for_frame,
+)
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
@@ -84,7 +89,8 @@ class ClearanceSettings:
                       ) -> SensorSigmas:
         """The sigmas of one frame: its own figures, else ``sigma_options``, else the
         defaults (a mask read from a file has the file default's edge sigma)."""
-        base = SensorSigmas(edge_px=LABEL_FILE_EDGE_PX) if mask_from_file else SensorSigmas()
+        base = (SensorSigmas(edge_px=LABEL_FILE_EDGE_PX, edge_m=LABEL_FILE_EDGE_M)
+                if mask_from_file else SensorSigmas())
         base = base.with_values(dict(self.sigma_options))
         return sigmas_for_frame(base, meta.sensor_sigmas) if meta is not None else base
 

@@ -22,7 +22,8 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
   ``δO - δH = σ_t · (v_uav - v_vessel)``;
 * the pixel grid: the edge lies anywhere in its pixel, whose extent along ``u`` on the
   water is ``w = |u·J_u| + |u·J_v|`` (``J`` the pixel-to-water Jacobian): ``w / sqrt 12``;
-* the mask's edge: ``edge_px`` pixels across the edge, ``edge_px · |Jᵀu|``.
+* the mask's edge: ``edge_px`` pixels across the edge, ``edge_px · |Jᵀu|``, and ``edge_m``
+  metres that do not shrink with the pixel (a model's boundary errors), in quadrature.
 
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
 any correction), the hull is placed by the image, not by the vessel's
@@ -248,7 +249,7 @@ def add_section_uncertainty(
     along_u = np.abs(np.einsum("ij,ij->i", u, step_u))
     along_v = np.abs(np.einsum("ij,ij->i", u, step_v))
     random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
-                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2))
+                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2)) + sigmas.edge_m ** 2
 
     total = np.sqrt(systematic + random)
     for section, sigma, sigma_random in zip(ok, total, np.sqrt(random), strict=True):

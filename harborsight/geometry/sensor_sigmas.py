@@ -26,6 +26,12 @@ name                   default    source
                                   on the seed-7 bench (simulator frames; real frames are worse);
                                   1 px for masks read from files (it also takes the
                                   planar assumption's error: quay tops above the water)
+``edge_m``             0.5 m      the same edge's error that does not shrink with the pixel, in
+                                  metres on the water, added to ``edge_px`` in quadrature: a
+                                  model puts a fender, a shadow or an overhang on the wrong side
+                                  as much at 30 m as at 150 m, where ``edge_px`` alone would
+                                  make a low drone's bound too tight. 0 for masks read from
+                                  files
 =====================  =========  ==========================================================
 """
 
@@ -40,6 +46,8 @@ GPS_CLASSES = {"rtk": 0.02, "dgps": 0.5, "standalone": 2.0}
 HEADING_CLASSES = {"magnetic": 2.0, "gnss": 0.3, "gyro": 0.5}
 #: the segmentation edge's sigma (px) of a mask read from a file (hand or simulator labels)
 LABEL_FILE_EDGE_PX = 1.0
+#: and its metric floor (m): none for a mask read from a file
+LABEL_FILE_EDGE_M = 0.0
 
 
 def _parse_class_or_number(text: str, classes: dict[str, float], unit: str) -> float:
@@ -73,6 +81,7 @@ class SensorSigmas:
     water_level_m: float = 0.3
     clock_s: float = 0.05
     edge_px: float = 4.0
+    edge_m: float = 0.5
 
     def __post_init__(self) -> None:
         for name in self.names():
