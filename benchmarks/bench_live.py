@@ -13,6 +13,7 @@ process's resident memory after the first minute and at the end.
     .venv/bin/python benchmarks/bench_live.py --stall-at-s 10 --stall-s 3 --seconds 20
     .venv/bin/python benchmarks/bench_live.py --stream [--size 1280x720 --fps 10]
     .venv/bin/python benchmarks/bench_live.py --websocket [--stream]
+    .venv/bin/python benchmarks/bench_live.py --record      # with `live --record`'s writing
 
 With ``--websocket`` the states are also pushed by the dashboard's server (Starlette + uvicorn
 on 127.0.0.1, as ``--http`` runs it) to a WebSocket client in this process, and the latency
@@ -243,6 +244,8 @@ def main() -> None:
     parser.add_argument("--stall-s", type=float, default=3.0)
     parser.add_argument("--stream", action="store_true",
                         help="over UDP: H.264 MPEG-TS video, MAVLink, NMEA (the flight's 24 s)")
+    parser.add_argument("--record", action="store_true",
+                        help="record the session as `live --record` does (replay only)")
     parser.add_argument("--websocket", action="store_true",
                         help="push the states to a WebSocket client and time their receipt")
     args = parser.parse_args()
@@ -288,7 +291,8 @@ def main() -> None:
         if args.stream:
             summary = stream_live(Path(tmp), engine, width, height, args.fps, deliver)
         else:
-            summary = run_live(file_reader(source), engine, publish=deliver)
+            summary = run_live(file_reader(source), engine, publish=deliver,
+                               record=Path(tmp) / "record" if args.record else None)
         elapsed = time.monotonic() - started
         stop.set()
         if pushed is not None:

@@ -4,6 +4,7 @@ flight served over HTTP and WebSocket on 127.0.0.1, checked against the flight's
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import threading
 import time
@@ -200,6 +201,27 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     assert closing
     recorded = (folder / "record" / "states.jsonl").read_text().splitlines()
     assert len(recorded) >= summary.frames_measured and json.loads(recorded[-1])["schema"] == SCHEMA
+    # the record holds what `run` writes: a report per measured frame, the CSV with run's
+    # columns, the annotated video (fragmented MP4) and a completed run.json
+    record = folder / "record"
+    reports = sorted((record / "reports").glob("*.json"))
+    assert len(reports) == summary.frames_measured
+    last_report = json.loads(reports[-1].read_text())
+    live_distances = [s["distance_m"] for s in json.loads(recorded[-1])["sections"]]
+    assert last_report["schema"] == "harborsight.report/1" and last_report["image"] == reports[-1].stem + ".jpg"
+    assert [s["distance_m"] for s in last_report["sections"]] == live_distances
+    with (record / "sections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == summary.frames_measured * len(last_report["sections"])
+    assert rows[-1]["closing_speed_mps"] != "" or any(r["closing_speed_mps"] for r in rows)
+    video = cv2.VideoCapture(str(record / "annotated.mp4"))
+    shown = 0
+    while video.read()[0]:
+        shown += 1
+    assert shown == summary.frames_measured
+    run_record = json.loads((record / "run.json").read_text())
+    assert run_record["completed"] and run_record["measured"] == summary.frames_measured
+    assert run_record["video_frames"] == shown and (record / "timeline.png").is_file()
     # the record is a flight `run` replays: the same frames give the same distances
     frames = sorted((folder / "record" / "frames").glob("*.json"))
     assert len(frames) == summary.frames_measured
@@ -297,3 +319,45 @@ def test_the_dashboard_shows_what_the_state_says(replay, tmp_path):
     finally:
         driver.quit()
         server.stop()
+
+
+def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
+    """`live --record` killed with SIGKILL part-way: every report, CSV row and frame file
+    written so far is whole, and the fragmented MP4 plays up to its last fragment."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    folder, _ = replay
+    record = tmp_path / "record"
+    live = subprocess.Popen([sys.executable, "-m", "harborsight.cli", "live", "--video",
+                             str(folder / "flight.mp4"), "--metadata", str(folder / "flight.jsonl"),
+                             "--vessel", str(TUG), "--record", str(record)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while len(list((record / "reports").glob("*.json"))) < 8:
+            assert live.poll() is None and time.monotonic() < deadline
+            time.sleep(0.1)
+        time.sleep(1.5)                    # past the video's first one-second fragment
+    finally:
+        os.kill(live.pid, signal.SIGKILL)
+        live.wait(10)
+    reports = sorted((record / "reports").glob("*.json"))
+    for path in reports:
+        assert json.loads(path.read_text())["schema"] == "harborsight.report/1"
+    with (record / "sections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    sections = len(json.loads(reports[0].read_text())["sections"])
+    assert len(rows) >= (len(reports) - 1) * sections and all(r["track_state"] for r in rows)
+    assert json.loads((record / "run.json").read_text())["completed"] is False
+    video = cv2.VideoCapture(str(record / "annotated.mp4"))
+    shown = 0
+    while video.read()[0]:
+        shown += 1
+    assert shown >= 5, f"{shown} frames of the killed session's video play"
+    frames = sorted((record / "frames").glob("*.json"))
+    assert len(frames) >= len(reports) - 1
+    for path in frames:
+        assert (record / "images" / json.loads(path.read_text())["image"]).is_file()

@@ -169,9 +169,11 @@ def live_command(
         min=0.1, max=3600.0, help="Caution when the time to contact is this short; danger "
         "when also within --caution-m.")] = 30.0,
     record: Annotated[Path | None, typer.Option(
-        help="Write every published state to DIR/states.jsonl and every measured frame with "
-        "its metadata to DIR/images and DIR/frames (a flight `harborsight run DIR` replays), "
-        "each file whole as it is written.")] = None,
+        help="Record the session in DIR as it goes: every published state (states.jsonl), "
+        "every measured frame with its metadata (images/, frames/: a flight `harborsight run "
+        "DIR` replays) and what `run` writes (reports/, sections.csv, annotated.mp4 in "
+        "fragmented MP4, run.json, timeline.png at the end); each file whole as it is "
+        "written, so a killed session leaves a readable record.")] = None,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
 ) -> None:
@@ -274,7 +276,10 @@ def live_command(
             for send in publishers:
                 send(state)
         summary = run_live(frames, engine, composer=composer, feeds=feeds,
-                           publish=publish if publishers else None, record=record)
+                           publish=publish if publishers else None, record=record,
+                           record_inputs={"video": video, "metadata": str(metadata) if metadata else None,
+                                          "mavlink": mavlink, "nmea": nmea, "signalk": signalk,
+                                          "ais": ais, "vessel": str(vessel) if vessel else None})
     finally:
         if server is not None:
             server.stop()

@@ -141,6 +141,11 @@ class LiveEngine:
         with self._lock:
             return self._frame_index
 
+    def report_of(self, frame_index: int) -> ClearanceReport | None:
+        """The report of the frame ``frame_index`` if it is the one measured last."""
+        with self._lock:
+            return self._report if self._frame_index == frame_index else None
+
     def annotated_jpeg(self, quality: int = 80) -> tuple[int | None, bytes | None]:
         """The newest measured frame with its sections drawn (the overlay of ``run``), as
         JPEG, and its frame index. Drawn on demand, by whoever asks (the video stream), so

@@ -7,8 +7,9 @@ takes the newest frame, gives it its metadata (its own, replayed; or composed fr
 feeds at its time by :class:`~harborsight.live.telemetry.FrameComposer`), measures it
 (:class:`~harborsight.live.engine.LiveEngine`) and
 hands the state to ``publish`` (the web server's push) and to the recording
-(:mod:`harborsight.live.record`: every state, and every measured frame with its metadata as a
-flight ``harborsight run`` replays). While no frame comes it re-evaluates the state every
+(:mod:`harborsight.live.record`: every state; every measured frame with its metadata as a
+flight ``harborsight run`` replays; and what ``run`` writes: reports, sections.csv, the
+annotated video, run.json). While no frame comes it re-evaluates the state every
 ``idle_refresh_s`` so that a stopped source raises its stale alarm on time.
 """
 
@@ -62,7 +63,8 @@ def file_reader(source: VideoSource | VideoFrames, realtime: bool = True) -> Fra
 def run_live(frames: FrameReader, engine: LiveEngine, *, composer: FrameComposer | None = None,
              feeds: Iterable[Callable[[threading.Event], None]] = (),
              publish: Callable[[dict], None] | None = None, record: Path | None = None,
-             stop: threading.Event | None = None, idle_refresh_s: float = 0.2) -> LiveSummary:
+             stop: threading.Event | None = None, idle_refresh_s: float = 0.2,
+             record_inputs: dict | None = None) -> LiveSummary:
     """Run until the frames end or ``stop`` is set (module docstring). ``feeds``: thread
     bodies of the telemetry readers, run with the same ``stop``."""
     stop = stop or threading.Event()
@@ -80,7 +82,16 @@ def run_live(frames: FrameReader, engine: LiveEngine, *, composer: FrameComposer
                                  daemon=True) for k, feed in enumerate(feeds)]
     summary = LiveSummary()
     clock = FlightClock()        # one time base for the trackers, as in `run`
-    recorder = SessionRecorder(record) if record is not None else None
+    recorder = None
+    if record is not None:
+        alarms = engine.alarm_settings
+        recorder = SessionRecorder(record, inputs=record_inputs, settings={
+            "method": engine.clearance.method, "pose_margin_px": engine.clearance.pose_margin_px,
+            "own_rim_px": engine.clearance.own_rim_px,
+            "sigma_options": dict(engine.clearance.sigma_options),
+            "model": str(engine.segmenter.path) if engine.segmenter is not None else None,
+            "caution_m": alarms.caution_m, "danger_m": alarms.danger_m, "ttc_s": alarms.ttc_s},
+            caution_m=alarms.caution_m, danger_m=alarms.danger_m)
     started = time.monotonic()
     for thread in threads:
         thread.start()
@@ -132,7 +143,8 @@ def _measure(engine: LiveEngine, clock: FlightClock, frame: FlightFrame, arrived
     if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
         summary.latencies_ms.append(state["latency_ms"])
         if recorder is not None:
-            recorder.frame(frame.image, frame.meta, frame.meta_path)
+            recorder.frame(frame.image, frame.meta, frame.meta_path,
+                           engine.report_of(frame.index), time_s)
     return state
 
 
