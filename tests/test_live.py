@@ -208,7 +208,8 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     assert len(reports) == summary.frames_measured
     last_report = json.loads(reports[-1].read_text())
     live_distances = [s["distance_m"] for s in json.loads(recorded[-1])["sections"]]
-    assert last_report["schema"] == "harborsight.report/1" and last_report["image"] == reports[-1].stem + ".jpg"
+    assert last_report["schema"] == "harborsight.report/1"
+    assert last_report["image"] == reports[-1].stem + ".jpg"
     assert [s["distance_m"] for s in last_report["sections"]] == live_distances
     with (record / "sections.csv").open() as handle:
         rows = list(csv.DictReader(handle))
