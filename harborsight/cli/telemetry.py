@@ -31,6 +31,29 @@ telemetry_app = typer.Typer(rich_markup_mode=None,
 app.add_typer(telemetry_app, name="telemetry")
 
 
+# the vessel-track options shared by `video`, `photos` and `bag`
+VesselTrackOption = Annotated[Path, typer.Option(
+    "--vessel-track",
+    help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, magnetic "
+    "made true with the WMM), AIS (AIVDM/AIVDO with receiver times; --mmsi) or CSV (time, "
+    "lat, lon, heading_deg or heading_mag_deg).")]
+VesselOffsetOption = Annotated[float, typer.Option(
+    "--vessel-offset-s", min=-86400.0, max=86400.0,
+    help="Seconds added to each frame's (photo's, image's) UTC time before reading the vessel "
+    "track: -5 if the vessel's clock runs 5 s behind.")]
+MaxGapOption = Annotated[float, typer.Option(
+    "--max-gap-s", min=0.01, max=3600.0,
+    help="Longest gap in a track bridged by interpolation.")]
+MmsiOption = Annotated[int | None, typer.Option(
+    "--mmsi", min=1, max=999_999_999,
+    help="An AIS vessel track: the vessel (default: the file's own AIVDO reports, or its only "
+    "vessel).")]
+AllowCogOption = Annotated[bool, typer.Option(
+    "--allow-cog-heading/--no-allow-cog-heading",
+    help="An AIS track: where the true heading is not available (511), use the course over "
+    "ground (wrong wherever the vessel moves sideways, as when berthing).")]
+
+
 _UTC_OFFSET_HELP = ("DJI SRT only: hours the SRT's local date lines are ahead of UTC (e.g. 2 "
                     "for CEST), to place them in UTC.")
 
@@ -123,10 +146,7 @@ def telemetry_video(
     drone_log: Annotated[Path, typer.Argument(metavar="DRONE_LOG",
                                               help="The drone's log: DJI .srt (video clock), "
                                               "PX4 .ulg or ArduPilot .bin.")],
-    vessel_track: Annotated[Path, typer.Option(
-        help="The vessel's track: NMEA 0183 (RMC/GGA position; HDT, HDG or HDM heading, "
-        "magnetic made true with the WMM), AIS (AIVDM/AIVDO with receiver times; --mmsi) or "
-        "CSV (time, lat, lon, heading_deg or heading_mag_deg).")],
+    vessel_track: VesselTrackOption,
     camera: Annotated[str, typer.Option(
         help="Camera: a preset (dji-mavic3, dji-p4rtk, dji-m30-wide) or a calibration file "
         "(OpenCV YAML/XML or ROS camera_info).")],
@@ -162,20 +182,10 @@ def telemetry_video(
         min=-360.0, max=360.0,
         help="A fixed camera yaw (degrees clockwise from true north) for logs without "
         "attitude.")] = None,
-    vessel_offset_s: Annotated[float, typer.Option(
-        min=-86400.0, max=86400.0,
-        help="Seconds added to each frame's UTC time before "
-        "reading the vessel track: -5 if the vessel's clock runs 5 s behind.")] = 0.0,
-    max_gap_s: Annotated[float, typer.Option(
-        min=0.01, max=3600.0,
-        help="Longest gap in a track bridged by interpolation.")] = 1.0,
-    mmsi: Annotated[int | None, typer.Option(
-        min=1, max=999_999_999,
-        help="An AIS vessel track: the vessel (default: the file's own AIVDO reports, or its "
-        "only vessel).")] = None,
-    allow_cog_heading: Annotated[bool, typer.Option(
-        help="An AIS track: where the true heading is not available (511), use the course "
-        "over ground (wrong wherever the vessel moves sideways, as when berthing).")] = False,
+    vessel_offset_s: VesselOffsetOption = 0.0,
+    max_gap_s: MaxGapOption = 1.0,
+    mmsi: MmsiOption = None,
+    allow_cog_heading: AllowCogOption = False,
 ) -> None:
     """Write per-frame harborsight.frame/1 metadata for a video from the drone's log and the
     vessel's track, for `harborsight run VIDEO --metadata OUT`. Frames outside a track, or in
@@ -294,8 +304,7 @@ def _show_photo(path: Path) -> dict | None:
 def telemetry_photos(
     photos: Annotated[list[Path], typer.Argument(
         metavar="PHOTO_OR_DIR...", help="DJI photos (.jpg) or folders of them.")],
-    vessel_track: Annotated[Path, typer.Option(
-        help="The vessel's track: NMEA 0183, AIS (with receiver times; --mmsi) or CSV.")],
+    vessel_track: VesselTrackOption,
     water_level_m: Annotated[float, typer.Option(
         min=-10000.0, max=10000.0,
         help="The water surface in the altitude's datum: with the default relative altitude, "
@@ -320,17 +329,10 @@ def telemetry_photos(
         help="A calibration file (OpenCV YAML/XML or ROS camera_info) of the photos' size, "
         "instead of the intrinsics the photos give (DewarpData, calibrated focal length, the "
         "model's sensor or the 35 mm equivalent).")] = None,
-    vessel_offset_s: Annotated[float, typer.Option(
-        min=-86400.0, max=86400.0,
-        help="Seconds added to each photo's UTC time before reading the vessel track.")] = 0.0,
-    max_gap_s: Annotated[float, typer.Option(
-        min=0.01, max=3600.0, help="Longest gap in the vessel track bridged by interpolation.")
-    ] = 1.0,
-    mmsi: Annotated[int | None, typer.Option(
-        min=1, max=999_999_999, help="An AIS vessel track: the vessel.")] = None,
-    allow_cog_heading: Annotated[bool, typer.Option(
-        help="An AIS track: use the course over ground where the heading is not available.")
-    ] = False,
+    vessel_offset_s: VesselOffsetOption = 0.0,
+    max_gap_s: MaxGapOption = 1.0,
+    mmsi: MmsiOption = None,
+    allow_cog_heading: AllowCogOption = False,
 ) -> None:
     """Write one harborsight.frame/1 file per DJI photo (pose, gimbal attitude, intrinsics and
     accuracy from its XMP and EXIF; the vessel sampled at its capture time) for
@@ -402,8 +404,7 @@ def _show_bag_topics(path: Path) -> None:
 def telemetry_bag(
     bag: Annotated[Path, typer.Argument(
         metavar="BAG", help="A ROS 1 .bag, a ROS 2 bag folder, or its .db3 / .mcap file.")],
-    vessel_track: Annotated[Path, typer.Option(
-        help="The vessel's track: NMEA 0183, AIS (with receiver times; --mmsi) or CSV.")],
+    vessel_track: VesselTrackOption,
     water_level_m: Annotated[float, typer.Option(
         min=-10000.0, max=10000.0,
         help="The water surface in the altitude's datum: the WGS-84 ellipsoid for a "
@@ -439,18 +440,12 @@ def telemetry_bag(
         "gimbal, stabilised or rigid, as for `telemetry video`.")] = "auto",
     camera_pitch_deg: Annotated[float, typer.Option(
         min=-90.0, max=0.0, help="Stabilised or rigid mount: the camera's pitch.")] = -90.0,
-    vessel_offset_s: Annotated[float, typer.Option(
-        min=-86400.0, max=86400.0,
-        help="Seconds added to each image's UTC time before reading the vessel track.")] = 0.0,
-    max_gap_s: Annotated[float, typer.Option(
-        min=0.01, max=3600.0, help="Longest gap in a track bridged by interpolation.")] = 1.0,
+    vessel_offset_s: VesselOffsetOption = 0.0,
+    max_gap_s: MaxGapOption = 1.0,
     every: Annotated[int, typer.Option(
         min=1, max=100_000, help="Write every N-th image of the topic.")] = 1,
-    mmsi: Annotated[int | None, typer.Option(
-        min=1, max=999_999_999, help="An AIS vessel track: the vessel.")] = None,
-    allow_cog_heading: Annotated[bool, typer.Option(
-        help="An AIS track: use the course over ground where the heading is not available.")
-    ] = False,
+    mmsi: MmsiOption = None,
+    allow_cog_heading: AllowCogOption = False,
 ) -> None:
     """Turn a ROS bag into a flight folder for `harborsight run`: each image of the image
     topic with the drone's pose (NavSatFix, rel_alt, attitude) and the vessel's sampled at
