@@ -153,3 +153,14 @@ def test_a_torn_or_salted_bag_never_raises_and_keeps_what_came_before(tmp_path, 
     assert late and min(late) >= 38
     early = [n for fraction, n in read_from_cut if fraction < 0.5]
     assert max(early, default=0) <= 30
+
+
+def test_a_damaged_bag_too_large_to_read_whole_is_refused_with_the_repair(tmp_path, monkeypatch):
+    from harborsight.telemetry import rosbag_io
+
+    bag = write_flight_bag(tmp_path / "f.bag", "ros1", range(4), with_images=False)
+    torn = tmp_path / "torn.bag"
+    torn.write_bytes(bag.read_bytes()[:-200])
+    monkeypatch.setattr(rosbag_io, "MAX_DAMAGED_BYTES", 1000)
+    with pytest.raises(InputError, match="rosbag reindex"):
+        open_bag(torn)

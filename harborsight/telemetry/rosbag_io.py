@@ -34,6 +34,8 @@ BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 #: the largest record a damaged ROS 1 bag may announce (a flipped length is not allocated)
 MAX_RECORD_BYTES = 512 * 1024 * 1024
+#: the largest damaged bag read from the front: it is read into memory whole
+MAX_DAMAGED_BYTES = 4 * 1024 ** 3
 
 
 @dataclass
@@ -131,6 +133,7 @@ def open_bag(path: str | Path) -> BagReader:
         if reader is not None:
             return reader
     source = file if file is not None else path
+    _check_damaged_size(path, source, kind)
     reader = {"ros1": _read_ros1_records, "ros2-mcap": _read_mcap_stream,
               "ros2-sqlite3": _read_sqlite}[kind](source)
     reader.path = path
@@ -138,6 +141,21 @@ def open_bag(path: str | Path) -> BagReader:
         raise InputError(path, None, "no message could be read: " + "; ".join(reader.notes)
                          if reader.notes else "no message could be read")
     return reader
+
+
+def _check_damaged_size(path: Path, source: Path, kind: str) -> None:
+    """A bag its reader refused is read into memory: refuse one too large for that, saying
+    how to repair it."""
+    try:
+        size = source.stat().st_size
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    if size > MAX_DAMAGED_BYTES:
+        repair = ("rosbag reindex" if kind == "ros1" else
+                  "ros2 bag reindex (a lost metadata.yaml) or mcap recover (a cut MCAP file)")
+        raise InputError(path, None, f"the bag cannot be opened as it is (no index, no "
+                         f"metadata.yaml or a cut file) and at {size / 1024 ** 3:.1f} GB it is "
+                         f"too large to read from the front here: repair it with {repair}")
 
 
 def _ros2_parts(path: Path) -> tuple[Path | None, Path | None]:
