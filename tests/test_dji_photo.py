@@ -264,3 +264,24 @@ def test_a_torn_or_salted_photo_never_raises_and_keeps_what_came_before(tmp_path
         assert not photo.image_whole or trial % 2   # a cut JPEG is never taken as whole
         if trial % 2 == 0 and cut > xmp_end > 0:    # cut after the XMP: every field read
             assert photo.xmp == complete
+
+
+def test_a_turned_photo_is_not_made_a_frame(tmp_path):
+    """EXIF Orientation 3 (turned 180 degrees in an editor): OpenCV would decode it turned,
+    the same size, and every distance would be measured in a mirrored scene."""
+    from harborsight.telemetry.dji_photo import photo_frame
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    path = _photo(tmp_path, {**P4RTK_CALIBRATION}, exif=LOCAL_TIME,
+                  rgb=np.zeros((456, 684, 3), np.uint8))
+    from PIL import Image
+
+    with Image.open(path) as image:
+        exif = image.getexif()
+        exif[274] = 3
+        image.save(tmp_path / "turned.jpg", exif=exif, xmp=image.info["xmp"], quality=92)
+    photo = read_dji_photo(tmp_path / "turned.jpg")
+    assert photo.orientation == 3
+    with pytest.raises(InputError, match="Orientation 3"):
+        photo_frame(photo, read_vessel_track(FLIGHT / "logs" / "ship.nmea"), image="turned.jpg",
+                    water_level_m=0.0)

@@ -599,6 +599,11 @@ def photo_frame(
 
     if not photo.image_whole:
         raise InputError(photo.source, "image", photo.notes[0] if photo.notes else "cut short")
+    if photo.orientation not in (None, 1):
+        # decoders turn such a photo (OpenCV does): its pixels would no longer be the camera's
+        raise InputError(photo.source, "Orientation", f"EXIF Orientation {photo.orientation}: "
+                         "the photo was turned after capture, and a decoder turns it back, so "
+                         "its pixels are not the camera's; save it with Orientation 1")
     when, clock = capture_utc(photo, utc_offset_h)
     drone = photo_track(photo, altitude=altitude, yaw_reference=yaw_reference, when=when)
     if camera is None:
