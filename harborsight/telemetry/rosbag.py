@@ -32,6 +32,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -154,8 +155,6 @@ def ned_euler_deg(quaternions: np.ndarray, frame: str) -> np.ndarray:
     rotations = Rotation.from_quat(quaternions).as_matrix()
     if frame == "enu":
         rotations = ENU_TO_NED @ rotations @ FRD_TO_FLU
-    import warnings
-
     with warnings.catch_warnings():          # gimbal lock at -90 deg pitch: yaw takes the roll
         warnings.simplefilter("ignore", UserWarning)
         return Rotation.from_matrix(rotations).as_euler("ZYX", degrees=True)
