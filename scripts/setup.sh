@@ -44,21 +44,17 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     touch "$stamp"
 fi
 
-# signalk-server for tests/test_signalk.py, in .tools/signalk (2.23.0: the newest whose
-# dependencies all resolve on the npm registry today; 2.32.0 needs an unpublished @signalk/streams)
-SIGNALK_VERSION=2.23.0
-if [ ! -f ".tools/signalk/.installed-$SIGNALK_VERSION" ]; then
-    echo "installing signalk-server $SIGNALK_VERSION (npm) into .tools/signalk"
-    mkdir -p .tools/signalk
-    npm install --silent --no-audit --no-fund --prefix .tools/signalk "signalk-server@$SIGNALK_VERSION"
-    touch ".tools/signalk/.installed-$SIGNALK_VERSION"
-fi
-
-# rtsp-streaming-server for the live aid's RTSP test (tests/test_live_feeds.py), in .tools/rtsp
-RTSP_SERVER_VERSION=2.1.0
-if [ ! -f ".tools/rtsp/.installed-$RTSP_SERVER_VERSION" ]; then
-    echo "installing rtsp-streaming-server $RTSP_SERVER_VERSION (npm) into .tools/rtsp"
-    mkdir -p .tools/rtsp
-    npm install --silent --no-audit --no-fund --prefix .tools/rtsp "rtsp-streaming-server@$RTSP_SERVER_VERSION"
-    touch ".tools/rtsp/.installed-$RTSP_SERVER_VERSION"
-fi
+# npm_tool NAME VERSION DIR: the npm package NAME@VERSION in .tools/DIR, once
+npm_tool() {
+    if [ ! -f ".tools/$3/.installed-$2" ]; then
+        echo "installing $1 $2 (npm) into .tools/$3"
+        mkdir -p ".tools/$3"
+        npm install --silent --no-audit --no-fund --prefix ".tools/$3" "$1@$2"
+        touch ".tools/$3/.installed-$2"
+    fi
+}
+# signalk-server for tests/test_signalk.py (2.23.0: the newest whose dependencies all resolve
+# on the npm registry today; 2.32.0 needs an unpublished @signalk/streams)
+npm_tool signalk-server 2.23.0 signalk
+# rtsp-streaming-server for the live aid's RTSP test (tests/test_live_feeds.py)
+npm_tool rtsp-streaming-server 2.1.0 rtsp

@@ -382,10 +382,9 @@ def run_srt(case: tuple[bytes, float | None]) -> str:
 
 def nmea_sentence(body: str) -> str:
     """``$body*hh`` with its checksum."""
-    checksum = 0
-    for char in body.encode("ascii", "replace"):
-        checksum ^= char
-    return f"${body}*{checksum:02X}"
+    from tests.helpers import nmea_checksum
+
+    return f"${body}*{nmea_checksum(body)}"
 
 
 field = st.one_of(st.sampled_from(["", "0", "A", "V", "N", "S", "E", "W", "T", "M", "nan",
@@ -492,12 +491,7 @@ def ais_seed() -> str:
     report, written by pyais's encoder."""
     from pyais.encode import encode_dict
 
-    def tag(seconds: float) -> str:
-        body = f"s:rx1,c:{seconds:.0f}"
-        checksum = 0
-        for char in body:
-            checksum ^= ord(char)
-        return f"\\{body}*{checksum:02X}\\"
+    from tests.helpers import ais_tag_block as tag
 
     start, lines = 1_777_636_800, []
     for k in range(12):

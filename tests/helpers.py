@@ -8,6 +8,20 @@ from harborsight.vessel.outline import outline_from_dimensions
 from harborsight.vessel.spec import VesselSpec
 
 
+def nmea_checksum(body: str) -> str:
+    """The two hex digits of an NMEA 0183 checksum: the XOR of the body's bytes."""
+    checksum = 0
+    for char in body.encode("ascii", "replace"):
+        checksum ^= char
+    return f"{checksum:02X}"
+
+
+def ais_tag_block(seconds: float) -> str:
+    """An NMEA 4.10 tag block stamping a line with a receiver's UNIX time (``c:``)."""
+    body = f"s:rx1,c:{seconds:.0f}"
+    return f"\\{body}*{nmea_checksum(body)}\\"
+
+
 def flat_box_vessel(n_sections: int = 16) -> VesselSpec:
     """A 40 m x 10 m pointed-bow vessel with no height (the planar case)."""
     outline = outline_from_dimensions(30.0, 10.0, 5.0, 5.0)

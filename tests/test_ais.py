@@ -19,19 +19,12 @@ from harborsight.errors import InputError
 from harborsight.telemetry.ais import read_ais_dimensions, read_ais_file, read_ais_track
 from harborsight.telemetry.vessel_track import read_vessel_track
 from harborsight.vessel.spec import load_vessel_spec
+from tests.helpers import ais_tag_block, nmea_checksum
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
 LOGS = SAMPLES / "flight" / "logs"
 START = 1_777_636_800                    # 2026-05-01T12:00:00Z
 OWN, OTHER = 219000001, 219999999
-
-
-def _tag(seconds: float) -> str:
-    body = f"s:rx1,c:{seconds:.0f}"
-    checksum = 0
-    for char in body:
-        checksum ^= ord(char)
-    return f"\\{body}*{checksum:02X}\\"
 
 
 def _report(k: int, heading: int = 118, **fields) -> dict:
@@ -48,9 +41,9 @@ def _log(tmp_path: Path, lines: list[str], name: str = "ship.ais") -> Path:
 def _own_log(tmp_path: Path, n: int = 10, heading: int = 118) -> Path:
     lines = []
     for k in range(n):       # received 1.4 s after each fix, another vessel in between
-        lines.append(_tag(START + 2 * k + 1.4) + encode_dict(_report(k, heading))[0])
+        lines.append(ais_tag_block(START + 2 * k + 1.4) + encode_dict(_report(k, heading))[0])
         other = {"type": 18, "mmsi": OTHER, "lat": 56.2, "lon": 10.3, "heading": 10, "second": 5}
-        lines.append(_tag(START + 2 * k + 1.5) + encode_dict(other, sentence_type="VDM",
+        lines.append(ais_tag_block(START + 2 * k + 1.5) + encode_dict(other, sentence_type="VDM",
                                                              radio_channel="B")[0])
     static = {"type": 5, "mmsi": OWN, "shipname": "HARBOUR TUG", "to_bow": 20, "to_stern": 12,
               "to_port": 5, "to_starboard": 5, "ship_type": 52}
@@ -97,8 +90,8 @@ def test_a_log_without_receiver_times_is_refused_and_iso_prefixes_are_read(tmp_p
 
 
 def test_the_vessel_is_chosen_by_mmsi(tmp_path):
-    lines = [_tag(START + 1) + encode_dict(_report(0), sentence_type="VDM")[0],
-             _tag(START + 1) + encode_dict(_report(0, mmsi=OTHER), sentence_type="VDM")[0]]
+    lines = [ais_tag_block(START + 1) + encode_dict(_report(0), sentence_type="VDM")[0],
+             ais_tag_block(START + 1) + encode_dict(_report(0, mmsi=OTHER), sentence_type="VDM")[0]]
     path = _log(tmp_path, lines)
     with pytest.raises(InputError, match="give --mmsi"):
         read_ais_track(path)
@@ -133,7 +126,7 @@ def _flight_ais(tmp_path: Path) -> Path:
             continue                         # AIS reports whole seconds
         report = {"type": 1, "mmsi": OWN, "lat": lat, "lon": lon, "heading": round(heading),
                   "second": round(when) % 60}
-        lines.append(_tag(when + 0.3) + encode_dict(report)[0])
+        lines.append(ais_tag_block(when + 0.3) + encode_dict(report)[0])
     return _log(tmp_path, lines)
 
 
@@ -184,10 +177,7 @@ def test_a_torn_or_salted_ais_log_never_raises_and_keeps_what_came_before(tmp_pa
 
 
 def _with_checksum(body: str) -> str:
-    checksum = 0
-    for char in body:
-        checksum ^= ord(char)
-    return f"!{body}*{checksum:02X}"
+    return f"!{body}*{nmea_checksum(body)}"
 
 
 def test_a_payload_cut_inside_its_mmsi_and_a_receiver_time_at_the_end_of_time(tmp_path):
@@ -195,7 +185,7 @@ def test_a_payload_cut_inside_its_mmsi_and_a_receiver_time_at_the_end_of_time(tm
     (it was int(None)), and a receiver time in the last minute of the year 9999 overflowed
     while being moved to the report's second."""
     own = _own_log(tmp_path).read_text().splitlines()
-    lines = [_tag(START) + _with_checksum("AIVDO,1,1,,A,1,0"),
+    lines = [ais_tag_block(START) + _with_checksum("AIVDO,1,1,,A,1,0"),
              "9999-12-31T23:59:59Z " + encode_dict(_report(0))[0], *own]
     path = _log(tmp_path, lines, "odd.ais")
     ais = read_ais_file(path)

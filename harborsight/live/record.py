@@ -38,6 +38,7 @@ import numpy as np
 
 from harborsight.clearance.report import ClearanceReport
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
+from harborsight.flight.runner import RUN_SCHEMA
 from harborsight.flight.timeline import ClearanceTimeline, write_rows
 from harborsight.frame import FrameMetadata
 
@@ -47,7 +48,6 @@ JPEG_QUALITY = 92
 VIDEO_BACKLOG = 8
 #: how often run.json is rewritten while the session runs
 RUN_RECORD_EVERY_S = 5.0
-RUN_SCHEMA = "harborsight.run/1"
 
 
 @dataclass
