@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from glob import escape as glob_escape
 from pathlib import Path
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import cv2
 import numpy as np
@@ -27,14 +27,29 @@ from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.images import decode_image_file
+from harborsight.perception.confidence import SolidConfidence
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
 
 
 class Segmenter(Protocol):
+    """A model: ``segment(image) -> labels``; one that also has ``segment_with_confidence(image)
+    -> (labels, SolidConfidence)`` (as :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter`)
+    gives its probabilities to the distances' uncertainty."""
+
     path: Path
 
     def segment(self, image_bgr: np.ndarray) -> np.ndarray: ...
+
+
+class FrameMask(NamedTuple):
+    """A frame's class labels, where they came from, and the model's probabilities behind
+    them (None for a mask file, or a model that does not give them)."""
+
+    labels: np.ndarray
+    source: str
+    from_file: bool
+    confidence: SolidConfidence | None = None
 
 
 @dataclass(frozen=True)
@@ -129,13 +144,23 @@ def check_image_size(image: np.ndarray, meta: FrameMetadata, source: str | Path)
 
 
 def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
-                 source: str | Path) -> tuple[np.ndarray, str]:
+                 source: str | Path) -> FrameMask:
     """The frame's class mask and where it came from: the mask file, else the model."""
     if mask_path is not None:
-        return read_mask(mask_path), str(mask_path)
+        return FrameMask(read_mask(mask_path), str(mask_path), from_file=True)
     if segmenter is not None:
-        return segmenter.segment(image), str(segmenter.path)
+        if hasattr(segmenter, "segment_with_confidence"):
+            labels, confidence = segmenter.segment_with_confidence(image)
+            return FrameMask(labels, str(segmenter.path), False, confidence)
+        return FrameMask(segmenter.segment(image), str(segmenter.path), from_file=False)
     raise InputError(source, "mask", "no mask given and no segmentation model")
+
+
+def measure_mask(mask: FrameMask, meta: FrameMetadata, vessel: VesselSpec,
+                 settings: ClearanceSettings) -> ClearanceReport:
+    """:func:`~harborsight.clearance.measure.measure_frame` of a :class:`FrameMask`."""
+    return measure_frame(mask.labels, meta, vessel, settings, mask_source=mask.source,
+                         mask_from_file=mask.from_file, confidence=mask.confidence)
 
 
 def frame_image_path(job: FrameJob, meta: FrameMetadata) -> Path:
@@ -167,10 +192,8 @@ def measure_job(
     image_path = frame_image_path(job, meta)
     image = read_image(image_path)
     check_image_size(image, meta, image_path)
-    labels, mask_source = frame_labels(image, job.mask_path, segmenter, job.meta_path)
-    vessel = vessels.for_frame(meta, job.meta_path)
-    report = measure_frame(labels, meta, vessel, settings, mask_source=mask_source,
-                           mask_from_file=job.mask_path is not None)
+    mask = frame_labels(image, job.mask_path, segmenter, job.meta_path)
+    report = measure_mask(mask, meta, vessels.for_frame(meta, job.meta_path), settings)
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)

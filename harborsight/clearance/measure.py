@@ -41,6 +41,7 @@ from harborsight.clearance.report import (
     SectionClearance,
 )
 from harborsight.clearance.uncertainty import (
+    CONFIDENT_SOLID_P,
     LOWER_BOUND_QUANTILE,
     FrameVelocities,
     add_section_uncertainty,
@@ -54,6 +55,7 @@ from harborsight.geometry.sensor_sigmas import (
     SensorSigmas,
     sigmas_for_frame,
 )
+from harborsight.perception.confidence import SolidConfidence
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
@@ -118,17 +120,18 @@ def check_label_mask(labels: np.ndarray, width: int, height: int, source: str | 
 def measure_frame(
     labels: np.ndarray, meta: FrameMetadata, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(), mask_source: str | None = None,
-    *, mask_from_file: bool = False,
+    *, mask_from_file: bool = False, confidence: SolidConfidence | None = None,
 ) -> ClearanceReport:
     """Measure one frame from its metadata (validates the mask against the camera).
     ``mask_from_file``: the labels were read from a file, not segmented by a model (it sets
-    the default edge sigma of the distances' uncertainty)."""
+    the default edge sigma of the distances' uncertainty); ``confidence``: the model's
+    probabilities behind ``labels``, which widen the sigma where it doubts an obstacle."""
     check_label_mask(labels, meta.camera.width, meta.camera.height, mask_source or meta.source)
     geometry = FrameGeometry.from_metadata(meta)
     velocities = FrameVelocities(meta.uav_velocity_en_mps, meta.vessel_velocity_en_mps)
     report = measure_clearance(labels, geometry, vessel, settings,
                                sigmas=settings.sensor_sigmas(meta, mask_from_file),
-                               velocities=velocities)
+                               velocities=velocities, confidence=confidence)
     report.image = meta.image
     report.timestamp = meta.timestamp
     if report.uncertainty is not None:
@@ -365,10 +368,11 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> Pos
 def measure_clearance(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(), *, sigmas: SensorSigmas | None = None,
-    velocities: FrameVelocities | None = None,
+    velocities: FrameVelocities | None = None, confidence: SolidConfidence | None = None,
 ) -> ClearanceReport:
     """The clearance of every section (see module docstring). ``labels`` must match the
-    camera's size (use :func:`check_label_mask`)."""
+    camera's size (use :func:`check_label_mask`); ``confidence``, the model's probabilities
+    behind them, when they came from a model."""
     camera = geometry.camera
     intr = camera.intrinsics
     height_m = float(camera.position_enu[2])
@@ -518,10 +522,12 @@ def measure_clearance(
             result.contact, result.truncated = contact, truncated
 
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
-                            refinement, sigmas, velocities, outline_px=in_image.vertices_px)
+                            refinement, sigmas, velocities, outline_px=in_image.vertices_px,
+                            confidence=confidence)
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,
         enu_origin=geometry.origin.to_dict(), pose_refinement=refinement.to_dict(),
-        uncertainty={"sigmas": sigmas.to_dict(), "lower_bound_quantile": LOWER_BOUND_QUANTILE},
+        uncertainty={"sigmas": sigmas.to_dict(), "lower_bound_quantile": LOWER_BOUND_QUANTILE,
+                     "confident_solid_p": CONFIDENT_SOLID_P if confidence is not None else None},
     )

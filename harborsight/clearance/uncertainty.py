@@ -23,7 +23,19 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
 * the pixel grid: the edge lies anywhere in its pixel, whose extent along ``u`` on the
   water is ``w = |u·J_u| + |u·J_v|`` (``J`` the pixel-to-water Jacobian): ``w / sqrt 12``;
 * the mask's edge: ``edge_px`` pixels across the edge, ``edge_px · |Jᵀu|``, and ``edge_m``
-  metres that do not shrink with the pixel (a model's boundary errors), in quadrature.
+  metres that do not shrink with the pixel (a model's boundary errors), in quadrature;
+* the model's doubt about the obstacle itself, when its probabilities are given
+  (:class:`~harborsight.perception.confidence.SolidConfidence`). Read the model's solid
+  probability ``p(s)`` along the ray from the hull point through the obstacle point, ``s``
+  metres from the hull, as the chance that the obstacle's true edge lies nearer than ``s``:
+  a normal edge at ``d`` with spread ``σ_c`` has ``p(d + z σ_c) = Φ(z)``. The first point
+  beyond the measured edge where the model is sure, ``p ≥`` :data:`CONFIDENT_SOLID_P`, is
+  at ``s_c``, so ``σ_c = (s_c - d) / Φ⁻¹(CONFIDENT_SOLID_P)``; where the model never gets
+  sure before the image's edge, ``s_c`` is that edge. A doubtful blob of "solid" (glare,
+  a wake, a shadow) in front of the real quay is the model's commonest gross error, and this
+  is what widens its bar. Only the far side is read: a solid the model missed nearer to the
+  hull need not lie on the ray, and reading the doubted water as solid made the lower
+  bound far too cautious (docs/results.md).
 
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
 any correction), the hull is placed by the image, not by the vessel's
@@ -47,6 +59,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -56,12 +70,21 @@ from harborsight.frame import FrameGeometry
 from harborsight.geometry.camera import Camera
 from harborsight.geometry.sensor_sigmas import SensorSigmas
 
+if TYPE_CHECKING:
+    from harborsight.perception.confidence import SolidConfidence
+
 #: z of the one-sided lower bound (5 % of a normal distribution lies below mean - z sigma)
 LOWER_BOUND_Z = 1.645
 LOWER_BOUND_QUANTILE = 0.05
 #: the alignment's Gauss-Newton covariance treats outline points as independent, which
 #: they are not (a mask's edge errors run along the edge): inflate its variance by this
 REFINEMENT_COVARIANCE_SCALE = 25.0
+#: the solid probability at which the model counts as sure of an obstacle (calibrated on
+#: the seed-7 bench's frames 0-259, validated on 260-519: docs/results.md)
+CONFIDENT_SOLID_P = 0.9
+_CONFIDENT_Z = NormalDist().inv_cdf(CONFIDENT_SOLID_P)
+#: step (px) of the look along the ray beyond the obstacle point
+_RAY_STEP_PX = 1.0
 _PIXEL_STEP = 0.5
 _UNIFORM_SIGMA = 1.0 / math.sqrt(12.0)
 
@@ -153,16 +176,53 @@ def _plane_points(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
     return points
 
 
+def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
+                 distance_m: np.ndarray, camera: Camera, confidence: SolidConfidence) -> np.ndarray:
+    """``s_c - d`` of each section (module docstring): how far beyond the measured edge, in
+    metres on the water, the model is first sure of a solid along the ray from the hull
+    point ``hull_px`` through the obstacle point ``obstacle_px``; 0 in contact (no ray)."""
+    toward = obstacle_px - hull_px
+    length = np.hypot(*toward.T)
+    doubt = np.zeros(len(hull_px))
+    rays = np.flatnonzero(np.isfinite(length) & (length >= _RAY_STEP_PX))
+    if len(rays) == 0:
+        return doubt
+    unit = toward[rays] / length[rays, None]
+    start = obstacle_px[rays]
+    # how far each ray runs inside the image (pixel centres 0 .. W-1, 0 .. H-1)
+    width, height = camera.intrinsics.width, camera.intrinsics.height
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.stack([np.where(unit[:, i] > 0, (size - 1 - start[:, i]) / unit[:, i],
+                                   np.where(unit[:, i] < 0, -start[:, i] / unit[:, i], np.inf))
+                          for i, size in ((0, width), (1, height))]).min(axis=0)
+    steps = np.floor(np.clip(np.nan_to_num(reach), 0.0, None) / _RAY_STEP_PX).astype(int) + 1
+    along = np.arange(int(steps.max())) * _RAY_STEP_PX
+    inside = np.arange(len(along))[None, :] < steps[:, None]               # (rays, samples)
+    samples = start[:, None, :] + along[None, :, None] * unit[:, None, :]
+    probability = np.zeros(inside.shape)
+    probability[inside] = confidence.solid_probability(samples[inside])
+    sure = np.nan_to_num(probability) >= CONFIDENT_SOLID_P
+    # the first sure sample, else the ray's last sample in the image
+    first = np.where(sure.any(axis=1), sure.argmax(axis=1), steps - 1)
+    far_px = samples[np.arange(len(rays)), first]
+    far_enu, valid = camera.back_project_to_plane(far_px)
+    far_m = np.hypot(*(far_enu[:, :2] - hull_enu[rays]).T)
+    doubt[rays] = np.where(valid, np.maximum(far_m - distance_m[rays], 0.0), 0.0)
+    return doubt
+
+
 def add_section_uncertainty(
     sections: list[SectionClearance], geometry: FrameGeometry, outline_enu: np.ndarray,
     refinement: PoseRefinement, sigmas: SensorSigmas,
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
+    confidence: SolidConfidence | None = None,
 ) -> None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
     measured with (refined or not); ``outline_enu`` the hull outline's points on the water;
     ``outline_px`` their pixels with that geometry's camera (NaN where they do not project),
-    when the caller has them already (else they are projected here)."""
+    when the caller has them already (else they are projected here); ``confidence`` the
+    model's probabilities, when the mask came from a model."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
           and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
     if not ok:
@@ -250,6 +310,10 @@ def add_section_uncertainty(
     along_v = np.abs(np.einsum("ij,ij->i", u, step_v))
     random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
                             + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2)) + sigmas.edge_m ** 2
+    if confidence is not None:
+        doubt = edge_doubt_m(np.array([s.hull_point_px for s in ok], float), obstacle_px,
+                             hull[:, :2], np.array([s.distance_m for s in ok]), camera, confidence)
+        random += (doubt / _CONFIDENT_Z) ** 2
 
     total = np.sqrt(systematic + random)
     for section, sigma, sigma_random in zip(ok, total, np.sqrt(random), strict=True):

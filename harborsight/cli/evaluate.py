@@ -233,7 +233,7 @@ def evaluate_distance_command(
 
             segmenter = load_default_segmenter(None if str(model) == "default" else model)
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
-            sources.append((f"model:{name}", model_masks(segmenter.segment)))
+            sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence)))
         if not sources:
             raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "
                              "or give --flat-world or --model")

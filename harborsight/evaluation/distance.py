@@ -47,10 +47,17 @@ from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json
 from harborsight.frame import parse_frame_metadata
+from harborsight.perception.confidence import SolidConfidence
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
-#: a mask provider: (dataset dir, frame document) -> class labels (H, W) uint8
-MaskSource = Callable[[Path, dict], np.ndarray]
+#: a mask provider: (dataset dir, frame document) -> class labels (H, W) uint8, or the labels
+#: and the model's probabilities behind them (a model's masks)
+MaskSource = Callable[[Path, dict], "np.ndarray | tuple[np.ndarray, SolidConfidence]"]
+
+
+def split_mask(mask) -> tuple[np.ndarray, SolidConfidence | None]:
+    """``(labels, confidence or None)`` of what a :data:`MaskSource` gave."""
+    return mask if isinstance(mask, tuple) else (mask, None)
 
 
 def oracle_masks(dataset: Path, frame: dict) -> np.ndarray:
@@ -62,8 +69,10 @@ def oracle_masks(dataset: Path, frame: dict) -> np.ndarray:
     return labels
 
 
-def model_masks(segment: Callable[[np.ndarray], np.ndarray]) -> MaskSource:
-    """Masks from a segmenter (BGR uint8 image -> class labels)."""
+def model_masks(segment: Callable) -> MaskSource:
+    """Masks from a segmenter: BGR uint8 image -> class labels, or -> (labels,
+    :class:`~harborsight.perception.confidence.SolidConfidence`) as
+    ``OnnxSegmenter.segment_with_confidence`` gives."""
     def source(dataset: Path, frame: dict) -> np.ndarray:
         path = dataset / "images" / frame["image"]
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -285,8 +294,9 @@ def evaluate_frames(
             if spec_path not in vessels:
                 vessels[spec_path] = load_vessel_spec(dataset / spec_path)
             truth = frame["ground_truth"]["sections"]
-            report = measure_frame(masks(dataset, frame), meta, vessels[spec_path], settings,
-                                   mask_from_file=masks is oracle_masks)
+            labels, confidence = split_mask(masks(dataset, frame))
+            report = measure_frame(labels, meta, vessels[spec_path], settings,
+                                   mask_from_file=masks is oracle_masks, confidence=confidence)
             if len(report.sections) != len(truth):
                 raise HarborsightError(f"{frame_path}: {len(report.sections)} sections measured, "
                                        f"{len(truth)} in the ground truth")
@@ -697,10 +707,10 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     meta = parse_frame_metadata(frame, dataset / "frames" / f"{stem}.json",
                                 base_dir=dataset / "frames")
     image = read_image(dataset / "images" / frame["image"])
-    measured = masks(dataset, frame)
+    measured, confidence = split_mask(masks(dataset, frame))
     report = measure_frame(measured, meta, load_vessel_spec(dataset / frame["vessel_spec"]),
                            dataclasses.replace(clearance or ClearanceSettings(), method=method),
-                           mask_from_file=masks is oracle_masks)
+                           mask_from_file=masks is oracle_masks, confidence=confidence)
     truth = [t["distance_m"] for t in frame["ground_truth"]["sections"]]
     truth_text = " ".join("-" if t is None else f"{t:.1f}" for t in truth)
     panels = [draw_overlay(image, report, footer=f"true m: {truth_text}")]

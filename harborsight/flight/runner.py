@@ -40,13 +40,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.pose_refinement import refinement_counts
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
-from harborsight.pipeline import Segmenter, VesselCache, frame_labels
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
 from harborsight.viz.overlay import GREY, RED, draw_banner, draw_overlay
 
 RUN_SCHEMA = "harborsight.run/1"
@@ -266,11 +266,9 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
             except InputError as exc:
                 time_s = None
                 warnings.append(f"{exc}: measured, but left out of the closing speeds")
-        labels, mask_source = frame_labels(frame.image, frame.mask_path, segmenter,
-                                           frame.source)
-        vessel = vessels.for_frame(frame.meta, frame.meta_path)
-        report = measure_frame(labels, frame.meta, vessel, options.settings,
-                               mask_source=mask_source, mask_from_file=frame.mask_path is not None)
+        mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source)
+        report = measure_mask(mask, frame.meta, vessels.for_frame(frame.meta, frame.meta_path),
+                              options.settings)
     except HarborsightError as exc:
         frame.error = str(exc)
         return None

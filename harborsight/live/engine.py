@@ -37,14 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
-from harborsight.clearance.measure import ClearanceSettings, measure_frame
+from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.errors import HarborsightError
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
 from harborsight.live.health import SourceHealth
-from harborsight.pipeline import Segmenter, VesselCache, frame_labels
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
 
 SCHEMA = "harborsight.live/1"
 SOURCES = ("video", "drone", "vessel")
@@ -107,10 +107,8 @@ class LiveEngine:
         state. A frame that cannot be measured leaves the sections as they were (they turn
         stale as the video ages) and adds a warning alarm; it never raises."""
         try:
-            labels, mask_source = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path)
-            vessel = self.vessels.for_frame(meta, meta_path)
-            report = measure_frame(labels, meta, vessel, self.clearance, mask_source=mask_source,
-                                   mask_from_file=mask_path is not None)
+            mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path)
+            report = measure_mask(mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance)
         except HarborsightError as exc:
             return self.frame_failed(frame_index, str(exc))
         except Exception as exc:   # one bad frame must not stop the live aid

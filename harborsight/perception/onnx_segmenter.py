@@ -10,6 +10,7 @@ import numpy as np
 import onnxruntime as ort
 
 from harborsight.errors import InputError
+from harborsight.perception.confidence import SolidConfidence
 
 
 class OnnxSegmenter:
@@ -74,6 +75,22 @@ class OnnxSegmenter:
         if (h, w) == (self.input_height, self.input_width):
             return self.session.run(["labels"], {"image": image})[0][0]
         logits = self.session.run(["logits"], {"image": image})[0][0]
+        return self._frame_labels(logits, w, h)
+
+    def segment_with_confidence(self, image_bgr: np.ndarray) -> tuple[np.ndarray, SolidConfidence]:
+        """The labels of :meth:`segment` and, from the same model call, the model's solid
+        probability at any pixel (:class:`~harborsight.perception.confidence.SolidConfidence`)."""
+        h, w = image_bgr.shape[:2]
+        image = self.fit(image_bgr)[None]
+        if (h, w) == (self.input_height, self.input_width):
+            logits, labels = self.session.run(["logits", "labels"], {"image": image})
+            return labels[0], SolidConfidence(logits[0], w, h)
+        logits = self.session.run(["logits"], {"image": image})[0][0]
+        return self._frame_labels(logits, w, h), SolidConfidence(logits, w, h)
+
+    @staticmethod
+    def _frame_labels(logits: np.ndarray, w: int, h: int) -> np.ndarray:
+        """Labels at the frame's size ``w`` x ``h`` from logits on the model's grid."""
         # cv2.resize maps pixel centres to pixel centres: x_src = (x + 0.5)·W_m/w - 0.5
         upsampled = cv2.resize(np.ascontiguousarray(logits.transpose(1, 2, 0)), (w, h),
                                interpolation=cv2.INTER_LINEAR)
