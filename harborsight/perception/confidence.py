@@ -52,8 +52,10 @@ class SolidConfidence:
         n = len(uv)
         columns = min(n, _MAP_COLUMNS)
         padded = -n % columns
-        map_x = np.pad(x, (0, padded)).reshape(-1, columns)
-        map_y = np.pad(y, (0, padded)).reshape(-1, columns)
+        if padded:
+            tail = np.zeros(padded, np.float32)
+            x, y = np.concatenate((x, tail)), np.concatenate((y, tail))
+        map_x, map_y = x.reshape(-1, columns), y.reshape(-1, columns)
         parts = [cv2.remap(grid, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
                  .reshape(n + padded, -1)[:n] for grid in self._grid]
         return np.concatenate(parts, axis=1)
