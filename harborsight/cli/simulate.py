@@ -67,6 +67,11 @@ def simulate(
         "dgps, standalone or metres), one sigma of camera yaw and vessel heading (deg), of "
         "height (m), e.g. standalone,2,1. The true pose stays in ground_truth.true_pose; as "
         "dataset add-pose-noise does on a finished dataset.")] = None,
+    cull_out_of_view: Annotated[bool, typer.Option(
+        help="Build in Blender only the objects that can show in the frame, directly, by "
+        "their shadow or in reflection (labels unchanged, RGB within a few grey levels at a "
+        "few pixels; 10-20 % faster on marinas). A dataset rendered before this option "
+        "resumes only with --no-cull-out-of-view.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -80,7 +85,8 @@ def simulate(
             vessel_pool=vessel_pool, scenario=scenario, split=split,
             sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
             approach_speed_mps=approach_speed_mps,
-            pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None)
+            pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
+            cull_out_of_view=cull_out_of_view)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

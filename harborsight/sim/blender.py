@@ -32,7 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harborsight.sim.layout import NO_HIT, HarbourScene, Material
+from harborsight.sim.layout import NO_HIT, Environment, HarbourScene, Material
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,12 @@ PRESETS = {
     "default": RenderPreset("default", 640, 360, 8, True, 3, 7),
     "high": RenderPreset("high", 1280, 720, 32, True, 6, 9),
 }
+
+
+def sun_angle_deg(environment: Environment) -> float:
+    """The sun disk's angular diameter: a clear sun's 1.5 degrees, or 15 under overcast (a
+    weak sun), for soft shadows."""
+    return 1.5 if environment.sun_strength > 2 else 15.0
 
 
 @dataclass
@@ -278,7 +284,7 @@ class BlenderRenderer:
 
         sun = bpy.data.lights.new("sun", "SUN")
         sun.energy = env.sun_strength
-        sun.angle = math.radians(1.5 if env.sun_strength > 2 else 15.0)
+        sun.angle = math.radians(sun_angle_deg(env))
         obj = bpy.data.objects.new("sun", sun)
         obj.rotation_euler = towards_sun.to_track_quat("Z", "Y").to_euler()
         self.scene.collection.objects.link(obj)
@@ -311,11 +317,17 @@ class BlenderRenderer:
         render.resolution_percentage = 100
         render.pixel_aspect_x = render.pixel_aspect_y = 1.0
 
-    def build(self, scene: HarbourScene) -> None:
-        """Replace the Blender scene's contents with ``scene``."""
+    def build(self, scene: HarbourScene, cull: bool = True) -> None:
+        """Replace the Blender scene's contents with ``scene``; with ``cull``, only the
+        objects that can change the frame (:mod:`harborsight.sim.view_culling`)."""
+        from harborsight.sim.view_culling import objects_in_view
+
         self._clear()
-        materials = {key: self._material(key, spec) for key, spec in scene.materials.items()}
-        for obj in scene.objects:
+        objects = objects_in_view(scene, sun_angle_deg(scene.environment)) if cull else scene.objects
+        used = {part.material for obj in objects for part in obj.parts}
+        materials = {key: self._material(key, spec) for key, spec in scene.materials.items()
+                     if key in used or not cull}
+        for obj in objects:
             for i, part in enumerate(obj.parts):
                 self._add_mesh_object(f"{obj.name}.{i}", np.asarray(part.mesh.vertices),
                                       np.asarray(part.mesh.faces), materials[part.material],
@@ -343,8 +355,9 @@ class BlenderRenderer:
             raise RuntimeError(f"Blender wrote no image to {path}")
         return image
 
-    def render(self, scene: HarbourScene) -> RenderOutput:
-        self.build(scene)
+    def render(self, scene: HarbourScene, cull: bool = True) -> RenderOutput:
+        """RGB and instance ids of ``scene`` (``cull``: see :meth:`build`)."""
+        self.build(scene, cull)
         s, cycles, preset = self.scene, self.scene.cycles, self.preset
         # RGB
         s.view_layers[0].material_override = None

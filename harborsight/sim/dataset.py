@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -69,6 +70,13 @@ class SimulationConfig:
     # sensor noise of the written frame metadata (sim.pose_noise.PoseNoise fields: gps_m,
     # heading_deg, height_m); None: exact poses. The true pose stays in the ground truth
     pose_noise: dict | None = None
+    # build in Blender only the objects that can change the frame (sim.view_culling); the
+    # labels are the same either way, the RGB within a few grey levels at a few pixels
+    cull_out_of_view: bool = True
+
+    #: what a parameter added later means for a dataset.json written before it: the
+    #: behaviour it was rendered with (not the new default), so that it resumes unchanged
+    LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -99,7 +107,8 @@ class SimulationConfig:
 
     @classmethod
     def from_dict(cls, doc: dict) -> SimulationConfig:
-        doc = dict(doc)
+        """The config stored in a ``dataset.json`` (parameters it lacks: as rendered then)."""
+        doc = {**cls.LEGACY_PARAMETERS, **doc}
         for key in ("altitudes_m", "origin_lat_lon"):
             if key in doc:
                 doc[key] = tuple(doc[key])
@@ -343,7 +352,7 @@ class FrameRenderer:
         start = time.perf_counter()
         stem = stem_of(index)
         scene = plan_frame(self.config, index, self.vessels)
-        rendered = self.renderer.render(scene)
+        rendered = self.renderer.render(scene, cull=self.config.cull_out_of_view)
         geometry = scene.geometry()
         triangles, ids = scene_triangles(scene, rendered.ocean_triangles)
         cast = ray_cast_ids(geometry, triangles, ids)
@@ -492,7 +501,7 @@ def _check_or_write_dataset_json(out_dir: Path, config: SimulationConfig) -> Non
             raise InputError(path, "parameters", "expected an object of simulation parameters: "
                              "is this a harborsight dataset?")
         defaults = SimulationConfig(seed=config.seed).to_dict()  # keys added since
-        old = {**defaults, **doc.get("parameters", {})}
+        old = {**defaults, **SimulationConfig.LEGACY_PARAMETERS, **doc.get("parameters", {})}
         new = config.to_dict()
         diff = sorted(k for k in new if old.get(k) != new[k])
         if diff:

@@ -203,9 +203,9 @@ class _Builder:
         transform = np.eye(4)
         transform[:3, :3] = rot_z(math.pi / 2 - bearing)
         transform[:3, 3] = self.r_enu_v @ np.array([x_v, y_v, 0.0])
-        out = mesh.copy()
-        out.apply_transform(transform)
-        return out
+        # the vertices Trimesh.apply_transform would give, without copying the mesh's caches
+        return trimesh.Trimesh(trimesh.transformations.transform_points(mesh.vertices, transform),
+                               mesh.faces.copy(), process=False)
 
     def add(self, name: str, kind: str, class_id: int, parts: list[tuple[trimesh.Trimesh, str]],
             x_v: float, y_v: float, rel_heading_deg: float = 0.0) -> SceneObject:
