@@ -72,6 +72,10 @@ def simulate(
         "their shadow or in reflection (labels unchanged, RGB within a few grey levels at a "
         "few pixels; 10-20 % faster on marinas). A dataset rendered before this option "
         "resumes only with --no-cull-out-of-view.")] = True,
+    wakes: Annotated[bool, typer.Option(
+        help="Paint the white water of boats under way (turbulent wake, Kelvin arms, bow "
+        "wave) on the rendered water; labels unchanged. A dataset rendered before this "
+        "option resumes only with --no-wakes.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -86,7 +90,7 @@ def simulate(
             sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
             approach_speed_mps=approach_speed_mps,
             pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
-            cull_out_of_view=cull_out_of_view)
+            cull_out_of_view=cull_out_of_view, wakes=wakes)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

@@ -39,12 +39,15 @@ from harborsight.sim.layout import (
     generate_vessel,
     sample_harbour_scene,
 )
+from harborsight.sim.wakes import paint_wakes
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
 CLASSES = {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"}
 SUBDIRS = ("images", "labels", "instances", "frames")
 #: vessels of the pool are drawn from this stream of the dataset seed
 VESSEL_STREAM = 2**31 - 1
+#: a frame's wakes are drawn from this stream of (seed, index)
+WAKE_STREAM = 6
 
 
 @dataclass(frozen=True)
@@ -73,10 +76,12 @@ class SimulationConfig:
     # build in Blender only the objects that can change the frame (sim.view_culling); the
     # labels are the same either way, the RGB within a few grey levels at a few pixels
     cull_out_of_view: bool = True
+    # paint the wakes of boats under way on the rendered water (sim.wakes; labels unchanged)
+    wakes: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
-    LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False}
+    LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -357,8 +362,12 @@ class FrameRenderer:
         triangles, ids = scene_triangles(scene, rendered.ocean_triangles)
         cast = ray_cast_ids(geometry, triangles, ids)
         agreement = check_labels(rendered.instances, cast, f"frame {stem}")
+        image = rendered.image_bgr
+        if self.config.wakes:
+            image = paint_wakes(image, rendered.instances, scene,
+                                np.random.default_rng([self.config.seed, index, WAKE_STREAM]))
         rng = np.random.default_rng([self.config.seed, index, 1])
-        image = apply_camera_effects(rendered.image_bgr, cast.range_m, scene, rng)
+        image = apply_camera_effects(image, cast.range_m, scene, rng)
         labels = class_mask(rendered.instances, scene.class_of_instance)
         instances = rendered.instances.copy()
         instances[instances == 65535] = 0  # design.md: 0 = water/no object; sky is labels 255

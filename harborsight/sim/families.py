@@ -476,15 +476,18 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
 
 def add_boats_under_way(b: _Builder, hull: Polygon, count: int, gap_m: float) -> None:
     """``count`` small craft in open water 8-80 m off the vessel (``hull``: its outline in
-    the vessel frame), any heading; dropped where they would touch something or come nearer
-    to the vessel than ``gap_m``."""
+    the vessel frame), any heading, marked with their course (their wakes are painted on the
+    render); dropped where they would touch something or come nearer to the vessel than
+    ``gap_m``."""
     rng = b.rng
     vessel_fp = b.objects[0].footprint()
     for _ in range(count):
         ring = hull.buffer(rng.uniform(8.0, 80.0), quad_segs=8).exterior
         p = ring.interpolate(rng.uniform(0, 1), normalized=True)
-        boat = add_leisure_boat(b, p.x, p.y, float(rng.uniform(0, 360)), float(rng.uniform(3.5, 9.0)),
+        rel_heading = float(rng.uniform(0, 360))
+        boat = add_leisure_boat(b, p.x, p.y, rel_heading, float(rng.uniform(3.5, 9.0)),
                                 "jetski" if rng.random() < 0.2 else None)
+        boat.course_deg = (b.heading_deg + rel_heading) % 360.0      # the bow's bearing
         if (_overlaps_others([boat], b.objects, margin_m=1.0)
                 or boat.footprint().distance(vessel_fp) < gap_m):
             b.objects.remove(boat)

@@ -61,6 +61,9 @@ class SceneObject:
     class_id: int
     instance_id: int
     parts: list[Part]
+    #: a boat under way: the bearing of its bow, clockwise from north (its wake is painted
+    #: astern, :mod:`harborsight.sim.wakes`); None for what lies still
+    course_deg: float | None = None
     _footprint: Polygon | None = field(default=None, init=False, repr=False, compare=False)
 
     def footprint(self) -> Polygon:

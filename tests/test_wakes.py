@@ -1,0 +1,91 @@
+"""Wakes of boats under way: the white-water pattern by hand (astern, Kelvin arms, nothing
+ahead), painted only on water pixels, and a render whose labels the wakes leave alone."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from harborsight.sim.dataset import FrameRenderer, SimulationConfig, plan_frame, prepare_vessels
+from harborsight.sim.layout import SHIP, Part, SceneObject
+from harborsight.sim.wakes import KELVIN_DEG, paint_wakes, wake_intensity
+from harborsight.vessel.spec import load_vessel_spec
+
+STERN, BOW = np.array([0.0, -5.0]), np.array([0.0, 5.0])      # a 10 m boat heading north
+
+
+def test_the_wake_lies_astern_along_the_track_and_on_the_kelvin_arms():
+    assert pytest.approx(19.47, abs=0.01) == KELVIN_DEG
+    def at(e, n):
+        return float(wake_intensity(np.array([[e, n]]), STERN, BOW, 10.0, 3.0, 5.0)[0])
+    assert at(0.0, -10.0) > 0.5                   # the turbulent wake, 5 m astern
+    assert at(0.0, 20.0) == 0.0 and at(8.0, 8.0) == 0.0     # nothing ahead of the bow
+    # 30 m astern of the bow, the arm is 30 tan(19.47°) = 10.6 m off the track
+    arm = 30.0 * math.tan(math.radians(KELVIN_DEG))
+    assert at(arm, 5.0 - 30.0) > 0.2 and at(-arm, 5.0 - 30.0) > 0.2
+    assert at(arm, 5.0 - 30.0) > 20 * at(6.0, 5.0 - 30.0)    # between the arm and the centre
+    # it fades with distance: 200 m astern there is almost nothing left
+    assert at(0.0, -200.0) < 0.02
+
+
+@pytest.fixture(scope="module")
+def nadir_scene(tmp_path_factory):
+    config = SimulationConfig(seed=3, preset="tiny", vessel_pool=1, altitudes_m=(40.0,),
+                              max_tilt_deg=0.0, scenario="open")
+    out = tmp_path_factory.mktemp("vessels")
+    vessels = {n: load_vessel_spec(p) for n, p in prepare_vessels(out, config).items()}
+    return plan_frame(config, 0, vessels)
+
+
+def test_wakes_are_painted_on_water_pixels_only(nadir_scene):
+    """A 6 m boat heading along the image's -v (up) from the image's centre: the water below
+    it (astern) turns whiter, the water above it does not, and a pixel that is not water
+    keeps its colour even inside the wake."""
+    scene = nadir_scene
+    camera = scene.geometry().camera
+    intr = scene.intrinsics
+    centre, _ = camera.back_project_to_plane(np.array([[(intr.width - 1) / 2, (intr.height - 1) / 2],
+                                                       [(intr.width - 1) / 2, 0.0]]))
+    up = centre[1, :2] - centre[0, :2]
+    course = math.degrees(math.atan2(up[0], up[1]))
+    hull = trimesh.creation.box(extents=(6.0, 2.0, 1.0))
+    hull.apply_transform(trimesh.transformations.rotation_matrix(math.radians(90 - course), (0, 0, 1)))
+    hull.apply_translation((*centre[0, :2], 0.5))
+    boat = SceneObject("boat", "boat", SHIP, 50, [Part(hull, "hull")], course_deg=course)
+    scene = replace(scene, objects=[scene.objects[0], boat])
+    image = np.full((intr.height, intr.width, 3), 90, np.uint8)
+    instances = np.zeros((intr.height, intr.width), np.uint16)
+    cu, cv = intr.width // 2, intr.height // 2
+    instances[cv - 1:cv + 2, cu - 2:cu + 3] = 50              # the boat's pixels
+    instances[cv + 6, cu] = 7                                 # something on the water astern
+    painted = paint_wakes(image, instances, scene, np.random.default_rng(0))
+    gain = painted.astype(int).sum(axis=2) - image.astype(int).sum(axis=2)
+    assert gain[cv + 3:cv + 12, cu - 1:cu + 2].mean() > 30     # astern: white water
+    assert (gain[:cv - 6] == 0).all()        # ahead (beyond the 2-px grid's blur): untouched
+    assert (gain[instances != 0] == 0).all()                   # not water: untouched
+    # no boat under way: the image comes back as it was
+    still = replace(scene, objects=[scene.objects[0], replace(boat, course_deg=None)])
+    assert paint_wakes(image, instances, still, np.random.default_rng(0)) is image
+
+
+def test_a_rendered_wake_changes_the_water_and_no_label(tmp_path):
+    """Frame 24 of a tiny lake-shore dataset (seed 21) has a jet ski under way in view."""
+    config = SimulationConfig(seed=21, preset="tiny", vessel_pool=1, scenario="lakeshore")
+    prepare_vessels(tmp_path, config)
+    files = {}
+    for wakes in (True, False):
+        files[wakes] = FrameRenderer(tmp_path, replace(config, wakes=wakes)).render_files(24).files
+    def decode(wakes, name):
+        return cv2.imdecode(np.frombuffer(files[wakes][f"{name}/000024.png"], np.uint8),
+                            cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(decode(True, "labels"), decode(False, "labels"))
+    labels = decode(True, "labels")
+    change = np.abs(decode(True, "images").astype(int) - decode(False, "images").astype(int)).max(axis=2)
+    # the camera's blur and JPEG spread a little of the paint onto the neighbours; the
+    # white water itself is on the water
+    assert (change > 20).sum() >= 5 and (labels[change > 20] == 0).mean() > 0.9
