@@ -13,6 +13,9 @@ A boat under way leaves three kinds of white water on the surface (seen from abo
   the bow, ``w_k = 0.25 + 0.02 a_b`` m;
 * a short **bow wave** along both sides of the hull's forward half.
 
+A wake ends where the boat's track astern (a corridor as wide as its beam) first meets
+another object: it did not come through a pier or the shore.
+
 The faster the boat, the longer its wake (``k_c``, ``k_k`` grow with the speed drawn). The
 foam is broken by a noise field fixed on the water (a sum of random plane waves), so it stays
 put as the camera moves: ``foam = I · clip(noise + 0.6 I, 0, 1)``, solid where the wake is
@@ -29,6 +32,7 @@ import math
 
 import cv2
 import numpy as np
+from shapely.geometry import LineString, Point
 
 from harborsight.sim.layout import HarbourScene, SceneObject
 
@@ -68,9 +72,23 @@ def _foam_noise(xy: np.ndarray, rng: np.random.Generator, n_waves: int = 12) -> 
     return np.clip((field - 0.35) / 0.4, 0.0, 1.0)
 
 
+def clear_track_m(stern: np.ndarray, bow: np.ndarray, beam_m: float, others: list,
+                  reach_m: float = 2_000.0) -> float:
+    """How far astern of the stern the boat's track (a corridor as wide as its beam) runs
+    before it meets another object's footprint: the boat cannot have come through it."""
+    ahead = (bow - stern) / max(np.linalg.norm(bow - stern), 1e-9)
+    corridor = LineString([tuple(stern - 0.01 * ahead), tuple(stern - reach_m * ahead)]).buffer(
+        beam_m / 2, cap_style="flat")
+    hits = [f for f in others if f.intersects(corridor)]
+    if not hits:
+        return reach_m
+    return float(min(Point(*stern).distance(f.intersection(corridor)) for f in hits))
+
+
 def wake_intensity(xy: np.ndarray, stern: np.ndarray, bow: np.ndarray, length_m: float,
-                   beam_m: float, speed_mps: float) -> np.ndarray:
-    """White-water intensity in [0, 1] at water points ``xy (N, 2)`` (module docstring)."""
+                   beam_m: float, speed_mps: float, clear_m: float = np.inf) -> np.ndarray:
+    """White-water intensity in [0, 1] at water points ``xy (N, 2)`` (module docstring);
+    none farther astern than ``clear_m`` (:func:`clear_track_m`)."""
     ahead = (bow - stern) / max(np.linalg.norm(bow - stern), 1e-9)
     across = np.array([ahead[1], -ahead[0]])
     length_m, beam_m = max(length_m, 1.0), max(beam_m, 0.5)
@@ -89,7 +107,8 @@ def wake_intensity(xy: np.ndarray, stern: np.ndarray, bow: np.ndarray, length_m:
                                  / arm_width) ** 2), 0.0)
     along_hull = (a_bow > 0) & (a_bow < 0.5 * length_m)
     bow_wave = np.where(along_hull, np.exp(-((np.abs(c) - beam_m / 2) / 0.3) ** 2), 0.0)
-    return np.clip(np.maximum.reduce([0.9 * turbulent, 0.6 * kelvin, 0.7 * bow_wave]), 0.0, 1.0)
+    intensity = np.maximum.reduce([0.9 * turbulent, 0.6 * kelvin, 0.7 * bow_wave])
+    return np.clip(np.where(a <= clear_m, intensity, 0.0), 0.0, 1.0)
 
 
 def paint_wakes(image_bgr: np.ndarray, instances: np.ndarray, scene: HarbourScene,
@@ -112,7 +131,10 @@ def paint_wakes(image_bgr: np.ndarray, instances: np.ndarray, scene: HarbourScen
     for boat in boats:
         stern, bow, length_m, beam_m = _hull_extent(boat, boat.course_deg)
         speed_mps = float(rng.uniform(2.0, 10.0))
-        foam_valid = np.maximum(foam_valid, wake_intensity(xy, stern, bow, length_m, beam_m, speed_mps))
+        others = [o.footprint() for o in scene.objects if o is not boat]
+        clear_m = clear_track_m(stern, bow, beam_m, others)
+        foam_valid = np.maximum(foam_valid, wake_intensity(xy, stern, bow, length_m, beam_m,
+                                                           speed_mps, clear_m))
     # dense white water where the wake is strong, broken where it fades
     foam_valid *= np.clip(_foam_noise(xy, rng) + 0.6 * foam_valid, 0.0, 1.0)
     if not (foam_valid > 1e-3).any():
