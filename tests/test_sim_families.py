@@ -35,7 +35,7 @@ def vessels(tmp_path_factory):
     return {name: load_vessel_spec(path) for name, path in prepare_vessels(out, config).items()}
 
 
-@pytest.mark.parametrize("family", ["lakeshore", "marina"])
+@pytest.mark.parametrize("family", ["lakeshore", "marina", "commercial"])
 def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family):
     config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario=family)
     kinds: set[str] = set()
@@ -45,16 +45,26 @@ def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family
         vessel_fp = scene.objects[0].footprint()
         for obj in scene.objects[1:]:
             kinds.add(obj.kind)
-            assert obj.class_id == (SHIP if obj.kind == "boat" else OBSTACLE), obj.kind
+            assert obj.class_id == (SHIP if obj.kind in ("boat", "ship") else OBSTACLE), obj.kind
             # the gap is the nearest obstacle: nothing comes nearer
             assert obj.footprint().distance(vessel_fp) >= scene.gap_m - 1e-6, (obj.kind, index)
         # every section's true clearance is at least the gap
         truth = [s["distance_all_m"] for s in scene.ground_truth()["sections"]
                  if s["distance_all_m"] is not None]
         assert all(d >= scene.gap_m - 0.01 for d in truth)
-    expected = ({"land", "tree", "house", "dock"} if family == "lakeshore"
-                else {"pontoon", "boat"})
+    expected = {"lakeshore": {"land", "tree", "house", "dock"}, "marina": {"pontoon", "boat"},
+                "commercial": {"quay", "fender", "bollard", "ship", "truck", "person"}}[family]
     assert expected <= kinds, kinds
+    if family == "commercial":      # vehicles and people stand on the quay, apart
+        for scene in (plan_frame(config, i, vessels) for i in range(4)):
+            standing = [o for o in scene.objects if o.kind in ("truck", "forklift", "car",
+                                                               "reach stacker", "person")]
+            deck_z = max(np.asarray(o.parts[0].mesh.vertices)[:, 2].max()
+                         for o in scene.objects if o.kind == "quay")
+            assert all(np.asarray(o.parts[0].mesh.vertices)[:, 2].min() >= deck_z - 1e-6
+                       for o in standing)
+            for i, a in enumerate(standing):
+                assert all(a.footprint().distance(o.footprint()) > 0.2 for o in standing[i + 1:])
 
 
 def test_family_scenes_are_a_function_of_seed_and_index(vessels):
@@ -138,10 +148,10 @@ def test_consumer_camera_effects():
 def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path):
     out = tmp_path / "ds"
     config = SimulationConfig(seed=4, preset="tiny", vessel_pool=1, altitudes_m=(30.0,),
-                              scenario="lakeshore,marina")
-    summary = simulate(out, 2, config)
+                              scenario="lakeshore,marina,commercial")
+    summary = simulate(out, 3, config)
     assert not summary.failed, [f.error for f in summary.failed]
-    for index, family in enumerate(("lakeshore", "marina")):
+    for index, family in enumerate(("lakeshore", "marina", "commercial")):
         frame = json.loads((out / "frames" / f"{index:06d}.json").read_text())
         assert frame["ground_truth"]["scenario"] == family
         assert frame["simulation"]["label_agreement"] >= 0.995

@@ -1,11 +1,13 @@
 """Scene families that look like real harbours (issue #26): a lake or river shore with private
-docks and boat lifts, and a marina with rows of pontoons and finger piers full of moored boats.
+docks and boat lifts, a marina with rows of pontoons and finger piers full of moored boats,
+and a commercial quay with its vehicles and people.
 
 They sit beside the five classic scenarios of :mod:`harborsight.sim.layout` and use its
 builder, so the same rules hold: every part is a convex mesh in the world frame W, vessels are
 ``ship`` (1), everything solid that is not a vessel is ``obstacle`` (2): land, lawns, trees,
-houses, cars, rip-rap, docks, pontoons, lift frames and canopies. Boats sitting on a lift are
-``ship``; seen from above under a canopy they are hidden by it, as in the real photos.
+houses, cars, rip-rap, docks, pontoons, lift frames and canopies, port vehicles and people.
+Boats sitting on a lift are ``ship``; seen from above under a canopy they are hidden by it,
+as in the real photos.
 
 Each family also draws its own look (:func:`sample_realistic_environment`): brown, green or
 blue water of any turbidity, a consumer drone's camera (vignetting, white balance, JPEG, a
@@ -28,11 +30,16 @@ from harborsight.sim.layout import (
     Environment,
     HullRanges,
     Material,
+    SceneObject,
     _box,
     _Builder,
     _cylinder,
     _grey,
     _jitter,
+    _try_add,
+    add_quay,
+    add_ship,
+    max_half_beam,
     random_hull_parameters,
     sample_environment,
 )
@@ -472,6 +479,95 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
                 add_pontoon_row(b, (x_c, first_main + s * k * lane), along, length,
                                 f"row{b.next_instance}", berth, both_sides=k > 0 or rng.random() < 0.2,
                                 keep_out=keep_out)
+
+
+# port vehicles: hi-vis yellow and orange, and the cars' colours
+_PORT_VEHICLE_RGB = [(0.75, 0.5, 0.01), (0.8, 0.25, 0.01), (0.6, 0.6, 0.62), (0.05, 0.15, 0.4),
+                     (0.5, 0.03, 0.02)]
+# work clothes seen from above: hi-vis vests, dark overalls, white and yellow helmets
+_PERSON_RGB = [(0.85, 0.4, 0.01), (0.8, 0.75, 0.02), (0.05, 0.05, 0.08), (0.1, 0.15, 0.35),
+               (0.8, 0.8, 0.78)]
+
+
+def _port_vehicle(b: _Builder, kind: str, tag: str, deck_z: float) -> list[tuple[trimesh.Trimesh, str]]:
+    """A truck (cab and a container trailer), a forklift, a reach stacker or a car, in its
+    local frame (x forward), standing on ``deck_z``."""
+    rng = b.rng
+    body = b.material(f"{tag}-body", Material(_jitter(_pick(_PORT_VEHICLE_RGB if kind != "car"
+                                                            else _CAR_RGB, rng), rng, 0.1), 0.4, 0.4, 0.05))
+    dark = b.material(f"{tag}-dark", Material((0.03, 0.03, 0.035), 0.6, 0.2, 0.05))
+    if kind == "truck":
+        trailer_rgb = _pick([(0.5, 0.05, 0.02), (0.02, 0.12, 0.4), (0.05, 0.25, 0.06), (0.6, 0.6, 0.6)], rng)
+        trailer = b.material(f"{tag}-trailer", Material(_jitter(trailer_rgb, rng), 0.5, 0.3, 0.2, 1.2))
+        length = 12.19 if rng.random() < 0.6 else 6.06
+        return [(_box(2.3, 2.5, 3.0, length / 2 + 1.4, 0.0, deck_z), body),
+                (_box(length + 0.4, 2.5, 1.1, 0.0, 0.0, deck_z), dark),
+                (_box(length, 2.44, 2.59, 0.0, 0.0, deck_z + 1.1), trailer)]
+    if kind == "forklift":
+        return [(_box(2.6, 1.2, 1.2, 0.0, 0.0, deck_z), body),
+                (_box(1.0, 1.1, 1.0, -0.4, 0.0, deck_z + 1.2), dark),
+                (_box(0.15, 1.0, 3.0, 1.4, 0.0, deck_z), dark)]
+    if kind == "reach stacker":
+        return [(_box(10.0, 4.0, 2.2, 0.0, 0.0, deck_z), body),
+                (_box(2.0, 2.0, 2.0, -2.0, 0.0, deck_z + 2.2), dark),
+                (_box(9.0, 0.8, 0.8, 4.0, 0.0, deck_z + 4.0), body)]
+    return [(_box(4.5, 1.8, 0.8, 0.0, 0.0, deck_z + 0.2), body),      # a car
+            (_box(2.4, 1.6, 0.6, -0.3, 0.0, deck_z + 1.0), body)]
+
+
+def _keeps_clear(new: SceneObject, objects: list, margin_m: float) -> bool:
+    """Whether ``new`` keeps ``margin_m`` from everything placed before it except the quay
+    slab it stands on."""
+    fp = new.footprint()
+    return all(fp.distance(o.footprint()) >= margin_m for o in objects
+               if o is not new and o.kind != "quay")
+
+
+def build_commercial_quay(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int,
+                          gap_m: float) -> None:
+    """The vessel alongside a cargo quay on ``side`` (+1 starboard), its fenders ``gap_m`` off
+    the hull: the quay of the classic scenarios (fenders, bollards, container stacks, a shed, a
+    crane) with ships moored ahead and astern, and on it trucks with container trailers,
+    forklifts, reach stackers, cars and people (all ``obstacle``), none overlapping."""
+    rng = b.rng
+    skew = float(rng.uniform(-2.0, 2.0))
+    fender = float(rng.uniform(0.3, 0.6))
+    tan = math.tan(math.radians(skew))
+    need = max(side * y - side * x * tan for x, y in hull_xy)
+    edge = side * (gap_m + 2 * fender + need)
+    along = (0.0 if side > 0 else 180.0) + skew
+    quay = add_quay(b, 0.0, edge, along, "quay", fender)
+    deck_z = float(np.asarray(quay[0].parts[0].mesh.vertices)[:, 2].max())
+    x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
+    for direction in (1, -1):                    # ships moored ahead and astern
+        if rng.random() < 0.2:
+            continue
+        params = random_hull_parameters(rng, float(rng.uniform(20, 90)))
+        end = x_max if direction > 0 else x_min
+        cx = end + direction * (rng.uniform(4, 30) + params.length_m / 2)
+        cy = edge + cx * tan - side * (2 * fender + 0.3 + max_half_beam(params))
+        _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
+            b, x, y, p, skew + float(rng.choice([0.0, 180.0]))), 0.0)
+    for _ in range(int(rng.integers(3, 14))):    # vehicles, set back from the edge
+        kind = str(rng.choice(["truck", "forklift", "reach stacker", "car"], p=[0.4, 0.25, 0.1, 0.25]))
+        tag = f"{kind.replace(' ', '-')}{b.next_instance}"
+        x, y = float(rng.uniform(-90, 90)), -float(rng.uniform(4.0, 45.0))
+        xv, yv = _local_to_vessel((0.0, edge), along, x, y)
+        heading = along + float(rng.choice([0.0, 90.0, 180.0, 270.0])) + float(rng.normal(0, 8))
+        vehicle = b.add(tag, kind, OBSTACLE, _port_vehicle(b, kind, tag, deck_z), xv, yv, heading)
+        if not _keeps_clear(vehicle, b.objects, 1.0):
+            b.objects.remove(vehicle)
+    for _ in range(int(rng.integers(2, 16))):    # people: on the quay, some near its edge
+        tag = f"person{b.next_instance}"
+        clothes = b.material(f"{tag}-clothes", Material(_jitter(_pick(_PERSON_RGB, rng), rng, 0.1), 0.8))
+        tall = float(rng.uniform(1.6, 1.9))
+        body = _cylinder(float(rng.uniform(0.2, 0.28)), tall, 0.0, 0.0, deck_z, 8)
+        x = float(rng.uniform(-60, 60))
+        y = -float(rng.uniform(1.2, 3.0) if rng.random() < 0.4 else rng.uniform(3.0, 30.0))
+        xv, yv = _local_to_vessel((0.0, edge), along, x, y)
+        person = b.add(tag, "person", OBSTACLE, [(body, clothes)], xv, yv, 0.0)
+        if not _keeps_clear(person, b.objects, 0.3):
+            b.objects.remove(person)
 
 
 def add_boats_under_way(b: _Builder, hull: Polygon, count: int, gap_m: float) -> None:
