@@ -45,7 +45,8 @@ def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family
         vessel_fp = scene.objects[0].footprint()
         for obj in scene.objects[1:]:
             kinds.add(obj.kind)
-            assert obj.class_id == (SHIP if obj.kind in ("boat", "ship") else OBSTACLE), obj.kind
+            assert obj.class_id == (SHIP if obj.kind in ("boat", "ship", "tug", "barge")
+                                    else OBSTACLE), obj.kind
             # the gap is the nearest obstacle: nothing comes nearer
             assert obj.footprint().distance(vessel_fp) >= scene.gap_m - 1e-6, (obj.kind, index)
         # every section's true clearance is at least the gap
@@ -53,7 +54,8 @@ def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family
                  if s["distance_all_m"] is not None]
         assert all(d >= scene.gap_m - 0.01 for d in truth)
     expected = {"lakeshore": {"land", "tree", "house", "dock"}, "marina": {"pontoon", "boat"},
-                "commercial": {"quay", "fender", "bollard", "ship", "truck", "person"}}[family]
+                "commercial": {"quay", "fender", "bollard", "ship", "truck", "person", "tug",
+                               "barge"}}[family]
     assert expected <= kinds, kinds
     if family == "commercial":      # vehicles and people stand on the quay, apart
         for scene in (plan_frame(config, i, vessels) for i in range(4)):

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 import trimesh
-from shapely.geometry import Polygon
+from shapely.geometry import MultiPoint, Polygon
 
 from harborsight.sim.layout import (
     OBSTACLE,
@@ -36,6 +36,7 @@ from harborsight.sim.layout import (
     _cylinder,
     _grey,
     _jitter,
+    _ship_parts,
     _try_add,
     add_quay,
     add_ship,
@@ -515,6 +516,54 @@ def _port_vehicle(b: _Builder, kind: str, tag: str, deck_z: float) -> list[tuple
             (_box(2.4, 1.6, 0.6, -0.3, 0.0, deck_z + 1.0), body)]
 
 
+def add_tug(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) -> SceneObject:
+    """A harbour tug centred at (x_v, y_v): a short beamy hull (22-32 m, beam 0.36-0.42 of the
+    length), a tall wheelhouse amidships and a belt of black tyre fenders along the hull's deck
+    edge (part of the ship)."""
+    rng = b.rng
+    length = float(rng.uniform(22.0, 32.0))
+    start = float(rng.uniform(0.4, 0.55))
+    params = HullParameters(
+        length_m=length, beam_m=length * float(rng.uniform(0.36, 0.42)),
+        draft_m=float(rng.uniform(3.0, 5.0)), freeboard_m=float(rng.uniform(1.8, 2.6)),
+        bow_fraction=float(rng.uniform(0.3, 0.45)), flare=float(rng.uniform(0.05, 0.12)),
+        deckhouse=(start, start + float(rng.uniform(0.18, 0.25)), float(rng.uniform(0.5, 0.65)),
+                   float(rng.uniform(5.0, 8.0))))
+    tag = f"tug{b.next_instance}"
+    parts = _ship_parts(b, params, tag)
+    rubber = b.material(f"{tag}-tyres", Material((0.012, 0.012, 0.012), 0.9, 0.0, 0.05))
+    hull = parts[0][0]
+    top = hull.vertices[hull.vertices[:, 2] >= hull.vertices[:, 2].max() - 1e-6]
+    ring = MultiPoint(top[:, :2]).convex_hull.exterior
+    for d in np.arange(0.0, ring.length, float(rng.uniform(1.0, 1.6))):
+        p = ring.interpolate(float(d))
+        parts.append((_cylinder(0.35, 0.6, p.x, p.y, params.freeboard_m - 0.7, 8), rubber))
+    return b.add(tag, "tug", SHIP, parts, x_v, y_v, rel_heading_deg)
+
+
+def add_barge(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) -> SceneObject:
+    """A dumb barge centred at (x_v, y_v): a box hull 30-70 m long (beam a fifth of it, at
+    least 8 m), a hatch coaming over its hold, and a heap of sand, gravel or coal on it in half
+    of them."""
+    rng = b.rng
+    length = float(rng.uniform(30.0, 70.0))
+    beam = max(8.0, length * float(rng.uniform(0.17, 0.24)))
+    freeboard = float(rng.uniform(1.2, 3.0))
+    tag = f"barge{b.next_instance}"
+    steel = b.material(f"{tag}-hull", Material(_jitter(_pick([(0.2, 0.07, 0.03), (0.02, 0.02, 0.02),
+                                                              (0.05, 0.1, 0.2), (0.3, 0.28, 0.25)], rng),
+                                                       rng), 0.6, 0.3, 0.3, 0.4))
+    coaming = b.material(f"{tag}-coaming", Material(_jitter((0.12, 0.12, 0.12), rng), 0.6, 0.3, 0.2))
+    parts = [(_box(length, beam, freeboard + 2.0, 0.0, 0.0, -2.0), steel),
+             (_box(length * 0.82, beam - 1.6, 0.5, 0.0, 0.0, freeboard), coaming)]
+    if rng.random() < 0.5:
+        cargo_rgb = _pick([(0.45, 0.36, 0.22), (0.3, 0.3, 0.3), (0.03, 0.03, 0.03)], rng)
+        cargo = b.material(f"{tag}-cargo", Material(_jitter(cargo_rgb, rng), 0.95, 0.0, 0.4, 2.0))
+        parts.append((_gable(length * 0.75, beam - 2.0, float(rng.uniform(1.0, 3.0)),
+                             freeboard + 0.5), cargo))
+    return b.add(tag, "barge", SHIP, parts, x_v, y_v, rel_heading_deg)
+
+
 def _keeps_clear(new: SceneObject, objects: list, margin_m: float) -> bool:
     """Whether ``new`` keeps ``margin_m`` from everything placed before it except the quay
     slab it stands on."""
@@ -527,8 +576,9 @@ def build_commercial_quay(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side:
                           gap_m: float) -> None:
     """The vessel alongside a cargo quay on ``side`` (+1 starboard), its fenders ``gap_m`` off
     the hull: the quay of the classic scenarios (fenders, bollards, container stacks, a shed, a
-    crane) with ships moored ahead and astern, and on it trucks with container trailers,
-    forklifts, reach stackers, cars and people (all ``obstacle``), none overlapping."""
+    crane) with ships moored ahead and astern, at times a tug standing by off the vessel's other
+    side and a barge along the face, and on the quay trucks with container trailers, forklifts,
+    reach stackers, cars and people (all ``obstacle``), none overlapping."""
     rng = b.rng
     skew = float(rng.uniform(-2.0, 2.0))
     fender = float(rng.uniform(0.3, 0.6))
@@ -548,6 +598,17 @@ def build_commercial_quay(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side:
         cy = edge + cx * tan - side * (2 * fender + 0.3 + max_half_beam(params))
         _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
             b, x, y, p, skew + float(rng.choice([0.0, 180.0]))), 0.0)
+    if rng.random() < 0.5:                       # a tug standing by off the other side
+        x = float(rng.uniform(x_min, x_max))
+        far_side = float(hull_xy[:, 1].max() if side < 0 else -hull_xy[:, 1].min())
+        y = -side * (far_side + gap_m + float(rng.uniform(3.0, 25.0)) + 7.0)
+        _try_add(b, lambda x=x, y=y: add_tug(b, x, y, skew + float(rng.uniform(-30.0, 30.0))
+                                             + float(rng.choice([0.0, 180.0]))), 1.0)
+    if rng.random() < 0.5:                       # a barge along the face, ahead or astern
+        direction = float(rng.choice([-1.0, 1.0]))
+        x = (x_max if direction > 0 else x_min) + direction * float(rng.uniform(30.0, 90.0))
+        y = edge + x * tan - side * (2 * fender + 0.3 + 7.0)
+        _try_add(b, lambda x=x, y=y: add_barge(b, x, y, skew + float(rng.choice([0.0, 180.0]))), 1.0)
     for _ in range(int(rng.integers(3, 14))):    # vehicles, set back from the edge
         kind = str(rng.choice(["truck", "forklift", "reach stacker", "car"], p=[0.4, 0.25, 0.1, 0.25]))
         tag = f"{kind.replace(' ', '-')}{b.next_instance}"
