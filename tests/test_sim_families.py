@@ -35,7 +35,7 @@ def vessels(tmp_path_factory):
     return {name: load_vessel_spec(path) for name, path in prepare_vessels(out, config).items()}
 
 
-@pytest.mark.parametrize("family", ["lakeshore", "marina", "commercial"])
+@pytest.mark.parametrize("family", ["lakeshore", "marina", "commercial", "fishing"])
 def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family):
     config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario=family)
     kinds: set[str] = set()
@@ -45,7 +45,7 @@ def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family
         vessel_fp = scene.objects[0].footprint()
         for obj in scene.objects[1:]:
             kinds.add(obj.kind)
-            assert obj.class_id == (SHIP if obj.kind in ("boat", "ship", "tug", "barge")
+            assert obj.class_id == (SHIP if obj.kind in ("boat", "ship", "tug", "barge", "fishing boat")
                                     else OBSTACLE), obj.kind
             # the gap is the nearest obstacle: nothing comes nearer
             assert obj.footprint().distance(vessel_fp) >= scene.gap_m - 1e-6, (obj.kind, index)
@@ -55,7 +55,9 @@ def test_family_scenes_have_the_right_classes_and_keep_their_gap(vessels, family
         assert all(d >= scene.gap_m - 0.01 for d in truth)
     expected = {"lakeshore": {"land", "tree", "house", "dock"}, "marina": {"pontoon", "boat"},
                 "commercial": {"quay", "fender", "bollard", "ship", "truck", "person", "tug",
-                               "barge"}}[family]
+                               "barge"},
+                "fishing": {"quay", "fender", "bollard", "fishing boat", "shed", "crates", "nets",
+                            "person"}}[family]
     assert expected <= kinds, kinds
     if family == "commercial":      # vehicles and people stand on the quay, apart
         for scene in (plan_frame(config, i, vessels) for i in range(4)):
@@ -150,10 +152,10 @@ def test_consumer_camera_effects():
 def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path):
     out = tmp_path / "ds"
     config = SimulationConfig(seed=4, preset="tiny", vessel_pool=1, altitudes_m=(30.0,),
-                              scenario="lakeshore,marina,commercial")
-    summary = simulate(out, 3, config)
+                              scenario="lakeshore,marina,commercial,fishing")
+    summary = simulate(out, 4, config)
     assert not summary.failed, [f.error for f in summary.failed]
-    for index, family in enumerate(("lakeshore", "marina", "commercial")):
+    for index, family in enumerate(("lakeshore", "marina", "commercial", "fishing")):
         frame = json.loads((out / "frames" / f"{index:06d}.json").read_text())
         assert frame["ground_truth"]["scenario"] == family
         assert frame["simulation"]["label_agreement"] >= 0.995

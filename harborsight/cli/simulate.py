@@ -47,7 +47,8 @@ def simulate(
     vessel_pool: Annotated[int, typer.Option(min=1, help="Procedural vessels in the pool.")] = 6,
     scenario: Annotated[str | None, typer.Option(
         help="Only this scenario (alongside, slip, pass, touching, open; or the families that "
-        "look like real harbours: lakeshore, marina, commercial), a comma list cycled by frame "
+        "look like real harbours: lakeshore, marina, commercial, fishing), a comma list cycled "
+        "by frame "
         "index, or "
         "weights to draw from, e.g. lakeshore=0.4,marina=0.4,alongside=0.2. Default: the five "
         "classic scenarios with the weights of docs/simulator.md.")] = None,

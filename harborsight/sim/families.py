@@ -1,6 +1,6 @@
 """Scene families that look like real harbours (issue #26): a lake or river shore with private
 docks and boat lifts, a marina with rows of pontoons and finger piers full of moored boats,
-and a commercial quay with its vehicles and people.
+a commercial quay with its vehicles and people, and a fishing harbour.
 
 They sit beside the five classic scenarios of :mod:`harborsight.sim.layout` and use its
 builder, so the same rules hold: every part is a convex mesh in the world frame W, vessels are
@@ -562,6 +562,114 @@ def add_barge(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) -> Sc
         parts.append((_gable(length * 0.75, beam - 2.0, float(rng.uniform(1.0, 3.0)),
                              freeboard + 0.5), cargo))
     return b.add(tag, "barge", SHIP, parts, x_v, y_v, rel_heading_deg)
+
+
+#: fishing boats: beamy, the wheelhouse forward, a high freeboard for their size
+FISHING_HULLS = HullRanges(beam=(0.28, 0.36), deckhouse_start=(0.55, 0.66), freeboard=(0.07, 0.1),
+                           freeboard_limits_m=(0.9, 2.5), deckhouse_width=(0.5, 0.7),
+                           deckhouse_height=(0.12, 0.2), deckhouse_height_limits_m=(2.0, 4.0))
+_FISHING_HULL_RGB = [(0.02, 0.08, 0.3), (0.4, 0.03, 0.02), (0.03, 0.15, 0.05), (0.7, 0.7, 0.68),
+                     (0.02, 0.02, 0.02), (0.05, 0.25, 0.35)]
+# fish crates (blue, red, white, grey) and nets (green, orange, blue)
+_CRATE_RGB = [(0.02, 0.1, 0.4), (0.5, 0.03, 0.02), (0.75, 0.75, 0.72), (0.3, 0.3, 0.3)]
+_NET_RGB = [(0.03, 0.15, 0.05), (0.6, 0.2, 0.01), (0.03, 0.08, 0.3)]
+
+
+def add_fishing_boat(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) -> SceneObject:
+    """A fishing boat (10-28 m) centred at (x_v, y_v): a beamy hull, the wheelhouse forward, a
+    gantry over the stern and, on half of them, outrigger booms swung out to both sides."""
+    rng = b.rng
+    params = random_hull_parameters(rng, float(rng.uniform(10.0, 28.0)), FISHING_HULLS)
+    tag = f"fishing{b.next_instance}"
+    parts = _ship_parts(b, params, tag)
+    parts[0] = (parts[0][0], b.material(f"{tag}-hull", Material(
+        _jitter(_pick(_FISHING_HULL_RGB, rng), rng), float(rng.uniform(0.3, 0.6)), 0.1, 0.12)))
+    gantry_rgb = _pick([(0.7, 0.7, 0.68), (0.6, 0.35, 0.01), (0.02, 0.02, 0.02)], rng)
+    steel = b.material(f"{tag}-gantry", Material(_jitter(gantry_rgb, rng), 0.5, 0.5, 0.05))
+    length, half = params.length_m, 0.5 * params.beam_m
+    top, tall = params.freeboard_m, float(rng.uniform(3.0, 5.0))
+    stern = -length / 2 + 0.8
+    parts += [(_box(0.3, 0.3, tall, stern, s * (half - 0.5), top), steel) for s in (-1, 1)]
+    parts.append((_box(0.35, 2 * half - 0.7, 0.35, stern, 0.0, top + tall), steel))
+    if rng.random() < 0.5:
+        reach = half + float(rng.uniform(3.0, 7.0))
+        x_mast = (params.deckhouse[0] - 0.5) * length - 1.0
+        parts += [(_box(0.25, reach, 0.25, x_mast, s * reach / 2, top + tall * 0.8), steel)
+                  for s in (-1, 1)]
+    return b.add(tag, "fishing boat", SHIP, parts, x_v, y_v, rel_heading_deg)
+
+
+def build_fishing_harbour(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int,
+                          gap_m: float) -> None:
+    """The vessel alongside a fishing quay on ``side``: a low concrete quay with tyre fenders
+    and bollards, fishing boats moored ahead and astern in rafts of one to three abreast, and
+    on the quay a fish hall, stacks of fish crates, heaps of nets, vans and people."""
+    rng = b.rng
+    skew = float(rng.uniform(-3.0, 3.0))
+    tyre = float(rng.uniform(0.25, 0.4))
+    tan = math.tan(math.radians(skew))
+    need = max(side * y - side * x * tan for x, y in hull_xy)
+    edge = side * (gap_m + 2 * tyre + need)
+    along = (0.0 if side > 0 else 180.0) + skew
+    height = float(rng.uniform(1.0, 2.2))
+    concrete = b.material("quay-concrete", Material(_grey((0.35, 0.34, 0.32), rng, 0.3), 0.85, 0.0, 0.3, 0.3))
+    xv, yv = _local_to_vessel((0.0, edge), along, 0.0, -30.0)
+    b.add("quay", "quay", OBSTACLE, [(_box(400.0, 60.0, height + 3.0, 0.0, 0.0, -3.0), concrete)],
+          xv, yv, along)
+    rubber = b.material("quay-tyres", Material((0.012, 0.012, 0.012), 0.9, 0.0, 0.05))
+    iron = b.material("quay-iron", Material(_jitter((0.05, 0.05, 0.06), rng), 0.5, 0.6, 0.1))
+    for x in np.arange(-150.0 + rng.uniform(0, 4), 150.0, float(rng.uniform(2.5, 5.0))):
+        xv, yv = _local_to_vessel((0.0, edge), along, float(x), tyre)
+        b.add(f"quay-tyre{b.next_instance}", "fender", OBSTACLE,
+              [(_cylinder(tyre, height + 0.4, 0.0, 0.0, -0.4, 8), rubber)], xv, yv, along)
+    for x in np.arange(-150.0 + rng.uniform(0, 10), 150.0, float(rng.uniform(8.0, 15.0))):
+        xv, yv = _local_to_vessel((0.0, edge), along, float(x), -0.8)
+        b.add(f"quay-bollard{b.next_instance}", "bollard", OBSTACLE,
+              [(_cylinder(0.22, 0.5, 0.0, 0.0, height, 8), iron)], xv, yv, along)
+    x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
+    for direction in (1, -1):                     # rafts of fishing boats ahead and astern
+        x = (x_max if direction > 0 else x_min) + direction * float(rng.uniform(3.0, 10.0))
+        for _ in range(int(rng.integers(1, 4))):
+            offset = 2 * tyre + 0.3
+            for _ in range(int(rng.integers(1, 4))):          # abreast, outward from the face
+                beam = 9.0                                      # about the widest drawn
+                cx = x + direction * 14.0
+                y = edge + cx * tan - side * (offset + beam / 2)
+                boat = _try_add(b, lambda cx=cx, y=y: add_fishing_boat(
+                    b, cx, y, skew + float(rng.choice([0.0, 180.0]))), 0.3)
+                if boat is None:
+                    break
+                offset += beam + 0.4
+            x += direction * float(rng.uniform(29.0, 36.0))
+    hall = b.material("fish-hall", Material(_grey((0.55, 0.55, 0.55), rng, 0.3), 0.6, 0.3, 0.1, 0.8))
+    xv, yv = _local_to_vessel((0.0, edge), along, float(rng.uniform(-60, 60)),
+                              -float(rng.uniform(18, 35)))
+    hall_box = _box(float(rng.uniform(25, 50)), float(rng.uniform(12, 20)), float(rng.uniform(5, 9)),
+                    0, 0, height)
+    b.add("fish-hall", "shed", OBSTACLE, [(hall_box, hall)], xv, yv, along)
+    for _ in range(int(rng.integers(4, 14))):     # crates, nets, vans and people on the quay
+        kind = str(rng.choice(["crates", "nets", "van", "person"], p=[0.35, 0.25, 0.15, 0.25]))
+        tag = f"{kind}{b.next_instance}"
+        if kind == "crates":
+            mat = b.material(tag, Material(_jitter(_pick(_CRATE_RGB, rng), rng), 0.6))
+            n = int(rng.integers(1, 7))
+            parts = [(_box(1.2, 0.8, 0.3 * n, 0.0, 0.0, height), mat)]
+        elif kind == "nets":
+            mat = b.material(tag, Material(_jitter(_pick(_NET_RGB, rng), rng), 0.95, 0.0, 0.5, 3.0))
+            parts = [(_gable(float(rng.uniform(2, 6)), float(rng.uniform(1.5, 3)),
+                             float(rng.uniform(0.4, 1.2)), height), mat)]
+        elif kind == "van":
+            parts = _port_vehicle(b, "car", tag, height)
+            parts[0] = (_box(5.2, 2.0, 1.9, 0.0, 0.0, height + 0.2), parts[0][1])
+        else:
+            mat = b.material(tag, Material(_jitter(_pick(_PERSON_RGB, rng), rng, 0.1), 0.8))
+            parts = [(_cylinder(float(rng.uniform(0.2, 0.28)), float(rng.uniform(1.6, 1.9)),
+                                0.0, 0.0, height, 8), mat)]
+        x, y = float(rng.uniform(-70, 70)), -float(rng.uniform(1.5, 16.0))
+        xv, yv = _local_to_vessel((0.0, edge), along, x, y)
+        obj = b.add(tag, kind, OBSTACLE, parts, xv, yv, along + float(rng.uniform(0, 360)))
+        if not _keeps_clear(obj, b.objects, 0.3):
+            b.objects.remove(obj)
 
 
 def _keeps_clear(new: SceneObject, objects: list, margin_m: float) -> bool:

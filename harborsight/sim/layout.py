@@ -491,7 +491,7 @@ def _vessel_object(b: _Builder, vessel: VesselSpec) -> SceneObject:
 SCENARIOS = {"alongside": 0.3, "slip": 0.25, "pass": 0.15, "touching": 0.1, "open": 0.2}
 #: scene families that look like real harbours (harborsight.sim.families); never drawn unless
 #: asked for, so that the classic draws (and every dataset rendered with them) stay the same
-FAMILIES = ("lakeshore", "marina", "commercial")
+FAMILIES = ("lakeshore", "marina", "commercial", "fishing")
 
 
 def _overlaps(candidate: SceneObject, others: list[SceneObject], margin_m: float) -> bool:
@@ -519,7 +519,8 @@ def sample_harbour_scene(
     Scenarios: ``alongside`` a quay, ``slip`` between moored ships, ``pass`` a pier head
     close by, ``touching`` a moored neighbour, ``open`` water with buoys and a breakwater.
     Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn. The families (``lakeshore``,
-    ``marina``, ``commercial``: :mod:`harborsight.sim.families`) only when asked for by name.
+    ``marina``, ``commercial``, ``fishing``: :mod:`harborsight.sim.families`) only when asked
+    for by name.
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
@@ -559,7 +560,8 @@ def sample_harbour_scene(
 
         hull = Polygon(vessel.outline)
         build = {"lakeshore": families.build_lakeshore, "marina": families.build_marina,
-                 "commercial": families.build_commercial_quay}[scenario]
+                 "commercial": families.build_commercial_quay,
+                 "fishing": families.build_fishing_harbour}[scenario]
         build(b, hull, hull_xy, side, gap)
         families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
         families.keep_gap(b, gap)
