@@ -49,3 +49,17 @@ def untrained_model(tmp_path_factory) -> Path:
     path.with_suffix(".json").write_text(json.dumps({
         "schema": "harborsight.model/1", "classes": {"0": "water", "1": "ship", "2": "obstacle"}}))
     return path
+
+
+@pytest.fixture(scope="session")
+def nadir_scene(tmp_path_factory):
+    """A classic tiny simulator scene (open water) seen straight down from 40 m: a camera and
+    a vessel to place hand-made objects around (view culling, wakes)."""
+    from harborsight.sim.dataset import SimulationConfig, plan_frame, prepare_vessels
+    from harborsight.vessel.spec import load_vessel_spec
+
+    config = SimulationConfig(seed=3, preset="tiny", vessel_pool=1, altitudes_m=(40.0,),
+                              max_tilt_deg=0.0, scenario="open")
+    out = tmp_path_factory.mktemp("nadir-vessels")
+    vessels = {n: load_vessel_spec(p) for n, p in prepare_vessels(out, config).items()}
+    return plan_frame(config, 0, vessels)

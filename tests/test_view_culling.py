@@ -12,20 +12,9 @@ import pytest
 import trimesh
 
 from harborsight.errors import InputError
-from harborsight.sim.dataset import SimulationConfig, plan_frame, prepare_vessels, simulate
+from harborsight.sim.dataset import SimulationConfig, simulate
 from harborsight.sim.layout import OBSTACLE, Part, SceneObject
 from harborsight.sim.view_culling import light_directions, objects_in_view
-from harborsight.vessel.spec import load_vessel_spec
-
-
-@pytest.fixture(scope="module")
-def nadir_scene(tmp_path_factory):
-    """A classic tiny scene seen straight down from 40 m, its objects replaced by boxes."""
-    config = SimulationConfig(seed=3, preset="tiny", vessel_pool=1, altitudes_m=(40.0,),
-                              max_tilt_deg=0.0, scenario="open")
-    out = tmp_path_factory.mktemp("vessels")
-    vessels = {n: load_vessel_spec(p) for n, p in prepare_vessels(out, config).items()}
-    return plan_frame(config, 0, vessels)
 
 
 def _box_object(name: str, centre_en: tuple[float, float], height_m: float) -> SceneObject:

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from harborsight.sim.dataset import FrameRenderer, SimulationConfig, plan_frame, prepare_vessels
+from harborsight.sim.dataset import FrameRenderer, SimulationConfig, prepare_vessels
 from harborsight.sim.layout import SHIP, Part, SceneObject
 from harborsight.sim.wakes import KELVIN_DEG, clear_track_m, paint_wakes, wake_intensity
-from harborsight.vessel.spec import load_vessel_spec
 
 STERN, BOW = np.array([0.0, -5.0]), np.array([0.0, 5.0])      # a 10 m boat heading north
 
@@ -31,15 +30,6 @@ def test_the_wake_lies_astern_along_the_track_and_on_the_kelvin_arms():
     assert at(arm, 5.0 - 30.0) > 20 * at(6.0, 5.0 - 30.0)    # between the arm and the centre
     # it fades with distance: 200 m astern there is almost nothing left
     assert at(0.0, -200.0) < 0.02
-
-
-@pytest.fixture(scope="module")
-def nadir_scene(tmp_path_factory):
-    config = SimulationConfig(seed=3, preset="tiny", vessel_pool=1, altitudes_m=(40.0,),
-                              max_tilt_deg=0.0, scenario="open")
-    out = tmp_path_factory.mktemp("vessels")
-    vessels = {n: load_vessel_spec(p) for n, p in prepare_vessels(out, config).items()}
-    return plan_frame(config, 0, vessels)
 
 
 def test_wakes_are_painted_on_water_pixels_only(nadir_scene):

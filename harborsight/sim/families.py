@@ -38,9 +38,8 @@ from harborsight.sim.layout import (
     _jitter,
     _ship_parts,
     _try_add,
-    add_quay,
-    add_ship,
-    max_half_beam,
+    add_quay_alongside,
+    quay_face_offset,
     random_hull_parameters,
     sample_environment,
 )
@@ -608,8 +607,7 @@ def build_fishing_harbour(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side:
     skew = float(rng.uniform(-3.0, 3.0))
     tyre = float(rng.uniform(0.25, 0.4))
     tan = math.tan(math.radians(skew))
-    need = max(side * y - side * x * tan for x, y in hull_xy)
-    edge = side * (gap_m + 2 * tyre + need)
+    edge = quay_face_offset(hull_xy, side, gap_m, tyre, skew)
     along = (0.0 if side > 0 else 180.0) + skew
     height = float(rng.uniform(1.0, 2.2))
     concrete = b.material("quay-concrete", Material(_grey((0.35, 0.34, 0.32), rng, 0.3), 0.85, 0.0, 0.3, 0.3))
@@ -689,23 +687,13 @@ def build_commercial_quay(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side:
     reach stackers, cars and people (all ``obstacle``), none overlapping."""
     rng = b.rng
     skew = float(rng.uniform(-2.0, 2.0))
-    fender = float(rng.uniform(0.3, 0.6))
-    tan = math.tan(math.radians(skew))
-    need = max(side * y - side * x * tan for x, y in hull_xy)
-    edge = side * (gap_m + 2 * fender + need)
+    quay = add_quay_alongside(b, hull_xy, side, gap_m, skew, "quay", skip_ship=0.2,
+                              ship_length_m=(20.0, 90.0), ship_spacing_m=(4.0, 30.0))
+    edge, tan = quay.edge_m, math.tan(math.radians(skew))
     along = (0.0 if side > 0 else 180.0) + skew
-    quay = add_quay(b, 0.0, edge, along, "quay", fender)
-    deck_z = float(np.asarray(quay[0].parts[0].mesh.vertices)[:, 2].max())
+    deck_z = float(np.asarray(quay.objects[0].parts[0].mesh.vertices)[:, 2].max())
     x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
-    for direction in (1, -1):                    # ships moored ahead and astern
-        if rng.random() < 0.2:
-            continue
-        params = random_hull_parameters(rng, float(rng.uniform(20, 90)))
-        end = x_max if direction > 0 else x_min
-        cx = end + direction * (rng.uniform(4, 30) + params.length_m / 2)
-        cy = edge + cx * tan - side * (2 * fender + 0.3 + max_half_beam(params))
-        _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
-            b, x, y, p, skew + float(rng.choice([0.0, 180.0]))), 0.0)
+    fender = quay.fender_m
     if rng.random() < 0.5:                       # a tug standing by off the other side
         x = float(rng.uniform(x_min, x_max))
         far_side = float(hull_xy[:, 1].max() if side < 0 else -hull_xy[:, 1].min())

@@ -402,6 +402,53 @@ def add_quay(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float, tag: s
     return objects
 
 
+def quay_face_offset(hull_xy: np.ndarray, side: int, clearance_m: float, fender_m: float,
+                     skew_deg: float) -> float:
+    """Where a quay face on ``side`` (+1 starboard) crosses the vessel frame's y axis so that
+    every hull point is ``clearance_m`` plus the fender's thickness (``2 fender_m``) from it:
+    the face is ``y(x) = E + x tan(skew)``, ``E = side (clearance + 2 fender + max(side (y -
+    x tan(skew))))`` over the hull points."""
+    tan = math.tan(math.radians(skew_deg))
+    need = max(side * y - side * x * tan for x, y in hull_xy)
+    return side * (clearance_m + 2 * fender_m + need)
+
+
+@dataclass(frozen=True)
+class QuayAlongside:
+    """What :func:`add_quay_alongside` placed: the face's offset and skew, the fenders'
+    radius and the quay's objects."""
+
+    edge_m: float
+    skew_deg: float
+    fender_m: float
+    objects: list[SceneObject]
+
+
+def add_quay_alongside(b: _Builder, hull_xy: np.ndarray, side: int, clearance_m: float,
+                       skew_deg: float, tag: str, skip_ship: float = 0.25,
+                       ship_length_m: tuple[float, float] = (12.0, 60.0),
+                       ship_spacing_m: tuple[float, float] = (3.0, 25.0)) -> QuayAlongside:
+    """A quay (:func:`add_quay`) along the vessel on ``side``, its fenders ``clearance_m`` off
+    the hull, and ships moored ahead and astern along its face, clear of the fenders (each
+    left out with probability ``skip_ship``)."""
+    rng = b.rng
+    fender = float(rng.uniform(0.3, 0.6))
+    edge = quay_face_offset(hull_xy, side, clearance_m, fender, skew_deg)
+    tan = math.tan(math.radians(skew_deg))
+    objects = add_quay(b, 0.0, edge, (0.0 if side > 0 else 180.0) + skew_deg, tag, fender)
+    x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
+    for direction in (1, -1):
+        if rng.random() < skip_ship:
+            continue
+        params = random_hull_parameters(rng, float(rng.uniform(*ship_length_m)))
+        end = x_max if direction > 0 else x_min
+        cx = end + direction * (rng.uniform(*ship_spacing_m) + params.length_m / 2)
+        cy = edge + cx * tan - side * (2 * fender + 0.3 + max_half_beam(params))
+        _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
+            b, x, y, p, skew_deg + float(rng.choice([0.0, 180.0]))), 0.0)
+    return QuayAlongside(edge, skew_deg, fender, objects)
+
+
 def add_buoy(b: _Builder, x_v: float, y_v: float) -> SceneObject:
     rng = b.rng
     colour = [(0.6, 0.01, 0.01), (0.01, 0.35, 0.03), (0.7, 0.5, 0.0), (0.02, 0.02, 0.02)][
@@ -538,22 +585,7 @@ def sample_harbour_scene(
         return float(hull_xy[:, 1].max() if s > 0 else -hull_xy[:, 1].min())
 
     def quay_alongside(s: int, clearance: float, skew_deg: float, tag: str) -> None:
-        fender = float(rng.uniform(0.3, 0.6))
-        tan = math.tan(math.radians(skew_deg))
-        # face y(x) = E + x tan(skew); every hull point at least `clearance` + fender from it
-        need = max(s * y - s * x * tan for x, y in hull_xy)
-        edge = s * (clearance + 2 * fender + need)
-        add_quay(b, 0.0, edge, (0.0 if s > 0 else 180.0) + skew_deg, tag, fender)
-        # moored ships ahead and astern along the face, clear of the fenders
-        for direction in (1, -1):
-            if rng.random() < 0.25:
-                continue
-            params = random_hull_parameters(rng, float(rng.uniform(12, 60)))
-            end = x_max if direction > 0 else x_min
-            cx = end + direction * (rng.uniform(3, 25) + params.length_m / 2)
-            cy = edge + cx * tan - s * (2 * fender + 0.3 + max_half_beam(params))
-            _try_add(b, lambda p=params, x=cx, y=cy: add_ship(
-                b, x, y, p, skew_deg + float(rng.choice([0.0, 180.0]))), 0.0)
+        add_quay_alongside(b, hull_xy, s, clearance, skew_deg, tag)
 
     if scenario in FAMILIES:
         from harborsight.sim import families
