@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import random
+from collections.abc import Iterator
+
 import numpy as np
 
 from harborsight.vessel.outline import outline_from_dimensions
@@ -57,3 +60,17 @@ def write_schematic_dataset(out_dir, splits: list[str], width: int = 128, height
         "classes": {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"},
         "split": split_map}, indent=2))
     return list(split_map)
+
+
+def torn_copies(whole: bytes, trials: int = 200, seed: int = 29) -> Iterator[tuple[int, int, bytes]]:
+    """``(trial, cut, data)``: ``whole`` cut at a random byte, and on odd trials with one to
+    three bits flipped before the cut (a file torn in a crash, then salted by a bad card)."""
+    rng = random.Random(seed)
+    for trial in range(trials):
+        cut = rng.randrange(len(whole))
+        data = bytearray(whole[:cut])
+        if trial % 2:
+            for _ in range(rng.randrange(1, 4)):
+                if data:
+                    data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+        yield trial, cut, bytes(data)

@@ -4,7 +4,6 @@ pyais's own encoder, with NMEA 4.10 tag blocks for the receiver's time, never ty
 from __future__ import annotations
 
 import json
-import random
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -19,7 +18,7 @@ from harborsight.errors import InputError
 from harborsight.telemetry.ais import read_ais_dimensions, read_ais_file, read_ais_track
 from harborsight.telemetry.vessel_track import read_vessel_track
 from harborsight.vessel.spec import load_vessel_spec
-from tests.helpers import ais_tag_block, nmea_checksum
+from tests.helpers import ais_tag_block, nmea_checksum, torn_copies
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
 LOGS = SAMPLES / "flight" / "logs"
@@ -154,16 +153,9 @@ def test_an_ais_track_drives_telemetry_video_like_the_nmea_one(tmp_path):
 def test_a_torn_or_salted_ais_log_never_raises_and_keeps_what_came_before(tmp_path):
     whole = _own_log(tmp_path, n=20).read_bytes()
     complete = len(read_ais_file(tmp_path / "ship.ais").reports)
-    rng = random.Random(29)
-    for trial in range(200):
-        cut = rng.randrange(len(whole))
-        data = bytearray(whole[:cut])
-        if trial % 2:                          # and some bytes flipped before the cut
-            for _ in range(rng.randrange(1, 4)):
-                if data:
-                    data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+    for trial, cut, data in torn_copies(whole):
         path = tmp_path / "torn.ais"
-        path.write_bytes(bytes(data))
+        path.write_bytes(data)
         lines_before = whole[:cut].count(b"\n")
         try:
             ais = read_ais_file(path)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import random
 import shutil
 from datetime import UTC, datetime
 from pathlib import Path
@@ -26,6 +25,7 @@ from harborsight.telemetry.dji_photo import (
     read_dji_photo,
 )
 from tests.dji_photos import P4RTK_CALIBRATION, write_dji_photo
+from tests.helpers import torn_copies
 
 runner = CliRunner()
 FLIGHT = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples" / "flight"
@@ -245,16 +245,9 @@ def test_a_torn_or_salted_photo_never_raises_and_keeps_what_came_before(tmp_path
                    rgb=np.random.default_rng(1).integers(0, 255, (120, 160, 3), np.uint8)).read_bytes()
     complete = read_dji_photo(tmp_path / "DJI_0001.JPG").xmp
     xmp_end = whole.find(b"<?xpacket end")
-    rng = random.Random(29)
-    for trial in range(200):
-        cut = rng.randrange(len(whole))
-        data = bytearray(whole[:cut])
-        if trial % 2:                              # and some bytes flipped before the cut
-            for _ in range(rng.randrange(1, 4)):
-                if data:
-                    data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+    for trial, cut, data in torn_copies(whole):
         path = tmp_path / "torn.jpg"
-        path.write_bytes(bytes(data))
+        path.write_bytes(data)
         try:
             photo = read_dji_photo(path)
             photo.summary()

@@ -5,7 +5,6 @@ from the bundled flight (tests/ros_bags.py)."""
 from __future__ import annotations
 
 import json
-import random
 import shutil
 
 import numpy as np
@@ -18,6 +17,7 @@ from harborsight.errors import InputError
 from harborsight.telemetry import read_drone_log
 from harborsight.telemetry.rosbag import choose_topics, ned_euler_deg, read_bag_track
 from harborsight.telemetry.rosbag_io import open_bag
+from tests.helpers import torn_copies
 from tests.ros_bags import ELLIPSOID_OFFSET_M, FLIGHT, flight_frame, write_flight_bag
 
 runner = CliRunner()
@@ -128,17 +128,10 @@ def test_a_torn_or_salted_bag_never_raises_and_keeps_what_came_before(tmp_path, 
     bag = write_flight_bag(tmp_path / KINDS[kind], kind, range(48), with_images=False)
     storage = bag if kind == "ros1" else next(p for p in bag.iterdir() if p.suffix != ".yaml")
     whole = storage.read_bytes()
-    rng = random.Random(29)
     read_from_cut = []
-    for trial in range(200):
-        cut = rng.randrange(len(whole))
-        data = bytearray(whole[:cut])
-        if trial % 2:
-            for _ in range(rng.randrange(1, 4)):
-                if data:
-                    data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+    for trial, cut, data in torn_copies(whole):
         target = tmp_path / ("torn" + storage.suffix)      # a lone file: no metadata.yaml
-        target.write_bytes(bytes(data))
+        target.write_bytes(data)
         try:
             track = read_bag_track(target)
         except InputError as exc:

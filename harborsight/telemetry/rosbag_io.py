@@ -219,17 +219,23 @@ def _header_fields(data: bytes) -> dict[str, bytes]:
     return fields
 
 
+def _bytes_starting_with(path: Path, magic: bytes, refusal: str) -> bytes:
+    """The whole file, refused with ``refusal`` unless it starts with ``magic``."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    if not data.startswith(magic):
+        raise InputError(path, None, refusal)
+    return data
+
+
 def _read_ros1_records(path: Path) -> BagReader:
     """A ROS 1 bag read record by record from the front (module docstring)."""
     from rosbags.typesys import get_types_from_msg
 
     reader = _damaged(path, "ros1", "ROS 1 bag without a readable index (cut short?)")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
-    if not data.startswith(ROS1_MAGIC):
-        raise InputError(path, None, "not a ROS 1 bag (no '#ROSBAG V2.0' line)")
+    data = _bytes_starting_with(path, ROS1_MAGIC, "not a ROS 1 bag (no '#ROSBAG V2.0' line)")
     typestore = _standard("ros1")
     connections: dict[int, tuple[str, str]] = {}
     definitions: dict[str, str] = {}
@@ -348,12 +354,7 @@ def _read_mcap_stream(path: Path) -> BagReader:
 
     reader = _damaged(path, "ros2-mcap", "MCAP file read on its own (no metadata.yaml, or its "
                       "summary unreadable)")
-    try:
-        blob = path.read_bytes()
-    except OSError as exc:
-        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
-    if not blob.startswith(MCAP_MAGIC):
-        raise InputError(path, None, "not an MCAP file (no MCAP magic)")
+    blob = _bytes_starting_with(path, MCAP_MAGIC, "not an MCAP file (no MCAP magic)")
     typestore = _standard("ros2")
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
