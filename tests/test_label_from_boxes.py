@@ -305,6 +305,10 @@ def test_read_corrections_keeps_number_like_stems_as_written(tmp_path):
     ("a:\n  - {class: ship, box: [0, 0, 3]}\n", "a[0].box"),
     ("a:\n  - {class: ship, box: [0, 0, 3, 3], only: [water, sky]}\n", "a[0].only"),
     ("a:\n  - {class: ship}\n", "a[0]"),
+    ("a:\n  - {class: obstacle, line: [[0, 0]], width: 3}\n", "a[0].line"),
+    ("a:\n  - {class: obstacle, line: [[0, 0], [9, 9]]}\n", "a[0].width"),
+    ("a:\n  - {class: obstacle, line: [[0, 0], [9, 9]], width: 0.2}\n", "a[0].width"),
+    ("a:\n  - {class: obstacle, line: [[0, 0], [9, 9]], width: .nan}\n", "a[0].width"),
     ("a:\n  - just a string\n", "a[0]"),
     ("a:\n  class: ship\n  box: [0, 0, 3, 3]\n", "a"),
     ("a: 7\n", "a"),
@@ -359,6 +363,24 @@ def test_apply_corrections_paints_in_order_and_only_where_allowed():
     expected[(tri > 0) & (expected == SHIP)] = WATER
     np.testing.assert_array_equal(out, expected)
     np.testing.assert_array_equal(apply_corrections(labels, []), labels)
+
+
+def test_a_line_correction_paints_a_band_of_its_width(tmp_path):
+    """A reviewer marks a pontoon as a polyline with a width: the pixels within half the
+    width of the line (cv2.polylines), only over the allowed classes."""
+    path = write_yaml(tmp_path / "fixes.yaml", "t:\n  - {class: obstacle, only: [ship], "
+                      "line: [[5, 20], [45, 20], [45, 35]], width: 5}\n")
+    (fix,) = read_corrections(path).by_stem["t"]
+    assert fix.only == (SHIP,)
+    labels = np.full((40, 50), SHIP, np.uint8)
+    labels[:, :3] = WATER
+    out = apply_corrections(labels, [fix])
+    assert (out[18:23, 5:46] == OBSTACLE).all()           # 5 px across the horizontal leg
+    assert (out[17, 5:48] == SHIP).all() and (out[23, 5:43] == SHIP).all()   # and no wider
+    assert (out[18:36, 43:48] == OBSTACLE).all()          # the vertical leg, 5 px
+    assert (out[23:, 42] == SHIP).all() and (out[:, 48] == SHIP).all() and (out[36:, 3:] == SHIP).all()
+    assert (out[:, :3] == WATER).all()                    # only over ship
+    assert (out[:10, 3:] == SHIP).all()
 
 
 # ------------------------------------------------------------------------ the command

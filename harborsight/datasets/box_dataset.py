@@ -14,9 +14,14 @@ the proposals, so that the reviewed masks can be rebuilt from the boxes and the 
       - class: ship
         relabel_box: 8                         # the 9th box read (from 0; a box wholly outside
         why: a boat on the lift, no canopy     # the image is not read) is a ship box
+      - class: obstacle
+        line: [[20, 30], [200, 140]]           # a polyline of 2 or more points ...
+        width: 6                               # ... painted this many pixels wide (a pontoon)
 
 Polygons are in pixels of the original image (x right, y down), painted in file order with
-``cv2.fillPoly`` (pixel centres inside or on the outline). ``relabel_box`` changes the class
+``cv2.fillPoly`` (pixel centres inside or on the outline). A line paints the pixels whose
+centres lie within half its width of the polyline (shapely's flat-capped, mitred buffer):
+``width: 5`` along a row is 5 pixels across. ``relabel_box`` changes the class
 of one box before the proposal is made (the box datasets box a boat on a lift as ``lift``;
 the boat is a ship, the lift and its canopy are not). ``exclude: <reason>`` instead of a
 list leaves the image out of the dataset, with the reason recorded in ``dataset.json``.
@@ -33,6 +38,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from shapely import intersects_xy
+from shapely.geometry import LineString, Polygon
 
 from harborsight import __version__
 from harborsight.datasets.classmap import TARGET_NAMES, class_of
@@ -51,6 +58,7 @@ class Correction:
     polygon: np.ndarray            # (N, 2) float, pixels of the original image
     only: tuple[int, ...] | None   # classes it may repaint; None: all
     why: str = ""
+    band: Polygon | None = None    # a line's band (then ``polygon`` is its outline)
 
 
 @dataclass
@@ -104,7 +112,11 @@ def read_corrections(path: str | Path) -> Corrections:
                     raise InputError(path, f"{where}.relabel_box", "expected a box number (0 first)")
                 result.box_classes.setdefault(stem, {})[box_index] = cls
                 continue
-            if "polygon" in entry:
+            band = None
+            if "line" in entry:
+                band = _line_band(path, where, entry["line"], entry.get("width"))
+                points = np.asarray(band.exterior.coords, float)
+            elif "polygon" in entry:
                 points = np.asarray(entry["polygon"], float)
                 if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3:
                     raise InputError(path, f"{where}.polygon", "expected 3 or more [x, y] points")
@@ -116,25 +128,51 @@ def read_corrections(path: str | Path) -> Corrections:
                 x0, y0, x1, y1 = values
                 points = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
             else:
-                raise InputError(path, where, "needs a polygon or a box")
+                raise InputError(path, where, "needs a polygon, a box or a line")
             only = entry.get("only")
             if only is not None:
                 ids = [class_of(str(name), {}) for name in only]
                 if None in ids:
                     raise InputError(path, f"{where}.only", f"unknown class in {only}")
                 only = tuple(ids)
-            items.append(Correction(cls, points, only, str(entry.get("why", ""))))
+            items.append(Correction(cls, points, only, str(entry.get("why", "")), band))
         result.by_stem[stem] = items
     return result
+
+
+def _line_band(path: Path, where: str, line, width) -> Polygon:
+    """The band within ``width / 2`` of a polyline (module docstring)."""
+    points = np.asarray(line, float)
+    if points.ndim != 2 or points.shape[1] != 2 or len(points) < 2:
+        raise InputError(path, f"{where}.line", "expected 2 or more [x, y] points")
+    if (not isinstance(width, int | float) or isinstance(width, bool) or not np.isfinite(width)
+            or width < 1):
+        raise InputError(path, f"{where}.width", "a line needs a width of 1 pixel or more")
+    return LineString(points).buffer(width / 2, cap_style="flat", join_style="mitre")
+
+
+def _pixels_in(shape: Polygon, size: tuple[int, int]) -> np.ndarray:
+    """A mask of the pixels whose centres lie in ``shape`` or on its outline."""
+    mask = np.zeros(size, bool)
+    x0, y0, x1, y1 = shape.bounds
+    cols = np.arange(max(0, int(np.ceil(x0))), min(size[1], int(np.floor(x1)) + 1))
+    rows = np.arange(max(0, int(np.ceil(y0))), min(size[0], int(np.floor(y1)) + 1))
+    if cols.size and rows.size:
+        xs, ys = np.meshgrid(cols, rows)
+        mask[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1] = intersects_xy(shape, xs, ys)
+    return mask
 
 
 def apply_corrections(labels: np.ndarray, corrections: list[Correction]) -> np.ndarray:
     """The labels with each correction painted in order (a copy)."""
     out = labels.copy()
     for item in corrections:
-        region = np.zeros(out.shape, np.uint8)
-        cv2.fillPoly(region, [np.round(item.polygon).astype(np.int32)], 1)
-        paint = region > 0
+        if item.band is not None:
+            paint = _pixels_in(item.band, out.shape)
+        else:
+            region = np.zeros(out.shape, np.uint8)
+            cv2.fillPoly(region, [np.round(item.polygon).astype(np.int32)], 1)
+            paint = region > 0
         if item.only is not None:
             paint &= np.isin(out, item.only)
         out[paint] = item.class_id

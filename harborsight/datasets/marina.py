@@ -14,23 +14,23 @@ per pixel:
 2. **Pontoons.** A pontoon is long, straight and narrow: a solid run that survives an opening
    with a line of ``pontoon_length_px`` at some angle (3-degree steps) but not an opening
    across it with a line of 13 px. Such runs are ``obstacle`` when their connected region is
-   at most ``pontoon_width_px`` wide on average; a wider region is a dense row of boats whose
-   bows line up, and is left undecided (255), as are solid parts thinner than 4 px (finger
-   piers, bow tips, lines).
+   at most ``pontoon_width_px`` wide on average; a wider region is a dense **row of boats**
+   whose bows line up along a pontoon.
    **A pontoon inside such a row** is found by its uniformity along its length: with the
    row's direction from its minimum-area rectangle, the standard deviation of L* along a
    line of ``row_line_px`` (mean filter m = k * L, m2 = k * L², sigma = sqrt(m2 - m²)) is
    at most ``row_std_max`` where the deck runs on (the boats beside it alternate hull,
    shadow and water along that line), and every pixel of the line is solid; such pixels,
    in straight runs at least ``row_min_length_px`` long and at most ``pontoon_width_px``
-   wide, are ``obstacle``. The rest of the row stays undecided.
-3. **The rest.** Solid pixels greener than the water are ``obstacle`` (lawns and trees on the
-   shore); every other solid pixel is ``ship``. Specks under 6 px and a 1-px band on every
-   class boundary are 255.
-
-Known limits: shore with buildings, car parks or rip-rap is taken for ship, and so is a
-pontoon that the boats' decks bridge into one band more than 13 px wide; review every tile
-and exclude or correct those (:mod:`.box_dataset`'s corrections).
+   wide, are ``obstacle``. The rest of the row is ``ship`` (the moored boats), except solid
+   pixels within ``deck_band_px`` of a pontoon found anywhere, which are undecided (255):
+   the detectors find a deck's uniform core, and its true width, worn planks and the bows
+   touching it cannot be told apart from the colour. Solid parts thinner than 4 px (finger
+   piers, bow tips, lines) are undecided too.
+Known limits: shore with buildings, car parks or rip-rap is taken for ship, and so are a
+pontoon that the boats' decks bridge into one band more than 13 px wide with no uniform core
+found, and the finger piers of empty berths wider than 4 px; review every tile and exclude
+or correct those (:mod:`.box_dataset`'s corrections).
 """
 
 from __future__ import annotations
@@ -54,6 +54,13 @@ class MarinaSettings:
     row_line_px: int = 41
     row_std_max: float = 16.0
     row_min_length_px: int = 80
+    deck_band_px: int = 3
+    deck_width_max_px: float = 18.0
+    finger_line_px: int = 21
+    finger_std_max: float = 12.0
+    finger_min_length_px: int = 20
+    finger_width_max_px: float = 9.0
+    finger_across_solid_px: int = 11
 
 
 def _line_kernel(length_px: int, angle_deg: float) -> np.ndarray:
@@ -98,7 +105,8 @@ def _elongated_parts(mask: np.ndarray):
 
 
 def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, np.ndarray]:
-    """(narrow pontoon runs, wide line-like regions left undecided) as uint8 masks."""
+    """(narrow pontoon runs, wide line-like regions: rows of boats along a pontoon) as uint8
+    masks."""
     runs = np.zeros_like(solid)
     for angle in range(0, 180, 3):
         along = cv2.morphologyEx(solid, cv2.MORPH_OPEN, _line_kernel(settings.pontoon_length_px, angle))
@@ -128,6 +136,68 @@ def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray
     return found
 
 
+
+def _uniform_runs(lightness: np.ndarray, solid: np.ndarray, line_px: int, std_max: float,
+                  min_length_px: float, max_width_px: float,
+                  across_solid_max_px: int | None = None) -> list[np.ndarray]:
+    """Straight runs of uniform solid: at each angle (3-degree steps), the pixels whose line
+    of ``line_px`` at that angle is solid and uniform in L* (as in :func:`_pontoons_in_rows`),
+    grouped into parts that run along that angle (within 10 degrees), at least
+    ``min_length_px`` long and at most ``max_width_px`` wide on average.
+
+    With ``across_solid_max_px`` only solid narrower than that across the run counts (a
+    finger pier between water, not the edge of a hull or a walkway it crosses), and each part
+    found is carried on to its ends (the line test stops half a line short of them) before
+    its length is measured."""
+    runs = []
+    lightness_sq = lightness * lightness
+    solid_f = solid.astype(np.float32)
+    for angle in range(0, 180, 3):
+        line = _line_kernel(line_px, angle)
+        kernel = line.astype(np.float32) / line.sum()
+        mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        mean_sq = cv2.filter2D(lightness_sq, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+        solid_share = cv2.filter2D(solid_f, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        deck = (solid > 0) & (sigma <= std_max) & (solid_share > 0.97)
+        narrow_across = None
+        if across_solid_max_px is not None:
+            wide = cv2.morphologyEx(solid, cv2.MORPH_OPEN, _line_kernel(across_solid_max_px, angle + 90))
+            narrow_across = (solid > 0) & (wide == 0)
+            deck &= narrow_across
+        if deck.sum() < min_length_px:
+            continue
+        for part, length, width, along_deg in _elongated_parts(deck.astype(np.uint8)):
+            if narrow_across is not None:
+                extended = ((cv2.dilate(part.astype(np.uint8), line) > 0) & narrow_across).astype(np.uint8)
+                part, length, width, along_deg = max(_elongated_parts(extended), key=lambda p: p[0].sum())
+            off_axis = abs((along_deg - angle + 90.0) % 180.0 - 90.0)
+            if length >= min_length_px and width <= max_width_px and off_axis <= 10.0:
+                runs.append(part)
+    return runs
+
+
+def _walkways(lightness: np.ndarray, solid: np.ndarray, settings: MarinaSettings) -> np.ndarray:
+    """Walkways anywhere in the solid (module docstring, step 2b) as a uint8 mask: uniform
+    straight runs at least ``row_min_length_px`` long and up to ``deck_width_max_px`` wide
+    (boats are shorter, and alternate hull, shadow and water along a row), then the finger
+    piers that touch them: shorter uniform runs (``finger_line_px``, ``finger_min_length_px``)
+    at most ``finger_width_max_px`` wide."""
+    found = np.zeros_like(solid)
+    for part in _uniform_runs(lightness, solid, settings.row_line_px, settings.row_std_max,
+                              settings.row_min_length_px, settings.deck_width_max_px):
+        found[part] = 1
+    if not found.any():
+        return found
+    reach = cv2.dilate(found, np.ones((9, 9), np.uint8)) > 0   # the deck found, and its edge
+    for part in _uniform_runs(lightness, solid, settings.finger_line_px, settings.finger_std_max,
+                              settings.finger_min_length_px, settings.finger_width_max_px,
+                              settings.finger_across_solid_px):
+        if (part & reach).any():
+            found[part] = 1
+    return found
+
+
 def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = None) -> BoxLabelResult:
     """A proposed mask of one marina tile (module docstring)."""
     settings = settings or MarinaSettings()
@@ -143,12 +213,13 @@ def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = N
     solid[hole[components]] = 1
 
     labels = np.where(solid > 0, SHIP, WATER).astype(np.uint8)
-    narrow, undecided = _pontoons(solid, settings)
+    narrow, rows = _pontoons(solid, settings)
+    in_rows = _pontoons_in_rows(np.ascontiguousarray(lab[..., 0]), solid, rows, settings)
+    narrow |= in_rows | _walkways(np.ascontiguousarray(lab[..., 0]), solid, settings)
+    band = 2 * settings.deck_band_px + 1
+    near_deck = cv2.dilate(narrow, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (band, band)))
+    labels[(near_deck > 0) & (solid > 0)] = IGNORE
     labels[narrow > 0] = OBSTACLE
-    labels[undecided > 0] = IGNORE
-    in_rows = _pontoons_in_rows(np.ascontiguousarray(lab[..., 0]), solid, undecided, settings)
-    labels[in_rows > 0] = OBSTACLE
-    narrow |= in_rows
     opened = cv2.morphologyEx(solid, cv2.MORPH_OPEN, np.ones((4, 4), np.uint8))
     labels[(solid > 0) & (opened == 0) & (narrow == 0)] = IGNORE
     water_a = float(lab[..., 1][water].mean())
@@ -158,7 +229,11 @@ def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = N
     speck[1:] = stats[1:, cv2.CC_STAT_AREA] < 6
     labels[speck[components]] = IGNORE
     kernel = np.ones((3, 3), np.uint8)
-    labels[cv2.dilate(labels, kernel) != cv2.erode(labels, kernel)] = IGNORE
-    notes = ([f"{int(undecided.sum() - in_rows.sum())} px of wide line-like rows left undecided, "
-              f"{int(in_rows.sum())} px of pontoon found inside them"] if undecided.any() else [])
+    decided = labels != IGNORE
+    boundary = np.zeros_like(decided)
+    for cls in (WATER, SHIP, OBSTACLE):
+        boundary |= decided & (labels != cls) & (cv2.dilate((labels == cls).astype(np.uint8), kernel) > 0)
+    labels[boundary] = IGNORE
+    notes = ([f"{int(rows.sum())} px of rows of boats along pontoons, "
+              f"{int(in_rows.sum())} px of pontoon found inside them"] if rows.any() else [])
     return BoxLabelResult(labels, float((labels == WATER).mean()), notes)
