@@ -236,18 +236,25 @@ def test_options_refuse_tile_settings_in_resize_mode():
         SegmentOptions("tiles", tile_scale=0.0)
 
 
-@pytest.mark.parametrize("width, height, padded", [(256, 256, True), (640, 360, True),
-                                                    (800, 600, False), (700, 300, False)])
-def test_auto_pads_small_frames_and_stretches_large_ones(segmenter, width, height, padded):
+@pytest.mark.parametrize("width, height, scale", [(256, 256, 360 / 256), (640, 360, 1.0),
+                                                   (320, 90, 2.0), (800, 600, None),
+                                                   (700, 300, None)])
+def test_auto_enlarges_small_frames_and_stretches_large_ones(segmenter, width, height, scale):
+    """A frame no larger than the 640x360 input is enlarged without stretching until it fills
+    the input in one dimension, then padded into one window; a larger one is stretched."""
     image = random_image(width, height, seed=5)
     info: dict = {}
     labels = segment_labels(segmenter, image, SegmentOptions(SegmentMode.auto), info)
-    as_tiles = segment_labels(segmenter, image, SegmentOptions(SegmentMode.tiles, tile_scale=1.0))
-    stretched = segment_labels(segmenter, image, SegmentOptions(SegmentMode.resize))
-    assert np.array_equal(labels, as_tiles if padded else stretched)
     assert info["windows"] == 1
-    if padded:  # the frame's own pixels, not a stretched copy: exact labels
-        assert np.array_equal(labels, expected_labels(image))
+    if scale is None:
+        assert np.array_equal(labels, segment_labels(segmenter, image, SegmentOptions(SegmentMode.resize)))
+    else:
+        as_tiles = segment_labels(segmenter, image, SegmentOptions(SegmentMode.tiles, tile_scale=scale))
+        assert np.array_equal(labels, as_tiles) and labels.shape == (height, width)
+        assert info["processed"] == [round(width * scale), round(height * scale)]
+        assert max(info["processed"][0] / 640, info["processed"][1] / 360) == pytest.approx(1.0)
+        if scale == 1.0:  # the frame's own pixels, not a resampled copy: exact labels
+            assert np.array_equal(labels, expected_labels(image))
     assert SegmentOptions.from_options("auto").to_dict() == {"mode": "auto"}
     with pytest.raises(InputError, match="--tile-scale is for --mode tiles"):
         SegmentOptions.from_options("auto", tile_scale=0.5)

@@ -16,8 +16,9 @@ from harborsight.progress import progress_report
 #: help of --mode, --tile-overlap, --tile-scale and --max-side, shared with evaluate segmentation
 MODE_HELP = ("How a frame of another size than the model input (640x360 for the default "
              "model) is segmented. auto (default): a frame no larger than the input in either "
-             "dimension (a 256x256 orthophoto tile) is padded into one window at its own "
-             "scale, a larger one (a 4000x3000 still, a 2048x1536 photo) is stretched into the "
+             "dimension (a 256x256 orthophoto tile) is enlarged without stretching until it "
+             "fills the input in one dimension (360x360) and padded into one window, a larger "
+             "one (a 4000x3000 still, a 2048x1536 photo) is stretched into the "
              "input as in resize; measured on real val frames this beats either mode alone "
              "(docs/results.md). resize: the whole frame is stretched into the model input "
              "(one model call) and the logits are resized back bilinearly to the frame before "
