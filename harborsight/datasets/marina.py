@@ -25,12 +25,29 @@ per pixel:
    wide, are ``obstacle``. The rest of the row is ``ship`` (the moored boats), except solid
    pixels within ``deck_band_px`` of a pontoon found anywhere, which are undecided (255):
    the detectors find a deck's uniform core, and its true width, worn planks and the bows
-   touching it cannot be told apart from the colour. Solid parts thinner than 4 px (finger
-   piers, bow tips, lines) are undecided too.
-Known limits: shore with buildings, car parks or rip-rap is taken for ship, and so are a
-pontoon that the boats' decks bridge into one band more than 13 px wide with no uniform core
-found, and the finger piers of empty berths wider than 4 px; review every tile and exclude
-or correct those (:mod:`.box_dataset`'s corrections).
+   touching it cannot be told apart from the colour. Solid parts thinner than 4 px (bow
+   tips, lines) are undecided too, unless found as a pontoon or a finger pier.
+
+   2b. **Walkways and finger piers anywhere.** A walkway wider than the 13-px
+   cross-opening, or one whose boats bridge it into a wide band, is neither of the above.
+   At each angle (3-degree steps), solid pixels whose line of ``row_line_px`` at that
+   angle is fully solid and uniform (as above) form runs; a run at least
+   ``row_min_length_px`` long and at most ``deck_width_max_px`` wide is a walkway
+   (``obstacle``). Boats are shorter than the run, and alternate hull, shadow and water
+   along a row. A finger pier is a shorter uniform run (``finger_line_px``, at most
+   ``finger_std_max``) in solid narrower than ``finger_across_solid_px`` across it (a
+   finger between water, not the edge of a hull), carried on to its ends, at least
+   ``finger_min_length_px`` long and at most ``finger_width_max_px`` wide, that touches a
+   walkway found (within 4 px).
+3. **The rest.** Solid pixels greener than the water are ``obstacle`` (lawns and trees on the
+   shore); every other solid pixel is ``ship``. Specks under 6 px are 255, and so is a
+   1-px band wherever two decided classes meet (a pixel next to 255 keeps its class, so a
+   narrow pontoon keeps its core).
+
+Known limits: shore with buildings, car parks or rip-rap is taken for ship; so is a deck that
+is not uniform along its length (dark wooden planks striped by the boats' shadows), and a
+finger pier that touches no walkway found. Review every tile and correct those with
+:mod:`.box_dataset`'s corrections (a pontoon as a ``line`` with a ``width``).
 """
 
 from __future__ import annotations
