@@ -12,14 +12,17 @@ from harborsight.datasets.marina import label_marina_tile
 WATER_BGR = (70, 60, 30)  # dark teal, as in the UC Merced tiles
 
 
+def noisy_water(rng: np.random.Generator) -> np.ndarray:
+    """A 256x256 float32 BGR tile of dark water with pixel noise (sigma 3)."""
+    return np.full((256, 256, 3), WATER_BGR, np.float32) + rng.normal(0, 3, (256, 256, 3))
+
+
 def synthetic_marina(seed: int = 0):
     """A 256x256 tile: dark water with noise, one vertical pontoon (7 px wide, full height)
     with boats (14x34 px, white) moored on both sides 4 px off it, 6 px of water between
     boats, and a green lawn strip on the right. Returns (image, masks of pontoon, boats, lawn)."""
     rng = np.random.default_rng(seed)
-    image = np.empty((256, 256, 3), np.float32)
-    image[:] = WATER_BGR
-    image += rng.normal(0, 3, image.shape)
+    image = noisy_water(rng)
     pontoon = np.zeros((256, 256), bool)
     pontoon[:, 96:103] = True
     boats = np.zeros((256, 256), bool)
@@ -77,9 +80,7 @@ def walkway_marina(seed: int = 0):
     it on the west and, on the east, boats every 40 px with a finger pier (5 x 30 px) between
     each two of them. Returns (image, walkway, boats, fingers)."""
     rng = np.random.default_rng(seed)
-    image = np.empty((256, 256, 3), np.float32)
-    image[:] = WATER_BGR
-    image += rng.normal(0, 3, image.shape)
+    image = noisy_water(rng)
     walkway = np.zeros((256, 256), bool)
     walkway[:, 100:115] = True
     boats, fingers = np.zeros_like(walkway), np.zeros_like(walkway)
