@@ -236,3 +236,33 @@ def test_cli_train_errors_are_one_line(tmp_path):
     assert result.exit_code == 2 and "needs --model and --data" in result.output
     result = runner.invoke(app, ["train", "--out", str(tmp_path), "--resume"])
     assert result.exit_code == 2 and "last.pt: checkpoint file not found" in result.output
+
+
+def test_colour_jitter_is_checked_recorded_and_used(tiny_dataset, tmp_path, monkeypatch):
+    """--colour-jitter sets the brightness, contrast and saturation ranges of the augmentation
+    (refused outside [0, 1)), and the run records it so that its command reproduces it."""
+    with pytest.raises(InputError, match="colour_jitter: must be in"):
+        TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "x",
+                    colour_jitter=1.0)
+    args = ["train", "--model", "ddrnet23_slim", "--data", str(tiny_dataset),
+            "--out", str(tmp_path / "a"), "--iterations", "1", "--batch-size", "2", "--crop", "48x64",
+            "--val-every", "0", "--workers", "0", "--threads", "1", "--colour-jitter", "0.6",
+            "--no-progress"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    checkpoint = load_checkpoint(tmp_path / "a" / "last.pt")
+    assert checkpoint["config"]["colour_jitter"] == 0.6
+    assert "--colour-jitter 0.6" in checkpoint["command"]
+    from harborsight.training import loop
+    built = []
+    original = loop.TrainingSamples
+
+    def spy(frames, seed, augmentation, *rest):
+        built.append(augmentation)
+        return original(frames, seed, augmentation, *rest)
+
+    monkeypatch.setattr(loop, "TrainingSamples", spy)
+    train(TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "b",
+                      iterations=1, batch_size=2, crop_hw=(48, 64), val_every=0, threads=1,
+                      colour_jitter=0.6), show_progress=False)
+    assert (built[0].brightness, built[0].contrast, built[0].saturation) == (0.6, 0.6, 0.6)

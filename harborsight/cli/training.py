@@ -141,6 +141,10 @@ def train(
     augment: Annotated[bool | None, typer.Option(
         help="Mirror/flip/scale/colour/blur/noise/JPEG augmentation; off: random crop only.")
     ] = None,
+    colour_jitter: Annotated[float | None, typer.Option(
+        help="Colour augmentation strength j: brightness, contrast and saturation each scaled "
+        "by a factor drawn in [1-j, 1+j] [0.25]; raise it when real frames differ in colour "
+        "(pale or hazy orthophotos).")] = None,
     train_split: Annotated[str | None, typer.Option(help="Split to train on [train].")] = None,
     val_split: Annotated[str | None, typer.Option(help="Split to validate on [val].")] = None,
     val_every: Annotated[int | None, typer.Option(
@@ -183,6 +187,7 @@ def train(
                  "bootstrap_end_fraction": bootstrap_fraction,
                  "small_object_weight": small_object_weight,
                  "small_object_area_px": small_object_area, "augment": augment,
+                 "colour_jitter": colour_jitter,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,
