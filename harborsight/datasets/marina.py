@@ -135,17 +135,25 @@ def _pontoons(solid: np.ndarray, settings: MarinaSettings) -> tuple[np.ndarray, 
     return narrow, undecided
 
 
+def _along_line(lightness: np.ndarray, solid: np.ndarray, line: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(standard deviation of L*, share of solid pixels) over the line ``line`` (a kernel of
+    :func:`_line_kernel`) centred on every pixel: mean filter m = k * L, m2 = k * L²,
+    sigma = sqrt(m2 - m²)."""
+    kernel = line.astype(np.float32) / line.sum()
+    mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    mean_sq = cv2.filter2D(lightness * lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
+    solid_share = cv2.filter2D(solid.astype(np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT)
+    return sigma, solid_share
+
+
 def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray,
                       settings: MarinaSettings) -> np.ndarray:
     """Pontoon decks inside wide rows of boats (module docstring, step 2) as a uint8 mask."""
     found = np.zeros_like(solid)
     for region, _, _, along_deg in _elongated_parts(rows):
-        kernel = _line_kernel(settings.row_line_px, along_deg).astype(np.float32)
-        kernel /= kernel.sum()
-        mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
-        mean_sq = cv2.filter2D(lightness * lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
-        sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-        solid_share = cv2.filter2D(solid.astype(np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT)
+        sigma, solid_share = _along_line(lightness, solid, _line_kernel(settings.row_line_px, along_deg))
         deck = (region & (sigma <= settings.row_std_max) & (solid_share > 0.97)).astype(np.uint8)
         for part, length, width, _ in _elongated_parts(deck):
             if length >= settings.row_min_length_px and width <= settings.pontoon_width_px:
@@ -153,12 +161,11 @@ def _pontoons_in_rows(lightness: np.ndarray, solid: np.ndarray, rows: np.ndarray
     return found
 
 
-
 def _uniform_runs(lightness: np.ndarray, solid: np.ndarray, line_px: int, std_max: float,
                   min_length_px: float, max_width_px: float,
                   across_solid_max_px: int | None = None) -> list[np.ndarray]:
     """Straight runs of uniform solid: at each angle (3-degree steps), the pixels whose line
-    of ``line_px`` at that angle is solid and uniform in L* (as in :func:`_pontoons_in_rows`),
+    of ``line_px`` at that angle is solid and uniform in L* (:func:`_along_line`),
     grouped into parts that run along that angle (within 10 degrees), at least
     ``min_length_px`` long and at most ``max_width_px`` wide on average.
 
@@ -167,15 +174,9 @@ def _uniform_runs(lightness: np.ndarray, solid: np.ndarray, line_px: int, std_ma
     found is carried on to its ends (the line test stops half a line short of them) before
     its length is measured."""
     runs = []
-    lightness_sq = lightness * lightness
-    solid_f = solid.astype(np.float32)
     for angle in range(0, 180, 3):
         line = _line_kernel(line_px, angle)
-        kernel = line.astype(np.float32) / line.sum()
-        mean = cv2.filter2D(lightness, -1, kernel, borderType=cv2.BORDER_REFLECT)
-        mean_sq = cv2.filter2D(lightness_sq, -1, kernel, borderType=cv2.BORDER_REFLECT)
-        sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-        solid_share = cv2.filter2D(solid_f, -1, kernel, borderType=cv2.BORDER_REFLECT)
+        sigma, solid_share = _along_line(lightness, solid, line)
         deck = (solid > 0) & (sigma <= std_max) & (solid_share > 0.97)
         narrow_across = None
         if across_solid_max_px is not None:
@@ -230,9 +231,10 @@ def label_marina_tile(image_bgr: np.ndarray, settings: MarinaSettings | None = N
     solid[hole[components]] = 1
 
     labels = np.where(solid > 0, SHIP, WATER).astype(np.uint8)
+    lightness = np.ascontiguousarray(lab[..., 0])
     narrow, rows = _pontoons(solid, settings)
-    in_rows = _pontoons_in_rows(np.ascontiguousarray(lab[..., 0]), solid, rows, settings)
-    narrow |= in_rows | _walkways(np.ascontiguousarray(lab[..., 0]), solid, settings)
+    in_rows = _pontoons_in_rows(lightness, solid, rows, settings)
+    narrow |= in_rows | _walkways(lightness, solid, settings)
     band = 2 * settings.deck_band_px + 1
     near_deck = cv2.dilate(narrow, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (band, band)))
     labels[(near_deck > 0) & (solid > 0)] = IGNORE
