@@ -7,6 +7,10 @@ So before an image is used, its container is checked for completeness, without d
 * JPEG: the file ends with the End Of Image marker ``FF D9`` (trailing NUL padding allowed);
 * PNG: the chunks run from the signature to ``IEND``, each with its CRC-32 right;
 * TIFF: Pillow reads every strip or tile (a truncated strip raises).
+
+``read_image`` and ``read_mask`` are the readers every part uses (measuring, training,
+evaluation, ``segment``); they live here, not in ``harborsight.pipeline``, so that training on
+a machine without the geodesy and mesh libraries needs none of the clearance stack.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from harborsight.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -87,3 +93,38 @@ def decode_image_file(path: Path, flags: int) -> tuple[np.ndarray | None, str | 
         return None, reason
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
     return image, None
+
+
+def read_image(path: Path) -> np.ndarray:
+    """BGR image; a clear error for a missing or unreadable file."""
+    if path.is_dir():
+        raise InputError(path, None, "is a folder, not an image file")
+    if not path.is_file():
+        raise InputError(path, None, "image file not found")
+    image, reason = decode_image_file(path, cv2.IMREAD_COLOR)  # a cut JPEG decodes half grey
+    if reason:
+        raise InputError(path, None, reason)
+    if image is None:
+        raise InputError(path, None, "cannot decode image (corrupt or not an image)")
+    return image
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
+    if path.is_dir():
+        raise InputError(path, "mask", "is a folder, not a mask file")
+    if not path.is_file():
+        raise InputError(path, "mask", "mask file not found")
+    mask, reason = decode_image_file(path, cv2.IMREAD_UNCHANGED)
+    if reason:
+        raise InputError(path, "mask", reason)
+    if mask is None:
+        raise InputError(path, "mask", "cannot decode mask (corrupt or not an image)")
+    if mask.ndim == 3:
+        if mask.shape[2] >= 3 and np.array_equal(mask[..., 0], mask[..., 1]) and np.array_equal(
+            mask[..., 1], mask[..., 2]
+        ):
+            mask = mask[..., 0]
+        else:
+            raise InputError(path, "mask", f"expected one channel of class ids, got {mask.shape[2]}")
+    return mask

@@ -26,7 +26,7 @@ from harborsight.errors import HarborsightError, InputError, brief
 from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.images import decode_image_file
+from harborsight.images import read_image, read_mask
 from harborsight.perception.confidence import SolidConfidence
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
@@ -68,41 +68,6 @@ class FrameOutcome:
     error: str | None = None
     report_path: Path | None = None
     overlay_path: Path | None = None
-
-
-def read_image(path: Path) -> np.ndarray:
-    """BGR image; a clear error for a missing or unreadable file."""
-    if path.is_dir():
-        raise InputError(path, None, "is a folder, not an image file")
-    if not path.is_file():
-        raise InputError(path, None, "image file not found")
-    image, reason = decode_image_file(path, cv2.IMREAD_COLOR)  # a cut JPEG decodes half grey
-    if reason:
-        raise InputError(path, None, reason)
-    if image is None:
-        raise InputError(path, None, "cannot decode image (corrupt or not an image)")
-    return image
-
-
-def read_mask(path: Path) -> np.ndarray:
-    """One-channel uint8 label mask (a grey PNG saved as RGB is accepted if channels agree)."""
-    if path.is_dir():
-        raise InputError(path, "mask", "is a folder, not a mask file")
-    if not path.is_file():
-        raise InputError(path, "mask", "mask file not found")
-    mask, reason = decode_image_file(path, cv2.IMREAD_UNCHANGED)
-    if reason:
-        raise InputError(path, "mask", reason)
-    if mask is None:
-        raise InputError(path, "mask", "cannot decode mask (corrupt or not an image)")
-    if mask.ndim == 3:
-        if mask.shape[2] >= 3 and np.array_equal(mask[..., 0], mask[..., 1]) and np.array_equal(
-            mask[..., 1], mask[..., 2]
-        ):
-            mask = mask[..., 0]
-        else:
-            raise InputError(path, "mask", f"expected one channel of class ids, got {mask.shape[2]}")
-    return mask
 
 
 def _find_vessel_spec(meta: FrameMetadata, meta_path: Path) -> Path:

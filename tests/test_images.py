@@ -14,8 +14,7 @@ from typer.testing import CliRunner
 
 from harborsight.cli import app
 from harborsight.errors import InputError
-from harborsight.images import incomplete_reason
-from harborsight.pipeline import read_image, read_mask
+from harborsight.images import incomplete_reason, read_image, read_mask
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
 runner = CliRunner()
@@ -96,3 +95,19 @@ def test_segment_lists_a_cut_jpeg_and_writes_the_others(tmp_path):
     assert (out / "a.png").is_file() and not (out / "b.png").exists()
     summary = json.loads((out / "segment.json").read_text())
     assert "JPEG cut short" in json.dumps(summary)
+
+
+def test_training_and_segmentation_need_no_clearance_stack():
+    """Training, evaluation and `segment` read images through harborsight.images alone: a GPU
+    machine without the geodesy and mesh libraries can train (the first H200 run stopped at a
+    missing pymap3d when the readers lived in harborsight.pipeline)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, harborsight.training.loop, harborsight.training.dataset, "
+            "harborsight.evaluation.segmentation, harborsight.perception.segment_images, "
+            "harborsight.cli.training; "
+            "print(sorted({'pymap3d', 'shapely', 'trimesh'} & set(sys.modules)))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True)
+    assert result.stdout.strip() == "[]"

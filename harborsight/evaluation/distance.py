@@ -699,7 +699,7 @@ def draw_error_panel(dataset: Path, frame: dict, masks: MaskSource, method: str,
     report (distances, obstacle points), the simulator's labels and the measured masks, both
     with the vessel's sections and the reported obstacle points, so a wrong distance can be
     traced to the pixels that caused it."""
-    from harborsight.pipeline import read_image
+    from harborsight.images import read_image
     from harborsight.viz.contact_sheet import colourise_labels
     from harborsight.viz.overlay import YELLOW, draw_banner, draw_overlay
 

@@ -394,7 +394,7 @@ def _drop_missing_predictions(frames, folder: Path) -> list[tuple[str, str]]:
     ``folder/<stem>.png``: missing, unreadable, of another size than the frame, with values
     outside the classes, or a stem that several datasets share (the file would be ambiguous).
     Returns ``(path, reason)`` of each; none usable is an :class:`InputError`."""
-    from harborsight.pipeline import read_mask
+    from harborsight.images import read_mask
     from harborsight.training.dataset import _image_size_hw
 
     stems = Counter(record.stem for record in frames.records)
@@ -442,7 +442,7 @@ class _PredictedFrames(Sequence):
         return item
 
     def prediction(self, image: np.ndarray) -> np.ndarray:
-        from harborsight.pipeline import read_mask
+        from harborsight.images import read_mask
 
         return read_mask(self.folder / f"{self.frames.records[self.index].stem}.png")
 

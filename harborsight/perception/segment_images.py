@@ -469,7 +469,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
     atomically. An image that cannot be read or written, whose stem an earlier image's mask
     already took, or whose mask or overlay would replace one of the input images, is left
     out with the reason; the rest are still written. ``on_image(path)`` after each image."""
-    from harborsight.pipeline import read_image
+    from harborsight.images import read_image
 
     options = options or SegmentOptions()
     paths = list(paths)

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.images import read_image, read_mask
 from harborsight.perception.classes import IGNORE, NUM_CLASSES
-from harborsight.pipeline import read_image, read_mask
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VALID_LABELS = frozenset([*range(NUM_CLASSES), IGNORE])
