@@ -19,9 +19,10 @@ from harborsight.geometry.camera import Camera, CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.geometry.rotations import world_from_camera_rotation
 from harborsight.geometry.sensor_sigmas import SensorSigmas
+from harborsight.images import read_image
 from harborsight.perception.confidence import SolidConfidence
 from harborsight.perception.default_model import load_default_segmenter
-from harborsight.pipeline import frame_labels, read_image
+from harborsight.pipeline import frame_labels
 from harborsight.vessel.spec import load_vessel_spec
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))

@@ -34,12 +34,12 @@ from harborsight.frame import (
     read_frame_json,
 )
 from harborsight.geometry.camera import CameraIntrinsics, brief
+from harborsight.images import read_image
 from harborsight.pipeline import (
     check_image_size,
     discover_jobs,
     find_frame_image,
     frame_image_path,
-    read_image,
 )
 
 NO_METADATA = "no metadata"
