@@ -44,9 +44,17 @@ def _nadir() -> FrameGeometry:
 def _confidence_by_east(geometry: FrameGeometry, p_solid_of_east) -> SolidConfidence:
     """Logits on the frame's own grid whose solid probability is ``p_solid_of_east(e)`` at
     each pixel centre (e the east coordinate where it meets the water)."""
+    return _confidence_along(geometry, (1.0, 0.0), p_solid_of_east)
+
+
+def _confidence_along(geometry: FrameGeometry, direction_en, p_solid_of_s) -> SolidConfidence:
+    """Logits on the frame's own grid whose solid probability is ``p_solid_of_s(s)`` at each
+    pixel centre, ``s`` the coordinate along the unit vector ``direction_en`` of the point
+    where it meets the water."""
     u, v = np.meshgrid(np.arange(SIZE_PX, dtype=float), np.arange(SIZE_PX, dtype=float))
     ground, _ = geometry.camera.back_project_to_plane(np.column_stack((u.ravel(), v.ravel())))
-    p = np.clip(p_solid_of_east(ground[:, 0]), 1e-6, 1 - 1e-6).reshape(SIZE_PX, SIZE_PX)
+    along = ground[:, :2] @ np.asarray(direction_en, float)
+    p = np.clip(p_solid_of_s(along), 1e-6, 1 - 1e-6).reshape(SIZE_PX, SIZE_PX)
     logits = np.stack((np.log(1 - p), np.log(p), np.full_like(p, -30.0))).astype(np.float32)
     return SolidConfidence(logits, SIZE_PX, SIZE_PX)
 
@@ -112,6 +120,25 @@ def test_never_sure_reads_to_the_edge_of_the_image():
     # in contact (obstacle point on the hull point) there is no ray: no doubt term
     assert _sigma(geometry, never, (5.0, 0.0), (5.0, 0.0)) == pytest.approx(
         _sigma(geometry, None, (5.0, 0.0), (5.0, 0.0)))
+
+
+@pytest.mark.parametrize("direction_en", [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)],
+                         ids=["east", "west", "north", "south"])
+def test_the_doubt_is_read_along_rays_heading_any_way_across_the_image(direction_en):
+    """The scenes of the two tests above turned to face each image direction: a ray heading
+    left or up in the image is read to its first sure solid and to the image's edge like one
+    heading right or down (a sign slip once left those rays with no doubt term at all)."""
+    geometry = _nadir()
+    d = np.asarray(direction_en)
+    hull, obstacle = 5.0 * d, 8.0 * d
+    base = _sigma(geometry, None, hull, obstacle)
+    doubtful = _confidence_along(geometry, d, lambda s: np.select([s < 7.95, s < 12.0], [0.01, 0.7], 0.99))
+    extra = math.sqrt(_sigma(geometry, doubtful, hull, obstacle) ** 2 - base ** 2)
+    assert extra == pytest.approx(4.0 / Z_90, abs=0.1)
+    never = _confidence_along(geometry, d, lambda s: np.where(s < 7.95, 0.01, 0.7))
+    extra = math.sqrt(_sigma(geometry, never, hull, obstacle) ** 2 - base ** 2)
+    # the image's last pixel centre along the ray lies 49.95 m from the nadir either way
+    assert extra == pytest.approx((49.95 - 8.0) / Z_90, abs=0.15)
 
 
 def test_the_default_model_gives_its_confidence_to_every_model_distance():

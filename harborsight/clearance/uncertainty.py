@@ -199,7 +199,7 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
     with np.errstate(divide="ignore", invalid="ignore"):
         # per axis, the ray's length to the far edge it heads for (inf along the edge)
         to_edge = np.where(unit == 0, np.inf, np.where(
-            unit > 0, np.array([width - 1, height - 1]) - start, -start) / np.abs(unit))
+            unit > 0, np.array([width - 1, height - 1]) - start, start) / np.abs(unit))
     reach = np.fmin(to_edge[:, 0], to_edge[:, 1])
     steps = (np.clip(np.where(np.isfinite(reach), reach, 0.0), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
     first = steps - 1                       # the ray's last sample, unless a sure one is found
