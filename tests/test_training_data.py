@@ -14,6 +14,7 @@ from harborsight.training.augment import (
     _rescale,
     augment,
     augment_weighted,
+    haze,
     mirror,
 )
 from harborsight.training.dataset import SegmentationFrames, list_frames
@@ -165,6 +166,39 @@ def test_augmentation_is_reproducible_per_seed():
     first, again, other = run(7), run(7), [run(s) for s in range(8, 12)]
     assert all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
     assert any(not np.array_equal(first[0], o[0]) for o in other)
+
+
+def test_haze_is_the_scattering_model_by_hand():
+    """I·t + A·(1 - t): t = 0.5 and airlight (200, 180, 160) take a pixel (0, 100, 255) to
+    (100, 140, 207.5 -> 208), a black frame to half the airlight; t = 1 leaves the frame."""
+    image = np.zeros((2, 2, 3), np.uint8)
+    image[0, 0] = (0, 100, 255)
+    hazy = haze(image, 0.5, (200.0, 180.0, 160.0))
+    assert hazy[0, 0].tolist() == [100, 140, 208] and hazy[1, 1].tolist() == [100, 90, 80]
+    assert np.array_equal(haze(image, 1.0, (200.0, 180.0, 160.0)), image)
+
+
+def test_haze_at_probability_zero_leaves_every_other_draw_as_it_was():
+    """p_haze 0 draws nothing, so runs seeded before haze existed augment alike; p_haze 1
+    lifts the blacks and dims the whites of every sample (transmission at most 0.95)."""
+    image, labels = coded_pair()
+    plain = AugmentConfig(crop_hw=(32, 48), p_blur=0.5, p_noise=0.5, p_jpeg=0.5)
+    rng = np.random.default_rng(5)
+    augment(image, labels, rng, plain)
+    after_plain = rng.random()
+    rng = np.random.default_rng(5)
+    augment(image, labels, rng, AugmentConfig(crop_hw=(32, 48), p_blur=0.5, p_noise=0.5,
+                                              p_jpeg=0.5, p_haze=0.0))
+    assert rng.random() == after_plain
+    black_white = np.zeros((32, 48, 3), np.uint8)
+    black_white[:, 24:] = 255
+    only_haze = AugmentConfig(crop_hw=None, p_mirror=0.0, p_flip=0.0, p_scale=0.0, p_colour=0.0,
+                              p_blur=0.0, p_noise=0.0, p_jpeg=0.0, p_haze=1.0)
+    for seed in range(5):
+        hazy, same_labels = augment(black_white, np.zeros((32, 48), np.uint8),
+                                    np.random.default_rng(seed), only_haze)
+        assert hazy[:, :24].min() >= round(0.05 * (140 - 15)) and hazy[:, 24:].max() < 255
+        assert not same_labels.any()
 
 
 def test_small_objects_get_the_larger_weight():

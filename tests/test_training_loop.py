@@ -238,21 +238,26 @@ def test_cli_train_errors_are_one_line(tmp_path):
     assert result.exit_code == 2 and "last.pt: checkpoint file not found" in result.output
 
 
-def test_colour_jitter_is_checked_recorded_and_used(tiny_dataset, tmp_path, monkeypatch):
+def test_colour_jitter_and_haze_are_checked_recorded_and_used(tiny_dataset, tmp_path, monkeypatch):
     """--colour-jitter sets the brightness, contrast and saturation ranges of the augmentation
-    (refused outside [0, 1)), and the run records it so that its command reproduces it."""
+    (refused outside [0, 1)), --haze the haze's probability (refused outside [0, 1]), and the
+    run records both so that its command reproduces them."""
     with pytest.raises(InputError, match="colour_jitter: must be in"):
         TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "x",
                     colour_jitter=1.0)
+    with pytest.raises(InputError, match="haze: must be a probability"):
+        TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "x",
+                    haze=1.5)
     args = ["train", "--model", "ddrnet23_slim", "--data", str(tiny_dataset),
             "--out", str(tmp_path / "a"), "--iterations", "1", "--batch-size", "2", "--crop", "48x64",
             "--val-every", "0", "--workers", "0", "--threads", "1", "--colour-jitter", "0.6",
-            "--no-progress"]
+            "--haze", "0.3", "--no-progress"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     checkpoint = load_checkpoint(tmp_path / "a" / "last.pt")
     assert checkpoint["config"]["colour_jitter"] == 0.6
     assert "--colour-jitter 0.6" in checkpoint["command"]
+    assert checkpoint["config"]["haze"] == 0.3 and "--haze 0.3" in checkpoint["command"]
     from harborsight.training import loop
     built = []
     original = loop.TrainingSamples
@@ -264,5 +269,6 @@ def test_colour_jitter_is_checked_recorded_and_used(tiny_dataset, tmp_path, monk
     monkeypatch.setattr(loop, "TrainingSamples", spy)
     train(TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "b",
                       iterations=1, batch_size=2, crop_hw=(48, 64), val_every=0, threads=1,
-                      colour_jitter=0.6), show_progress=False)
+                      colour_jitter=0.6, haze=0.3), show_progress=False)
     assert (built[0].brightness, built[0].contrast, built[0].saturation) == (0.6, 0.6, 0.6)
+    assert built[0].p_haze == 0.3

@@ -145,6 +145,10 @@ def train(
         help="Colour augmentation strength j: brightness, contrast and saturation each scaled "
         "by a factor drawn in [1-j, 1+j] [0.25]; raise it when real frames differ in colour "
         "(pale or hazy orthophotos).")] = None,
+    haze: Annotated[float | None, typer.Option(
+        help="Probability of the haze augmentation (I·t + A·(1-t): transmission t in "
+        "[0.45, 0.95], a bright near-grey airlight A), for hazy, washed-out real imagery; "
+        "0: off [0].")] = None,
     train_split: Annotated[str | None, typer.Option(help="Split to train on [train].")] = None,
     val_split: Annotated[str | None, typer.Option(help="Split to validate on [val].")] = None,
     val_every: Annotated[int | None, typer.Option(
@@ -187,7 +191,7 @@ def train(
                  "bootstrap_end_fraction": bootstrap_fraction,
                  "small_object_weight": small_object_weight,
                  "small_object_area_px": small_object_area, "augment": augment,
-                 "colour_jitter": colour_jitter,
+                 "colour_jitter": colour_jitter, "haze": haze,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,

@@ -7,7 +7,10 @@ Order of operations on an image ``I`` (uint8 BGR, H x W) and its labels ``L`` (u
    and flipped images"); random scale ``s ~ U(scale_min, scale_max)``; a random crop of
    ``crop_hw`` after padding the image with zeros and the labels with 255 (ignore) where it is
    smaller than the crop;
-2. photometric, on the image only, each with its own probability: colour jitter (brightness
+2. photometric, on the image only, each with its own probability: haze (the atmospheric
+   scattering model ``I·t + A·(1-t)``, transmission ``t`` and a bright, near-grey airlight
+   ``A``: lifted blacks, dimmed whites and paler colours, as in hazy orthophotos), colour
+   jitter (brightness
    ``I·b``, contrast ``(I-μ)·c+μ`` with ``μ`` the mean grey, saturation ``g+(I-g)·s`` with
    ``g`` the per-pixel grey, hue shift ``h+Δh`` in HSV), Gaussian blur (σ in pixels),
    additive Gaussian noise (σ in grey levels), JPEG re-encoding (quality 0-100).
@@ -38,6 +41,10 @@ class AugmentConfig:
     p_scale: float = 1.0
     scale_min: float = 0.75
     scale_max: float = 1.5
+    p_haze: float = 0.0             # 0: no haze, and no random number drawn for it
+    haze_transmission: tuple[float, float] = (0.45, 0.95)
+    haze_airlight_grey: tuple[float, float] = (140.0, 235.0)
+    haze_tint_grey: float = 15.0    # per-channel offset of the airlight in [-tint, tint]
     p_colour: float = 0.8
     brightness: float = 0.25        # factor in [1-b, 1+b]
     contrast: float = 0.25          # factor in [1-c, 1+c]
@@ -53,8 +60,8 @@ class AugmentConfig:
     @classmethod
     def geometric_only(cls, crop_hw: tuple[int, int] | None) -> AugmentConfig:
         """Only the fixed-size crop (at scale 1): what validation-like training needs."""
-        return cls(crop_hw=crop_hw, p_mirror=0.0, p_flip=0.0, p_scale=0.0, p_colour=0.0,
-                   p_blur=0.0, p_noise=0.0, p_jpeg=0.0)
+        return cls(crop_hw=crop_hw, p_mirror=0.0, p_flip=0.0, p_scale=0.0, p_haze=0.0,
+                   p_colour=0.0, p_blur=0.0, p_noise=0.0, p_jpeg=0.0)
 
 
 def mirror(image: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,6 +114,15 @@ def _random_crop(image: np.ndarray, maps: list[np.ndarray], pad_values: list[flo
             [np.ascontiguousarray(m[y0:y0 + ch, x0:x0 + cw]) for m in maps])
 
 
+def haze(image: np.ndarray, transmission: float, airlight_bgr) -> np.ndarray:
+    """Koschmieder's model of light scattered by the air between scene and camera:
+    ``I' = I·t + A·(1 - t)`` per channel, ``t`` the transmission (1: clear air) and ``A``
+    the airlight colour (BGR grey levels). Rounded and clipped to 0..255."""
+    airlight = np.asarray(airlight_bgr, np.float32) * np.float32(1.0 - transmission)
+    hazy = image.astype(np.float32) * np.float32(transmission) + airlight
+    return np.clip(np.rint(hazy), 0, 255).astype(np.uint8)
+
+
 def colour_jitter(image: np.ndarray, rng: np.random.Generator, brightness: float,
                   contrast: float, saturation: float, hue_deg: float) -> np.ndarray:
     """Brightness, contrast, saturation, hue (module docstring), in that order."""
@@ -150,7 +166,9 @@ def augment(image: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
     """One augmented (image, labels) pair; see the module docstring for the order.
 
     The seven on/off decisions are drawn first, one number each, so changing one probability
-    does not change which of the other operations fire.
+    does not change which of the other operations fire. Haze, when its probability is not 0,
+    is drawn before them; at 0 nothing is drawn for it, so every other draw is as it was
+    before haze existed.
     """
     image, (labels,) = _augment(image, [labels], [IGNORE], rng, config)
     return image, labels
@@ -175,6 +193,11 @@ def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
     the geometric operations."""
     if image.shape[:2] != maps[0].shape:
         raise ValueError(f"image {image.shape[:2]} and labels {maps[0].shape} differ in size")
+    hazing = None
+    if config.p_haze > 0.0 and rng.random() < config.p_haze:
+        hazing = (rng.uniform(*config.haze_transmission),
+                  rng.uniform(*config.haze_airlight_grey)
+                  + rng.uniform(-config.haze_tint_grey, config.haze_tint_grey, 3))
     fire = rng.random(7)
     if fire[0] < config.p_mirror:
         image, maps = image[:, ::-1].copy(), [m[:, ::-1].copy() for m in maps]
@@ -185,6 +208,8 @@ def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
         image, maps = _rescale(image, maps, scale)
     if config.crop_hw is not None:
         image, maps = _random_crop(image, maps, pad_values, config.crop_hw, rng)
+    if hazing is not None:
+        image = haze(image, *hazing)
     if fire[3] < config.p_colour:
         image = colour_jitter(image, rng, config.brightness, config.contrast, config.saturation,
                               config.hue_deg)

@@ -119,6 +119,7 @@ class TrainConfig:
     small_object_area_px: float = 1000.0               # A_ref: objects this large or larger keep 1
     augment: bool = True                               # False: random crop only
     colour_jitter: float = 0.25                        # brightness, contrast, saturation: x in [1-j, 1+j]
+    haze: float = 0.0                                  # probability of the haze augmentation
     train_split: str = "train"
     val_split: str = "val"
     val_every: int = 1000                              # 0: no validation (and no best.pt)
@@ -193,6 +194,8 @@ class TrainConfig:
                       f"{self.small_object_weight}")
         if not 0.0 <= self.colour_jitter < 1.0:
             raise bad("colour_jitter", f"must be in [0, 1), got {self.colour_jitter}")
+        if not 0.0 <= self.haze <= 1.0:
+            raise bad("haze", f"must be a probability in [0, 1], got {self.haze}")
         if self.small_object_area_px <= 0:
             raise bad("small_object_area_px", f"must be positive, got {self.small_object_area_px}")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
@@ -251,7 +254,7 @@ _CLI_OPTIONS = {
     "aux_weights": "aux-weight", "bootstrap_start_iteration": "bootstrap-start",
     "bootstrap_end_iteration": "bootstrap-end", "bootstrap_end_fraction": "bootstrap-fraction",
     "small_object_weight": "small-object-weight", "small_object_area_px": "small-object-area",
-    "augment": "augment", "colour_jitter": "colour-jitter", "train_split": "train-split",
+    "augment": "augment", "colour_jitter": "colour-jitter", "haze": "haze", "train_split": "train-split",
     "val_split": "val-split",
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
@@ -645,7 +648,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
 
     jitter = config.colour_jitter
     augmentation = (AugmentConfig(crop_hw=config.crop_hw, brightness=jitter, contrast=jitter,
-                                  saturation=jitter) if config.augment
+                                  saturation=jitter, p_haze=config.haze) if config.augment
                     else AugmentConfig.geometric_only(config.crop_hw))
     samples = TrainingSamples(train_frames, config.seed, augmentation,
                               config.small_object_weight, config.small_object_area_px,
