@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import shutil
 import threading
 import time
 import urllib.request
@@ -336,12 +337,28 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
                              str(folder / "flight.mp4"), "--metadata", str(folder / "flight.jsonl"),
                              "--vessel", str(TUG), "--record", str(record)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    def frames_that_play(path) -> int:
+        video = cv2.VideoCapture(str(path))
+        shown = 0
+        while video.read()[0]:
+            shown += 1
+        return shown
+
     try:
         deadline = time.monotonic() + 60
         while len(list((record / "reports").glob("*.json"))) < 8:
             assert live.poll() is None and time.monotonic() < deadline
             time.sleep(0.1)
-        time.sleep(1.5)                    # past the video's first one-second fragment
+        # kill once a copy of the video plays 5 frames (its first fragments are written), not
+        # after a fixed wait: on a loaded machine the encoder may lag the reports
+        snapshot = tmp_path / "snapshot.mp4"
+        while True:
+            assert live.poll() is None and time.monotonic() < deadline
+            if (record / "annotated.mp4").is_file():
+                shutil.copyfile(record / "annotated.mp4", snapshot)
+                if frames_that_play(snapshot) >= 5:
+                    break
+            time.sleep(0.2)
     finally:
         os.kill(live.pid, signal.SIGKILL)
         live.wait(10)
@@ -353,10 +370,7 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
     sections = len(json.loads(reports[0].read_text())["sections"])
     assert len(rows) >= (len(reports) - 1) * sections and all(r["track_state"] for r in rows)
     assert json.loads((record / "run.json").read_text())["completed"] is False
-    video = cv2.VideoCapture(str(record / "annotated.mp4"))
-    shown = 0
-    while video.read()[0]:
-        shown += 1
+    shown = frames_that_play(record / "annotated.mp4")
     assert shown >= 5, f"{shown} frames of the killed session's video play"
     frames = sorted((record / "frames").glob("*.json"))
     assert len(frames) >= len(reports) - 1
