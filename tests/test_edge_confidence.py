@@ -122,8 +122,12 @@ def test_never_sure_reads_to_the_edge_of_the_image():
         _sigma(geometry, None, (5.0, 0.0), (5.0, 0.0)))
 
 
-@pytest.mark.parametrize("direction_en", [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)],
-                         ids=["east", "west", "north", "south"])
+_DIAGONAL = 0.5 ** 0.5
+
+
+@pytest.mark.parametrize("direction_en", [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0),
+                                          (-_DIAGONAL, _DIAGONAL), (_DIAGONAL, -_DIAGONAL)],
+                         ids=["east", "west", "north", "south", "north-west", "south-east"])
 def test_the_doubt_is_read_along_rays_heading_any_way_across_the_image(direction_en):
     """The scenes of the two tests above turned to face each image direction: a ray heading
     left or up in the image is read to its first sure solid and to the image's edge like one
@@ -137,8 +141,10 @@ def test_the_doubt_is_read_along_rays_heading_any_way_across_the_image(direction
     assert extra == pytest.approx(4.0 / Z_90, abs=0.1)
     never = _confidence_along(geometry, d, lambda s: np.where(s < 7.95, 0.01, 0.7))
     extra = math.sqrt(_sigma(geometry, never, hull, obstacle) ** 2 - base ** 2)
-    # the image's last pixel centre along the ray lies 49.95 m from the nadir either way
-    assert extra == pytest.approx((49.95 - 8.0) / Z_90, abs=0.15)
+    # the image's last pixel centre along the ray lies 49.95 m from the nadir across or
+    # along the image, 49.95 sqrt(2) m on its diagonal (the ray leaves through a corner)
+    edge_m = 49.95 / max(abs(d[0]), abs(d[1]))
+    assert extra == pytest.approx((edge_m - 8.0) / Z_90, abs=0.15)
 
 
 def test_the_default_model_gives_its_confidence_to_every_model_distance():
