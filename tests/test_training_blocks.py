@@ -8,6 +8,7 @@ import torch
 from harborsight.perception.networks import create_network
 from harborsight.training.losses import (
     BootstrappedCrossEntropy,
+    agreeing_distillation_loss,
     bootstrap_keep_fraction,
     bootstrapped_cross_entropy,
 )
@@ -62,6 +63,39 @@ def test_loss_is_a_mean_over_images_and_handles_empty_images():
     assert both.item() == pytest.approx(first.item() / 2)
     both.backward()
     assert logits.grad is not None and torch.all(logits.grad[1] == 0)
+
+
+
+def test_distillation_loss_by_hand_on_the_pixels_the_teacher_gets_right():
+    """T²·KL(softmax(t/T) ‖ softmax(s/T)), averaged over the valid pixels whose teacher argmax
+    is the label; computed here with plain arithmetic on a 1x3 image."""
+    teacher = torch.tensor([[[[2.0, 0.0, 1.0]], [[0.0, 3.0, 0.0]], [[0.0, 0.0, 0.5]]]])
+    student = torch.tensor([[[[1.0, 0.0, 0.0]], [[0.0, 1.0, 2.0]], [[1.0, 0.0, 0.0]]]])
+    # pixel 0: teacher says 0, label 0 (kept); pixel 1: teacher 1, label 2 (dropped);
+    # pixel 2: teacher 0, label 255 (ignored)
+    target = torch.tensor([[[0, 2, 255]]])
+    temperature = 2.0
+    t = [math.exp(v / temperature) for v in (2.0, 0.0, 0.0)]
+    s = [math.exp(v / temperature) for v in (1.0, 0.0, 1.0)]
+    p = [v / sum(t) for v in t]
+    q = [v / sum(s) for v in s]
+    by_hand = temperature**2 * sum(pi * math.log(pi / qi) for pi, qi in zip(p, q, strict=True))
+    loss = agreeing_distillation_loss(student, teacher, target, temperature)
+    assert float(loss) == pytest.approx(by_hand, rel=1e-6)
+    assert float(agreeing_distillation_loss(teacher, teacher, target)) == pytest.approx(0, abs=1e-7)
+    # no pixel where the teacher is right: zero, and still differentiable
+    wrong = student.clone().requires_grad_(True)
+    none = agreeing_distillation_loss(wrong, teacher, torch.tensor([[[1, 0, 255]]]))
+    none.backward()
+    assert float(none.detach()) == 0.0 and wrong.grad is not None
+    # the gradient pulls the student's kept pixel toward the teacher's class
+    pulled = student.clone().requires_grad_(True)
+    agreeing_distillation_loss(pulled, teacher, target, temperature).backward()
+    assert pulled.grad[0, 0, 0, 0] < 0 and pulled.grad[0, :, 0, 1:].abs().max() == 0
+    with pytest.raises(ValueError, match="temperature must be positive"):
+        agreeing_distillation_loss(student, teacher, target, 0.0)
+    with pytest.raises(ValueError, match="differ from teacher"):
+        agreeing_distillation_loss(student[..., :2], teacher, target)
 
 
 def test_keep_fraction_schedule():

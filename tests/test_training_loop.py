@@ -184,6 +184,10 @@ def test_small_object_weighting_trains_and_needs_instance_masks(two_frame_datase
     ({"device": "tpu"}, r"device: expected auto, cpu or cuda"),
     ({"small_object_weight": 0.5}, r"small_object_weight: must be at least 1"),
     ({"small_object_area_px": 0.0}, r"small_object_area_px: must be positive"),
+    ({"distill": 1.0}, r"distill: distils from the network the run starts from: give --init-from"),
+    ({"distill": -0.5, "init_from": "a.pt"}, r"distill: must be a weight >= 0"),
+    ({"distill": 1.0, "init_from": "a.pt", "distill_temperature": 0.0},
+     r"distill_temperature: must be positive"),
 ])
 def test_bad_configs_are_refused(tmp_path, changes, message):
     base = {"model": "ddrnet23_slim", "data_dirs": ["x"], "out_dir": str(tmp_path)}
@@ -272,3 +276,41 @@ def test_colour_jitter_and_haze_are_checked_recorded_and_used(tiny_dataset, tmp_
                       colour_jitter=0.6, haze=0.3), show_progress=False)
     assert (built[0].brightness, built[0].contrast, built[0].saturation) == (0.6, 0.6, 0.6)
     assert built[0].p_haze == 0.3
+
+
+def test_distillation_starts_from_the_teacher_and_resumes_exactly(two_frame_dataset, tmp_path):
+    """--distill keeps the network the run started from as a frozen teacher (start.pt) that
+    normalises as the student does, so the distillation loss is zero at the first step and
+    grows as the student moves; it changes the steps taken, is logged and recorded in the
+    command, and a resumed run rebuilds the teacher and repeats an uninterrupted one. (That
+    it pulls the student toward the teacher is checked on the loss itself, in
+    test_training_blocks.py; what it does to a real fine-tune is in docs/results.md.)"""
+    def config(out, **changes):
+        return TrainConfig(**{"model": "ddrnet23_slim", "data_dirs": [two_frame_dataset],
+                              "out_dir": out, "iterations": 4, "batch_size": 2,
+                              "crop_hw": (48, 64), "augment": False, "val_every": 0,
+                              "checkpoint_every": 100, "num_workers": 0, "seed": 4,
+                              "threads": 1, **changes})
+
+    source = train(config(tmp_path / "source", iterations=8), show_progress=False)
+    tune = dict(init_from=source.last_checkpoint, lr=0.01, aux_weights=(0.0,))
+    kd = dict(tune, distill=2.0, distill_temperature=3.0)
+    held = train(config(tmp_path / "held", **kd), show_progress=False)
+    free = train(config(tmp_path / "free", **tune), show_progress=False)
+    teacher = load_checkpoint(tmp_path / "held" / "start.pt")
+    start = load_checkpoint(source.last_checkpoint)["model"]
+    assert all(torch.equal(teacher["model"][k], v) for k, v in start.items())
+    log = read_log(tmp_path / "held")
+    assert log[0]["loss_distill"] == pytest.approx(0.0, abs=1e-9)
+    assert all(line["loss_distill"] > 0.0 for line in log[1:])
+    assert all(line["loss"] == pytest.approx(line["loss_main"] + 2.0 * line["loss_distill"],
+                                             rel=1e-5) for line in log)
+    assert "loss_distill" not in read_log(tmp_path / "free")[0]
+    assert held.losses[0] == free.losses[0] and held.losses[1:] != free.losses[1:]
+    recorded = load_checkpoint(held.last_checkpoint)
+    assert "--distill 2.0 --distill-temperature 3.0" in recorded["command"]
+    assert recorded["config"]["distill"] == 2.0
+
+    first = train(config(tmp_path / "split", **kd), until_iteration=2, show_progress=False)
+    second = train(config(tmp_path / "split", **kd), resume=True, show_progress=False)
+    assert first.losses + second.losses == held.losses

@@ -149,6 +149,13 @@ def train(
         help="Probability of the haze augmentation (I·t + A·(1-t): transmission t in "
         "[0.45, 0.95], a bright near-grey airlight A), for hazy, washed-out real imagery; "
         "0: off [0].")] = None,
+    distill: Annotated[float | None, typer.Option(
+        help="With --init-from: weight λ of a distillation loss that keeps the main head's "
+        "softened outputs near the starting network's on the pixels the starting network "
+        "labels correctly (Learning without Forgetting), so that a fine-tune on real frames "
+        "forgets less of the simulator; 0: off [0].")] = None,
+    distill_temperature: Annotated[float | None, typer.Option(
+        help="Softmax temperature T of --distill (loss scaled by T²) [2].")] = None,
     train_split: Annotated[str | None, typer.Option(help="Split to train on [train].")] = None,
     val_split: Annotated[str | None, typer.Option(help="Split to validate on [val].")] = None,
     val_every: Annotated[int | None, typer.Option(
@@ -192,6 +199,7 @@ def train(
                  "small_object_weight": small_object_weight,
                  "small_object_area_px": small_object_area, "augment": augment,
                  "colour_jitter": colour_jitter, "haze": haze,
+                 "distill": distill, "distill_temperature": distill_temperature,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,

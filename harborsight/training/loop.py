@@ -7,6 +7,13 @@ Per iteration ``i`` (0-based) with ``T`` iterations in all:
     w_i    = r + (1 - r)·i/W for i < W, else 1             (optional linear warm-up, W iters)
     k_i    = bootstrap keep fraction (100 % -> 20 % between iterations 1000 and 9000)
     loss_i = BCE_k(main) + Σ_h w_h · BCE_k(aux_h)          (w: per-network aux weights)
+             + λ · KD_T(main, teacher)                      (optional, λ = ``distill``)
+
+With ``distill`` λ > 0 (a warm start only), the network the run started from is kept frozen
+as a teacher and the main head is also pulled toward the teacher's softened outputs on the
+pixels the teacher labels correctly
+(:func:`harborsight.training.losses.agreeing_distillation_loss`): a fine-tune on real frames
+then forgets less of what the simulator frames taught.
 
 With ``small_object_weight`` > 1, each pixel's cross-entropy is first multiplied by its
 small-object weight ``clip(sqrt(A_ref / A_k), 1, small_object_weight)``, ``A_k`` the visible
@@ -34,8 +41,9 @@ as in a fresh run.
 Outputs in ``out_dir``: ``last.pt`` (every ``checkpoint_every`` iterations and at the end),
 ``best.pt`` (highest validation mIoU), ``train_log.jsonl`` (one JSON object per iteration
 and per validation, written line by line), and for a warm start from an ONNX model
-``start.pt``: the recovered weights at iteration 0, the other end of a weight-space
-interpolation (``average-weights --checkpoint start.pt --checkpoint best.pt``, WiSE-FT).
+or a distilling run ``start.pt``: the starting weights at iteration 0 (a distilling run's
+teacher), the other end of a weight-space interpolation (``average-weights --checkpoint
+start.pt --checkpoint best.pt``, WiSE-FT).
 """
 
 from __future__ import annotations
@@ -67,11 +75,16 @@ from harborsight.training.checkpoint import (
     CHECKPOINT_FORMAT,
     CURRENT_NETWORK_OPTIONS,
     load_checkpoint,
+    model_from_checkpoint,
     network_options,
     save_checkpoint,
 )
 from harborsight.training.dataset import SegmentationFrames, small_object_weights
-from harborsight.training.losses import bootstrap_keep_fraction, bootstrapped_cross_entropy
+from harborsight.training.losses import (
+    agreeing_distillation_loss,
+    bootstrap_keep_fraction,
+    bootstrapped_cross_entropy,
+)
 from harborsight.training.optim import parameter_groups, poly_learning_rate
 
 #: Weights of the auxiliary (deep-supervision) losses per network, as their references train:
@@ -134,6 +147,8 @@ class TrainConfig:
     val_dirs: list[str] | None = None                  # validation datasets (None: data_dirs)
     fit_large_hw: tuple[int, int] | None = None        # stretch larger frames to this (H, W)
     freeze_batchnorm: bool = False                     # BatchNorm running statistics kept
+    distill: float = 0.0                               # λ of the distillation loss (0: off)
+    distill_temperature: float = 2.0                   # T of the distillation loss
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -196,6 +211,13 @@ class TrainConfig:
             raise bad("colour_jitter", f"must be in [0, 1), got {self.colour_jitter}")
         if not 0.0 <= self.haze <= 1.0:
             raise bad("haze", f"must be a probability in [0, 1], got {self.haze}")
+        if not (self.distill >= 0.0 and math.isfinite(self.distill)):
+            raise bad("distill", f"must be a weight >= 0, got {self.distill}")
+        if self.distill > 0 and not self.init_from:
+            raise bad("distill", "distils from the network the run starts from: give "
+                      "--init-from too")
+        if not (self.distill_temperature > 0 and math.isfinite(self.distill_temperature)):
+            raise bad("distill_temperature", f"must be positive, got {self.distill_temperature}")
         if self.small_object_area_px <= 0:
             raise bad("small_object_area_px", f"must be positive, got {self.small_object_area_px}")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
@@ -259,6 +281,7 @@ _CLI_OPTIONS = {
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
     "init_from": "init-from", "fit_large_hw": "fit-large", "freeze_batchnorm": "freeze-batchnorm",
+    "distill": "distill", "distill_temperature": "distill-temperature",
 }
 
 
@@ -464,6 +487,19 @@ def load_initial_weights(config: TrainConfig, train_frames: SegmentationFrames) 
         "command": source.get("command")})
 
 
+def _frozen_teacher(path: Path, device: torch.device, freeze_batchnorm: bool) -> SegmentationModel:
+    """The network a distilling run started from (``start.pt``), its weights frozen, in the
+    student's mode: BatchNorm normalises as the student's does (batch statistics, or the
+    running ones with ``freeze_batchnorm``), so at iteration 0 both compute the same outputs
+    and the distillation loss is zero. (A teacher in eval mode would pull a student that
+    normalises by batch statistics toward another function.)"""
+    teacher = model_from_checkpoint(path).to(device)
+    for parameter in teacher.parameters():
+        parameter.requires_grad_(False)
+    training_mode(teacher, freeze_batchnorm)
+    return teacher
+
+
 def _apply_initial_weights(model: SegmentationModel, initial: InitialWeights, path: str) -> None:
     missing, unexpected = model.load_state_dict(initial.state, strict=False)
     wrong = [k for k in missing if not k.startswith(AUX_STATE_PREFIX)] + list(unexpected)
@@ -641,10 +677,13 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                            "cuda": torch.cuda.get_rng_state_all() if device.type == "cuda" else None}
         return data
 
-    if initial is not None and initial.provenance.get("onnx"):
+    if initial is not None and (initial.provenance.get("onnx") or config.distill > 0):
         # recovered from ONNX: no checkpoint file holds these weights, and an interpolation
-        # with the fine-tuned ones needs exactly them (same rebuilt BatchNorm statistics)
+        # with the fine-tuned ones needs exactly them (same rebuilt BatchNorm statistics);
+        # a distilling run's teacher is rebuilt from it on resume
         save_checkpoint(out_dir / START, payload(0, full=False))
+    teacher = (_frozen_teacher(out_dir / START, device, config.freeze_batchnorm)
+               if config.distill > 0 else None)
 
     jitter = config.colour_jitter
     augmentation = (AugmentConfig(crop_hw=config.crop_hw, brightness=jitter, contrast=jitter,
@@ -692,6 +731,14 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             with torch.autocast(device.type, torch.float16, enabled=use_amp):
                 output = model(images)
             loss, main_loss = _aux_losses(output, target, keep, weights, pixel_weights)
+            distill_loss = None
+            if teacher is not None:
+                with torch.no_grad(), torch.autocast(device.type, torch.float16, enabled=use_amp):
+                    teacher_logits = teacher(images)
+                main = output[0] if isinstance(output, tuple) else output
+                distill_loss = agreeing_distillation_loss(main, teacher_logits, target,
+                                                          config.distill_temperature)
+                loss = loss + config.distill * distill_loss
             optimizer.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             scaler.step(optimizer)
@@ -705,6 +752,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             result.losses.append(loss_value)
             log.write(json.dumps({"iteration": iteration, "kind": "train", "loss": loss_value,
                                   "loss_main": float(main_loss.detach()), "lr": lr,
+                                  **({} if distill_loss is None else
+                                     {"loss_distill": float(distill_loss.detach())}),
                                   "keep_fraction": keep,
                                   "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
             if val_sets and (iteration % config.val_every == 0 or iteration == config.iterations):

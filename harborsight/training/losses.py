@@ -85,3 +85,35 @@ class BootstrappedCrossEntropy(nn.Module):
         keep = bootstrap_keep_fraction(iteration, self.start_iteration, self.end_iteration,
                                        1.0, self.end_fraction)
         return bootstrapped_cross_entropy(logits, target, keep, self.ignore_index)
+
+
+def agreeing_distillation_loss(
+    student_logits: torch.Tensor, teacher_logits: torch.Tensor, target: torch.Tensor,
+    temperature: float = 2.0, ignore_index: int = IGNORE,
+) -> torch.Tensor:
+    """Knowledge distillation from a frozen teacher on the pixels it labels correctly.
+
+    Learning without Forgetting (Li & Hoiem 2016) keeps a fine-tuned network close to the
+    network it started from by matching the starting network's softened outputs. Here the
+    match is restricted to the valid pixels where the teacher's argmax equals the label
+    (on simulator frames nearly all of them; on a real frame only those the teacher already
+    gets right), so the teacher never pulls against a label:
+
+        L = T² · (1/|K|) · Σ_{j in K} KL( softmax(t_j / T) ‖ softmax(s_j / T) ),
+        K = { j : y_j ≠ ignore, argmax t_j = y_j }
+
+    ``T²`` keeps the gradient's size independent of ``T`` (Hinton et al. 2015). Shapes:
+    ``(N, C, H, W)`` logits, ``(N, H, W)`` long target. No kept pixel: zero, graph connected.
+    """
+    if student_logits.shape != teacher_logits.shape:
+        raise ValueError(f"student logits {tuple(student_logits.shape)} differ from teacher "
+                         f"logits {tuple(teacher_logits.shape)}")
+    if not temperature > 0:
+        raise ValueError(f"temperature must be positive, got {temperature}")
+    keep = (target != ignore_index) & (teacher_logits.argmax(dim=1) == target)
+    if not bool(keep.any()):
+        return student_logits.sum() * 0.0
+    log_student = F.log_softmax(student_logits.float() / temperature, dim=1)
+    log_teacher = F.log_softmax(teacher_logits.float() / temperature, dim=1)
+    per_pixel = (log_teacher.exp() * (log_teacher - log_student)).sum(dim=1)
+    return temperature ** 2 * per_pixel[keep].mean()
