@@ -34,6 +34,15 @@ FLIGHT = SAMPLES / "flight"
 TUG = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
 
 
+def _frames_that_play(path) -> int:
+    """How many frames of a video OpenCV decodes."""
+    video = cv2.VideoCapture(str(path))
+    shown = 0
+    while video.read()[0]:
+        shown += 1
+    return shown
+
+
 def test_an_alarm_rises_at_once_and_falls_only_past_the_margin():
     alarm = SectionAlarm(AlarmSettings(caution_m=5.0, danger_m=2.0, ttc_s=30.0,
                                        hysteresis_m=0.5, hysteresis_s=5.0))
@@ -216,10 +225,7 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
         rows = list(csv.DictReader(handle))
     assert len(rows) == summary.frames_measured * len(last_report["sections"])
     assert rows[-1]["closing_speed_mps"] != "" or any(r["closing_speed_mps"] for r in rows)
-    video = cv2.VideoCapture(str(record / "annotated.mp4"))
-    shown = 0
-    while video.read()[0]:
-        shown += 1
+    shown = _frames_that_play(record / "annotated.mp4")
     assert shown == summary.frames_measured
     run_record = json.loads((record / "run.json").read_text())
     assert run_record["completed"] and run_record["measured"] == summary.frames_measured
@@ -337,13 +343,6 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
                              str(folder / "flight.mp4"), "--metadata", str(folder / "flight.jsonl"),
                              "--vessel", str(TUG), "--record", str(record)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    def frames_that_play(path) -> int:
-        video = cv2.VideoCapture(str(path))
-        shown = 0
-        while video.read()[0]:
-            shown += 1
-        return shown
-
     try:
         deadline = time.monotonic() + 60
         while len(list((record / "reports").glob("*.json"))) < 8:
@@ -356,7 +355,7 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
             assert live.poll() is None and time.monotonic() < deadline
             if (record / "annotated.mp4").is_file():
                 shutil.copyfile(record / "annotated.mp4", snapshot)
-                if frames_that_play(snapshot) >= 5:
+                if _frames_that_play(snapshot) >= 5:
                     break
             time.sleep(0.2)
     finally:
@@ -370,7 +369,7 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
     sections = len(json.loads(reports[0].read_text())["sections"])
     assert len(rows) >= (len(reports) - 1) * sections and all(r["track_state"] for r in rows)
     assert json.loads((record / "run.json").read_text())["completed"] is False
-    shown = frames_that_play(record / "annotated.mp4")
+    shown = _frames_that_play(record / "annotated.mp4")
     assert shown >= 5, f"{shown} frames of the killed session's video play"
     frames = sorted((record / "frames").glob("*.json"))
     assert len(frames) >= len(reports) - 1

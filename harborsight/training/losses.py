@@ -115,5 +115,5 @@ def agreeing_distillation_loss(
         return student_logits.sum() * 0.0
     log_student = F.log_softmax(student_logits.float() / temperature, dim=1)
     log_teacher = F.log_softmax(teacher_logits.float() / temperature, dim=1)
-    per_pixel = (log_teacher.exp() * (log_teacher - log_student)).sum(dim=1)
+    per_pixel = F.kl_div(log_student, log_teacher, reduction="none", log_target=True).sum(dim=1)
     return temperature ** 2 * per_pixel[keep].mean()
