@@ -96,7 +96,7 @@ def main() -> None:
     print(f"shipped {shipped_file} as {MODELS_DIR / 'default.onnx'} ({size_mb:.1f} MB); "
           f"held-out mIoU {100 * heldout['miou']:.1f} % on {heldout['frames']} frames "
           f"({'meets' if sidecar['meets_target'] else 'below'} the "
-          f"{100 * args.target_miou:.0f} % target)")
+          f"{100 * args.target_miou:g} % target)")
 
 
 if __name__ == "__main__":

@@ -236,13 +236,24 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     result = CliRunner().invoke(app, ["run", str(folder / "record"), "--out", str(folder / "rerun"),
                                       "--vessel", str(TUG), "--no-overlays", "--no-video"])
     assert result.exit_code == 0, result.output
-    rerun = json.loads((folder / "rerun" / "reports" / f"{frames[-1].stem}.json").read_text())
-    live_last = [json.loads(line) for line in recorded if json.loads(line)["frame_index"] is not None][-1]
-    for section, again in zip(live_last["sections"], rerun["sections"], strict=True):
-        if section["distance_m"] is not None:
-            # the recorded JPEG is a second lossy copy of the video frame: the model may move
-            # an edge by a pixel (13 cm at this height)
-            assert abs(section["distance_m"] - again["distance_m"]) < 0.3
+    moved = []
+    for live_report in reports:
+        rerun = json.loads((folder / "rerun" / "reports" / live_report.name).read_text())
+        live = json.loads(live_report.read_text())
+        for section, again in zip(live["sections"], rerun["sections"], strict=True):
+            if section["distance_m"] is None and again["distance_m"] is None:
+                continue
+            if section["distance_m"] is None or again["distance_m"] is None:
+                moved.append(float("inf"))          # measured in one copy only
+            else:
+                moved.append(abs(section["distance_m"] - again["distance_m"]))
+    # the recorded JPEG is a second lossy copy of the video frame: the model may move an edge
+    # by a pixel (13 cm at this height), and in about 1 section in 100 a speck of obstacle
+    # comes or goes (measured on this flight: up to 0.85 m with the default model, 1.9 m
+    # with the previous one), so the bound is on the many, not on every one
+    moved.sort()
+    assert len(moved) >= 100
+    assert moved[len(moved) // 2] < 0.05 and moved[int(0.95 * len(moved))] < 0.3
 
 
 def test_the_command_line_refuses_a_bad_address_and_a_missing_video(tmp_path, replay):

@@ -81,6 +81,6 @@ def describe(segmenter: OnnxSegmenter) -> str:
         parts.append(f"held-out mIoU {100 * heldout['miou']:.2f} % on {heldout['frames']} "
                      "synthetic frames")
         if sidecar.get("meets_target") is False:
-            parts.append(f"[below the {100 * sidecar['target_miou']:.0f} % target: "
+            parts.append(f"[below the {100 * sidecar['target_miou']:g} % target: "
                          "treat its distances as indicative]")
     return " ".join(parts)
