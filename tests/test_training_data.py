@@ -201,6 +201,30 @@ def test_haze_at_probability_zero_leaves_every_other_draw_as_it_was():
         assert not same_labels.any()
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_clean_view_is_the_same_crop_without_its_photometric_changes(seed):
+    """The clean view (what a distillation teacher may see) has every geometric step of the
+    sample: on the colour-coded pair, with the photometry forced on, each of its pixels
+    carries its label's colour, while the augmented image is hazed and jittered. The sample
+    itself is exactly the one drawn without asking for the clean view."""
+    image, labels = coded_pair()
+    config = AugmentConfig(crop_hw=(48, 48), p_mirror=0.5, p_flip=0.5, p_scale=0.0,
+                           p_colour=1.0, p_blur=1.0, p_noise=1.0, p_jpeg=1.0, p_haze=1.0)
+    plain = augment(image, labels, np.random.default_rng(seed), config)
+    out_image, out_labels, clean = augment(image, labels, np.random.default_rng(seed), config,
+                                           clean_view=True)
+    assert np.array_equal(out_image, plain[0]) and np.array_equal(out_labels, plain[1])
+    assert clean.shape == out_image.shape and clean.flags["C_CONTIGUOUS"]
+    for value, colour in LUT.items():
+        assert (clean[out_labels == value] == colour).all()
+    assert np.abs(out_image.astype(int) - clean).mean() > 5
+    weights = np.ones(labels.shape, np.float32)
+    *weighted, weighted_clean = augment_weighted(image, labels, weights,
+                                                 np.random.default_rng(seed), config,
+                                                 clean_view=True)
+    assert np.array_equal(weighted[0], out_image) and np.array_equal(weighted_clean, clean)
+
+
 def test_small_objects_get_the_larger_weight():
     from harborsight.training.dataset import small_object_weights
 

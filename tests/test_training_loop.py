@@ -188,6 +188,9 @@ def test_small_object_weighting_trains_and_needs_instance_masks(two_frame_datase
     ({"distill": -0.5, "init_from": "a.pt"}, r"distill: must be a weight >= 0"),
     ({"distill": 1.0, "init_from": "a.pt", "distill_temperature": 0.0},
      r"distill_temperature: must be positive"),
+    ({"distill": 1.0, "init_from": "a.pt", "distill_view": "sharp"},
+     r"distill_view: must be one of augmented, clean, got 'sharp'"),
+    ({"distill_view": "clean"}, r"distill_view: is what the teacher of --distill sees"),
 ])
 def test_bad_configs_are_refused(tmp_path, changes, message):
     base = {"model": "ddrnet23_slim", "data_dirs": ["x"], "out_dir": str(tmp_path)}
@@ -314,3 +317,32 @@ def test_distillation_starts_from_the_teacher_and_resumes_exactly(two_frame_data
     first = train(config(tmp_path / "split", **kd), until_iteration=2, show_progress=False)
     second = train(config(tmp_path / "split", **kd), resume=True, show_progress=False)
     assert first.losses + second.losses == held.losses
+
+
+def test_a_teacher_on_the_clean_view_reads_the_sample_before_its_haze(two_frame_dataset, tmp_path):
+    """--distill-view clean: the teacher sees the crop before haze and colour jitter, so at
+    the first step (student = teacher) the distillation term is no longer zero on hazed
+    samples, as it is when the teacher sees the student's own input; the run is recorded
+    with its view and resumes exactly."""
+    def config(out, **changes):
+        return TrainConfig(**{"model": "ddrnet23_slim", "data_dirs": [two_frame_dataset],
+                              "out_dir": out, "iterations": 3, "batch_size": 2,
+                              "crop_hw": (48, 64), "haze": 1.0, "colour_jitter": 0.5,
+                              "val_every": 0, "checkpoint_every": 100, "num_workers": 0,
+                              "seed": 4, "threads": 1, **changes})
+
+    source = train(config(tmp_path / "source", augment=False, haze=0.0, iterations=6),
+                   show_progress=False)
+    kd = dict(init_from=source.last_checkpoint, lr=0.01, aux_weights=(0.0,), distill=1.0)
+    train(config(tmp_path / "same", **kd), show_progress=False)
+    clean = train(config(tmp_path / "clean", distill_view="clean", **kd), show_progress=False)
+    assert read_log(tmp_path / "same")[0]["loss_distill"] == pytest.approx(0.0, abs=1e-9)
+    first = read_log(tmp_path / "clean")[0]
+    assert first["loss_distill"] > 1e-4
+    assert first["loss_main"] == pytest.approx(read_log(tmp_path / "same")[0]["loss_main"])
+    assert "--distill-view clean" in load_checkpoint(clean.last_checkpoint)["command"]
+    part = train(config(tmp_path / "split", distill_view="clean", **kd), until_iteration=1,
+                 show_progress=False)
+    rest = train(config(tmp_path / "split", distill_view="clean", **kd), resume=True,
+                 show_progress=False)
+    assert part.losses + rest.losses == clean.losses

@@ -156,6 +156,11 @@ def train(
         "forgets less of the simulator; 0: off [0].")] = None,
     distill_temperature: Annotated[float | None, typer.Option(
         help="Softmax temperature T of --distill (loss scaled by T²) [2].")] = None,
+    distill_view: Annotated[str | None, typer.Option(
+        help="What the teacher of --distill sees: 'augmented' (the student's input) or "
+        "'clean' (the same crop before haze, colour jitter, blur, noise and JPEG: the student "
+        "learns to read through them as the teacher reads the clear view) [augmented].")
+    ] = None,
     train_split: Annotated[str | None, typer.Option(help="Split to train on [train].")] = None,
     val_split: Annotated[str | None, typer.Option(help="Split to validate on [val].")] = None,
     val_every: Annotated[int | None, typer.Option(
@@ -200,6 +205,7 @@ def train(
                  "small_object_area_px": small_object_area, "augment": augment,
                  "colour_jitter": colour_jitter, "haze": haze,
                  "distill": distill, "distill_temperature": distill_temperature,
+                 "distill_view": distill_view,
                  "train_split": train_split, "val_split": val_split, "val_every": val_every,
                  "checkpoint_every": checkpoint_every, "seed": seed, "device": device,
                  "amp": amp, "num_workers": workers, "threads": threads, "model": model,

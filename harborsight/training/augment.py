@@ -16,6 +16,8 @@ Order of operations on an image ``I`` (uint8 BGR, H x W) and its labels ``L`` (u
    additive Gaussian noise (σ in grey levels), JPEG re-encoding (quality 0-100).
 
 :func:`augment_weighted` carries a per-pixel loss weight map through step 1 with the labels.
+Both can also return the *clean view*: the image after step 1 only, pixel for pixel where the
+augmented image is but without the photometric changes (what a distillation teacher sees).
 
 Every random number comes from the generator passed in, so a given seed gives the same
 sample whatever the worker process that draws it.
@@ -162,35 +164,36 @@ def jpeg_reencode(image: np.ndarray, quality: int) -> np.ndarray:
 
 
 def augment(image: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
-            config: AugmentConfig) -> tuple[np.ndarray, np.ndarray]:
-    """One augmented (image, labels) pair; see the module docstring for the order.
+            config: AugmentConfig, clean_view: bool = False):
+    """One augmented (image, labels) pair; see the module docstring for the order. With
+    ``clean_view``: (image, labels, clean image), the clean image that of step 1 alone.
 
     The seven on/off decisions are drawn first, one number each, so changing one probability
     does not change which of the other operations fire. Haze, when its probability is not 0,
     is drawn before them; at 0 nothing is drawn for it, so every other draw is as it was
     before haze existed.
     """
-    image, (labels,) = _augment(image, [labels], [IGNORE], rng, config)
-    return image, labels
+    image, (labels,), clean = _augment(image, [labels], [IGNORE], rng, config)
+    return (image, labels, clean) if clean_view else (image, labels)
 
 
 def augment_weighted(image: np.ndarray, labels: np.ndarray, weights: np.ndarray,
-                     rng: np.random.Generator, config: AugmentConfig
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     rng: np.random.Generator, config: AugmentConfig, clean_view: bool = False):
     """:func:`augment` with a per-pixel loss weight map carried through the same geometric
-    operations (nearest-neighbour, padded with 0). For a given ``rng`` state the image and
-    labels are exactly those :func:`augment` returns."""
+    operations (nearest-neighbour, padded with 0): (image, labels, weights[, clean image]).
+    For a given ``rng`` state the image and labels are exactly those :func:`augment` returns."""
     if weights.shape != labels.shape:
         raise ValueError(f"weights {weights.shape} and labels {labels.shape} differ in size")
-    image, (labels, weights) = _augment(image, [labels, weights], [IGNORE, 0.0], rng, config)
-    return image, labels, weights
+    image, (labels, weights), clean = _augment(image, [labels, weights], [IGNORE, 0.0], rng,
+                                               config)
+    return (image, labels, weights, clean) if clean_view else (image, labels, weights)
 
 
 def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
              rng: np.random.Generator, config: AugmentConfig
-             ) -> tuple[np.ndarray, list[np.ndarray]]:
+             ) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     """The augmentation of :func:`augment`; ``maps[0]`` are the labels, every map follows
-    the geometric operations."""
+    the geometric operations. Returns (image, maps, the image after the geometric step)."""
     if image.shape[:2] != maps[0].shape:
         raise ValueError(f"image {image.shape[:2]} and labels {maps[0].shape} differ in size")
     hazing = None
@@ -208,6 +211,7 @@ def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
         image, maps = _rescale(image, maps, scale)
     if config.crop_hw is not None:
         image, maps = _random_crop(image, maps, pad_values, config.crop_hw, rng)
+    clean = np.ascontiguousarray(image)      # the photometric steps below make new arrays
     if hazing is not None:
         image = haze(image, *hazing)
     if fire[3] < config.p_colour:
@@ -220,4 +224,4 @@ def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
     if fire[6] < config.p_jpeg:
         image = jpeg_reencode(image, int(rng.integers(config.jpeg_quality[0],
                                                       config.jpeg_quality[1] + 1)))
-    return np.ascontiguousarray(image), [np.ascontiguousarray(m) for m in maps]
+    return np.ascontiguousarray(image), [np.ascontiguousarray(m) for m in maps], clean

@@ -13,7 +13,10 @@ With ``distill`` λ > 0 (a warm start only), the network the run started from is
 as a teacher and the main head is also pulled toward the teacher's softened outputs on the
 pixels the teacher labels correctly
 (:func:`harborsight.training.losses.agreeing_distillation_loss`): a fine-tune on real frames
-then forgets less of what the simulator frames taught.
+then forgets less of what the simulator frames taught. The teacher sees the student's input
+(``distill_view="augmented"``) or the same crop before its photometric augmentation
+(``"clean"``): then on a hazed or colour-shifted sample it still knows the clear view's
+answer, and the student is pulled to give it through the haze.
 
 With ``small_object_weight`` > 1, each pixel's cross-entropy is first multiplied by its
 small-object weight ``clip(sqrt(A_ref / A_k), 1, small_object_weight)``, ``A_k`` the visible
@@ -108,6 +111,10 @@ class TrainingDivergedError(HarborsightError):
     """The loss stopped being finite."""
 
 
+#: what a distillation teacher can see (TrainConfig.distill_view)
+DISTILL_VIEWS = ("augmented", "clean")
+
+
 @dataclass
 class TrainConfig:
     """Everything that defines a training run (saved in every checkpoint)."""
@@ -149,6 +156,7 @@ class TrainConfig:
     freeze_batchnorm: bool = False                     # BatchNorm running statistics kept
     distill: float = 0.0                               # λ of the distillation loss (0: off)
     distill_temperature: float = 2.0                   # T of the distillation loss
+    distill_view: str = "augmented"                    # what the teacher sees: augmented, clean
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -218,6 +226,11 @@ class TrainConfig:
                       "--init-from too")
         if not (self.distill_temperature > 0 and math.isfinite(self.distill_temperature)):
             raise bad("distill_temperature", f"must be positive, got {self.distill_temperature}")
+        if self.distill_view not in DISTILL_VIEWS:
+            raise bad("distill_view", f"must be one of {', '.join(DISTILL_VIEWS)}, "
+                      f"got {self.distill_view!r}")
+        if self.distill_view != "augmented" and self.distill <= 0:
+            raise bad("distill_view", "is what the teacher of --distill sees: give --distill")
         if self.small_object_area_px <= 0:
             raise bad("small_object_area_px", f"must be positive, got {self.small_object_area_px}")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
@@ -282,6 +295,7 @@ _CLI_OPTIONS = {
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
     "init_from": "init-from", "fit_large_hw": "fit-large", "freeze_batchnorm": "freeze-batchnorm",
     "distill": "distill", "distill_temperature": "distill-temperature",
+    "distill_view": "distill-view",
 }
 
 
@@ -296,12 +310,14 @@ def resolve_device(name: str) -> torch.device:
 
 class TrainingSamples(torch.utils.data.Dataset):
     """Item ``n`` is the run's ``n``-th augmented sample (module docstring), whatever the
-    worker or the order of the requests: ``(image, labels, pixel weights)``."""
+    worker or the order of the requests: ``(image, labels, pixel weights)``, and with
+    ``clean_view`` the image before its photometric augmentation last."""
 
     def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig,
                  small_object_weight: float = 1.0, small_object_area_px: float = 1000.0,
-                 data_weights: list[float] | None = None) -> None:
+                 data_weights: list[float] | None = None, clean_view: bool = False) -> None:
         self.frames = frames
+        self.clean_view = clean_view
         self.seed = seed
         self.groups: list[np.ndarray] = []
         self.group_p = np.zeros(0)
@@ -336,16 +352,19 @@ class TrainingSamples(torch.utils.data.Dataset):
     def __len__(self) -> int:  # the stream is unbounded; the sampler decides what is drawn
         return 2**62
 
-    def __getitem__(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __getitem__(self, n: int) -> tuple[np.ndarray, ...]:
         index = self.frame_index(n)
         image, labels = self.frames[index]
         rng = np.random.default_rng([self.seed, 1, n])
         if self.small_object_weight <= 1.0:
-            image, labels = augment(image, labels, rng, self.augmentation)
-            return image, labels, np.ones(labels.shape, np.float32)
-        weights = small_object_weights(self.frames.instances(index, labels.shape), labels,
-                                       self.small_object_area_px, self.small_object_weight)
-        return augment_weighted(image, labels, weights, rng, self.augmentation)
+            image, labels, clean = augment(image, labels, rng, self.augmentation, clean_view=True)
+            weights = np.ones(labels.shape, np.float32)
+        else:
+            weights = small_object_weights(self.frames.instances(index, labels.shape), labels,
+                                           self.small_object_area_px, self.small_object_weight)
+            image, labels, weights, clean = augment_weighted(image, labels, weights, rng,
+                                                             self.augmentation, clean_view=True)
+        return (image, labels, weights, clean) if self.clean_view else (image, labels, weights)
 
 
 def learning_rate(config: TrainConfig, iteration: int) -> float:
@@ -691,7 +710,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                     else AugmentConfig.geometric_only(config.crop_hw))
     samples = TrainingSamples(train_frames, config.seed, augmentation,
                               config.small_object_weight, config.small_object_area_px,
-                              config.data_weights)
+                              config.data_weights,
+                              clean_view=teacher is not None and config.distill_view == "clean")
     batch = config.batch_size
     workers = data_workers(config.num_workers, device)
     loader = torch.utils.data.DataLoader(
@@ -717,7 +737,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                               completed=start, remaining=True) as progress:
         progress.update(note=status(math.nan, config.lr, 1.0))
         iteration = start
-        for images, labels, pixel_weights in loader:
+        for images, labels, pixel_weights, *clean in loader:
             lr = learning_rate(config, iteration)
             for group in optimizer.param_groups:
                 group["lr"] = lr
@@ -733,8 +753,9 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
             loss, main_loss = _aux_losses(output, target, keep, weights, pixel_weights)
             distill_loss = None
             if teacher is not None:
+                seen = clean[0].to(device, non_blocking=True) if clean else images
                 with torch.no_grad(), torch.autocast(device.type, torch.float16, enabled=use_amp):
-                    teacher_logits = teacher(images)
+                    teacher_logits = teacher(seen)
                 main = output[0] if isinstance(output, tuple) else output
                 distill_loss = agreeing_distillation_loss(main, teacher_logits, target,
                                                           config.distill_temperature)
