@@ -35,7 +35,16 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
   a wake, a shadow) in front of the real quay is the model's commonest gross error, and this
   is what widens its bar. Only the far side is read: a solid the model missed nearer to the
   hull need not lie on the ray, and reading the doubted water as solid made the lower
-  bound far too cautious (docs/results.md).
+  bound far too cautious (docs/results.md);
+* a contact the vessel's own pixels may cause: when the hull was placed by the sensors (the
+  alignment neither applied nor confirming them) and a section reads contact with a *ship*
+  blob, that blob may be the vessel itself, metres off its projected outline. Walk from the
+  hull point outward, away from the antenna's pixel, past that blob, to the first pixel sure
+  to be solid (``p ≥`` :data:`CONFIDENT_SOLID_P`; for a mask file, any solid label) outside
+  it, at ``s_c`` metres on the water (the image's edge if none); the reading's spread is then
+  ``σ_c = (s_c - d) / Φ⁻¹(CONFIDENT_SOLID_P)`` as for the doubt. The distance and its lower
+  bound stay as read (a neighbour moored alongside looks the same, and the crew's alarm goes
+  by the bound): only the bar, and the weight a filter over time gives the reading, change.
 
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
 any correction), the hull is placed by the image, not by the vessel's
@@ -62,6 +71,7 @@ from dataclasses import dataclass
 from statistics import NormalDist
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
@@ -69,6 +79,7 @@ from harborsight.clearance.report import STATUS_OK, SectionClearance
 from harborsight.frame import FrameGeometry
 from harborsight.geometry.camera import Camera
 from harborsight.geometry.sensor_sigmas import SensorSigmas
+from harborsight.perception.classes import IGNORE, SHIP, WATER
 
 if TYPE_CHECKING:
     from harborsight.perception.confidence import SolidConfidence
@@ -226,11 +237,51 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
     return doubt
 
 
+def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
+                distance_m: np.ndarray, antenna_px: np.ndarray, camera: Camera,
+                labels: np.ndarray, confidence: SolidConfidence | None = None) -> np.ndarray:
+    """``s_c - d`` of each contact reading against a ship blob (module docstring): walking
+    from the hull point ``hull_px`` away from the antenna's pixel, past the ship blob that
+    holds the obstacle point, how far on the water the first pixel sure to be solid outside
+    that blob lies beyond the reading; 0 for a reading whose obstacle pixel is not ship."""
+    spill = np.zeros(len(hull_px))
+    height, width = labels.shape
+    at = np.rint(obstacle_px).astype(int) if len(obstacle_px) else np.zeros((0, 2), int)
+    inside = ((at >= 0) & (at < [width, height])).all(axis=1) & np.isfinite(hull_px).all(axis=1)
+    ship = np.zeros(len(hull_px), bool)
+    ship[inside] = labels[at[inside, 1], at[inside, 0]] == SHIP
+    outward = hull_px - antenna_px
+    length = np.hypot(*outward.T) if len(outward) else np.zeros(0)
+    todo = np.flatnonzero(ship & np.isfinite(length) & (length > 0))
+    if len(todo) == 0:
+        return spill
+    _, blobs = cv2.connectedComponents((labels == SHIP).astype(np.uint8), connectivity=8)
+    for k in todo:
+        unit = outward[k] / length[k]
+        with np.errstate(divide="ignore"):
+            to_edge = np.where(unit == 0, np.inf, np.where(
+                unit > 0, np.array([width - 1, height - 1]) - hull_px[k], hull_px[k]) / np.abs(unit))
+        steps = int(max(min(to_edge), 0.0) // _RAY_STEP_PX) + 1
+        walk = hull_px[k] + (np.arange(steps) * _RAY_STEP_PX)[:, None] * unit
+        pixel = np.clip(np.rint(walk).astype(int), 0, [width - 1, height - 1])
+        own = blobs[pixel[:, 1], pixel[:, 0]] == blobs[at[k, 1], at[k, 0]]
+        if confidence is not None:
+            solid = confidence.solid_probability(walk) >= CONFIDENT_SOLID_P
+        else:
+            solid = ~np.isin(labels[pixel[:, 1], pixel[:, 0]], (WATER, IGNORE))
+        sure = solid & ~own
+        far_px = walk[int(sure.argmax()) if sure.any() else steps - 1]
+        far_enu, valid = camera.back_project_to_plane(far_px[None])
+        if valid[0]:
+            spill[k] = max(float(np.hypot(*(far_enu[0, :2] - hull_enu[k]))) - distance_m[k], 0.0)
+    return spill
+
+
 def add_section_uncertainty(
     sections: list[SectionClearance], geometry: FrameGeometry, outline_enu: np.ndarray,
     refinement: PoseRefinement, sigmas: SensorSigmas,
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
-    confidence: SolidConfidence | None = None,
+    confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
 ) -> None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
@@ -329,6 +380,15 @@ def add_section_uncertainty(
         doubt = edge_doubt_m(np.array([s.hull_point_px for s in ok], float), obstacle_px,
                              hull[:, :2], np.array([s.distance_m for s in ok]), camera, confidence)
         random += (doubt / _CONFIDENT_Z) ** 2
+    contact = np.array([bool(s.contact) for s in ok])
+    if labels is not None and not refined and contact.any():
+        antenna_px, _ = camera.project(np.array([[*geometry.vessel_position_enu[:2], 0.0]]))
+        spill = np.zeros(len(ok))
+        spill[contact] = own_spill_m(
+            np.array([s.hull_point_px for s in ok], float)[contact], obstacle_px[contact],
+            hull[contact, :2], np.array([s.distance_m for s in ok])[contact], antenna_px[0],
+            camera, labels, confidence)
+        random += (spill / _CONFIDENT_Z) ** 2
 
     total = np.sqrt(systematic + random)
     for section, sigma, sigma_random in zip(ok, total, np.sqrt(random), strict=True):

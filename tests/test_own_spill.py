@@ -1,0 +1,89 @@
+"""A contact with a ship blob may be the vessel's own pixels: the bar of such a reading reaches
+to the first sure solid beyond that blob, walking outward from the antenna, by hand on a nadir
+scene (10 cm a pixel)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from harborsight.clearance.pose_refinement import PoseRefinement
+from harborsight.clearance.report import SectionClearance
+from harborsight.clearance.uncertainty import add_section_uncertainty
+from harborsight.perception.classes import OBSTACLE, SHIP, WATER
+from tests.test_edge_confidence import SIZE_PX, Z_90, ZERO, _confidence_by_east, _nadir
+
+#: the pixel grid's own term at 10 cm a pixel along east: (0.1 + 0) / sqrt(12)
+GRID_M = 0.1 / math.sqrt(12.0)
+HULL_E = 5.0                                  # the section's hull point, 5 m east of the antenna
+BOX = np.array([[5.0, 2.0], [5.0, -2.0], [-5.0, -2.0], [-5.0, 2.0]])
+NOT_REFINED = PoseRefinement(applied=False, reason="alignment refused")
+REFINED = PoseRefinement(applied=True)
+
+
+def _labels_by_east(geometry, classes_of_east) -> np.ndarray:
+    """A label mask whose class at each pixel is ``classes_of_east(e)`` (e: east on the water)."""
+    u, v = np.meshgrid(np.arange(SIZE_PX, dtype=float), np.arange(SIZE_PX, dtype=float))
+    ground, _ = geometry.camera.back_project_to_plane(np.column_stack((u.ravel(), v.ravel())))
+    return classes_of_east(ground[:, 0]).reshape(SIZE_PX, SIZE_PX).astype(np.uint8)
+
+
+def _contact(geometry, labels, refinement=NOT_REFINED, confidence=None) -> SectionClearance:
+    """A contact reading at the hull point (5, 0), measured and given its uncertainty."""
+    camera = geometry.camera
+    hull_px = camera.project(np.array([[HULL_E, 0.0, 0.0]]))[0][0].tolist()
+    section = SectionClearance(0, "ok", [[0, 0], [1, 1]], 1.0, distance_m=0.0, contact=True,
+                               hull_point_enu=[HULL_E, 0.0], obstacle_point_enu=[HULL_E, 0.0],
+                               hull_point_px=hull_px, obstacle_point_px=hull_px)
+    add_section_uncertainty([section], geometry, np.column_stack((BOX, np.zeros(len(BOX)))),
+                            refinement, ZERO, confidence=confidence, labels=labels)
+    return section
+
+
+def _own_spill_scene(e):
+    """The vessel's own ship pixels reach 3 m past its outline (to e = 8), water to 12, a quay
+    beyond."""
+    return np.where((e > -5.0) & (e < 8.0), SHIP, np.where(e < 12.0, WATER, OBSTACLE))
+
+
+def test_a_contact_with_a_ship_blob_reaches_to_the_first_solid_beyond_it():
+    """Walking east from the hull point, past the ship blob, the quay is at 12 m: s_c - d is
+    7 m, so sigma = 7 / Φ⁻¹(0.9) with the pixel grid in quadrature; the distance and its lower
+    bound stay as read."""
+    geometry = _nadir()
+    section = _contact(geometry, _labels_by_east(geometry, _own_spill_scene))
+    expected = math.hypot(7.0 / Z_90, GRID_M)
+    assert section.sigma_m == pytest.approx(expected, abs=0.1 / Z_90)
+    assert section.distance_m == 0.0 and section.distance_lower_m == 0.0
+
+
+def test_a_contact_with_an_obstacle_or_without_a_mask_keeps_its_bar():
+    """Only a ship blob can be the vessel itself: against an obstacle blob, or without the
+    mask, the bar is the pixel grid's alone."""
+    geometry = _nadir()
+    quay = _labels_by_east(geometry, lambda e: np.where(e < 8.0, OBSTACLE, WATER))
+    assert _contact(geometry, quay).sigma_m == pytest.approx(GRID_M, rel=1e-3)
+    assert _contact(geometry, None).sigma_m == pytest.approx(GRID_M, rel=1e-3)
+
+
+def test_when_the_image_placed_the_hull_a_contact_keeps_its_bar():
+    """With the alignment applied the hull sits on its own pixels, so a contact with a ship
+    blob is a reading (a neighbour alongside), not a doubt; with the sensors' pose it is."""
+    geometry = _nadir()
+    neighbour = _labels_by_east(geometry, lambda e: np.where(
+        (e > -5.0) & (e < 4.7), SHIP, np.where(e < 4.95, WATER, np.where(
+            e < 8.0, SHIP, np.where(e < 12.0, WATER, OBSTACLE)))))
+    assert _contact(geometry, neighbour, REFINED).sigma_m == pytest.approx(GRID_M, rel=1e-3)
+    assert _contact(geometry, neighbour, NOT_REFINED).sigma_m == pytest.approx(
+        math.hypot(7.0 / Z_90, GRID_M), abs=0.1 / Z_90)
+
+
+def test_with_a_model_the_first_pixel_it_is_sure_of_ends_the_walk():
+    """With the model's probabilities the walk ends where it is sure (p >= 0.9), not at the
+    first solid label: the quay's first 3 m are doubtful (p = 0.6), so s_c - d is 10 m."""
+    geometry = _nadir()
+    labels = _labels_by_east(geometry, _own_spill_scene)
+    confidence = _confidence_by_east(geometry, lambda e: np.where(
+        (e > -5.0) & (e < 8.0), 0.95, np.where(e < 12.0, 0.05, np.where(e < 15.0, 0.6, 0.95))))
+    section = _contact(geometry, labels, confidence=confidence)
+    assert section.sigma_m == pytest.approx(math.hypot(10.0 / Z_90, GRID_M), abs=0.15 / Z_90)
