@@ -39,9 +39,10 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
 * a contact the vessel's own pixels may cause: when the hull was placed by the sensors (the
   alignment neither applied nor confirming them) and a section reads contact with a *ship*
   blob, that blob may be the vessel itself, metres off its projected outline. Walk from the
-  hull point outward, away from the antenna's pixel, past that blob, to the first pixel sure
-  to be solid (``p ≥`` :data:`CONFIDENT_SOLID_P`; for a mask file, any solid label) outside
-  it, at ``s_c`` metres on the water (the image's edge if none); the reading's spread is then
+  hull point outward, away from the antenna's pixel, through the first run of ship pixels
+  on the way, to the first pixel beyond it sure to be solid (``p ≥``
+  :data:`CONFIDENT_SOLID_P`; for a mask file, any solid label), at ``s_c`` metres on the
+  water (the image's edge if none); the reading's spread is then
   ``σ_c = (s_c - d) / Φ⁻¹(CONFIDENT_SOLID_P)`` as for the doubt. The distance and its lower
   bound stay as read (a neighbour moored alongside looks the same, and the crew's alarm goes
   by the bound): only the bar, and the weight a filter over time gives the reading, change.
@@ -71,7 +72,6 @@ from dataclasses import dataclass
 from statistics import NormalDist
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
@@ -237,13 +237,24 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
     return doubt
 
 
+def _first_per_walk(hits: np.ndarray, walk_of: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Per walk, the first of the sorted sample indices ``hits`` in it, else the walk's end
+    (``ends``: one past each walk's last sample)."""
+    first = ends.copy()
+    if len(hits):
+        lead = hits[np.r_[True, walk_of[hits][1:] != walk_of[hits][:-1]]]
+        first[walk_of[lead]] = lead
+    return first
+
+
 def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
                 distance_m: np.ndarray, antenna_px: np.ndarray, camera: Camera,
                 labels: np.ndarray, confidence: SolidConfidence | None = None) -> np.ndarray:
-    """``s_c - d`` of each contact reading against a ship blob (module docstring): walking
-    from the hull point ``hull_px`` away from the antenna's pixel, past the ship blob that
-    holds the obstacle point, how far on the water the first pixel sure to be solid outside
-    that blob lies beyond the reading; 0 for a reading whose obstacle pixel is not ship."""
+    """``s_c - d`` of each contact reading against a ship (module docstring): walking from
+    the hull point ``hull_px`` away from the antenna's pixel, through the first run of ship
+    pixels it meets (the ship the reading touches), how far on the water the first pixel
+    sure to be solid beyond that run lies beyond the reading; 0 for a reading whose
+    obstacle pixel is not ship. One pixel steps, every walk at once."""
     spill = np.zeros(len(hull_px))
     height, width = labels.shape
     at = np.rint(obstacle_px).astype(int) if len(obstacle_px) else np.zeros((0, 2), int)
@@ -255,25 +266,34 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     todo = np.flatnonzero(ship & np.isfinite(length) & (length > 0))
     if len(todo) == 0:
         return spill
-    _, blobs = cv2.connectedComponents((labels == SHIP).astype(np.uint8), connectivity=8)
-    for k in todo:
-        unit = outward[k] / length[k]
-        with np.errstate(divide="ignore"):
-            to_edge = np.where(unit == 0, np.inf, np.where(
-                unit > 0, np.array([width - 1, height - 1]) - hull_px[k], hull_px[k]) / np.abs(unit))
-        steps = int(max(min(to_edge), 0.0) // _RAY_STEP_PX) + 1
-        walk = hull_px[k] + (np.arange(steps) * _RAY_STEP_PX)[:, None] * unit
-        pixel = np.clip(np.rint(walk).astype(int), 0, [width - 1, height - 1])
-        own = blobs[pixel[:, 1], pixel[:, 0]] == blobs[at[k, 1], at[k, 0]]
-        if confidence is not None:
-            solid = confidence.solid_probability(walk) >= CONFIDENT_SOLID_P
-        else:
-            solid = ~np.isin(labels[pixel[:, 1], pixel[:, 0]], (WATER, IGNORE))
-        sure = solid & ~own
-        far_px = walk[int(sure.argmax()) if sure.any() else steps - 1]
-        far_enu, valid = camera.back_project_to_plane(far_px[None])
-        if valid[0]:
-            spill[k] = max(float(np.hypot(*(far_enu[0, :2] - hull_enu[k]))) - distance_m[k], 0.0)
+    # every walk at once: walk j of section todo[j] has steps[j] samples, to the image's edge
+    unit = outward[todo] / length[todo, None]
+    start = hull_px[todo]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        to_edge = np.where(unit == 0, np.inf, np.where(
+            unit > 0, np.array([width - 1, height - 1]) - start, start) / np.abs(unit))
+    steps = (np.clip(to_edge.min(axis=1), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
+    ends = np.cumsum(steps)
+    walk_of = np.repeat(np.arange(len(todo)), steps)
+    along = (np.arange(ends[-1]) - np.repeat(ends - steps, steps)) * _RAY_STEP_PX
+    walk = start[walk_of] + along[:, None] * unit[walk_of]
+    pixel = np.clip(np.rint(walk).astype(int), 0, [width - 1, height - 1])
+    label = labels[pixel[:, 1], pixel[:, 0]]
+    ship = label == SHIP
+    # the ship the reading touches: each walk's first run of ship samples
+    run_start = _first_per_walk(np.flatnonzero(ship), walk_of, ends)
+    after = np.arange(ends[-1]) >= run_start[walk_of]
+    run_end = _first_per_walk(np.flatnonzero(after & ~ship), walk_of, ends)
+    in_run = after & (np.arange(ends[-1]) < run_end[walk_of])
+    if confidence is not None:
+        solid = confidence.solid_probability(walk) >= CONFIDENT_SOLID_P
+    else:
+        solid = (label != WATER) & (label != IGNORE)
+    # the first sure sample outside that run, else the walk's last
+    first = np.minimum(_first_per_walk(np.flatnonzero(solid & ~in_run), walk_of, ends), ends - 1)
+    far_enu, valid = camera.back_project_to_plane(walk[first])
+    far_m = np.hypot(*(far_enu[:, :2] - hull_enu[todo]).T)
+    spill[todo] = np.where(valid, np.maximum(far_m - distance_m[todo], 0.0), 0.0)
     return spill
 
 
