@@ -317,6 +317,8 @@ def add_section_uncertainty(
     obstacle = np.array([s.obstacle_point_enu for s in ok], float)
     hull = np.array([s.hull_point_enu for s in ok], float)
     obstacle_px = np.array([s.obstacle_point_px for s in ok], float)
+    hull_px = np.array([s.hull_point_px for s in ok], float)
+    distance_m = np.array([s.distance_m for s in ok])
     direction = obstacle - hull
     length = np.hypot(*direction.T)
     # in contact (d = 0) the direction is outward from the antenna through the hull point
@@ -397,17 +399,15 @@ def add_section_uncertainty(
     random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
                             + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2)) + sigmas.edge_m ** 2
     if confidence is not None:
-        doubt = edge_doubt_m(np.array([s.hull_point_px for s in ok], float), obstacle_px,
-                             hull[:, :2], np.array([s.distance_m for s in ok]), camera, confidence)
+        doubt = edge_doubt_m(hull_px, obstacle_px, hull[:, :2], distance_m, camera, confidence)
         random += (doubt / _CONFIDENT_Z) ** 2
     contact = np.array([bool(s.contact) for s in ok])
     if labels is not None and not refined and contact.any():
         antenna_px, _ = camera.project(np.array([[*geometry.vessel_position_enu[:2], 0.0]]))
         spill = np.zeros(len(ok))
-        spill[contact] = own_spill_m(
-            np.array([s.hull_point_px for s in ok], float)[contact], obstacle_px[contact],
-            hull[contact, :2], np.array([s.distance_m for s in ok])[contact], antenna_px[0],
-            camera, labels, confidence)
+        spill[contact] = own_spill_m(hull_px[contact], obstacle_px[contact], hull[contact, :2],
+                                     distance_m[contact], antenna_px[0], camera, labels,
+                                     confidence)
         random += (spill / _CONFIDENT_Z) ** 2
 
     total = np.sqrt(systematic + random)
