@@ -269,9 +269,9 @@ def test_colour_jitter_and_haze_are_checked_recorded_and_used(tiny_dataset, tmp_
     built = []
     original = loop.TrainingSamples
 
-    def spy(frames, seed, augmentation, *rest):
+    def spy(frames, seed, augmentation, *rest, **options):
         built.append(augmentation)
-        return original(frames, seed, augmentation, *rest)
+        return original(frames, seed, augmentation, *rest, **options)
 
     monkeypatch.setattr(loop, "TrainingSamples", spy)
     train(TrainConfig(model="ddrnet23_slim", data_dirs=[tiny_dataset], out_dir=tmp_path / "b",
