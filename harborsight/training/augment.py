@@ -174,7 +174,7 @@ def augment(image: np.ndarray, labels: np.ndarray, rng: np.random.Generator,
     before haze existed.
     """
     image, (labels,), clean = _augment(image, [labels], [IGNORE], rng, config)
-    return (image, labels, clean) if clean_view else (image, labels)
+    return (image, labels, np.ascontiguousarray(clean)) if clean_view else (image, labels)
 
 
 def augment_weighted(image: np.ndarray, labels: np.ndarray, weights: np.ndarray,
@@ -186,7 +186,9 @@ def augment_weighted(image: np.ndarray, labels: np.ndarray, weights: np.ndarray,
         raise ValueError(f"weights {weights.shape} and labels {labels.shape} differ in size")
     image, (labels, weights), clean = _augment(image, [labels, weights], [IGNORE, 0.0], rng,
                                                config)
-    return (image, labels, weights, clean) if clean_view else (image, labels, weights)
+    if clean_view:
+        return image, labels, weights, np.ascontiguousarray(clean)
+    return image, labels, weights
 
 
 def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
@@ -211,7 +213,7 @@ def _augment(image: np.ndarray, maps: list[np.ndarray], pad_values: list[float],
         image, maps = _rescale(image, maps, scale)
     if config.crop_hw is not None:
         image, maps = _random_crop(image, maps, pad_values, config.crop_hw, rng)
-    clean = np.ascontiguousarray(image)      # the photometric steps below make new arrays
+    clean = image           # the photometric steps below make new arrays: no copy needed
     if hazing is not None:
         image = haze(image, *hazing)
     if fire[3] < config.p_colour:
