@@ -39,9 +39,11 @@ from harborsight.sim.layout import (
     _ship_parts,
     _try_add,
     add_quay_alongside,
+    convex_mesh,
     quay_face_offset,
     random_hull_parameters,
     sample_environment,
+    unit_cylinder,
 )
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 
@@ -71,26 +73,31 @@ def _pick(palette: list, rng: np.random.Generator, p: np.ndarray | None = None):
     return palette[int(rng.choice(len(palette), p=p))]
 
 
+#: a quarter turn about y: local z to x
+_TURN_Z_TO_X = trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0))
+_UNIT_SPHERE = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
+
+
 def _rotated_cylinder_x(radius: float, length: float, x: float, y: float, z: float) -> trimesh.Trimesh:
     """A cylinder lying along local x, centred at (x, y, z)."""
-    mesh = trimesh.creation.cylinder(radius=radius, height=length, sections=10)
-    mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0)))
-    mesh.apply_translation((x, y, z))
-    return mesh
+    unit = unit_cylinder(10)
+    vertices = trimesh.transformations.transform_points(unit.vertices * np.array([radius, radius, length]),
+                                                        _TURN_Z_TO_X)
+    vertices += (x, y, z)
+    return trimesh.Trimesh(vertices, unit.faces.copy(), process=False)
 
 
 def _gable(length: float, width: float, height: float, z_bottom: float) -> trimesh.Trimesh:
     """A gabled roof or canopy: a triangular prism along local x, ridge on the centreline."""
     points = [(x, y, z_bottom) for x in (-length / 2, length / 2) for y in (-width / 2, width / 2)]
     points += [(x, 0.0, z_bottom + height) for x in (-length / 2, length / 2)]
-    return trimesh.convex.convex_hull(np.array(points))
+    return convex_mesh(np.array(points))
 
 
 def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float) -> trimesh.Trimesh:
-    mesh = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
-    mesh.apply_scale((radius_xy, radius_xy, radius_z))
-    mesh.apply_translation((0.0, 0.0, z_centre))
-    return mesh
+    vertices = _UNIT_SPHERE.vertices * np.array([radius_xy, radius_xy, radius_z])
+    vertices += (0.0, 0.0, z_centre)
+    return trimesh.Trimesh(vertices, _UNIT_SPHERE.faces.copy(), process=False)
 
 
 # ------------------------------------------------------------------------ boats
@@ -122,9 +129,7 @@ def _hull_template(b: _Builder, length_m: float) -> tuple[HullParameters, list[t
     else:
         params, pieces = templates[int(b.rng.integers(len(templates)))]
     k = length_m / _TEMPLATE_LENGTH_M
-    scaled = [piece.copy() for piece in pieces]
-    for piece in scaled:
-        piece.apply_scale(k)
+    scaled = [trimesh.Trimesh(piece.vertices * k, piece.faces.copy(), process=False) for piece in pieces]
     return replace(params, length_m=length_m, beam_m=params.beam_m * k, draft_m=params.draft_m * k,
                    freeboard_m=params.freeboard_m * k,
                    deckhouse=(*params.deckhouse[:3], params.deckhouse[3] * k)), scaled
@@ -209,7 +214,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
     for k in range(len(xs) - 1):
         quad = np.array([(xs[k], edge[k]), (xs[k + 1], edge[k + 1]),
                          (xs[k + 1], -depth_m), (xs[k], -depth_m)])
-        prism = trimesh.convex.convex_hull(np.vstack((np.column_stack((quad, np.full(4, -3.0))),
+        prism = convex_mesh(np.vstack((np.column_stack((quad, np.full(4, -3.0))),
                                                       np.column_stack((quad, np.full(4, height))))))
         parts.append(prism)
     objects_land = [(p, lawn) for p in parts]
@@ -231,7 +236,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
             w = rng.uniform(1.5, 4.0)
             quad = np.array([(xs[k], edge[k] + w * 0.6), (xs[k + 1], edge[k + 1] + w * 0.6),
                              (xs[k + 1], edge[k + 1] - w), (xs[k], edge[k] - w)])
-            slab = trimesh.convex.convex_hull(np.vstack((
+            slab = convex_mesh(np.vstack((
                 np.column_stack((quad, np.full(4, -1.0))),
                 np.column_stack((quad[2:], np.full(2, height + 0.3))))))
             b.add(f"{tag}-riprap{k}", "riprap", OBSTACLE, [(slab, rock)], x0, y0, along_deg)

@@ -12,7 +12,7 @@ from itertools import pairwise
 import cv2
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import LineString, MultiPolygon, Polygon
 
 from harborsight.frame import FrameGeometry
 from harborsight.vessel.sections import SectionedOutline
@@ -97,6 +97,28 @@ def image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) ->
     return Polygon(ground[valid, :2]).buffer(0)
 
 
+#: where the plain union loses a part, footprints are unioned again on this grid (metres)
+FOOTPRINT_GRID_M = 1e-6
+
+
+def footprint_union(polygons) -> Polygon | MultiPolygon:
+    """The union of water-plane footprints, robust to parts that share edges.
+
+    GEOS's floating-point overlay can drop whole pieces where many parts share edges to
+    within rounding (a shore of 24 slabs lost 17 % of its land). Every part keeps a point
+    of its interior in a correct union; when one does not, the union is made again with
+    the fixed-precision overlay on a :data:`FOOTPRINT_GRID_M` grid (which moves no vertex
+    by more than half a micrometre, and costs about four times as much).
+    """
+    polygons = [p for p in polygons if not p.is_empty]
+    union = shapely.union_all(polygons)
+    if len(polygons) > 1:
+        inner = shapely.point_on_surface(polygons)
+        if not shapely.contains_xy(union, shapely.get_x(inner), shapely.get_y(inner)).all():
+            union = shapely.union_all(polygons, grid_size=FOOTPRINT_GRID_M)
+    return union
+
+
 def frame_ground_truth(
     geometry: FrameGeometry, vessel: VesselSpec, footprints_enu: list[Polygon],
     n_sections: int | None = None,
@@ -108,7 +130,7 @@ def frame_ground_truth(
     ``distance_all_m`` counts every obstacle.
     """
     to_vessel = _to_vessel_frame(geometry)
-    obstacles = shapely.union_all([to_vessel(p) for p in footprints_enu])
+    obstacles = footprint_union([to_vessel(p) for p in footprints_enu])
     return section_distances(vessel.sections(n_sections), obstacles,
                              to_vessel(visible_water_plane(geometry, vessel)))
 

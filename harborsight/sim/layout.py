@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
-import shapely
 import trimesh
+from scipy.spatial import ConvexHull
 from shapely.geometry import MultiPoint, Polygon
 
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.geometry.rotations import enu_from_vessel_rotation, rot_z
-from harborsight.sim.ground_truth import frame_ground_truth
+from harborsight.sim.ground_truth import footprint_union, frame_ground_truth
 from harborsight.sim.pose import PosedScene
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 from harborsight.vessel.spec import VesselSpec
@@ -54,6 +55,24 @@ class Part:
     material: str
 
 
+def waterline_crossings(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(k, 2)`` points where the mesh's triangle edges cross the water plane ``z = 0``.
+
+    An edge ``p -> q`` with ``z_p < 0 < z_q`` (or the reverse) crosses at ``p + t (q - p)``,
+    ``t = -z_p / (z_q - z_p)``. For a convex part the cut's outline is the convex hull of
+    these points (each edge appears once per face that has it; repeats change no hull). The
+    same points as trimesh's ``mesh_plane`` gives, without its per-face bookkeeping: a marina
+    has about a thousand parts that straddle the water.
+    """
+    start = vertices[faces.ravel()]
+    end = vertices[faces[:, [1, 2, 0]].ravel()]
+    z0, z1 = start[:, 2], end[:, 2]
+    crossing = ((z0 < 0.0) & (z1 > 0.0)) | ((z0 > 0.0) & (z1 < 0.0))
+    p, q = start[crossing], end[crossing]
+    t = -p[:, 2] / (q[:, 2] - p[:, 2])
+    return p[:, :2] + t[:, None] * (q[:, :2] - p[:, :2])
+
+
 @dataclass
 class SceneObject:
     name: str
@@ -80,14 +99,13 @@ class SceneObject:
             vertices = np.asarray(part.mesh.vertices)
             points = [vertices[vertices[:, 2] >= 0.0, :2]]
             if vertices[:, 2].min() < 0.0 < vertices[:, 2].max():
-                cut = trimesh.intersections.mesh_plane(part.mesh, (0, 0, 1), (0, 0, 0))
-                points.append(np.asarray(cut).reshape(-1, 3)[:, :2])
+                points.append(waterline_crossings(vertices, np.asarray(part.mesh.faces)))
             points = np.vstack(points)
             if len(points) >= 3:
                 hull = MultiPoint(points).convex_hull
                 if isinstance(hull, Polygon):
                     polys.append(hull)
-        self._footprint = shapely.union_all(polys)
+        self._footprint = footprint_union(polys)
         return self._footprint
 
 
@@ -170,18 +188,48 @@ class HarbourScene(PosedScene):
 # ------------------------------------------------------------------------ primitives
 
 
+_UNIT_BOX = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+
+
+@lru_cache(maxsize=16)
+def unit_cylinder(sections: int) -> trimesh.Trimesh:
+    """trimesh's cylinder of radius 1 and height 1 (z from -0.5 to 0.5); shared, never
+    modified. Its vertices times ``(r, r, h)`` are exactly those of a cylinder of radius
+    ``r`` and height ``h`` (same faces), at a sixth of the cost of building one."""
+    return trimesh.creation.cylinder(radius=1.0, height=1.0, sections=sections)
+
+
+def convex_mesh(points: np.ndarray) -> trimesh.Trimesh:
+    """The convex hull of ``points (n, 3)`` as a closed mesh with outward faces: scipy's
+    Qhull triangles, each turned so that its normal points away from the hull's centroid.
+    trimesh's ``convex_hull`` gives the same solid, but repairs and caches what a primitive
+    does not need, at ten times the cost (a lake shore has dozens of prisms)."""
+    hull = ConvexHull(points)
+    used = np.unique(hull.simplices)
+    faces = np.searchsorted(used, hull.simplices)
+    vertices = points[used]
+    corners = vertices[faces]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    inward = np.einsum("ij,ij->i", normal, corners[:, 0] - vertices.mean(axis=0)) < 0
+    faces[inward] = faces[inward][:, ::-1]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
 def _box(lx: float, ly: float, lz: float, x: float = 0.0, y: float = 0.0,
          z_bottom: float = 0.0) -> trimesh.Trimesh:
-    mesh = trimesh.creation.box(extents=(lx, ly, lz))
-    mesh.apply_translation((x, y, z_bottom + lz / 2))
-    return mesh
+    """trimesh's box of these extents, moved: its base centred at ``(x, y, z_bottom)``."""
+    vertices = _UNIT_BOX.vertices * np.array([lx, ly, lz])
+    vertices += (x, y, z_bottom + lz / 2)
+    return trimesh.Trimesh(vertices, _UNIT_BOX.faces.copy(), process=False)
 
 
 def _cylinder(radius: float, height: float, x: float = 0.0, y: float = 0.0,
               z_bottom: float = 0.0, sections: int = 12) -> trimesh.Trimesh:
-    mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=sections)
-    mesh.apply_translation((x, y, z_bottom + height / 2))
-    return mesh
+    """An upright cylinder standing on ``(x, y, z_bottom)``."""
+    unit = unit_cylinder(sections)
+    vertices = unit.vertices * np.array([radius, radius, height])
+    vertices += (x, y, z_bottom + height / 2)
+    return trimesh.Trimesh(vertices, unit.faces.copy(), process=False)
 
 
 class _Builder:

@@ -45,6 +45,28 @@ def scene_triangles(scene: HarbourScene, ocean_triangles: np.ndarray | None
     return np.concatenate(tris), np.concatenate(ids)
 
 
+def triangles_in_view(geometry: FrameGeometry, triangles: np.ndarray, rays_xy: np.ndarray
+                      ) -> np.ndarray:
+    """Indices of the triangles ``(n, 3, 3)`` that a pixel's ray may hit, given the rays'
+    normalized image coordinates ``(x, y)`` (direction ``(x, y, 1)`` in the camera frame).
+
+    Every ray point ``t (x, y, 1)``, ``t > 0``, has ``X - x_min Z >= 0`` (and likewise for
+    ``x_max``, ``y_min``, ``y_max``, and ``Z > 0``): a triangle whose three corners all lie
+    on the far side of one of these planes through the camera centre cannot be hit, since
+    the half-space is convex. Exact, and independent of the renderer's own culling (which
+    keeps shadows and mirror images too), so the check still sees an object the render left
+    out by mistake; it spares Embree the marina's boats behind the frame's edges.
+    """
+    corners = geometry.camera.to_camera_frame(triangles.reshape(-1, 3))
+    x, y, z = (corners[:, k].reshape(-1, 3) for k in range(3))
+    x_min, y_min = rays_xy.min(axis=0)
+    x_max, y_max = rays_xy.max(axis=0)
+    outside = ((x - x_min * z < 0).all(axis=1) | (x - x_max * z > 0).all(axis=1)
+               | (y - y_min * z < 0).all(axis=1) | (y - y_max * z > 0).all(axis=1)
+               | (z <= 0).all(axis=1))
+    return np.flatnonzero(~outside)
+
+
 def ray_cast_ids(geometry: FrameGeometry, triangles: np.ndarray, triangle_ids: np.ndarray
                  ) -> RayCast:
     """First-hit instance id and range for each pixel centre (u, v integer, OpenCV)."""
@@ -56,10 +78,15 @@ def ray_cast_ids(geometry: FrameGeometry, triangles: np.ndarray, triangle_ids: n
     dirs = rays_c @ geometry.camera.world_from_camera.T
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     origins = np.broadcast_to(geometry.camera.position_enu, dirs.shape).copy()
+    finite = np.flatnonzero(np.isfinite(dirs).all(axis=1))   # pixels the lens model can invert
+    if not len(finite):
+        return RayCast(np.full((intr.height, intr.width), NO_HIT, np.uint16),
+                       np.full((intr.height, intr.width), np.inf))
+    seen = triangles_in_view(geometry, triangles, xy[finite])
+    triangles, triangle_ids = triangles[seen], triangle_ids[seen]
     mesh = trimesh.Trimesh(vertices=triangles.reshape(-1, 3),
                            faces=np.arange(len(triangles) * 3).reshape(-1, 3), process=False)
     intersector = trimesh.ray.ray_pyembree.RayMeshIntersector(mesh)
-    finite = np.flatnonzero(np.isfinite(dirs).all(axis=1))   # pixels the lens model can invert
     index_tri, index_ray, locations = intersector.intersects_id(
         origins[finite], dirs[finite], multiple_hits=False, return_locations=True)
     index_ray = finite[index_ray]

@@ -17,11 +17,11 @@ import math
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
-import shapely
 from shapely import affinity
 from shapely.ops import nearest_points
 
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
+from harborsight.sim.ground_truth import footprint_union
 from harborsight.sim.layout import VESSEL_INSTANCE, HarbourScene, Part, SceneObject
 
 #: the first frame of sequence scene i is this time plus i scene slots (:func:`scene_slot_s`)
@@ -42,7 +42,7 @@ def approach_plan(scene: HarbourScene, stop_gap_m: float) -> tuple[np.ndarray, f
     obstacle (the bow direction in open water) and how far the vessel can go along it
     before its clearance to any obstacle is ``stop_gap_m``."""
     hull = scene.objects[0].footprint()
-    obstacles = shapely.union_all(scene.obstacle_footprints())
+    obstacles = footprint_union(scene.obstacle_footprints())
     heading = np.radians(scene.vessel_heading_deg)
     bow = np.array([np.sin(heading), np.cos(heading)])
     if obstacles.is_empty:
