@@ -36,8 +36,9 @@ def _rate(fn, seconds: float, warmup: int = 3) -> float:
 def bench_cpu(name: str, seconds: float, threads: int) -> dict:
     import onnxruntime as ort
 
-    from harborsight.perception.export import export_onnx, quantize_int8
+    from harborsight.perception.export import export_onnx
     from harborsight.perception.model import SegmentationModel
+    from harborsight.perception.quantization import quantize_int8
 
     torch.set_num_threads(threads)
     model = SegmentationModel(create_network(name, 3, aux_heads=False)).eval()

@@ -12,9 +12,10 @@ import torch
 
 from harborsight.errors import InputError
 from harborsight.perception.classes import CLASS_NAMES
-from harborsight.perception.export import METADATA_KEY, export_onnx, quantize_int8
+from harborsight.perception.export import METADATA_KEY, export_onnx
 from harborsight.perception.model import SegmentationModel
 from harborsight.perception.networks import create_network
+from harborsight.perception.quantization import quantize_int8
 from harborsight.training.checkpoint import average_checkpoints, load_checkpoint
 from harborsight.training.dataset import SegmentationFrames
 from harborsight.training.from_onnx import _module_path, recover_model

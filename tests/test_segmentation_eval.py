@@ -186,9 +186,28 @@ def test_cli_export_with_int8_then_evaluate_onnx(trained_run, tiny_dataset, tmp_
     quantised = default_model.load_onnx_segmenter(out.with_name("model.int8.onnx"))
     assert quantised.sidecar["precision"] == "int8" and quantised.sidecar["heldout"] is None
     assert quantised.sidecar["network"] == "ddrnet23_slim"
+    assert int8["calibration_method"] == "minmax" and int8["calibration_percentile"] is None
     result = runner.invoke(app, ["export", "--checkpoint", str(trained_run / "best.pt"),
                                  "--out", str(tmp_path / "x.onnx"), "--int8"])
     assert result.exit_code == 2 and "--calibration-data" in result.output
+
+
+def test_cli_export_with_percentile_calibration(trained_run, tiny_dataset, tmp_path):
+    out = tmp_path / "p.onnx"
+    args = ["export", "--checkpoint", str(trained_run / "best.pt"), "--out", str(out), "--int8",
+            "--calibration-data", str(tiny_dataset), "--calibration-frames", "2"]
+    result = runner.invoke(app, [*args, "--calibration-method", "percentile",
+                                 "--calibration-percentile", "99.9"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    int8 = json.loads(out.with_suffix(".json").read_text())["int8"]
+    assert int8["calibration_method"] == "percentile" and int8["calibration_percentile"] == 99.9
+    for bad, field in ((["--calibration-method", "entropy"], "calibration_method"),
+                       (["--calibration-method", "percentile", "--calibration-percentile", "101"],
+                        "calibration_percentile")):
+        result = runner.invoke(app, [*args, "--out", str(tmp_path / "q.onnx"), *bad],
+                               terminal_width=200)
+        assert result.exit_code == 2 and field in result.output, result.output
+        assert not (tmp_path / "q.onnx").exists()
 
 
 def measure_args(out: Path) -> list[str]:

@@ -22,6 +22,7 @@ from harborsight.cli.app import (
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file
+from harborsight.perception.quantization import DEFAULT_CALIBRATION_PERCENTILE
 
 
 @app.command()
@@ -282,6 +283,11 @@ def export_command(
         help="Split(s) of the calibration data to use [all].")] = None,
     calibration_frames: Annotated[int, typer.Option(
         min=1, help="Frames used to calibrate the int8 ranges.")] = 16,
+    calibration_method: Annotated[str, typer.Option(
+        help="How the int8 activation ranges are set: minmax (every value seen) or percentile "
+        "(clipped to --calibration-percentile of the values seen).")] = "minmax",
+    calibration_percentile: Annotated[float, typer.Option(
+        help="Percentile for --calibration-method percentile.")] = DEFAULT_CALIBRATION_PERCENTILE,
 ) -> None:
     """Export a checkpoint to ONNX (uint8 BGR in, logits and labels out) with a JSON sidecar."""
     need_torch()
@@ -290,7 +296,8 @@ def export_command(
     try:
         prepare_output_file(out, "--out")
         result = export_checkpoint(checkpoint, out, height, width, int8, calibration_data,
-                                   calibration_split, calibration_frames)
+                                   calibration_split, calibration_frames, calibration_method,
+                                   calibration_percentile)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

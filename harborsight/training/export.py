@@ -26,14 +26,14 @@ import torch
 from harborsight.errors import InputError
 from harborsight.evaluation.segmentation import score_frames
 from harborsight.perception.classes import CLASS_NAMES, IGNORE
-from harborsight.perception.export import (
-    METADATA_KEY,
-    export_onnx,
-    onnx_max_abs_difference,
-    quantize_int8,
-)
+from harborsight.perception.export import METADATA_KEY, export_onnx, onnx_max_abs_difference
 from harborsight.perception.networks import inference_parameter_count
 from harborsight.perception.onnx_segmenter import OnnxSegmenter
+from harborsight.perception.quantization import (
+    DEFAULT_CALIBRATION_PERCENTILE,
+    check_calibration,
+    quantize_int8,
+)
 from harborsight.training.checkpoint import load_checkpoint, model_from_checkpoint, network_options
 from harborsight.training.dataset import SegmentationFrames
 
@@ -93,22 +93,27 @@ def export_checkpoint(
     width: int | None = None, int8: bool = False,
     calibration_dirs: Sequence[str | Path] | None = None,
     calibration_splits: Sequence[str] | None = None, calibration_frames: int = 16,
+    calibration_method: str = "minmax", calibration_percentile: float = DEFAULT_CALIBRATION_PERCENTILE,
 ) -> ExportResult:
     """Export a checkpoint to ONNX at ``height`` x ``width`` (default: its training frames'
     size), check it against torch and write the sidecar; with ``int8`` also quantise, calibrated
-    on up to ``calibration_frames`` evenly spaced frames of the calibration data, and compare
+    on up to ``calibration_frames`` evenly spaced frames of the calibration data (activation
+    ranges by ``calibration_method``: :data:`~harborsight.perception.export.CALIBRATION_METHODS`),
+    and compare
     fp32 and int8 mIoU on all of that data's selected frames.
 
     Every file is written in a scratch folder beside ``out_path`` and moved into place only
     when all of them are done, so a failure never leaves a new model beside an old sidecar."""
     checkpoint_path, out_path = Path(checkpoint_path), Path(out_path)
+    check_calibration(calibration_method, calibration_percentile)
     if out_path.suffix.lower() != ".onnx":
         raise InputError(out_path, None, "the output model must end in .onnx")
     out_path.parent.mkdir(parents=True, exist_ok=True)
     scratch = Path(tempfile.mkdtemp(prefix=f".{out_path.stem}-export-", dir=out_path.parent))
     try:
         result = _export(checkpoint_path, scratch / out_path.name, height, width, int8,
-                         calibration_dirs, calibration_splits, calibration_frames)
+                         calibration_dirs, calibration_splits, calibration_frames,
+                         calibration_method, calibration_percentile)
         finals = {}
         for path in (result.onnx_path, result.int8_path, result.sidecar_path):
             if path is not None:
@@ -125,7 +130,7 @@ def export_checkpoint(
 def _export(
     checkpoint_path: Path, out_path: Path, height: int | None, width: int | None, int8: bool,
     calibration_dirs: Sequence[str | Path] | None, calibration_splits: Sequence[str] | None,
-    calibration_frames: int,
+    calibration_frames: int, calibration_method: str, calibration_percentile: float,
 ) -> ExportResult:
     if int8 and not calibration_dirs:
         raise InputError(None, "calibration_data", "int8 quantisation needs calibration frames "
@@ -161,7 +166,8 @@ def _export(
         level = quiet.level
         quiet.setLevel(logging.ERROR)
         try:
-            quantize_int8(out_path, result.int8_path, calibration)
+            quantize_int8(out_path, result.int8_path, calibration, calibration_method,
+                          calibration_percentile)
         finally:
             quiet.setLevel(level)
         _copy_metadata(out_path, result.int8_path)
@@ -196,6 +202,9 @@ def _export(
         "torch_max_abs_logit": scale,
         "int8": None if result.int8_path is None else {
             "calibration_frames": len(calibration), "evaluation_frames": len(frames),
+            "calibration_method": calibration_method,
+            "calibration_percentile": (calibration_percentile if calibration_method == "percentile"
+                                       else None),
             "calibration_data": [str(d) for d in calibration_dirs],
             "miou_fp32": result.miou_fp32, "miou_int8": result.miou_int8,
             "label_agreement": result.int8_label_agreement,
