@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance, measure_frame
 from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_refinement import (
+    FILL_INTERIOR_MIN_PX,
     PoseRefinementSettings,
     _Alignment,
     _homogeneous,
@@ -232,9 +233,29 @@ def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window()
                                      .astype(np.int32))
             inside = np.zeros(ship.shape, np.uint8)
             cv2.fillConvexPoly(inside, corners, 1, lineType=cv2.LINE_8, shift=4)
+            interior = cv2.erode(inside, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE)
+            if interior.sum() >= FILL_INTERIOR_MIN_PX:
+                inside = interior
             counted = (inside > 0) & known
             expected = float((ship & counted).sum()) / counted.sum() if counted.any() else 0.0
             assert _ship_fill(uv, window, ship, known) == expected
+
+
+def test_the_ship_fill_counts_the_silhouette_s_interior():
+    """A small hull whose mask edge lies a pixel inside its outline: the outline's ring of
+    pixels is water, the interior all ship. Counted on the whole silhouette that is 79 %, under
+    the 90 % gate; the interior is 100 %. A sliver too thin to have an interior counts whole."""
+    window = (slice(0, 60), slice(0, 80))
+    uv = np.array([[20.0, 20.0], [59.0, 20.0], [59.0, 31.0], [20.0, 31.0]])   # 40 x 12 px
+    ship = np.zeros((60, 80), bool)
+    ship[21:31, 21:59] = True                                                  # 38 x 10 px
+    known = np.ones_like(ship)
+    assert _ship_fill(uv, window, ship, known) == 1.0
+    assert (ship[20:32, 20:60].mean()) == pytest.approx(380 / 480)
+    sliver = np.array([[20.0, 20.0], [59.0, 20.0], [59.0, 21.0], [20.0, 21.0]])   # 40 x 2 px
+    half = np.zeros_like(ship)
+    half[20, 20:60] = True
+    assert _ship_fill(sliver, window, half, known) == pytest.approx(0.5)
 
 
 def test_exact_poses_are_left_where_they_are():

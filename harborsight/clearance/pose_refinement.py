@@ -405,23 +405,40 @@ def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     return slice(v0, v1), slice(u0, u1)
 
 
+_SQUARE_3X3 = np.ones((3, 3), np.uint8)
+#: the ship fill counts the silhouette's interior (one pixel in from its outline) when that
+#: holds at least this many pixels, else the whole silhouette
+FILL_INTERIOR_MIN_PX = 20
+
+
 def _ship_fill(uv: np.ndarray, window: tuple[slice, slice], ship: np.ndarray,
                known: np.ndarray) -> float:
     """Share of the silhouette's labelled pixels inside ``window`` that are ship pixels,
-    given the hull points' pixels ``uv`` (NaN where they do not project)."""
+    given the hull points' pixels ``uv`` (NaN where they do not project).
+
+    Only the silhouette's interior counts (its drawn pixels eroded by a 3x3 square; the
+    window's edge does not erode it), unless that leaves fewer than
+    :data:`FILL_INTERIOR_MIN_PX`: the outline's own ring of pixels is half water wherever the
+    mask's edge falls a pixel inside the hull's, and at 110-150 m, where a hull is a few
+    dozen pixels long, that ring alone took the fill under the gate and threw away good
+    alignments (docs/results.md)."""
     uv = uv[np.isfinite(uv).all(axis=1)]      # the corners' hull: close enough for a share
     if len(uv) < 3:
         return 0.0
     offset = np.array([window[1].start, window[0].start])
     corners = cv2.convexHull(np.round((uv - offset) * 16).astype(np.int32))
-    # drawn only over its bounding box (a pixel more each side) within the window
-    lo = np.maximum((corners.min(axis=(0, 1)) >> 4) - 1, 0)
-    hi = np.minimum((corners.max(axis=(0, 1)) >> 4) + 2, (ship.shape[1], ship.shape[0]))
+    # drawn only over its bounding box within the window, with a margin of empty pixels
+    # (drawing rounds a corner up to a pixel out) for the erosion
+    lo = np.maximum((corners.min(axis=(0, 1)) >> 4) - 2, 0)
+    hi = np.minimum((corners.max(axis=(0, 1)) >> 4) + 3, (ship.shape[1], ship.shape[0]))
     if (hi <= lo).any():
         return 0.0
     box = slice(lo[1], hi[1]), slice(lo[0], hi[0])
     inside = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
     cv2.fillConvexPoly(inside, (corners - lo * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    interior = cv2.erode(inside, _SQUARE_3X3, borderType=cv2.BORDER_REPLICATE)
+    if np.count_nonzero(interior) >= FILL_INTERIOR_MIN_PX:
+        inside = interior
     counted = inside.view(bool) & known[box]
     total = np.count_nonzero(counted)
     return np.count_nonzero(ship[box] & counted) / total if total else 0.0
