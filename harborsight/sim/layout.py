@@ -203,7 +203,8 @@ def convex_mesh(points: np.ndarray) -> trimesh.Trimesh:
     """The convex hull of ``points (n, 3)`` as a closed mesh with outward faces: scipy's
     Qhull triangles, each turned so that its normal points away from the hull's centroid.
     trimesh's ``convex_hull`` gives the same solid, but repairs and caches what a primitive
-    does not need, at ten times the cost (a lake shore has dozens of prisms)."""
+    does not need, at five times the cost (1.7 against 0.3 ms for an 8-point prism; a lake
+    shore has dozens of prisms)."""
     hull = ConvexHull(points)
     used = np.unique(hull.simplices)
     faces = np.searchsorted(used, hull.simplices)
