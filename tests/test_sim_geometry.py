@@ -127,3 +127,20 @@ def _geometry(camera: Camera):
     frame = _Frame()
     frame.camera = camera
     return frame
+
+
+def test_a_ray_cast_with_nothing_in_view_is_all_sky():
+    """Every triangle out of view (or none at all): every pixel is NO_HIT at infinite range,
+    as before the view test, not an error from an empty Embree scene."""
+    from harborsight.sim.layout import NO_HIT
+    from harborsight.sim.raycast import ray_cast_ids
+
+    camera = Camera(CameraIntrinsics(64, 36, 50.0, 50.0, 31.5, 17.5), np.array([0.0, 0.0, 40.0]),
+                    world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    far = np.array([[[500.0, 500.0, 0.0], [501.0, 500.0, 0.0], [500.0, 501.0, 0.0]]])
+    for triangles in (far, np.zeros((0, 3, 3))):
+        cast = ray_cast_ids(_geometry(camera), triangles, np.ones(len(triangles), np.int64))
+        assert cast.instances.shape == (36, 64) and (cast.instances == NO_HIT).all()
+        assert np.isinf(cast.range_m).all()
+    near = np.array([[[-30.0, -30.0, 0.0], [30.0, -30.0, 0.0], [0.0, 30.0, 0.0]]])
+    assert (ray_cast_ids(_geometry(camera), near, np.array([7])).instances == 7).any()

@@ -22,7 +22,7 @@ from harborsight.cli.app import (
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file
-from harborsight.perception.quantization import DEFAULT_CALIBRATION_PERCENTILE
+from harborsight.perception.quantization import DEFAULT_CALIBRATION_PERCENTILE, check_calibration
 
 
 @app.command()
@@ -290,6 +290,12 @@ def export_command(
         help="Percentile for --calibration-method percentile.")] = DEFAULT_CALIBRATION_PERCENTILE,
 ) -> None:
     """Export a checkpoint to ONNX (uint8 BGR in, logits and labels out) with a JSON sidecar."""
+    try:        # before anything is loaded or made
+        check_calibration(calibration_method, calibration_percentile, "--calibration-method",
+                          "--calibration-percentile")
+    except InputError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
     need_torch()
     from harborsight.training.export import export_checkpoint
 

@@ -5,6 +5,8 @@ No torch here: the command line reads the calibration options without loading it
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
@@ -12,20 +14,22 @@ import numpy as np
 from harborsight.errors import InputError
 
 #: how the activations' int8 ranges are set from the calibration images: ``minmax`` spans
-#: every value seen; ``percentile`` clips to the ``percentile``-th percentile of the
-#: absolute values seen (ONNX Runtime's histogram calibrator), so a few extreme
-#: activations do not coarsen the steps of all the others
+#: every value seen; ``percentile`` keeps the central ``percentile`` % of the values seen
+#: (ONNX Runtime's histogram calibrator, asymmetric: ``(100 - percentile) / 2`` % cut from
+#: each tail), so a few extreme activations do not coarsen the steps of all the others
 CALIBRATION_METHODS = ("minmax", "percentile")
 DEFAULT_CALIBRATION_PERCENTILE = 99.999
 
 
-def check_calibration(method: str, percentile: float) -> None:
-    """Refuse an unknown calibration method or a percentile outside (50, 100]."""
+def check_calibration(method: str, percentile: float, method_field: str = "calibration_method",
+                      percentile_field: str = "calibration_percentile") -> None:
+    """Refuse an unknown calibration method or a percentile outside (50, 100] (the errors
+    name ``method_field`` and ``percentile_field``: a command line passes its options)."""
     if method not in CALIBRATION_METHODS:
-        raise InputError(None, "calibration_method",
+        raise InputError(None, method_field,
                          f"unknown {method!r}; choose from {', '.join(CALIBRATION_METHODS)}")
     if not (50.0 < percentile <= 100.0):       # NaN fails this too
-        raise InputError(None, "calibration_percentile", f"must be in (50, 100], got {percentile}")
+        raise InputError(None, percentile_field, f"must be in (50, 100], got {percentile}")
 
 
 def quantize_int8(
@@ -58,14 +62,14 @@ def quantize_int8(
     quant_pre_process(str(onnx_path), str(prepared), skip_symbolic_shape=True)
     calibrator = {"minmax": CalibrationMethod.MinMax,
                   "percentile": CalibrationMethod.Percentile}[method]
-    quantize_static(
-        str(prepared), str(out_path), _Reader(), quant_format=QuantFormat.QDQ,
-        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
-        nodes_to_exclude=[n.name for n in onnx.load(str(prepared)).graph.node
-                          if n.op_type in ("ArgMax", "Cast")],
-        calibrate_method=calibrator,
-        extra_options={"CalibPercentile": percentile} if method == "percentile" else {},
-    )
+    excluded = [n.name for n in onnx.load(str(prepared)).graph.node if n.op_type in ("ArgMax", "Cast")]
+    with contextlib.redirect_stdout(io.StringIO()):     # the histogram calibrator prints progress
+        quantize_static(
+            str(prepared), str(out_path), _Reader(), quant_format=QuantFormat.QDQ,
+            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
+            nodes_to_exclude=excluded, calibrate_method=calibrator,
+            extra_options={"CalibPercentile": percentile} if method == "percentile" else {},
+        )
     prepared.unlink(missing_ok=True)
     quantized = onnx.load(str(out_path))
     float_classifier_tail(quantized)

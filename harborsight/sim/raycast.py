@@ -78,11 +78,14 @@ def ray_cast_ids(geometry: FrameGeometry, triangles: np.ndarray, triangle_ids: n
     dirs = rays_c @ geometry.camera.world_from_camera.T
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     origins = np.broadcast_to(geometry.camera.position_enu, dirs.shape).copy()
+    shape = (intr.height, intr.width)
+    nothing = RayCast(np.full(shape, NO_HIT, np.uint16), np.full(shape, np.inf))
     finite = np.flatnonzero(np.isfinite(dirs).all(axis=1))   # pixels the lens model can invert
-    if not len(finite):
-        return RayCast(np.full((intr.height, intr.width), NO_HIT, np.uint16),
-                       np.full((intr.height, intr.width), np.inf))
+    if not len(finite) or not len(triangles):
+        return nothing
     seen = triangles_in_view(geometry, triangles, xy[finite])
+    if not len(seen):                                        # nothing in view: sky everywhere
+        return nothing
     triangles, triangle_ids = triangles[seen], triangle_ids[seen]
     mesh = trimesh.Trimesh(vertices=triangles.reshape(-1, 3),
                            faces=np.arange(len(triangles) * 3).reshape(-1, 3), process=False)
@@ -94,7 +97,6 @@ def ray_cast_ids(geometry: FrameGeometry, triangles: np.ndarray, triangle_ids: n
     ids[index_ray] = triangle_ids[index_tri]
     ranges = np.full(len(uv), np.inf)
     ranges[index_ray] = np.linalg.norm(locations - origins[index_ray], axis=1)
-    shape = (intr.height, intr.width)
     return RayCast(ids.astype(np.uint16).reshape(shape), ranges.reshape(shape))
 
 

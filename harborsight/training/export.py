@@ -98,7 +98,7 @@ def export_checkpoint(
     """Export a checkpoint to ONNX at ``height`` x ``width`` (default: its training frames'
     size), check it against torch and write the sidecar; with ``int8`` also quantise, calibrated
     on up to ``calibration_frames`` evenly spaced frames of the calibration data (activation
-    ranges by ``calibration_method``: :data:`~harborsight.perception.export.CALIBRATION_METHODS`),
+    ranges by ``calibration_method``: :data:`~harborsight.perception.quantization.CALIBRATION_METHODS`),
     and compare
     fp32 and int8 mIoU on all of that data's selected frames.
 
