@@ -189,6 +189,17 @@ def _plane_points(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
     return points
 
 
+def _samples_to_edge(start: np.ndarray, unit: np.ndarray, width: int, height: int) -> np.ndarray:
+    """How many :data:`_RAY_STEP_PX` samples each ray ``start + s·unit`` (``s ≥ 0``) has inside
+    a ``width`` x ``height`` image (pixel centres 0 .. W-1, 0 .. H-1); at least 1."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # per axis, the ray's length to the far edge it heads for (inf along the edge)
+        to_edge = np.where(unit == 0, np.inf, np.where(
+            unit > 0, np.array([width - 1, height - 1]) - start, start) / np.abs(unit))
+    reach = np.fmin(to_edge[:, 0], to_edge[:, 1])
+    return (np.clip(np.where(np.isfinite(reach), reach, 0.0), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
+
+
 def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
                  distance_m: np.ndarray, camera: Camera, confidence: SolidConfidence) -> np.ndarray:
     """``s_c - d`` of each section (module docstring): how far beyond the measured edge, in
@@ -205,14 +216,7 @@ def edge_doubt_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndar
         return doubt
     unit = toward[rays] / length[rays, None]
     start = obstacle_px[rays]
-    # how many samples each ray has inside the image (pixel centres 0 .. W-1, 0 .. H-1)
-    width, height = camera.intrinsics.width, camera.intrinsics.height
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # per axis, the ray's length to the far edge it heads for (inf along the edge)
-        to_edge = np.where(unit == 0, np.inf, np.where(
-            unit > 0, np.array([width - 1, height - 1]) - start, start) / np.abs(unit))
-    reach = np.fmin(to_edge[:, 0], to_edge[:, 1])
-    steps = (np.clip(np.where(np.isfinite(reach), reach, 0.0), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
+    steps = _samples_to_edge(start, unit, camera.intrinsics.width, camera.intrinsics.height)
     first = steps - 1                       # the ray's last sample, unless a sure one is found
     open_rays = np.arange(len(rays))
     begin = 0
@@ -269,10 +273,7 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     # every walk at once: walk j of section todo[j] has steps[j] samples, to the image's edge
     unit = outward[todo] / length[todo, None]
     start = hull_px[todo]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        to_edge = np.where(unit == 0, np.inf, np.where(
-            unit > 0, np.array([width - 1, height - 1]) - start, start) / np.abs(unit))
-    steps = (np.clip(to_edge.min(axis=1), 0.0, None) // _RAY_STEP_PX).astype(int) + 1
+    steps = _samples_to_edge(start, unit, width, height)
     ends = np.cumsum(steps)
     walk_of = np.repeat(np.arange(len(todo)), steps)
     along = (np.arange(ends[-1]) - np.repeat(ends - steps, steps)) * _RAY_STEP_PX

@@ -98,9 +98,9 @@ def export_checkpoint(
     """Export a checkpoint to ONNX at ``height`` x ``width`` (default: its training frames'
     size), check it against torch and write the sidecar; with ``int8`` also quantise, calibrated
     on up to ``calibration_frames`` evenly spaced frames of the calibration data (activation
-    ranges by ``calibration_method``: :data:`~harborsight.perception.quantization.CALIBRATION_METHODS`),
-    and compare
-    fp32 and int8 mIoU on all of that data's selected frames.
+    ranges by ``calibration_method``, one of
+    :data:`~harborsight.perception.quantization.CALIBRATION_METHODS`), and compare fp32 and
+    int8 mIoU on all of that data's selected frames.
 
     Every file is written in a scratch folder beside ``out_path`` and moved into place only
     when all of them are done, so a failure never leaves a new model beside an old sidecar."""

@@ -357,14 +357,13 @@ class TrainingSamples(torch.utils.data.Dataset):
         image, labels = self.frames[index]
         rng = np.random.default_rng([self.seed, 1, n])
         if self.small_object_weight <= 1.0:
-            image, labels, clean = augment(image, labels, rng, self.augmentation, clean_view=True)
-            weights = np.ones(labels.shape, np.float32)
-        else:
-            weights = small_object_weights(self.frames.instances(index, labels.shape), labels,
-                                           self.small_object_area_px, self.small_object_weight)
-            image, labels, weights, clean = augment_weighted(image, labels, weights, rng,
-                                                             self.augmentation, clean_view=True)
-        return (image, labels, weights, clean) if self.clean_view else (image, labels, weights)
+            image, labels, *clean = augment(image, labels, rng, self.augmentation,
+                                            clean_view=self.clean_view)
+            return (image, labels, np.ones(labels.shape, np.float32), *clean)
+        weights = small_object_weights(self.frames.instances(index, labels.shape), labels,
+                                       self.small_object_area_px, self.small_object_weight)
+        return augment_weighted(image, labels, weights, rng, self.augmentation,
+                                clean_view=self.clean_view)
 
 
 def learning_rate(config: TrainConfig, iteration: int) -> float:
