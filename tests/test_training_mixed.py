@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 
 from harborsight.cli.training import parse_weighted_data
 from harborsight.errors import InputError
@@ -154,3 +155,40 @@ def test_freeze_batchnorm_keeps_the_running_statistics(tmp_path, freeze):
     assert means and all((m == 0).all() for m in means) == freeze
     assert any((s != 1).any() for s in scales)               # BatchNorm scales learnt either way
     assert ("--freeze-batchnorm" in config.command_line()) == freeze
+
+
+def test_frozen_layer_groups_keep_their_weights_and_statistics(tmp_path):
+    """--freeze-layers: the named groups end as they began (weights and BatchNorm statistics),
+    the rest learns; the command line records it, and a resume keeps it."""
+    from harborsight.training.checkpoint import load_checkpoint
+    from harborsight.training.loop import train as run_training
+
+    data = make_dataset(tmp_path / "d", 4, 90)
+    config = TrainConfig(model="ddrnet23_slim", data_dirs=[str(data)], out_dir=str(tmp_path / "run"),
+                         iterations=2, batch_size=2, crop_hw=(8, 8), val_every=0, device="cpu",
+                         checkpoint_every=1, num_workers=0, threads=1,
+                         freeze_layers=("stem", "stage1"))
+    run_training(config, show_progress=False)
+    first = load_checkpoint(tmp_path / "run" / "last.pt")
+    assert first["iteration"] == 2
+    start = TrainConfig(**{**first["config"], "iterations": 1, "out_dir": str(tmp_path / "one")})
+    run_training(start, show_progress=False)    # the same seed: the weights after one step
+    one = load_checkpoint(tmp_path / "one" / "last.pt")["model"]
+    frozen = [k for k in one if k.startswith(("network.stem.", "network.stage1."))]
+    learning = [k for k in one if k.startswith("network.stage2.") and k.endswith("weight")]
+    assert frozen and learning
+    for key in frozen:      # as initialised (the seed's), after one step and after two
+        assert torch.equal(one[key], first["model"][key]), key
+    assert any(not torch.equal(one[k], first["model"][k]) for k in learning)
+    assert "--freeze-layers stem,stage1" in config.command_line()
+    assert tuple(first["config"]["freeze_layers"]) == ("stem", "stage1")
+
+
+@pytest.mark.parametrize(("layers", "message"), [
+    (("stem", "trunk"), r"unknown layer group\(s\) trunk; ddrnet23_slim has: stem, stage1"),
+    ((), r"unknown layer group\(s\) \(none given\)"),
+])
+def test_unknown_frozen_layer_groups_are_refused(tmp_path, layers, message):
+    with pytest.raises(InputError, match=f"freeze_layers: {message}"):
+        TrainConfig(model="ddrnet23_slim", data_dirs=[str(tmp_path)], out_dir=str(tmp_path / "r"),
+                    freeze_layers=layers)

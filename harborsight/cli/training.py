@@ -1,4 +1,5 @@
-"""The training commands: ``models``, ``train``, ``average-weights`` and ``export``."""
+"""The training commands: ``models``, ``train``, ``average-weights``, ``graft-weights`` and
+``export``."""
 
 from __future__ import annotations
 
@@ -116,6 +117,11 @@ def train(
         "layers in eval mode; their scale and shift still learn): a fine-tune on new data "
         "then does not shift the statistics the model's earlier data was normalised with "
         "[off].")] = None,
+    freeze_layers: Annotated[str | None, typer.Option(
+        help="Comma-separated layer groups of the network (its top-level modules, e.g. "
+        "stem,stage1,stage2 for DDRNet) that do not learn: no gradient, BatchNorm statistics "
+        "kept. With --init-from, a fine-tune on real photos that leaves the first layers as "
+        "they were keeps the simulator's low-level features (docs/results.md) [none].")] = None,
     lr: Annotated[float | None, typer.Option(help="Initial learning rate [0.01].")] = None,
     momentum: Annotated[float | None, typer.Option(help="SGD momentum [0.9].")] = None,
     weight_decay: Annotated[float | None, typer.Option(
@@ -198,6 +204,8 @@ def train(
                  "crop_hw": parse_crop(crop) if crop else None,
                  "fit_large_hw": parse_crop(fit_large, "fit_large") if fit_large else None,
                  "freeze_batchnorm": freeze_batchnorm,
+                 "freeze_layers": (tuple(g.strip() for g in freeze_layers.split(",") if g.strip())
+                                   if freeze_layers is not None else None),
                  "aux_weights": tuple(aux_weight) if aux_weight else None,
                  "bootstrap_start_iteration": bootstrap_start,
                  "bootstrap_end_iteration": bootstrap_end,
@@ -264,6 +272,43 @@ def average_weights(
                        f"{source['iteration']})" for source in payload["averaged_from"])
     console.print(f"averaged {payload['network']}: {shares}\ncheckpoint: {out}", markup=False,
                   highlight=False)
+
+
+@app.command("graft-weights")
+def graft_weights(
+    base: Annotated[Path, typer.Option(help="Checkpoint whose weights are kept (e.g. a fine-tune).")],
+    donor: Annotated[Path, typer.Option(
+        help="Checkpoint of the same network the named layers come from (e.g. the model the "
+             "fine-tune started from).")],
+    layers: Annotated[str, typer.Option(
+        help="Comma-separated layer groups (the network's top-level modules, e.g. "
+             "stem,stage1,stage2 for DDRNet) to take from --donor.")],
+    out: Annotated[Path, typer.Option(help="Checkpoint to write (.pt).")],
+) -> None:
+    """Copy some layer groups' weights from one checkpoint into another of the same network,
+    to export or evaluate like any other. With a fine-tune as --base and its start as
+    --donor, --layers stem,stage1,stage2 keeps the start's low-level features and the
+    fine-tune's deeper layers: a fine-tune on real photos can lose synthetic accuracy in its
+    early layers alone (docs/results.md). An unknown group is an error that lists the
+    network's groups."""
+    need_torch()
+    from harborsight.training.checkpoint import graft_checkpoints, save_checkpoint
+
+    groups = [g.strip() for g in layers.split(",") if g.strip()]
+    try:
+        prepare_output_file(out, "--out")
+        payload = graft_checkpoints(base, donor, groups)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False, highlight=False)
+        raise typer.Exit(2) from None
+    payload["command"] = (f"harborsight graft-weights --base {shlex.quote(str(base))} --donor "
+                          f"{shlex.quote(str(donor))} --layers {','.join(groups)} "
+                          f"--out {shlex.quote(str(out))}")
+    save_checkpoint(out, payload)
+    grafted = payload["grafted_from"]
+    console.print(f"grafted {payload['network']}: {grafted['tensors']} tensors of "
+                  f"{', '.join(groups)} from {donor}, the rest from {base}\ncheckpoint: {out}",
+                  markup=False, highlight=False)
 
 
 @app.command("export")

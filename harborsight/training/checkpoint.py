@@ -16,6 +16,8 @@ A checkpoint is a ``torch.save`` dict (loadable with ``weights_only=True``)::
                   DDRNet); absent in checkpoints written before 2026-11-23, which get
                   :data:`LEGACY_NETWORK_OPTIONS`
     averaged_from only in averaged checkpoints: each source's {path, iteration, command, weight}
+    grafted_from  only in grafted checkpoints: {base, donor: {path, iteration, command},
+                  layers, tensors} (the base's own provenance fields are kept)
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import torch
 
 from harborsight.errors import InputError
 from harborsight.perception.model import SegmentationModel
-from harborsight.perception.networks import NETWORKS, create_network
+from harborsight.perception.networks import NETWORKS, create_network, layer_groups
 
 CHECKPOINT_FORMAT = "harborsight.checkpoint/1"
 #: State-dict prefix of the training-only auxiliary heads.
@@ -111,6 +113,67 @@ def model_from_checkpoint(checkpoint: dict | str | Path, aux_heads: bool = False
     return model.eval()
 
 
+def _check_same_network(paths: list[str | Path], payloads: list[dict]) -> None:
+    """Refuse checkpoints that are not one network with the same tensors as the last one:
+    network, classes, options and every tensor's name and shape, naming the file and field."""
+    reference, reference_path = payloads[-1], Path(paths[-1])
+    for path, payload in zip(paths, payloads, strict=True):
+        for field in ("network", "num_classes", "class_names"):
+            if payload.get(field) != reference.get(field):
+                raise InputError(path, field, f"{payload.get(field)!r} differs from "
+                                 f"{reference.get(field)!r} in {reference_path}")
+        if network_options(payload) != network_options(reference):
+            raise InputError(path, "network_options", f"{network_options(payload)} differs from "
+                             f"{network_options(reference)} in {reference_path}")
+        state, ref_state = payload["model"], reference["model"]
+        if state.keys() != ref_state.keys():
+            raise InputError(path, "model", f"its tensors differ from those of {reference_path}")
+        for key, tensor in state.items():
+            if tensor.shape != ref_state[key].shape:
+                raise InputError(path, f"model.{key}", f"shape {tuple(tensor.shape)} differs "
+                                 f"from {tuple(ref_state[key].shape)} in {reference_path}")
+
+
+def graft_checkpoints(base: str | Path, donor: str | Path, groups: list[str]) -> dict:
+    """A checkpoint with ``base``'s weights except those of the layer ``groups`` (top-level
+    modules of the network, :func:`harborsight.perception.networks.layer_groups`), which
+    come from ``donor``: every
+    tensor under ``network.<group>.``, BatchNorm statistics included.
+
+    For two checkpoints of one lineage, e.g. a fine-tune (base) and the model it started
+    from (donor): keeping the donor's early layers undoes what the fine-tune changed in the
+    low-level features while keeping what it learned deeper. Fine-tuning some blocks only
+    adapts better to some kinds of distribution shift than tuning all (Lee et al. 2022,
+    "Surgical fine-tuning improves adaptation to distribution shifts"); this does the same
+    after the fact. The result has no optimiser state; ``grafted_from`` records both
+    sources and the groups."""
+    if not groups:
+        raise InputError(None, "layers", "name at least one layer group to take from the donor")
+    paths = [Path(donor), Path(base)]
+    donor_payload, base_payload = (load_checkpoint(p) for p in paths)
+    _check_same_network(paths, [donor_payload, base_payload])
+    available = layer_groups(create_network(base_payload["network"], base_payload["num_classes"],
+                                            aux_heads=True, **network_options(base_payload)))
+    unknown = [g for g in groups if g not in available]
+    if unknown:
+        raise InputError(None, "layers", f"unknown layer group(s) {', '.join(unknown)}; "
+                         f"{base_payload['network']} has: {', '.join(available)}")
+    prefixes = tuple(f"network.{g}." for g in groups)
+    state = {key: (donor_payload["model"][key] if key.startswith(prefixes) else tensor).clone()
+             for key, tensor in base_payload["model"].items()}
+
+    def source(path: Path, payload: dict) -> dict:
+        return {"path": str(path), "iteration": payload.get("iteration"),
+                "command": payload.get("command")}
+
+    return {**base_payload, "network_options": network_options(base_payload), "model": state,
+            "optimizer": None, "scaler": None, "rng": None, "val_miou": None,
+            "best_val_miou": None,
+            "grafted_from": {"base": source(paths[1], base_payload),
+                             "donor": source(paths[0], donor_payload), "layers": list(groups),
+                             "tensors": sum(key.startswith(prefixes) for key in state)}}
+
+
 def average_checkpoints(paths: list[str | Path], weights: list[float] | None = None) -> dict:
     """A checkpoint whose weights are the weighted mean of several checkpoints' ("model soup",
     Wortsman et al. 2022): ``theta = sum_i w_i theta_i / sum_i w_i`` for every floating-point
@@ -132,22 +195,8 @@ def average_checkpoints(paths: list[str | Path], weights: list[float] | None = N
         raise InputError(None, "weight", "weights must be finite and non-negative, with a "
                          "positive, finite sum")
     payloads = [load_checkpoint(p) for p in paths]
-    reference, reference_path = payloads[-1], Path(paths[-1])
-    for path, payload in zip(paths, payloads, strict=True):
-        for field in ("network", "num_classes", "class_names"):
-            if payload.get(field) != reference.get(field):
-                raise InputError(path, field, f"{payload.get(field)!r} differs from "
-                                 f"{reference.get(field)!r} in {reference_path}")
-        if network_options(payload) != network_options(reference):
-            raise InputError(path, "network_options", f"{network_options(payload)} differs from "
-                             f"{network_options(reference)} in {reference_path}")
-        state, ref_state = payload["model"], reference["model"]
-        if state.keys() != ref_state.keys():
-            raise InputError(path, "model", f"its tensors differ from those of {reference_path}")
-        for key, tensor in state.items():
-            if tensor.shape != ref_state[key].shape:
-                raise InputError(path, f"model.{key}", f"shape {tuple(tensor.shape)} differs "
-                                 f"from {tuple(ref_state[key].shape)} in {reference_path}")
+    reference = payloads[-1]
+    _check_same_network(paths, payloads)
     total = sum(weights)
     averaged = {}
     for key, ref_tensor in reference["model"].items():

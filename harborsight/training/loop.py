@@ -70,7 +70,7 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.evaluation.segmentation import SegmentationScores, score_frames
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.model import SegmentationModel, TorchSegmenter
-from harborsight.perception.networks import NETWORKS, create_network
+from harborsight.perception.networks import NETWORKS, create_network, layer_groups
 from harborsight.progress import progress_report
 from harborsight.training.augment import AugmentConfig, augment, augment_weighted
 from harborsight.training.checkpoint import (
@@ -154,6 +154,7 @@ class TrainConfig:
     val_dirs: list[str] | None = None                  # validation datasets (None: data_dirs)
     fit_large_hw: tuple[int, int] | None = None        # stretch larger frames to this (H, W)
     freeze_batchnorm: bool = False                     # BatchNorm running statistics kept
+    freeze_layers: tuple[str, ...] | None = None       # network layer groups not trained
     distill: float = 0.0                               # λ of the distillation loss (0: off)
     distill_temperature: float = 2.0                   # T of the distillation loss
     distill_view: str = "augmented"                    # what the teacher sees: augmented, clean
@@ -171,6 +172,8 @@ class TrainConfig:
             self.fit_large_hw = (int(self.fit_large_hw[0]), int(self.fit_large_hw[1]))
         if self.aux_weights is not None:
             self.aux_weights = tuple(float(w) for w in self.aux_weights)
+        if self.freeze_layers is not None:
+            self.freeze_layers = tuple(str(g) for g in self.freeze_layers)
         self.validate()
 
     def validate(self) -> None:
@@ -233,6 +236,14 @@ class TrainConfig:
             raise bad("distill_view", "is what the teacher of --distill sees: give --distill")
         if self.small_object_area_px <= 0:
             raise bad("small_object_area_px", f"must be positive, got {self.small_object_area_px}")
+        if self.freeze_layers is not None:
+            groups = layer_groups(create_network(self.model, NUM_CLASSES, aux_heads=True))
+            unknown = [g for g in self.freeze_layers if g not in groups]
+            if not self.freeze_layers or unknown:
+                raise bad("freeze_layers", f"unknown layer group(s) {', '.join(unknown) or '(none given)'}; "
+                          f"{self.model} has: {', '.join(groups)}")
+            if set(self.freeze_layers) >= set(groups) - {"aux_heads"}:
+                raise bad("freeze_layers", "would freeze the whole network: nothing left to train")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
         if self.aux_weights is not None and len(self.aux_weights) != expected:
             raise bad("aux_weights", f"{self.model} has {expected} auxiliary head(s), got "
@@ -276,6 +287,8 @@ class TrainConfig:
             elif name == "aux_weights":
                 for w in value:
                     parts += ["--aux-weight", f"{w:g}"]
+            elif name == "freeze_layers":
+                parts += [f"--{option}", ",".join(value)]
             else:
                 parts += [f"--{option}", str(value)]
         return shlex.join(parts)
@@ -294,6 +307,7 @@ _CLI_OPTIONS = {
     "val_every": "val-every", "checkpoint_every": "checkpoint-every", "seed": "seed",
     "device": "device", "amp": "amp", "num_workers": "workers", "threads": "threads",
     "init_from": "init-from", "fit_large_hw": "fit-large", "freeze_batchnorm": "freeze-batchnorm",
+    "freeze_layers": "freeze-layers",
     "distill": "distill", "distill_temperature": "distill-temperature",
     "distill_view": "distill-view",
 }
@@ -431,15 +445,33 @@ def validate(model: SegmentationModel, frames: SegmentationFrames, device: torch
         model.train(was_training)
 
 
-def training_mode(model: torch.nn.Module, freeze_batchnorm: bool = False) -> None:
+def training_mode(model: torch.nn.Module, freeze_batchnorm: bool = False,
+                  frozen_layers: tuple[str, ...] | None = None) -> None:
     """The model in training mode; with ``freeze_batchnorm`` its BatchNorm layers stay in
     eval mode: they normalise with their running statistics and do not update them (their
-    affine scale and shift still receive gradients)."""
+    affine scale and shift still receive gradients). The ``frozen_layers`` (see
+    :func:`freeze_layer_groups`) stay in eval mode whole."""
     model.train()
     if freeze_batchnorm:
         for module in model.modules():
             if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
                 module.eval()
+    for group in frozen_layers or ():
+        getattr(model.network, group).eval()
+
+
+def freeze_layer_groups(model: SegmentationModel, groups: tuple[str, ...] | None) -> int:
+    """Stop the named layer groups of ``model.network`` from learning: their parameters get no
+    gradient (and so no optimiser state) and their BatchNorm statistics stay as they are
+    (:func:`training_mode`). Tuning only some blocks can adapt better to a shift than tuning
+    all (Lee et al. 2022, surgical fine-tuning); here the first layers keep the simulator's
+    low-level features (docs/results.md). Returns how many parameter tensors were frozen."""
+    frozen = 0
+    for group in groups or ():
+        for parameter in getattr(model.network, group).parameters():
+            parameter.requires_grad_(False)
+            frozen += 1
+    return frozen
 
 
 def validate_sets(model: SegmentationModel, val_sets: list[tuple[str, SegmentationFrames]],
@@ -644,7 +676,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         options = CURRENT_NETWORK_OPTIONS.get(config.model, {})
     model = SegmentationModel(create_network(config.model, NUM_CLASSES, aux_heads=True,
                                              **options)).to(device)
-    training_mode(model, config.freeze_batchnorm)
+    freeze_layer_groups(model, config.freeze_layers)
+    training_mode(model, config.freeze_batchnorm, config.freeze_layers)
     optimizer = torch.optim.SGD(parameter_groups(model, config.weight_decay), lr=config.lr,
                                 momentum=config.momentum)
     scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
@@ -778,7 +811,7 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
                                   "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
             if val_sets and (iteration % config.val_every == 0 or iteration == config.iterations):
                 val_miou, record = validate_sets(model, val_sets, device, use_amp)
-                training_mode(model, config.freeze_batchnorm)
+                training_mode(model, config.freeze_batchnorm, config.freeze_layers)
                 log.write(json.dumps({"iteration": iteration, "kind": "val", **record}) + "\n")
                 if math.isfinite(val_miou) and (best_miou is None or val_miou > best_miou):
                     best_miou = val_miou

@@ -38,3 +38,10 @@ def inference_parameter_count(network: nn.Module) -> int:
     """Parameters of the inference graph: all but those under ``network.aux_heads``."""
     aux = getattr(network, "aux_heads", None)
     return parameter_count(network) - (parameter_count(aux) if aux is not None else 0)
+
+
+def layer_groups(network: nn.Module) -> list[str]:
+    """The network's top-level modules that hold weights or buffers (``stem``, ``stage1``,
+    ... for DDRNet), in order: the groups ``train --freeze-layers`` and ``graft-weights
+    --layers`` name."""
+    return [name for name, child in network.named_children() if child.state_dict()]
