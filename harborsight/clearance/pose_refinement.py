@@ -46,8 +46,9 @@ the sensors' pose, and the correction is within the search bounds; otherwise the
 the sensors' pose and the report says why.
 
 **Starts.** Huber from the sensors' pose first; when that leaves the outline or the
-silhouette short, graduated Tukey from the sensors' pose and from the prior's reach to
-either side across the hull, and the lowest final Tukey cost among the filled candidates
+silhouette short, graduated Tukey from the sensors' pose, from the prior's reach to either
+side across the hull and from the best cells of a coarse translation search
+(:func:`_translation_search`), and the lowest final Tukey cost among the filled candidates
 wins.
 """
 
@@ -470,6 +471,65 @@ def _fit(value: np.ndarray) -> tuple[float, float | None, int]:
     return len(inliers) / len(telling), rms, len(telling)
 
 
+#: the coarse translation search's grid step, as a share of the prior's sigma; how many of
+#: its best cells start a Gauss-Newton run; at most this many outline points score a cell
+SEARCH_STEP_SIGMA = 1 / 3
+SEARCH_STARTS = 2
+SEARCH_POINTS = 120
+
+
+def _translation_search(align: _Alignment, outline: np.ndarray,
+                        settings: PoseRefinementSettings) -> list[tuple[float, float]]:
+    """The best horizontal shifts ``(de, dn)`` (metres) of a grid over the prior's reach
+    (within ``min(max_shift_m, 2.5 prior_shift_m)``, steps of :data:`SEARCH_STEP_SIGMA`
+    sigma), scored by the final Tukey cost of the signed distances of up to
+    :data:`SEARCH_POINTS` outline points (every k-th): starts for the
+    Gauss-Newton runs when the sensors are so far off that their neighbourhood holds the
+    wrong basin (a start 5 m off with a 3 m prior, docs/results.md).
+
+    The outline's pixels under a shift are taken to first order, ``uv(t) = uv(0) + J t``,
+    with ``J`` from the projections at 1 m east and 1 m north: one projection per axis instead
+    of one per cell. Points that leave the view count as outliers, as in the final cost.
+    At most :data:`SEARCH_STARTS` cells, each more than a step from the ones before, and not
+    the centre cell (the sensors' pose is a start already)."""
+    reach_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
+    step_m = SEARCH_STEP_SIGMA * settings.prior_shift_m
+    n = int(reach_m // step_m)
+    if n < 1 or outline.shape[1] == 0:
+        return []
+    outline = outline[:, ::-(-outline.shape[1] // SEARCH_POINTS)]    # every k-th point
+    base = align.pixels(outline, np.zeros(4))
+    east = align.pixels(outline, np.array([1.0, 0.0, 0.0, 0.0])) - base
+    north = align.pixels(outline, np.array([0.0, 1.0, 0.0, 0.0])) - base
+    keep = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
+    if keep.sum() < MIN_EDGE_POINTS:
+        return []
+    base, east, north = base[keep], east[keep], north[keep]
+    offsets = np.arange(-n, n + 1) * step_m
+    de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
+    inside = np.hypot(de, dn) <= reach_m + 1e-9
+    de, dn = de[inside], dn[inside]
+    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
+          - align.origin.T[None])                                    # (cells, points, 2)
+    x_lo, y_lo = align.lo[0], align.lo[1]
+    x_hi, y_hi = align.hi[0], align.hi[1]
+    seen = ((xy[..., 0] >= x_lo) & (xy[..., 0] <= x_hi)
+            & (xy[..., 1] >= y_lo) & (xy[..., 1] <= y_hi))
+    values = np.full(seen.shape, np.inf)
+    values[seen] = align.sdf.sample(xy[seen].T)[0]
+    cost = _tukey_cost(values, _FINAL_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+    found: list[tuple[float, float]] = []
+    for cell in np.argsort(cost, kind="stable"):
+        shift = (float(de[cell]), float(dn[cell]))
+        if math.hypot(*shift) < 0.5 * step_m:
+            continue
+        if all(math.hypot(shift[0] - e, shift[1] - n_) > 1.5 * step_m for e, n_ in found):
+            found.append(shift)
+            if len(found) == SEARCH_STARTS:
+                break
+    return found
+
+
 def refine_vessel_pose(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: PoseRefinementSettings = PoseRefinementSettings(),
@@ -564,7 +624,10 @@ def refine_vessel_pose(
     if first_fit[0] < SKIP_SECOND_START_FRACTION or candidates[0][4] < settings.min_ship_fill:
         h = geometry.vessel_heading_rad
         across = np.array([math.cos(h), -math.sin(h), 0.0, 0.0]) * settings.prior_shift_m
-        for start in (np.zeros(4), across, -across):
+        starts = [np.zeros(4), across, -across]
+        starts += [np.array([de, dn, 0.0, 0.0])
+                   for de, dn in _translation_search(align, outline, settings)]
+        for start in starts:
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
     full = [c for c in candidates if c[4] >= settings.min_ship_fill]
