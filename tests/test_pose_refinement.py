@@ -72,17 +72,18 @@ def test_a_wrong_gps_and_compass_pose_is_found_again(seed, scenario, altitude_m)
     assert refinement.residual_px < 0.5 and refinement.inlier_fraction > 0.6
 
 
-@pytest.mark.parametrize(("seed", "scenario", "altitude_m"), [
-    (5, "touching", 60), (6, "touching", 40)])
-def test_a_pose_two_sigma_off_is_found_by_the_translation_search(seed, scenario, altitude_m):
-    """6.1 m and 1 degree off (twice the 3 m prior): from the sensors' pose and the two
-    starts across the hull the fit falls into a neighbour's edges (seed 5: applied 7 m
-    wrong; seed 6: refused), and the coarse search over shifts gives the start that finds
-    the vessel. On 144 such scenes the search took the alignments found from 109 to 139 and
-    those applied wrong from 11 to 3 (docs/results.md)."""
+@pytest.mark.parametrize(("seed", "scenario", "altitude_m", "error_m"), [
+    (5, "touching", 60, (6.0, 1.0)), (6, "touching", 40, (6.0, 1.0)),
+    (5, "touching", 60, (6.5, 1.5)), (6, "touching", 40, (-5.5, 2.5))])
+def test_a_pose_two_sigma_off_is_found_by_the_translation_search(seed, scenario, altitude_m,
+                                                                 error_m):
+    """6-7 m and 1 degree off (twice the 3 m prior), on and off the search's grid: from the
+    sensors' pose and the two starts across the hull the fit falls into a neighbour's edges
+    (applied 7 m wrong, or refused), and the coarse search over shifts gives the start that
+    finds the vessel (docs/results.md)."""
     scene, labels = scene_and_labels(seed, scenario, altitude_m)
     true = scene.geometry()
-    error = np.array([6.0, 1.0, math.radians(1.0)])
+    error = np.array([*error_m, math.radians(1.0)])
     found, refinement = refine_vessel_pose(labels, corrected_geometry(true, error), TUG)
     assert refinement.applied, refinement.reason
     shift_m, turn_deg = pose_error(found, true)
@@ -91,9 +92,9 @@ def test_a_pose_two_sigma_off_is_found_by_the_translation_search(seed, scenario,
     align = _Alignment(wrong, _SignedDistance(labels == SHIP, (0, 0)))
     hull_h = _homogeneous(TUG.hull_points)
     outline = _outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
-    starts = _translation_search(align, outline, PoseRefinementSettings())
-    # the best cell lies within a grid step (1 m) of the error undone
-    assert np.hypot(*(np.array(starts[0]) + error[:2])) < 1.0
+    starts = _translation_search(align, outline, PoseRefinementSettings(), [np.zeros(4)])
+    # the best cell lies within a grid step's diagonal (1.4 m) of the error undone
+    assert np.hypot(*(np.array(starts[0]) + error[:2])) < 1.5
 
 
 def test_the_distances_from_a_wrong_pose_come_back_to_the_truth():

@@ -187,6 +187,7 @@ def test_frozen_layer_groups_keep_their_weights_and_statistics(tmp_path):
 @pytest.mark.parametrize(("layers", "message"), [
     (("stem", "trunk"), r"unknown layer group\(s\) trunk; ddrnet23_slim has: stem, stage1"),
     ((), r"unknown layer group\(s\) \(none given\)"),
+    (("stem", "aux_heads"), "aux_heads are training-only heads"),
 ])
 def test_unknown_frozen_layer_groups_are_refused(tmp_path, layers, message):
     with pytest.raises(InputError, match=f"freeze_layers: {message}"):

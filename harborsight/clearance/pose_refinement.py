@@ -472,26 +472,30 @@ def _fit(value: np.ndarray) -> tuple[float, float | None, int]:
 
 
 #: the coarse translation search's grid step, as a share of the prior's sigma; how many of
-#: its best cells start a Gauss-Newton run; at most this many outline points score a cell
+#: its best cells start a Gauss-Newton run; at most this many outline points score a cell;
 SEARCH_STEP_SIGMA = 1 / 3
 SEARCH_STARTS = 2
 SEARCH_POINTS = 120
+#: the Tukey scale (px) a search cell is scored at: the second schedule's first
+SEARCH_TUKEY_PX = SCHEDULES[1][0][1]
 
 
-def _translation_search(align: _Alignment, outline: np.ndarray,
-                        settings: PoseRefinementSettings) -> list[tuple[float, float]]:
+def _translation_search(align: _Alignment, outline: np.ndarray, settings: PoseRefinementSettings,
+                        taken: list[np.ndarray]) -> list[tuple[float, float]]:
     """The best horizontal shifts ``(de, dn)`` (metres) of a grid over the prior's reach
     (within ``min(max_shift_m, 2.5 prior_shift_m)``, steps of :data:`SEARCH_STEP_SIGMA`
-    sigma), scored by the final Tukey cost of the signed distances of up to
-    :data:`SEARCH_POINTS` outline points (every k-th): starts for the
-    Gauss-Newton runs when the sensors are so far off that their neighbourhood holds the
-    wrong basin (a start 5 m off with a 3 m prior, docs/results.md).
+    sigma): starts for the Gauss-Newton runs when the sensors are so far off that their
+    neighbourhood holds the wrong basin (a start 5 m off with a 3 m prior, docs/results.md).
 
-    The outline's pixels under a shift are taken to first order, ``uv(t) = uv(0) + J t``,
-    with ``J`` from the projections at 1 m east and 1 m north: one projection per axis instead
-    of one per cell. Points that leave the view count as outliers, as in the final cost.
-    At most :data:`SEARCH_STARTS` cells, each more than a step from the ones before, and not
-    the centre cell (the sensors' pose is a start already)."""
+    A cell is scored by the Tukey cost, at the second schedule's first scale
+    (:data:`SEARCH_TUKEY_PX`, the basin its run starts with), of the signed distances of up
+    to :data:`SEARCH_POINTS` outline points (every k-th); points that leave the view count as
+    outliers. The outline's pixels under a shift are taken to first order,
+    ``uv(t) = uv(0) + J t``, with ``J`` from the projections at 1 m east and 1 m north: one
+    projection per axis instead of one per cell. At most :data:`SEARCH_STARTS` cells, each
+    cheaper than the sensors' pose and more than 1.5 steps from the other starts (``taken``,
+    the sensors' pose among them) and from each other; none when no cell beats the sensors'
+    pose."""
     reach_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
     step_m = SEARCH_STEP_SIGMA * settings.prior_shift_m
     n = int(reach_m // step_m)
@@ -511,19 +515,19 @@ def _translation_search(align: _Alignment, outline: np.ndarray,
     de, dn = de[inside], dn[inside]
     xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
           - align.origin.T[None])                                    # (cells, points, 2)
-    x_lo, y_lo = align.lo[0], align.lo[1]
-    x_hi, y_hi = align.hi[0], align.hi[1]
-    seen = ((xy[..., 0] >= x_lo) & (xy[..., 0] <= x_hi)
-            & (xy[..., 1] >= y_lo) & (xy[..., 1] <= y_hi))
+    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
+            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
     values = np.full(seen.shape, np.inf)
     values[seen] = align.sdf.sample(xy[seen].T)[0]
-    cost = _tukey_cost(values, _FINAL_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+    cost = _tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+    centre = cost[np.flatnonzero((de == 0) & (dn == 0))[0]]
     found: list[tuple[float, float]] = []
+    others = [(float(t[0]), float(t[1])) for t in taken]
     for cell in np.argsort(cost, kind="stable"):
+        if cost[cell] >= centre:
+            break
         shift = (float(de[cell]), float(dn[cell]))
-        if math.hypot(*shift) < 0.5 * step_m:
-            continue
-        if all(math.hypot(shift[0] - e, shift[1] - n_) > 1.5 * step_m for e, n_ in found):
+        if all(math.hypot(shift[0] - e, shift[1] - n_) > 1.5 * step_m for e, n_ in others + found):
             found.append(shift)
             if len(found) == SEARCH_STARTS:
                 break
@@ -626,7 +630,7 @@ def refine_vessel_pose(
         across = np.array([math.cos(h), -math.sin(h), 0.0, 0.0]) * settings.prior_shift_m
         starts = [np.zeros(4), across, -across]
         starts += [np.array([de, dn, 0.0, 0.0])
-                   for de, dn in _translation_search(align, outline, settings)]
+                   for de, dn in _translation_search(align, outline, settings, starts)]
         for start in starts:
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))

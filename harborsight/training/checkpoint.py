@@ -145,8 +145,10 @@ def graft_checkpoints(base: str | Path, donor: str | Path, groups: list[str]) ->
     low-level features while keeping what it learned deeper. Fine-tuning some blocks only
     adapts better to some kinds of distribution shift than tuning all (Lee et al. 2022,
     "Surgical fine-tuning improves adaptation to distribution shifts"); this does the same
-    after the fact. The result has no optimiser state; ``grafted_from`` records both
-    sources and the groups."""
+    after the fact. The groups' BatchNorm statistics come with them; the base's deeper
+    BatchNorm statistics were gathered on the base's own early features, so score the
+    result before using it (for the default model they were kept: docs/results.md). The
+    result has no optimiser state; ``grafted_from`` records both sources and the groups."""
     if not groups:
         raise InputError(None, "layers", "name at least one layer group to take from the donor")
     paths = [Path(donor), Path(base)]

@@ -242,6 +242,10 @@ class TrainConfig:
             if not self.freeze_layers or unknown:
                 raise bad("freeze_layers", f"unknown layer group(s) {', '.join(unknown) or '(none given)'}; "
                           f"{self.model} has: {', '.join(groups)}")
+            if "aux_heads" in self.freeze_layers:
+                raise bad("freeze_layers", "aux_heads are training-only heads whose loss "
+                          "trains the network: freeze network layers, or drop them with "
+                          "--aux-weight 0")
             if set(self.freeze_layers) >= set(groups) - {"aux_heads"}:
                 raise bad("freeze_layers", "would freeze the whole network: nothing left to train")
         expected = len(DEFAULT_AUX_WEIGHTS[self.model])
@@ -260,6 +264,7 @@ class TrainConfig:
         data["crop_hw"] = list(self.crop_hw)
         data["fit_large_hw"] = None if self.fit_large_hw is None else list(self.fit_large_hw)
         data["aux_weights"] = None if self.aux_weights is None else list(self.aux_weights)
+        data["freeze_layers"] = None if self.freeze_layers is None else list(self.freeze_layers)
         return data
 
     @classmethod
@@ -457,7 +462,9 @@ def training_mode(model: torch.nn.Module, freeze_batchnorm: bool = False,
             if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
                 module.eval()
     for group in frozen_layers or ():
-        getattr(model.network, group).eval()
+        module = getattr(model.network, group, None)      # a teacher has no aux heads
+        if module is not None:
+            module.eval()
 
 
 def freeze_layer_groups(model: SegmentationModel, groups: tuple[str, ...] | None) -> int:
@@ -537,16 +544,18 @@ def load_initial_weights(config: TrainConfig, train_frames: SegmentationFrames) 
         "command": source.get("command")})
 
 
-def _frozen_teacher(path: Path, device: torch.device, freeze_batchnorm: bool) -> SegmentationModel:
+def _frozen_teacher(path: Path, device: torch.device, freeze_batchnorm: bool,
+                    frozen_layers: tuple[str, ...] | None = None) -> SegmentationModel:
     """The network a distilling run started from (``start.pt``), its weights frozen, in the
     student's mode: BatchNorm normalises as the student's does (batch statistics, or the
     running ones with ``freeze_batchnorm``), so at iteration 0 both compute the same outputs
-    and the distillation loss is zero. (A teacher in eval mode would pull a student that
-    normalises by batch statistics toward another function.)"""
+    and the distillation loss is zero (the student's frozen layer groups run in eval mode in
+    both). (A teacher in eval mode would pull a student that normalises by batch statistics
+    toward another function.)"""
     teacher = model_from_checkpoint(path).to(device)
     for parameter in teacher.parameters():
         parameter.requires_grad_(False)
-    training_mode(teacher, freeze_batchnorm)
+    training_mode(teacher, freeze_batchnorm, frozen_layers)
     return teacher
 
 
@@ -733,8 +742,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
         # with the fine-tuned ones needs exactly them (same rebuilt BatchNorm statistics);
         # a distilling run's teacher is rebuilt from it on resume
         save_checkpoint(out_dir / START, payload(0, full=False))
-    teacher = (_frozen_teacher(out_dir / START, device, config.freeze_batchnorm)
-               if config.distill > 0 else None)
+    teacher = (_frozen_teacher(out_dir / START, device, config.freeze_batchnorm,
+                               config.freeze_layers) if config.distill > 0 else None)
 
     jitter = config.colour_jitter
     augmentation = (AugmentConfig(crop_hw=config.crop_hw, brightness=jitter, contrast=jitter,
