@@ -146,6 +146,11 @@ def need_torch() -> None:
         raise typer.Exit(2) from None
 
 
+def split_names(text: str) -> list[str]:
+    """The names of a comma-separated option (``stem, stage1,stage2``), blanks dropped."""
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
 def parse_crop(text: str, option: str = "crop") -> tuple[int, int]:
     """``HxW`` (rows x columns) or ``N`` for a square size."""
     try:

@@ -24,6 +24,7 @@ from harborsight.cli.app import (
     err_console,
     fmt_number,
     parse_sigma_options,
+    split_names,
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file, prepare_output_folder, strict_json, write_image
@@ -216,7 +217,7 @@ def evaluate_distance_command(
     clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
                                   pose_refinement=PoseRefinementSettings(enabled=refine_pose),
                                   sigma_options=parse_sigma_options(sigma))
-    chosen = [m.strip() for m in methods.split(",") if m.strip()]
+    chosen = split_names(methods)
     bad = [m for m in chosen if m not in {m.value for m in Method}]
     if bad or not chosen:
         err_console.print(f"error: --methods: unknown {bad}; use gsd and/or ground_plane")

@@ -20,6 +20,7 @@ from harborsight.cli.app import (
     fmt_number,
     need_torch,
     parse_crop,
+    split_names,
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file
@@ -204,7 +205,7 @@ def train(
                  "crop_hw": parse_crop(crop) if crop else None,
                  "fit_large_hw": parse_crop(fit_large, "fit_large") if fit_large else None,
                  "freeze_batchnorm": freeze_batchnorm,
-                 "freeze_layers": (tuple(g.strip() for g in freeze_layers.split(",") if g.strip())
+                 "freeze_layers": (tuple(split_names(freeze_layers))
                                    if freeze_layers is not None else None),
                  "aux_weights": tuple(aux_weight) if aux_weight else None,
                  "bootstrap_start_iteration": bootstrap_start,
@@ -294,7 +295,7 @@ def graft_weights(
     need_torch()
     from harborsight.training.checkpoint import graft_checkpoints, save_checkpoint
 
-    groups = [g.strip() for g in layers.split(",") if g.strip()]
+    groups = split_names(layers)
     try:
         prepare_output_file(out, "--out")
         payload = graft_checkpoints(base, donor, groups)
