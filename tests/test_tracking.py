@@ -1,9 +1,11 @@
 """The per-section tracker: a gated Kalman filter of clearance and closing speed."""
 
+from collections import deque
+
 import numpy as np
 import pytest
 
-from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
+from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, _Track
 
 
 def _approach(times_s, start_m=10.0, speed_mps=0.4):
@@ -143,3 +145,71 @@ def test_settings_are_checked():
         TrackerSettings(gate_sigma=0.0)
     with pytest.raises(ValueError, match="confirm_frames"):
         TrackerSettings(confirm_frames=0)
+    with pytest.raises(ValueError, match="noise_window"):
+        TrackerSettings(noise_window=-1)
+    with pytest.raises(ValueError, match="robust_sigma"):
+        TrackerSettings(robust_sigma=float("nan"))
+
+
+def _stop_at_the_berth(settings, noise_m=0.05, model_sigma_m=1.0, seed=5):
+    """Closing at 0.4 m/s for 5 s, then stopped for 15 s; readings scatter by ``noise_m``
+    but each says its random sigma is ``model_sigma_m`` (as an alignment's covariance does)."""
+    rng = np.random.default_rng(seed)
+    times = np.arange(0, 20, 0.5)
+    truth = np.where(times < 5, 10 - 0.4 * times, 8.0)
+    tracker = SectionTracker(settings)
+    errors = []
+    for t, d in zip(times, truth, strict=True):
+        reading = Reading(float(d + rng.normal(0, noise_m)), model_sigma_m, model_sigma_m)
+        estimate = tracker.step(float(t), reading)
+        errors.append(abs(estimate.distance_m - d))
+    return np.array(errors[10:]), estimate
+
+
+def test_the_measured_noise_lets_the_filter_follow_a_stop():
+    """A model sigma of 1 m on readings that scatter by 5 cm: with the track's own noise
+    measured, the filter stops with the vessel; with the model's sigma alone it overshoots
+    the stop by decimetres for seconds."""
+    measured, estimate = _stop_at_the_berth(TrackerSettings())
+    modelled, _ = _stop_at_the_berth(TrackerSettings(noise_window=0, robust_sigma=0))
+    assert modelled.max() > 0.4 and modelled.mean() > 0.2
+    assert measured.max() < 0.25 and measured.mean() < 0.3 * modelled.mean()
+    # averaging does not make the model's 1 m vanish: it is kept as systematic
+    assert estimate.sigma_m == pytest.approx(1.0, abs=0.05)
+    assert abs(estimate.closing_speed_mps) < 0.05
+
+
+def _track_of(times_s, distances_m) -> _Track:
+    recent = deque(zip(times_s, distances_m, strict=True))
+    return _Track(0, 0.0, np.zeros(2), np.eye(2), recent=recent)
+
+
+def test_white_variance_of_three_point_residuals():
+    """Uneven times, a steady rate and one change of rate: the robust residual spread
+    recovers the readings' white sigma, and a constant rate contributes nothing."""
+    found = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        times = np.cumsum(rng.uniform(0.3, 0.7, 401))
+        truth = np.where(times < 100, 10 - 0.4 * times, 10 - 0.4 * 100 + 0.1 * (times - 100))
+        noisy = truth + rng.normal(0, 0.1, len(times))
+        found.append(np.sqrt(_track_of(times, noisy).white_variance(5)))
+    assert np.mean(found) == pytest.approx(0.1, rel=0.05)     # one draw's spread: 7 %
+    assert _track_of(times[:20], truth[:20]).white_variance(5) == pytest.approx(0.0, abs=1e-20)
+    assert _track_of(times[:6], truth[:6]).white_variance(5) is None
+
+
+def test_a_one_frame_jump_inside_the_gate_is_capped():
+    """A reading 1.5 m farther, inside the model's 3 m gate, on a quay read to 5 cm: capped at
+    three measured sigma it barely moves the speed; uncapped it would."""
+    def speeds(settings):
+        tracker = SectionTracker(settings)
+        out = []
+        for i, t in enumerate(np.arange(0, 12, 0.5)):
+            d = 10 - 0.3 * t + (1.5 if i == 16 else 0.0)
+            out.append(tracker.step(float(t), Reading(float(d), 1.0, 1.0)).closing_speed_mps)
+        return np.array(out[16:])
+    capped = speeds(TrackerSettings())
+    uncapped = speeds(TrackerSettings(robust_sigma=0))
+    assert np.abs(capped - 0.3).max() < 0.1
+    assert np.abs(uncapped - 0.3).max() > 2 * np.abs(capped - 0.3).max()
