@@ -182,3 +182,37 @@ def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path)
     assert sheet[60, 164 + 40].mean() > 200 and sheet[60, 164 + 120].mean() < 40
     # the square tile covers 160x160, cut to rows 35-125: 5 white rows left (a stretch: 22)
     assert sheet[94 + 2, 164 + 80].mean() > 200 and sheet[94 + 15, 164 + 80].mean() < 120
+
+
+@pytest.mark.parametrize("kind,length_m", [("rib", 4.0), ("rib", 8.5), ("yacht", 11.0),
+                                           ("yacht", 18.0), ("jetski", 3.0)])
+def test_small_craft_kinds_fit_their_length_and_are_ship(kind, length_m):
+    """Each kind of small craft: one object of class ship, its footprint the boat's length
+    and beam (a RIB's tubes and a yacht's upper works stay on the hull)."""
+    from harborsight.sim.families import add_leisure_boat
+    from harborsight.sim.layout import _Builder
+
+    builder = _Builder(np.random.default_rng(3), heading_deg=30.0)
+    boat = add_leisure_boat(builder, 5.0, -2.0, 45.0, length_m, kind)
+    assert boat.class_id == SHIP and boat.kind == "boat" and boat.name.startswith(kind)
+    footprint = boat.footprint()
+    rectangle = footprint.minimum_rotated_rectangle
+    sides = sorted(np.hypot(*np.diff(np.asarray(rectangle.exterior.coords)[:3], axis=0).T))
+    assert sides[1] == pytest.approx(length_m, rel=0.1 if kind != "jetski" else 0.2)
+    assert 0.25 < sides[0] / sides[1] < 0.5            # a boat's beam
+    assert footprint.area > 0.7 * rectangle.area       # one hull, not scattered parts
+
+
+def test_boat_kinds_are_drawn_with_their_shares_and_yachts_only_when_long():
+    from harborsight.sim.families import _BOAT_KIND_P, _BOAT_KINDS, _draw_boat_kind
+
+    rng = np.random.default_rng(0)
+    short = [_draw_boat_kind(rng, 8.0) for _ in range(3000)]
+    long = [_draw_boat_kind(rng, 14.0) for _ in range(3000)]
+    assert "yacht" not in short
+    for kinds in (short, long):
+        assert {"motor", "sail", "covered", "pontoon", "rib"} <= set(kinds)
+    share = long.count("rib") / len(long)
+    assert share == pytest.approx(_BOAT_KIND_P[_BOAT_KINDS.index("rib")], abs=0.02)
+    assert long.count("yacht") / len(long) == pytest.approx(
+        _BOAT_KIND_P[_BOAT_KINDS.index("yacht")], abs=0.015)

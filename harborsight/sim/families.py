@@ -135,13 +135,108 @@ def _hull_template(b: _Builder, length_m: float) -> tuple[HullParameters, list[t
                    deckhouse=(*params.deckhouse[:3], params.deckhouse[3] * k)), scaled
 
 
+#: the kinds of small craft a boat is drawn from, and their shares; a motor yacht only where
+#: a boat is at least :data:`_YACHT_MIN_LENGTH_M` long (its share then goes to the others)
+_BOAT_KINDS = ("motor", "sail", "covered", "pontoon", "rib", "yacht")
+_BOAT_KIND_P = np.array([0.32, 0.22, 0.16, 0.12, 0.12, 0.06])
+_YACHT_MIN_LENGTH_M = 11.0
+#: RIB tube colours (grey, black, orange, red, dark blue; grey the most common) and shares
+_RIB_TUBE_RGB = [(0.32, 0.33, 0.34), (0.03, 0.03, 0.03), (0.8, 0.25, 0.02), (0.45, 0.03, 0.02),
+                 (0.03, 0.06, 0.2)]
+_RIB_TUBE_P = np.array([0.45, 0.2, 0.15, 0.1, 0.1])
+
+
+def _draw_boat_kind(rng: np.random.Generator, length_m: float) -> str:
+    p = _BOAT_KIND_P.copy()
+    if length_m < _YACHT_MIN_LENGTH_M:
+        p[_BOAT_KINDS.index("yacht")] = 0.0
+    return str(rng.choice(_BOAT_KINDS, p=p / p.sum()))
+
+
+def _rib_parts(b: _Builder, tag: str, length_m: float, hull_mat: str, deck_mat: str
+               ) -> list[tuple[trimesh.Trimesh, str]]:
+    """A rigid inflatable boat: a tube collar round a flat deck (square stern, round bow), a
+    centre console, now and then a T-top, and one or two outboards.
+
+    From above a collar is a band of tube round the deck, shaded like a tube: it is drawn as
+    a convex slab of the boat's outline in the tube's colour, bevelled inward by half the
+    tube's radius at its top, with the deck a thin convex slab inset by the tube's diameter
+    and lying 2 cm above it. Four or five parts, as few as a motor boat's: a marina holds
+    hundreds of boats, and each part costs layout and render time."""
+    rng = b.rng
+    beam = length_m * rng.uniform(0.36, 0.42)
+    tube_r = float(np.clip(0.055 * length_m, 0.22, 0.32))
+    tube = b.material(f"{tag}-tube", Material(_jitter(_pick(_RIB_TUBE_RGB, rng, _RIB_TUBE_P), rng, 0.08),
+                                              0.55, 0.0, 0.06))
+
+    def outline(inset_m: float) -> np.ndarray:
+        """The boat's outline ``inset_m`` inside its edge: square at the stern, the bow a
+        half ellipse over the forward quarter."""
+        half_w = beam / 2 - inset_m
+        stern_x = -length_m / 2 + inset_m
+        shoulder_x = length_m * 0.25
+        bow_l = length_m / 2 - inset_m - shoulder_x
+        angles = np.linspace(-math.pi / 2, math.pi / 2, 9)
+        bow = np.column_stack((shoulder_x + bow_l * np.cos(angles), half_w * np.sin(angles)))
+        return np.vstack(([[stern_x, -half_w]], bow, [[stern_x, half_w]]))
+
+    def slab(points: np.ndarray, z_low: float, z_high: float, top: np.ndarray | None = None
+             ) -> trimesh.Trimesh:
+        top = points if top is None else top
+        return convex_mesh(np.vstack((np.column_stack((points, np.full(len(points), z_low))),
+                                      np.column_stack((top, np.full(len(top), z_high))))))
+
+    collar_top = 1.6 * tube_r
+    parts = [(slab(outline(0.0), -0.2, collar_top, outline(0.5 * tube_r)), tube),
+             (slab(outline(2 * tube_r), collar_top, collar_top + 0.02), deck_mat)]
+    console_x = -0.05 * length_m
+    deck_w = beam - 4 * tube_r
+    parts.append((_box(0.7, min(0.8, deck_w * 0.5), 1.0, console_x, 0.0, collar_top), hull_mat))
+    if rng.random() < 0.35 and length_m > 6:
+        frame = b.material(f"{tag}-ttop", Material((0.7, 0.7, 0.72), 0.3, 0.8, 0.02))
+        parts.append((_box(1.8, deck_w * 0.8, 0.08, console_x, 0.0, collar_top + 1.9), frame))
+    engine = b.material(f"{tag}-engine", Material(_pick([(0.02, 0.02, 0.02), (0.75, 0.75, 0.75)], rng),
+                                                  0.4, 0.1, 0.03))
+    engines_w = 1.0 if length_m > 7.5 else 0.4          # twin outboards side by side, or one
+    parts.append((_box(0.45, engines_w, 0.9, -length_m / 2 + 0.25, 0.0, -0.2), engine))
+    return parts
+
+
+def _yacht_parts(b: _Builder, tag: str, params: HullParameters, length_m: float
+                 ) -> list[tuple[trimesh.Trimesh, str]]:
+    """A motor yacht's upper works on a leisure hull: a saloon deckhouse, a flybridge with a
+    helm and often a hardtop, and a teak or white sun deck aft."""
+    rng = b.rng
+    top = params.freeboard_m
+    beam = params.beam_m
+    white = b.material(f"{tag}-super", Material(_jitter((0.82, 0.82, 0.8), rng, 0.04), 0.35, 0.0, 0.03))
+    saloon_l = length_m * rng.uniform(0.42, 0.55)
+    saloon_x = length_m * rng.uniform(-0.05, 0.08)
+    saloon_h = rng.uniform(1.9, 2.4)
+    parts = [(_box(saloon_l, beam * 0.8, saloon_h, saloon_x, 0.0, top), white)]
+    fly_l = saloon_l * rng.uniform(0.55, 0.8)
+    fly_x = saloon_x - (saloon_l - fly_l) / 2 * rng.uniform(0.0, 1.0)
+    parts.append((_box(fly_l, beam * 0.72, 0.9, fly_x, 0.0, top + saloon_h), white))
+    if rng.random() < 0.6:
+        roof = b.material(f"{tag}-hardtop", Material(_pick([(0.82, 0.82, 0.8), (0.05, 0.05, 0.06)], rng),
+                                                     0.4, 0.0, 0.03))
+        parts.append((_box(fly_l * 0.6, beam * 0.7, 0.1, fly_x, 0.0, top + saloon_h + 2.1), roof))
+    teak = (0.45, 0.3, 0.16) if rng.random() < 0.6 else (0.8, 0.8, 0.78)
+    deck = b.material(f"{tag}-sundeck", Material(_jitter(teak, rng, 0.08), 0.7, 0.0, 0.12, 3.0))
+    aft_l = length_m * 0.5 - (saloon_l / 2 - saloon_x) - 0.5
+    if aft_l > 0.8:
+        parts.append((_box(aft_l, beam * 0.85, 0.05, -length_m / 2 + 0.3 + aft_l / 2, 0.0, top), deck))
+    return parts
+
+
 def add_leisure_boat(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float,
                      length_m: float, kind: str | None = None):
     """A moored or lifted small craft centred at (x_v, y_v): motor boat, sailing boat (mast),
-    covered boat (a tarp over the deck), pontoon boat (two tubes, a flat deck and a bimini) or
-    jet ski. Colours follow :data:`_LEISURE_HULL_RGB`."""
+    covered boat (a tarp over the deck), pontoon boat (two tubes, a flat deck and a bimini),
+    RIB (a tube collar, a console, outboards), motor yacht (11 m and longer: a saloon and a
+    flybridge) or jet ski. Colours follow :data:`_LEISURE_HULL_RGB`."""
     rng = b.rng
-    kind = kind or str(rng.choice(["motor", "sail", "covered", "pontoon"], p=[0.4, 0.25, 0.2, 0.15]))
+    kind = kind or _draw_boat_kind(rng, length_m)
     tag = f"{kind}{b.next_instance}"
     hull_mat = b.material(f"{tag}-hull", Material(_jitter(_pick(_LEISURE_HULL_RGB, rng, _LEISURE_HULL_P),
                                                           rng, 0.08), rng.uniform(0.25, 0.6), 0.0, 0.08))
@@ -163,7 +258,14 @@ def add_leisure_boat(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float
         parts.append((_box(length_m, 1.2, 0.7, 0.0, 0.0, -0.2), hull_mat))
         parts.append((_box(length_m * 0.35, 0.4, 0.35, -0.1 * length_m, 0.0, 0.5), deck_mat))
         return b.add(tag, "boat", SHIP, parts, x_v, y_v, rel_heading_deg)
+    if kind == "rib":
+        return b.add(tag, "boat", SHIP, _rib_parts(b, tag, length_m, hull_mat, deck_mat),
+                     x_v, y_v, rel_heading_deg)
     params, pieces = _hull_template(b, length_m)
+    if kind == "yacht":         # the hull alone: the yacht's own upper works replace the cabin
+        parts.append((pieces[0], hull_mat))
+        parts += _yacht_parts(b, tag, params, length_m)
+        return b.add(tag, "boat", SHIP, parts, x_v, y_v, rel_heading_deg)
     for i, piece in enumerate(pieces):
         parts.append((piece, hull_mat if i == 0 else deck_mat))
     top = params.freeboard_m
