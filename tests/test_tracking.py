@@ -184,8 +184,10 @@ def test_the_measured_noise_lets_the_filter_follow_a_stop():
 
 
 def _track_of(times_s, distances_m) -> _Track:
-    recent = deque(zip(times_s, distances_m, strict=True))
-    return _Track(0, 0.0, np.zeros(2), np.eye(2), recent=recent)
+    track = _Track(0, 0.0, np.zeros(2), np.eye(2), residuals=deque())
+    for t, d in zip(times_s, distances_m, strict=True):
+        track.remember(float(t), float(d))
+    return track
 
 
 def test_white_variance_of_three_point_residuals():

@@ -75,6 +75,7 @@ while the closing speed exceeds ``min_closing_mps``.
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -139,24 +140,33 @@ class _Track:
     updates: int = 1
     misses_in_row: int = 0            # readings in a row that went to another track
     systematic_m: float = 0.0
-    recent: deque = field(default_factory=deque)   # (time_s, distance_m) of the last readings
+    recent: deque = field(default_factory=lambda: deque(maxlen=3))   # (time_s, distance_m)
+    #: |r| of the three-point residuals of the last readings (NaN where three share a time)
+    residuals: deque = field(default_factory=deque)
+
+    def remember(self, time_s: float, distance_m: float) -> None:
+        """Keep a reading, and the residual of the one before it once three are in a row
+        (module docstring): one residual a reading, so the noise is measured in constant
+        time, without looking back over the window."""
+        self.recent.append((time_s, distance_m))
+        if len(self.recent) < 3:
+            return
+        (t1, z1), (t2, z2), (t3, z3) = self.recent
+        span = t3 - t1
+        if span <= 0:
+            self.residuals.append(math.nan)
+            return
+        a = (t3 - t2) / span
+        b = 1.0 - a
+        self.residuals.append(abs(z2 - (a * z1 + b * z3)) / math.sqrt(1.0 + a * a + b * b))
 
     def white_variance(self, min_residuals: int) -> float | None:
-        """The robust variance of the readings' white noise from three-point residuals
-        (module docstring); None with fewer than ``min_residuals`` residuals. Three readings
-        at one time give no residual."""
-        if len(self.recent) < min_residuals + 2:
+        """The robust variance ``(1.4826 · median |r|)²`` of the readings' white noise from the
+        kept residuals (module docstring); None with fewer than ``min_residuals`` of them."""
+        kept = [r for r in self.residuals if r == r]           # NaN: three at one time
+        if len(kept) < min_residuals:
             return None
-        times, distances = np.array(self.recent, float).T
-        span = times[2:] - times[:-2]
-        usable = span > 0
-        if np.count_nonzero(usable) < min_residuals:
-            return None
-        a = (times[2:][usable] - times[1:-1][usable]) / span[usable]
-        b = 1.0 - a
-        line = a * distances[:-2][usable] + b * distances[2:][usable]
-        residual = (distances[1:-1][usable] - line) / np.sqrt(1.0 + a * a + b * b)
-        return float((1.4826 * np.median(np.abs(residual))) ** 2)
+        return (1.4826 * statistics.median(kept)) ** 2
 
     def predicted(self, time_s: float, q: float) -> tuple[np.ndarray, np.ndarray]:
         dt = max(time_s - self.time_s, 0.0)
@@ -211,7 +221,8 @@ class SectionTracker:
         track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
                        np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
                        systematic_m=systematic,
-                       recent=deque([(time_s, reading.distance_m)], maxlen=self.settings.noise_window or 1))
+                       residuals=deque(maxlen=max(self.settings.noise_window - 2, 0)))
+        track.remember(time_s, reading.distance_m)
         self._next_id += 1
         self.tracks.append(track)
         if len(self.tracks) > self.settings.max_tracks:      # drop the stalest other track
@@ -283,7 +294,8 @@ class SectionTracker:
         track.updates += 1
         track.misses_in_row = 0
         track.systematic_m = systematic
-        track.recent.append((time_s, reading.distance_m))
+        if self.settings.noise_window:
+            track.remember(time_s, reading.distance_m)
 
     def _estimate(self, time_s: float, state: str) -> SectionEstimate:
         track = self.current
