@@ -209,9 +209,21 @@ def test_white_variance_of_three_point_residuals():
     noisy = 10 - 0.4 * times + rng.normal(0, 0.1, 15)
     noisy[7] += 3.0
     assert np.sqrt(_track_of(times, noisy).white_variance(5)) < 0.25
-    # three readings at one time give no residual; the others still count
-    times[4:7] = times[4]
-    assert _track_of(times, noisy).white_variance(5) is not None
+    # three readings at one time give no residual (not a zero one); the others still count
+    steady = 10 - 0.4 * times + np.where(np.arange(15) % 2, 0.1, -0.1)   # |r| = 0.163 each
+    together = times.copy()
+    together[4:7] = together[4]
+    found = _track_of(together, steady).white_variance(5)
+    assert np.sqrt(found) == pytest.approx(1.4826 * 0.2 * 2 / np.sqrt(6), rel=1e-6)
+    # old residuals leave the window: noise that drops from 0.5 to 0.05 m is measured anew
+    settings = TrackerSettings()
+    tracker = SectionTracker(settings)
+    rng = np.random.default_rng(4)
+    for t in np.arange(0, 30, 0.5):
+        noise = 0.5 if t < 15 else 0.05
+        tracker.step(float(t), Reading(float(20 - 0.2 * t + rng.normal(0, noise)), 5.0, 5.0))
+    quiet = tracker.current.white_variance(settings.min_noise_residuals)
+    assert np.sqrt(quiet) < 0.1
 
 
 def test_a_one_frame_jump_inside_the_gate_is_capped():
@@ -251,15 +263,29 @@ def test_a_nearer_reading_inside_the_gate_is_followed_no_slower_than_before():
 
 
 def test_a_frame_a_little_out_of_order_keeps_the_filter_sane():
-    """A frame 0.5 s behind the last (the live feed's clocks): no negative variance."""
+    """A frame 0.5 s behind the last (the live feed's clocks): no negative variance, and the
+    track's clock does not go back (which would bend the closing speed after it)."""
     tracker = SectionTracker()
     for t in np.arange(0, 10, 0.5):
-        tracker.step(float(t), Reading(10.0 + 0.05 * np.sin(7 * t), 1.2, 1.1))
+        tracker.step(float(t), Reading(10.0 + 0.01 * np.sin(7 * t), 1.2, 1.1))
+    track = tracker.current
+    for dt in (-0.5, 0.0):
+        variance, _ = tracker._reading_variance(Reading(10.0, 1.2, 1.1), dt, track)
+        assert variance >= tracker.settings.min_reading_sigma_m ** 2
     behind = tracker.step(9.0, Reading(10.0, 1.2, 1.1))
     after = tracker.step(10.0, Reading(10.0, 1.2, 1.1))
     assert behind.distance_m == pytest.approx(10.0, abs=0.1)
     assert after.distance_m == pytest.approx(10.0, abs=0.1)
     assert tracker.current.covariance[0, 0] > 0 and after.sigma_m > 0
+    assert track.time_s == 10.0
+
+    # an approach at 0.4 m/s read to the centimetre, one frame 0.5 s late
+    approach = SectionTracker()
+    times = [*np.arange(0, 9.6, 0.5), 9.0, *np.arange(10.0, 12.1, 0.5)]
+    for t in times:
+        estimate = approach.step(float(t), Reading(float(10 - 0.4 * t), 0.3, 0.3))
+        if t >= 10.0:
+            assert estimate.closing_speed_mps == pytest.approx(0.4, abs=0.05), t
 
 
 def test_an_honest_model_keeps_its_speed_accuracy():

@@ -279,6 +279,10 @@ class SectionTracker:
         return track.misses_in_row == 0 and current.misses_in_row >= confirm
 
     def _update(self, track: _Track, time_s: float, reading: Reading) -> None:
+        # a reading a little older than the track's last (a live feed's frames out of order)
+        # is taken at the track's own time: its clock never goes back, or the next
+        # prediction would cover that stretch twice and bend the closing speed
+        time_s = max(time_s, track.time_s)
         x, P = self._predicted(track, time_s)
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
