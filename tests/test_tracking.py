@@ -305,3 +305,16 @@ def test_an_honest_model_keeps_its_speed_accuracy():
         assert np.mean(np.isnan(errors)) < 0.02       # a new track now and then has no speed
         return float(np.sqrt(np.nanmean(np.square(errors))))
     assert speed_rmse(TrackerSettings()) < 1.25 * speed_rmse(TrackerSettings(noise_window=0))
+
+
+def test_a_reading_without_a_sigma_is_no_surer_than_the_tracks_last():
+    """A reading whose sigma could not be given (None) takes the track's last sigmas: one
+    reading 1 m farther moves the filter as a reading of that sigma would, not as one sure to
+    the 2 cm floor."""
+    def after_jump(sigma):
+        tracker = SectionTracker(TrackerSettings(noise_window=0, robust_sigma=0))
+        for t in np.arange(0, 5, 0.5):
+            tracker.step(float(t), Reading(10.0, 0.8, 0.8))
+        return tracker.step(5.0, Reading(11.0, sigma, sigma)).distance_m
+    assert after_jump(None) == pytest.approx(after_jump(0.8), abs=1e-9)
+    assert after_jump(None) < 10.5

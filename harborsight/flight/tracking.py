@@ -140,6 +140,8 @@ class _Track:
     updates: int = 1
     misses_in_row: int = 0            # readings in a row that went to another track
     systematic_m: float = 0.0
+    #: (sigma_m, sigma_random_m) of the last reading that had them
+    last_sigmas: tuple[float, float | None] | None = None
     recent: deque = field(default_factory=lambda: deque(maxlen=3))   # (time_s, distance_m)
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
     residuals: deque = field(default_factory=deque)
@@ -205,6 +207,10 @@ class SectionTracker:
         s = self.settings
         random = reading.sigma_random_m
         total = reading.sigma_m if reading.sigma_m is not None else random
+        if total is None and track is not None and track.last_sigmas is not None:
+            # no sigma could be given (a pixel past a lens's fold): no surer than the track's
+            # last reading, rather than sure to the floor
+            total, random = track.last_sigmas
         if total is None:
             total = s.min_reading_sigma_m
         random = max(total if random is None else min(random, total), s.min_reading_sigma_m)
@@ -221,6 +227,8 @@ class SectionTracker:
         track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
                        np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
                        systematic_m=systematic,
+                       last_sigmas=(None if reading.sigma_m is None
+                                    else (reading.sigma_m, reading.sigma_random_m)),
                        residuals=deque(maxlen=max(self.settings.noise_window - 2, 0)))
         track.remember(time_s, reading.distance_m)
         self._next_id += 1
@@ -298,6 +306,8 @@ class SectionTracker:
         track.updates += 1
         track.misses_in_row = 0
         track.systematic_m = systematic
+        if reading.sigma_m is not None:
+            track.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
         if self.settings.noise_window:
             track.remember(time_s, reading.distance_m)
 
