@@ -308,8 +308,7 @@ class SectionTracker:
         track.systematic_m = systematic
         if reading.sigma_m is not None:
             track.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
-        if self.settings.noise_window:
-            track.remember(time_s, reading.distance_m)
+        track.remember(time_s, reading.distance_m)     # keeps no residual when noise_window is 0
 
     def _estimate(self, time_s: float, state: str) -> SectionEstimate:
         track = self.current

@@ -94,6 +94,15 @@ def _gable(length: float, width: float, height: float, z_bottom: float) -> trime
     return convex_mesh(np.array(points))
 
 
+def _prism(outline_xy: np.ndarray, z_low: float, z_high: float,
+           top_xy: np.ndarray | None = None) -> trimesh.Trimesh:
+    """The convex solid between a convex outline at ``z_low`` and ``top_xy`` (the same
+    outline when None, a smaller one for a bevel or a slope) at ``z_high``."""
+    top_xy = outline_xy if top_xy is None else top_xy
+    return convex_mesh(np.vstack((np.column_stack((outline_xy, np.full(len(outline_xy), z_low))),
+                                  np.column_stack((top_xy, np.full(len(top_xy), z_high))))))
+
+
 def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float) -> trimesh.Trimesh:
     vertices = _UNIT_SPHERE.vertices * np.array([radius_xy, radius_xy, radius_z])
     vertices += (0.0, 0.0, z_centre)
@@ -180,15 +189,9 @@ def _rib_parts(b: _Builder, tag: str, length_m: float, hull_mat: str, deck_mat: 
         bow = np.column_stack((shoulder_x + bow_l * np.cos(angles), half_w * np.sin(angles)))
         return np.vstack(([[stern_x, -half_w]], bow, [[stern_x, half_w]]))
 
-    def slab(points: np.ndarray, z_low: float, z_high: float, top: np.ndarray | None = None
-             ) -> trimesh.Trimesh:
-        top = points if top is None else top
-        return convex_mesh(np.vstack((np.column_stack((points, np.full(len(points), z_low))),
-                                      np.column_stack((top, np.full(len(top), z_high))))))
-
     collar_top = 1.6 * tube_r
-    parts = [(slab(outline(0.0), -0.2, collar_top, outline(0.5 * tube_r)), tube),
-             (slab(outline(2 * tube_r), collar_top, collar_top + 0.02), deck_mat)]
+    parts = [(_prism(outline(0.0), -0.2, collar_top, outline(0.5 * tube_r)), tube),
+             (_prism(outline(2 * tube_r), collar_top, collar_top + 0.02), deck_mat)]
     console_x = -0.05 * length_m
     deck_w = beam - 4 * tube_r
     parts.append((_box(0.7, min(0.8, deck_w * 0.5), 1.0, console_x, 0.0, collar_top), hull_mat))
@@ -316,9 +319,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
     for k in range(len(xs) - 1):
         quad = np.array([(xs[k], edge[k]), (xs[k + 1], edge[k + 1]),
                          (xs[k + 1], -depth_m), (xs[k], -depth_m)])
-        prism = convex_mesh(np.vstack((np.column_stack((quad, np.full(4, -3.0))),
-                                                      np.column_stack((quad, np.full(4, height))))))
-        parts.append(prism)
+        parts.append(_prism(quad, -3.0, height))
     objects_land = [(p, lawn) for p in parts]
     x0, y0 = _local_to_vessel(origin_v, along_deg, 0.0, 0.0)
     b.add(f"{tag}-land", "land", OBSTACLE, objects_land, x0, y0, along_deg)
@@ -338,9 +339,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
             w = rng.uniform(1.5, 4.0)
             quad = np.array([(xs[k], edge[k] + w * 0.6), (xs[k + 1], edge[k + 1] + w * 0.6),
                              (xs[k + 1], edge[k + 1] - w), (xs[k], edge[k] - w)])
-            slab = convex_mesh(np.vstack((
-                np.column_stack((quad, np.full(4, -1.0))),
-                np.column_stack((quad[2:], np.full(2, height + 0.3))))))
+            slab = _prism(quad, -1.0, height + 0.3, top_xy=quad[2:])
             b.add(f"{tag}-riprap{k}", "riprap", OBSTACLE, [(slab, rock)], x0, y0, along_deg)
     # trees: trunks on land, crowns overhanging the water near the edge (and their shadows)
     bark = b.material(f"{tag}-bark", Material((0.08, 0.05, 0.03), 0.9))
