@@ -551,3 +551,40 @@ def test_command_refuses_unknown_class_names_and_a_used_folder(box_source, tmp_p
     result = label_from_boxes_cli(box_source, out)
     assert result.exit_code == 2 and "not an empty folder" in result.output
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+def test_a_diagonal_jetski_is_cut_without_its_shadow_or_the_dock_in_its_box():
+    """A white jetski lying across its box, its dark shadow on the water beside it, and the
+    corner of a dock inside the same box: the vessel cut keeps the jetski, the shadow stays
+    water, and the dock's pixels in the ship box are undecided (255), never ship."""
+    scene = make_scene(buoy=False)
+    image = scene.image.copy()
+    jetski = cv2.boxPoints(((150.0, 300.0), (40.0, 11.0), -40.0)).astype(np.float32)
+    shadow = jetski + np.float32([-7, 7])
+    cv2.fillConvexPoly(image, np.round(shadow).astype(np.int32), (45, 60, 65))
+    dock = (160, 280, 200, 300)                        # overlaps the jetski's box corner
+    image[dock[1]:dock[3], dock[0]:dock[2]] = 190
+    image[dock[1]:dock[3], dock[0]:dock[2]:6] = 120
+    cv2.fillConvexPoly(image, np.round(jetski).astype(np.int32), (235, 235, 235))
+    x0, y0 = jetski.min(axis=0) - 1
+    x1, y1 = jetski.max(axis=0) + 1
+    boxes = [Box("jetski", SHIP, float(x0), float(y0), float(x1), float(y1)),
+             Box("dock", OBSTACLE, float(dock[0]), float(dock[1]), float(dock[2]), float(dock[3]))]
+    labels = label_from_boxes(image, boxes, FAST).labels
+    body = np.zeros(labels.shape, np.uint8)
+    cv2.fillConvexPoly(body, np.round(jetski).astype(np.int32), 1)
+    inner = cv2.erode(body, np.ones((5, 5), np.uint8)) > 0          # off the band of doubt
+    assert (labels[inner] == SHIP).mean() >= 0.9
+    shade = np.zeros(labels.shape, np.uint8)
+    cv2.fillConvexPoly(shade, np.round(shadow).astype(np.int32), 1)
+    shade_only = (cv2.erode(shade, np.ones((3, 3), np.uint8)) > 0) & (
+        cv2.dilate(body, np.ones((5, 5), np.uint8)) == 0)
+    assert shade_only.sum() > 30 and not (labels[shade_only] == SHIP).any()
+    in_box = rect_mask(labels.shape, (x0, y0, x1, y1))
+    dock_in_box = rect_mask(labels.shape, dock) & in_box & (body == 0)
+    dock_in_box &= cv2.dilate(body, np.ones((5, 5), np.uint8)) == 0
+    assert dock_in_box.sum() > 20 and (labels[dock_in_box] == IGNORE).all()
+    # the water in the box's corners, away from jetski and shadow, is not ship
+    free = in_box & (cv2.dilate(body | shade, np.ones((5, 5), np.uint8)) == 0) & ~rect_mask(
+        labels.shape, dock, 2)
+    assert free.sum() > 50 and not (labels[free] == SHIP).any()

@@ -53,13 +53,15 @@ def test_lakeshore_labels_rebuild_from_the_boxes_and_the_review(tmp_path):
     source = SHARED / "aerial-maritime-drone"
     images, _ = read_yolo_boxes(source / "boxes", source / "photos",
                                 read_class_names(source / "classes.yaml"), parse_class_map(LAKE_MAP))
-    # one photo with polygon corrections and a relabelled lift box, one accepted as proposed
-    chosen = [item for item in images if item.image_path.stem in ("DJI_0298", "DJI_0284")]
+    # one photo with polygon corrections and a relabelled lift box, one accepted as proposed,
+    # one with a jetski outlined by hand (the second review)
+    stems = ("DJI_0298", "DJI_0284", "DJI_0268")
+    chosen = [item for item in images if item.image_path.stem in stems]
     corrections = read_corrections(REAL / "lakeshore-corrections.yaml")
     assert corrections.box_classes["DJI_0298"] == {8: 1}
-    write_box_dataset(chosen, tmp_path, {"DJI_0298": "train", "DJI_0284": "train"}, corrections,
-                      max_side=1024)
-    for stem in ("DJI_0298", "DJI_0284"):
+    assert corrections.box_classes["DJI_0268"] == {15: 255}
+    write_box_dataset(chosen, tmp_path, dict.fromkeys(stems, "train"), corrections, max_side=1024)
+    for stem in stems:
         rebuilt = cv2.imread(str(tmp_path / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
         committed = cv2.imread(str(REAL / "lakeshore" / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
         assert np.array_equal(rebuilt, committed), stem

@@ -85,6 +85,24 @@ def parse_weighted_data(entries: list[Path]) -> tuple[list[str], list[float] | N
     return folders, [1.0 if w is None else w for w in weights]
 
 
+def parse_copy_paste(entries: list[str], data_dirs: list[str]) -> list[float]:
+    """``DIR:P`` entries -> one probability per ``--data`` folder (0 where none is given)."""
+    probabilities = [0.0] * len(data_dirs)
+    for entry in entries:
+        folder, _, tail = entry.rpartition(":")
+        try:
+            probability = float(tail)
+        except ValueError:
+            raise InputError(None, "copy_paste", f"expected DIR:P, got {entry!r}") from None
+        matches = [k for k, d in enumerate(data_dirs) if Path(d) == Path(folder)]
+        if not folder or not matches:
+            raise InputError(None, "copy_paste", f"{folder or entry!r} is not one of the --data "
+                             f"folders ({', '.join(data_dirs) or 'none'})")
+        for k in matches:
+            probabilities[k] = probability
+    return probabilities
+
+
 @app.command()
 def train(
     out: Annotated[Path, typer.Option(help="Run folder: last.pt, best.pt, train_log.jsonl.")],
@@ -118,6 +136,12 @@ def train(
         "layers in eval mode; their scale and shift still learn): a fine-tune on new data "
         "then does not shift the statistics the model's earlier data was normalised with "
         "[off].")] = None,
+    copy_paste: Annotated[list[str] | None, typer.Option(
+        help="DIR:P, repeatable: a training sample of --data folder DIR gets, with probability "
+        "P, 1-3 of DIR's own training vessels pasted onto its open water (turned by 90 degree "
+        "steps, never over a dock, a boat or an undecided pixel; the ring around each is "
+        "ignore): more of a rare ship class, e.g. small boats on lake-shore photos. A folder "
+        "keeps its own scale, so give it for folders whose frames share a GSD.")] = None,
     freeze_layers: Annotated[str | None, typer.Option(
         help="Comma-separated layer groups of the network (its top-level modules, e.g. "
         "stem,stage1,stage2 for DDRNet) that do not learn: no gradient, BatchNorm statistics "
@@ -223,6 +247,11 @@ def train(
                  "val_dirs": [str(d) for d in val_data] if val_data else None}
         if data:
             given["data_dirs"], given["data_weights"] = parse_weighted_data(data)
+        if copy_paste:
+            folders = given.get("data_dirs")
+            if folders is None and resume:
+                folders = load_checkpoint(out / LAST)["config"]["data_dirs"]
+            given["copy_paste"] = parse_copy_paste(copy_paste, folders or [])
         given = {k: v for k, v in given.items() if v is not None}
         if resume:
             stored = load_checkpoint(out / LAST)["config"]

@@ -19,10 +19,18 @@ are water. A mask is built in three steps, all at a working size whose long side
    connected to the seed nor large are dropped (a smooth roof is not a lake), and a second
    GrabCut pass on the colour image moves the water line onto the image edge inside a
    narrow band around it.
-2. **Solid.** Everything that is not water is ``obstacle``; the boxes of ship classes are
-   cut out of it by GrabCut inside the box (non-water in the box: probably the vessel;
-   water and the area outside the box: not), and those pixels become ``ship``. Boxes mapped
-   to ``ignore`` make their non-water pixels 255.
+2. **Solid.** Everything that is not water is ``obstacle``. Each box of a ship class is cut
+   out on the image at full resolution, upsampled ``vessel_upsample`` times (a jetski is
+   a dozen pixels wide in a 2048-px photo): GrabCut from the box (inside: probably the
+   vessel; outside: not), with the pixels of the box darker than the water around it by
+   ``shadow_darker_l`` and nearly grey (CIELAB chroma under ``shadow_max_chroma``) seeded
+   as probably not, since a boat's shadow on the water is its most vessel-like
+   neighbour. The largest piece is kept, filled to its convex hull (seen from above a
+   hull is convex; this closes dark seats and biminis that GrabCut left out at its edge),
+   less one ring of upsampled pixels (GrabCut takes the interpolated edge, half a pixel
+   out), and becomes ``ship``; the solid pixels of the box outside it (a dock's corner, or a
+   part of the boat GrabCut missed) become 255. Boxes mapped to ``ignore`` make their
+   non-water pixels 255.
 3. **Doubt.** Small solid islands in the water that no box explains (an unlabelled boat, a
    buoy, a wake) become 255, as does the part of a boxed island outside its boxes (the
    wake behind a boat), and so does a band of ``ignore_band_px`` pixels on each side of
@@ -57,6 +65,10 @@ class BoxLabelSettings:
     island_max_fraction: float = 0.003  # unexplained islands up to this share of the frame: 255
     ignore_band_px: int = 1
     grabcut_iterations: int = 4
+    vessel_upsample: float = 2.0       # the vessel cut's scale on the full-resolution image
+    vessel_iterations: int = 6
+    shadow_darker_l: float = 8.0       # L* below the water's by this: perhaps the shadow
+    shadow_max_chroma: float = 25.0
 
 
 @dataclass
@@ -217,28 +229,54 @@ def _grabcut(image: np.ndarray, mask: np.ndarray, iterations: int) -> None:
                 cv2.GC_INIT_WITH_MASK)
 
 
-def _cut_object(image_bgr: np.ndarray, solid: np.ndarray, box, scale: float) -> np.ndarray:
-    """The vessel inside one box: GrabCut seeded by the solid pixels of the box's inner
-    part (probably the vessel), its outer ring (probably not) and water (not)."""
-    h, w = solid.shape
-    x0, y0 = box.x0 * scale, box.y0 * scale
-    x1, y1 = box.x1 * scale, box.y1 * scale
-    margin_x, margin_y = 0.15 * (x1 - x0) + 3, 0.15 * (y1 - y0) + 3
-    cx0, cy0 = max(0, int(x0 - margin_x)), max(0, int(y0 - margin_y))
-    cx1, cy1 = min(w, int(np.ceil(x1 + margin_x))), min(h, int(np.ceil(y1 + margin_y)))
-    if cx1 - cx0 < 3 or cy1 - cy0 < 3:
-        return np.zeros_like(solid, bool)
-    crop_solid = solid[cy0:cy1, cx0:cx1]
-    in_box = np.zeros_like(crop_solid, np.uint8)
-    cv2.rectangle(in_box, (int(x0) - cx0, int(y0) - cy0),
-                  (int(np.ceil(x1)) - cx0 - 1, int(np.ceil(y1)) - cy0 - 1), 1, -1)
-    mask = np.full(crop_solid.shape, cv2.GC_BGD, np.uint8)
-    mask[(crop_solid > 0) & (in_box == 0)] = cv2.GC_PR_BGD
-    mask[(crop_solid > 0) & (in_box > 0)] = cv2.GC_PR_FGD
-    _grabcut(image_bgr[cy0:cy1, cx0:cx1], mask, 3)
-    vessel = np.zeros_like(solid, bool)
-    vessel[cy0:cy1, cx0:cx1] = np.isin(mask, (cv2.GC_FGD, cv2.GC_PR_FGD)) & (in_box > 0)
-    return vessel
+def _cut_vessel(image_bgr: np.ndarray, box, settings: BoxLabelSettings) -> tuple[tuple[int, int], np.ndarray]:
+    """The vessel inside one box, in pixels of the full-resolution image (module docstring,
+    step 2): ``((x0, y0), mask)`` of a crop around the box; the mask is empty when GrabCut
+    finds nothing."""
+    h, w = image_bgr.shape[:2]
+    margin = 0.4 * max(box.x1 - box.x0, box.y1 - box.y0) + 8
+    x0, y0 = int(max(box.x0 - margin, 0)), int(max(box.y0 - margin, 0))
+    x1, y1 = int(min(np.ceil(box.x1 + margin), w)), int(min(np.ceil(box.y1 + margin), h))
+    if x1 - x0 < 3 or y1 - y0 < 3:
+        return (x0, y0), np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), bool)
+    zoom = settings.vessel_upsample
+    crop = cv2.resize(image_bgr[y0:y1, x0:x1], None, fx=zoom, fy=zoom, interpolation=cv2.INTER_CUBIC)
+    inside = np.zeros(crop.shape[:2], bool)
+    inside[int((box.y0 - y0) * zoom):int(np.ceil((box.y1 - y0) * zoom)),
+           int((box.x0 - x0) * zoom):int(np.ceil((box.x1 - x0) * zoom))] = True
+    lab = cv2.cvtColor(crop, cv2.COLOR_BGR2LAB).astype(np.float32)
+    mask = np.full(crop.shape[:2], cv2.GC_BGD, np.uint8)
+    mask[inside] = cv2.GC_PR_FGD
+    if (~inside).any():
+        water_l = float(np.median(lab[..., 0][~inside]))
+        chroma = np.hypot(lab[..., 1] - 128, lab[..., 2] - 128)
+        shadow = inside & (lab[..., 0] < water_l - settings.shadow_darker_l) & (
+            chroma < settings.shadow_max_chroma)
+        mask[shadow] = cv2.GC_PR_BGD
+    _grabcut(crop, mask, settings.vessel_iterations)
+    vessel = np.isin(mask, (cv2.GC_FGD, cv2.GC_PR_FGD)).astype(np.uint8)
+    count, components, stats, _ = cv2.connectedComponentsWithStats(vessel, connectivity=8)
+    if count < 2:
+        return (x0, y0), np.zeros((y1 - y0, x1 - x0), bool)
+    largest = (components == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))).astype(np.uint8)
+    hull = cv2.convexHull(cv2.findNonZero(largest))
+    filled = cv2.fillConvexPoly(np.zeros_like(largest), hull, 1)
+    # the interpolated edge pixels GrabCut takes put the outline half a pixel out: one ring off
+    filled = cv2.erode(filled, np.ones((3, 3), np.uint8)).astype(np.float32)
+    back = cv2.resize(filled, (x1 - x0, y1 - y0), interpolation=cv2.INTER_AREA)
+    return (x0, y0), back >= 0.5
+
+
+def _vessel_at_work_scale(image_bgr: np.ndarray, box, shape_hw: tuple[int, int],
+                          settings: BoxLabelSettings) -> np.ndarray:
+    """:func:`_cut_vessel` as a mask of the working size ``shape_hw`` (area-resampled: a
+    pixel is vessel when at least half of it is)."""
+    (x0, y0), cut = _cut_vessel(image_bgr, box, settings)
+    full = np.zeros(image_bgr.shape[:2], np.float32)
+    full[y0:y0 + cut.shape[0], x0:x0 + cut.shape[1]] = cut
+    if full.shape != shape_hw:
+        full = cv2.resize(full, (shape_hw[1], shape_hw[0]), interpolation=cv2.INTER_AREA)
+    return full >= 0.5
 
 
 def _boundary_band(labels: np.ndarray, width_px: int) -> np.ndarray:
@@ -276,7 +314,9 @@ def label_from_boxes(image_bgr: np.ndarray, boxes: Sequence,
         region = _box_raster((h, w), [box], scale) > 0
         explained |= region
         if box.class_id == SHIP:
-            labels[_cut_object(work, solid, box, scale)] = SHIP
+            vessel = _vessel_at_work_scale(image_bgr, box, (h, w), settings)
+            labels[region & (solid > 0) & ~vessel & (labels != SHIP)] = IGNORE
+            labels[vessel] = SHIP
         elif box.class_id == IGNORE:
             labels[region & (solid > 0)] = IGNORE
 

@@ -18,6 +18,11 @@ then forgets less of what the simulator frames taught. The teacher sees the stud
 (``"clean"``): then on a hazed or colour-shifted sample it still knows the clear view's
 answer, and the student is pulled to give it through the haze.
 
+With ``copy_paste`` (a probability per dataset folder, 0 for most), a sample of that folder
+first gets 1-3 of the folder's own training vessels pasted onto its open water
+(:mod:`harborsight.training.copy_paste`), drawn from a generator seeded by ``(seed, 3, n)``
+so that every other draw of the sample is the same with or without it.
+
 With ``small_object_weight`` > 1, each pixel's cross-entropy is first multiplied by its
 small-object weight ``clip(sqrt(A_ref / A_k), 1, small_object_weight)``, ``A_k`` the visible
 area in pixels of the object it belongs to (the dataset's ``instances/`` masks;
@@ -82,6 +87,7 @@ from harborsight.training.checkpoint import (
     network_options,
     save_checkpoint,
 )
+from harborsight.training.copy_paste import VesselBank, paste_vessels
 from harborsight.training.dataset import SegmentationFrames, small_object_weights
 from harborsight.training.losses import (
     agreeing_distillation_loss,
@@ -158,6 +164,7 @@ class TrainConfig:
     distill: float = 0.0                               # λ of the distillation loss (0: off)
     distill_temperature: float = 2.0                   # T of the distillation loss
     distill_view: str = "augmented"                    # what the teacher sees: augmented, clean
+    copy_paste: list[float] | None = None              # per data_dirs entry: P(paste vessels)
 
     def __post_init__(self) -> None:
         self.data_dirs = [str(d) for d in self.data_dirs]
@@ -167,6 +174,8 @@ class TrainConfig:
             self.data_weights = [float(w) for w in self.data_weights]
         if self.val_dirs is not None:
             self.val_dirs = [str(d) for d in self.val_dirs]
+        if self.copy_paste is not None:
+            self.copy_paste = [float(p) for p in self.copy_paste]
         self.crop_hw = (int(self.crop_hw[0]), int(self.crop_hw[1]))
         if self.fit_large_hw is not None:
             self.fit_large_hw = (int(self.fit_large_hw[0]), int(self.fit_large_hw[1]))
@@ -191,6 +200,12 @@ class TrainConfig:
                           f"{len(self.data_dirs)} dataset folder(s)")
             if min(self.data_weights) < 0 or not sum(self.data_weights) > 0:
                 raise bad("data_weights", f"must be >= 0 with a positive sum, got {self.data_weights}")
+        if self.copy_paste is not None:
+            if len(self.copy_paste) != len(self.data_dirs):
+                raise bad("copy_paste", f"{len(self.copy_paste)} probabilit(ies) for "
+                          f"{len(self.data_dirs)} dataset folder(s)")
+            if not all(0.0 <= p <= 1.0 for p in self.copy_paste):
+                raise bad("copy_paste", f"must be probabilities in [0, 1], got {self.copy_paste}")
         if self.val_dirs is not None and not self.val_dirs:
             raise bad("val_dirs", "give at least one validation dataset folder, or none at all")
         if self.batch_size < 2:
@@ -294,6 +309,9 @@ class TrainConfig:
                     parts += ["--aux-weight", f"{w:g}"]
             elif name == "freeze_layers":
                 parts += [f"--{option}", ",".join(value)]
+            elif name == "copy_paste":
+                parts += [x for d, p in zip(self.data_dirs, value, strict=True) if p > 0
+                          for x in (f"--{option}", f"{d}:{p:g}")]
             else:
                 parts += [f"--{option}", str(value)]
         return shlex.join(parts)
@@ -314,7 +332,7 @@ _CLI_OPTIONS = {
     "init_from": "init-from", "fit_large_hw": "fit-large", "freeze_batchnorm": "freeze-batchnorm",
     "freeze_layers": "freeze-layers",
     "distill": "distill", "distill_temperature": "distill-temperature",
-    "distill_view": "distill-view",
+    "distill_view": "distill-view", "copy_paste": "copy-paste",
 }
 
 
@@ -334,7 +352,8 @@ class TrainingSamples(torch.utils.data.Dataset):
 
     def __init__(self, frames: SegmentationFrames, seed: int, augmentation: AugmentConfig,
                  small_object_weight: float = 1.0, small_object_area_px: float = 1000.0,
-                 data_weights: list[float] | None = None, clean_view: bool = False) -> None:
+                 data_weights: list[float] | None = None, clean_view: bool = False,
+                 copy_paste: list[float] | None = None) -> None:
         self.frames = frames
         self.clean_view = clean_view
         self.seed = seed
@@ -355,6 +374,18 @@ class TrainingSamples(torch.utils.data.Dataset):
         self.small_object_area_px = small_object_area_px
         self._perm_epoch = -1
         self._perm = np.arange(0)
+        self.paste_p = np.zeros(len(frames))     # P(paste vessels) of each frame's folder
+        self._banks: dict[Path, VesselBank] = {}
+        if copy_paste is not None:
+            by_folder = {Path(d): p for d, p in zip(frames.data_dirs, copy_paste, strict=True)}
+            self.paste_p = np.array([by_folder.get(r.dataset_dir, 0.0) for r in frames.records])
+
+    def vessel_bank(self, folder: Path) -> VesselBank:
+        """The vessels of ``folder``'s training frames (cut once, on first use)."""
+        if folder not in self._banks:
+            indices = [i for i, r in enumerate(self.frames.records) if r.dataset_dir == folder]
+            self._banks[folder] = VesselBank.from_frames(self.frames, indices)
+        return self._banks[folder]
 
     def frame_index(self, n: int) -> int:
         if self.groups:
@@ -374,6 +405,11 @@ class TrainingSamples(torch.utils.data.Dataset):
     def __getitem__(self, n: int) -> tuple[np.ndarray, ...]:
         index = self.frame_index(n)
         image, labels = self.frames[index]
+        if self.paste_p[index] > 0:
+            paste_rng = np.random.default_rng([self.seed, 3, n])
+            if paste_rng.random() < self.paste_p[index]:
+                bank = self.vessel_bank(self.frames.records[index].dataset_dir)
+                image, labels, _ = paste_vessels(image, labels, bank, paste_rng, frame=index)
         rng = np.random.default_rng([self.seed, 1, n])
         if self.small_object_weight <= 1.0:
             image, labels, *clean = augment(image, labels, rng, self.augmentation,
@@ -752,7 +788,8 @@ def _train(config: TrainConfig, resume: bool, until_iteration: int | None, conso
     samples = TrainingSamples(train_frames, config.seed, augmentation,
                               config.small_object_weight, config.small_object_area_px,
                               config.data_weights,
-                              clean_view=teacher is not None and config.distill_view == "clean")
+                              clean_view=teacher is not None and config.distill_view == "clean",
+                              copy_paste=config.copy_paste)
     batch = config.batch_size
     workers = data_workers(config.num_workers, device)
     loader = torch.utils.data.DataLoader(
