@@ -247,14 +247,12 @@ def train(
                  "val_dirs": [str(d) for d in val_data] if val_data else None}
         if data:
             given["data_dirs"], given["data_weights"] = parse_weighted_data(data)
+        stored = load_checkpoint(out / LAST)["config"] if resume else None
         if copy_paste:
-            folders = given.get("data_dirs")
-            if folders is None and resume:
-                folders = load_checkpoint(out / LAST)["config"]["data_dirs"]
-            given["copy_paste"] = parse_copy_paste(copy_paste, folders or [])
+            folders = given.get("data_dirs") or (stored["data_dirs"] if stored else [])
+            given["copy_paste"] = parse_copy_paste(copy_paste, folders)
         given = {k: v for k, v in given.items() if v is not None}
-        if resume:
-            stored = load_checkpoint(out / LAST)["config"]
+        if stored is not None:
             config = TrainConfig.from_dict({**stored, **given, "out_dir": str(out)})
         else:
             if model is None or not data:
