@@ -27,15 +27,27 @@ class OnnxSegmenter:
     mIoU; scaled by one factor and padded with the mean colour, 94.36 % (the padding
     wastes a quarter of the input's columns). Upsampling logits instead of labels: 95.53 %
     against 95.49 %.
+
+    ``reference_arithmetic``: run the graph as written, with ONNX Runtime's graph
+    optimisations off. An int8 (QDQ) model then computes each quantised convolution as
+    dequantise, float convolution, quantise: the arithmetic the graph defines, the same on
+    every CPU. With the optimisations on (the default, about twice as fast) ONNX Runtime fuses
+    them into integer kernels, and on x86 CPUs without VNNI (AVX2 only) its uint8 x int8
+    kernel sums pairs of products in saturating 16-bit registers: labels differ from the
+    graph's on 0.3-0.7 % of the default model's pixels there (docs/results.md, "The int8
+    model on CPUs without VNNI").
     """
 
-    def __init__(self, path: str | Path, threads: int | None = None) -> None:
+    def __init__(self, path: str | Path, threads: int | None = None,
+                 reference_arithmetic: bool = False) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise InputError(self.path, None, "model file not found")
         options = ort.SessionOptions()
         if threads:
             options.intra_op_num_threads = threads
+        if reference_arithmetic:
+            options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         try:
             self.session = ort.InferenceSession(str(self.path), options,
                                                 providers=["CPUExecutionProvider"])

@@ -20,7 +20,10 @@ model.onnx``), its weights are read back into the network it was exported from:
        train: the same with batch statistics, close to (m, v) on similar frames
 
 The result is checked against ONNX Runtime on the calibration frames (label agreement and
-largest logit difference; an int8 model differs by its activation rounding).
+largest logit difference; an int8 model differs by its activation rounding). ONNX Runtime
+runs the graph's own arithmetic there (``reference_arithmetic``), not the fused integer
+kernels, whose results depend on the CPU (saturating on x86 without VNNI): the check gives
+the same figure on every machine.
 """
 
 from __future__ import annotations
@@ -269,7 +272,7 @@ def recover_model(onnx_path: str | Path, images_bgr: list[np.ndarray],
         raise InputError(path, f"metadata.{METADATA_KEY}.classes", f"{info.get('classes')} are "
                          f"not the classes this version trains ({list(CLASS_NAMES)})")
     height, width = int(info["input_height"]), int(info["input_width"])
-    reference = OnnxSegmenter(path, threads=2)
+    reference = OnnxSegmenter(path, threads=2, reference_arithmetic=True)
     attempts = []
     # Exports record the network options since 2026-11-24. DDRNet's options changed maths,
     # not weights, and the default model predates the record: its graph tells which one it
