@@ -173,48 +173,20 @@ def test_percentile_calibration_clips_the_activation_ranges(tmp_path):
             quantize_int8(fp32, tmp_path / "c.onnx", calibration, method, percentile)
 
 
-def _saturating_qdq_model(path, height: int = 4, width: int = 8) -> float:
-    """A harborsight-shaped QDQ graph (uint8 ``image`` in, ``logits`` and ``labels`` out)
-    with one quantised 1x1 convolution whose every pair of uint8 x int8 products
-    (255 x 127 = 32,385) overflows a 16-bit sum; returns the logit its arithmetic defines."""
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
-
-    channels, out_scale = 4, 600.0
-    nodes = [
-        helper.make_node("Cast", ["image"], ["f"], to=TensorProto.FLOAT),
-        helper.make_node("Transpose", ["f"], ["x3"], perm=[0, 3, 1, 2]),
-        helper.make_node("Concat", ["x3", "x3"], ["x6"], axis=1),
-        helper.make_node("Slice", ["x6", "start", "stop", "axis"], ["x"]),
-        helper.make_node("QuantizeLinear", ["x", "one", "zero_u8"], ["xq"]),
-        helper.make_node("DequantizeLinear", ["xq", "one", "zero_u8"], ["xd"]),
-        helper.make_node("DequantizeLinear", ["wq", "one", "zero_s8"], ["wd"]),
-        helper.make_node("Conv", ["xd", "wd"], ["y"]),
-        helper.make_node("QuantizeLinear", ["y", "out_scale", "zero_u8"], ["yq"]),
-        helper.make_node("DequantizeLinear", ["yq", "out_scale", "zero_u8"], ["logits"]),
-        helper.make_node("ArgMax", ["logits"], ["best"], axis=1, keepdims=0),
-        helper.make_node("Cast", ["best"], ["labels"], to=TensorProto.UINT8),
-    ]
-    constants = {"one": np.array(1.0, np.float32), "zero_u8": np.array(0, np.uint8),
-                 "zero_s8": np.array(0, np.int8), "out_scale": np.array(out_scale, np.float32),
-                 "wq": np.full((3, channels, 1, 1), 127, np.int8),
-                 "start": np.array([0]), "stop": np.array([channels]), "axis": np.array([1])}
-    graph = helper.make_graph(
-        nodes, "saturating", [helper.make_tensor_value_info("image", TensorProto.UINT8,
-                                                            [1, height, width, 3])],
-        [helper.make_tensor_value_info("logits", TensorProto.FLOAT, None),
-         helper.make_tensor_value_info("labels", TensorProto.UINT8, None)],
-        [numpy_helper.from_array(v, k) for k, v in constants.items()])
-    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(path))
-    return round(channels * 255 * 127 / out_scale) * out_scale
-
 
 def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
     """With ``reference_arithmetic`` ONNX Runtime computes dequantise, float convolution,
     quantise, as the graph says, on every CPU; its fused integer kernel saturates on x86
-    without VNNI (there the default session gives about half the logit: 65,400 here)."""
-    expected = _saturating_qdq_model(tmp_path / "sat.onnx")
-    white = np.full((4, 8, 3), 255, np.uint8)
-    logits = OnnxSegmenter(tmp_path / "sat.onnx", reference_arithmetic=True).logits(white)
-    assert logits.shape == (3, 4, 8)
-    np.testing.assert_array_equal(logits, expected)      # 4 x 255 x 127 = 129,540 -> 129,600
+    without VNNI (there the default session gives class 1 the logit 65,400, not 129,600)."""
+    from tests.int8_models import EXACT_LOGITS, HEIGHT, WIDTH, saturating_qdq_model
+
+    path = saturating_qdq_model(tmp_path / "sat.onnx")
+    white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
+    segmenter = OnnxSegmenter(path, reference_arithmetic=True)
+    logits = segmenter.logits(white)
+    assert logits.shape == (3, HEIGHT, WIDTH)
+    np.testing.assert_array_equal(logits, np.array(EXACT_LOGITS)[:, None, None]
+                                  * np.ones((1, HEIGHT, WIDTH)))
+    assert (segmenter.segment(white) == 1).all()
+    assert segmenter.int8_arithmetic() == "reference"
+    assert OnnxSegmenter(path).int8_arithmetic().startswith("fused (")

@@ -464,3 +464,33 @@ def test_evaluate_a_model_in_tiles_mode(model_path, tmp_path):
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     assert report["mode"] == {"mode": "resize"} and report["splits"]["test"]["miou"] < 1.0
+
+
+def test_exact_int8_gives_the_graphs_labels_and_says_so(tmp_path):
+    """``segment --exact-int8`` and ``evaluate segmentation --exact-int8`` run an int8 graph
+    as written: a model whose fused arithmetic saturates on CPUs without VNNI still labels
+    a white frame ship, and segment.json / the evaluation JSON record how it ran."""
+    from tests.int8_models import HEIGHT, WIDTH, saturating_qdq_model
+
+    model = saturating_qdq_model(tmp_path / "sat.onnx")
+    white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
+    (tmp_path / "in").mkdir()
+    cv2.imwrite(str(tmp_path / "in" / "white.png"), white)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["segment", str(tmp_path / "in"), "--out", str(out), "--model",
+                                 str(model), "--exact-int8"])
+    assert result.exit_code == 0, result.output
+    assert (cv2.imread(str(out / "white.png"), cv2.IMREAD_UNCHANGED) == 1).all()
+    assert json.loads((out / "segment.json").read_text())["model"]["int8_arithmetic"] == "reference"
+
+    data = write_dataset(tmp_path / "data", {"white": (white, np.ones((HEIGHT, WIDTH), np.uint8))})
+    report = tmp_path / "e.json"
+    for flag, miou, arithmetic in (("--exact-int8", 1.0, "reference"), ("--no-exact-int8", None, "fused")):
+        result = runner.invoke(app, ["evaluate", "segmentation", "--data", str(data), "--model",
+                                     str(model), "--json", str(report), "--height-bin-m", "0",
+                                     "--fps-seconds", "0", flag], terminal_width=200)
+        assert result.exit_code == 0, result.output
+        written = json.loads(report.read_text())
+        assert written["mode"]["int8_arithmetic"].startswith(arithmetic)
+        if miou is not None:
+            assert written["splits"]["test"]["miou"] == pytest.approx(miou)

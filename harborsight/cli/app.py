@@ -129,11 +129,20 @@ OWN_RIM_HELP = ("Ship-class slivers up to this many pixels thick hugging the ves
                  "wide, onto its shadow); thicker neighbours are kept whole. 0: off.")
 
 
-def load_segmenter(model: Path | None):
+#: help of --exact-int8 (segment, evaluate segmentation)
+EXACT_INT8_HELP = ("Run an int8 model's graph as written (dequantise, float convolution, "
+                   "quantise) instead of ONNX Runtime's fused integer kernels: the same labels "
+                   "on every CPU, at about twice the time. On x86 CPUs without VNNI (AVX2 "
+                   "only) the fused kernels' 16-bit sums saturate: the default model's labels "
+                   "then differ on 0.3-0.7 % of pixels, up to 0.8 mIoU points on our real val "
+                   "splits (docs/results.md).")
+
+
+def load_segmenter(model: Path | None, reference_arithmetic: bool = False):
     """The ONNX model at ``model``, or the packaged default model (clear error if absent)."""
     from harborsight.perception.default_model import describe, load_default_segmenter
 
-    segmenter = load_default_segmenter(model)
+    segmenter = load_default_segmenter(model, reference_arithmetic)
     console.print(f"segmenting with {describe(segmenter)}", markup=False)
     return segmenter
 

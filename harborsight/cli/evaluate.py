@@ -11,6 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from harborsight.cli.app import (
+    EXACT_INT8_HELP,
     MAX_MARGIN_PX,
     MAX_THREADS,
     OWN_RIM_HELP,
@@ -90,6 +91,7 @@ def evaluate_segmentation_command(
         help="Score the masks in this folder (<stem>.png, e.g. from harborsight segment) "
         "instead of running a model; a frame whose mask is missing or of another size is "
         "listed and skipped.")] = None,
+    exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
     from harborsight.evaluation.segmentation import evaluate_segmentation
@@ -113,7 +115,7 @@ def evaluate_segmentation_command(
                 model, data, split or ["test"], fps_seconds, device, threads,
                 on_frame=lambda _: progress.advance(), height_bin_m=height_bin_m,
                 by_object=by_object, on_split=on_split, options=options,
-                predictions=predictions)
+                predictions=predictions, reference_arithmetic=exact_int8)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from harborsight.cli.app import app, console, err_console, load_segmenter
+from harborsight.cli.app import EXACT_INT8_HELP, app, console, err_console, load_segmenter
 from harborsight.errors import HarborsightError
 from harborsight.perception.segment_images import SegmentMode
 from harborsight.progress import progress_report
@@ -56,6 +56,7 @@ def segment_command(
     max_side: Annotated[int | None, typer.Option(min=1, show_default=False, help=MAX_SIDE_HELP)
                         ] = None,
     recursive: Annotated[bool, typer.Option(help="Also search the folders' subfolders.")] = False,
+    exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
     """Write a label mask for each image: OUT/<stem>.png, one channel, uint8, at the image's
     own size; 0 water, 1 ship, 2 obstacle.
@@ -78,7 +79,12 @@ def segment_command(
     try:
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         paths = collect_images(inputs, recursive)
-        segmenter = load_segmenter(model)
+        segmenter = load_segmenter(model, exact_int8)
+        arithmetic = segmenter.int8_arithmetic()
+        if arithmetic == "fused (avx2 without vnni)":
+            console.print("int8 arithmetic: fused kernels on a CPU without VNNI, whose 16-bit "
+                          "sums saturate (--exact-int8 runs the graph as written)",
+                          markup=False, highlight=False)
         console.print(f"mode: {options.describe()}; {len(paths)} image(s)", markup=False,
                       highlight=False)
         with progress_report("segment", len(paths), console, unit="images") as progress:

@@ -204,16 +204,18 @@ def _onnx_parameter_count(path: Path) -> int:
     return int(sum(np.prod(t.dims, dtype=np.int64) for t in graph.initializer))
 
 
-def load_segmenter(path: str | Path, device: str = "cpu", threads: int | None = None
-                   ) -> LoadedSegmenter:
-    """Open ``.onnx`` with ONNX Runtime (no torch needed) or a ``.pt`` checkpoint with torch."""
+def load_segmenter(path: str | Path, device: str = "cpu", threads: int | None = None,
+                   reference_arithmetic: bool = False) -> LoadedSegmenter:
+    """Open ``.onnx`` with ONNX Runtime (no torch needed; ``reference_arithmetic``: see
+    :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter`) or a ``.pt`` checkpoint
+    with torch."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, None, "model file not found")
     if path.suffix.lower() == ".onnx":
         from harborsight.perception.default_model import load_onnx_segmenter
 
-        onnx_model = load_onnx_segmenter(path, threads)
+        onnx_model = load_onnx_segmenter(path, threads, reference_arithmetic)
         meta = onnx_model.metadata
         params = meta.get("params")
         return LoadedSegmenter(
@@ -308,6 +310,7 @@ def evaluate_segmentation(
     on_frame: Callable[[int], None] | None = None, height_bin_m: float = 10.0,
     by_object: bool = False, on_split: Callable[[str, int], None] | None = None,
     options: SegmentOptions | None = None, predictions: str | Path | None = None,
+    reference_arithmetic: bool = False,
 ) -> SegmentationEvaluation:
     """Score a model on each split of the datasets, also per drone height (bins of
     ``height_bin_m``; 0: no breakdown), per object (``by_object``: needs the datasets'
@@ -336,16 +339,21 @@ def evaluate_segmentation(
                                  None, None)
         mode = {"mode": "predictions", "predictions": str(predictions)}
     else:
-        loaded = load_segmenter(model_path, device, threads)
+        loaded = load_segmenter(model_path, device, threads, reference_arithmetic)
         if options.mode in ("tiles", "auto"):
             if loaded.kind != "onnx":
                 raise InputError(model_path, "--mode", f"{options.mode} needs an ONNX model (a "
                                  "fixed input size to cut the windows to)")
             from harborsight.perception.default_model import load_onnx_segmenter
 
-            loaded.segment = segment_function(load_onnx_segmenter(loaded.path, threads), options)
+            loaded.segment = segment_function(
+                load_onnx_segmenter(loaded.path, threads, reference_arithmetic), options)
         # a checkpoint runs at each frame's own size (TorchSegmenter pads inside)
         mode = options.to_dict() if loaded.kind == "onnx" else {"mode": "frame size"}
+        if loaded.kind == "onnx":
+            from harborsight.perception.onnx_segmenter import int8_arithmetic
+
+            mode["int8_arithmetic"] = int8_arithmetic(loaded.path, reference_arithmetic)
     rows, sizes = [], []
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])

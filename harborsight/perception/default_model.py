@@ -22,15 +22,17 @@ def default_model_path() -> Path:
     return Path(str(resources.files("harborsight") / "data" / "models" / "default.onnx"))
 
 
-def load_onnx_segmenter(path: str | Path, threads: int | None = None) -> OnnxSegmenter:
+def load_onnx_segmenter(path: str | Path, threads: int | None = None,
+                        reference_arithmetic: bool = False) -> OnnxSegmenter:
     """An :class:`OnnxSegmenter` with its sidecar (``model.json`` beside ``model.onnx``, if any)
     as ``.sidecar``; refuses a model whose classes are not harborsight's.
 
     ``harborsight export --int8`` writes one sidecar for both files: ``model.int8.onnx``
     takes ``model.json`` when that names it as ``onnx_int8``, with ``precision`` int8 and
-    no held-out block (those scores are the fp32 graph's)."""
+    no held-out block (those scores are the fp32 graph's). ``reference_arithmetic``: see
+    :class:`OnnxSegmenter`."""
     path = Path(path)
-    segmenter = OnnxSegmenter(path, threads=threads)
+    segmenter = OnnxSegmenter(path, threads=threads, reference_arithmetic=reference_arithmetic)
     sidecar_file = path.with_suffix(".json")
     segmenter.sidecar = {}
     if sidecar_file.is_file():
@@ -58,14 +60,15 @@ def _read_sidecar(path: Path) -> dict:
         raise InputError(path, None, f"invalid JSON: {exc}") from None
 
 
-def load_default_segmenter(path: str | Path | None = None) -> OnnxSegmenter:
+def load_default_segmenter(path: str | Path | None = None, reference_arithmetic: bool = False
+                           ) -> OnnxSegmenter:
     """The default model (or the one at ``path``), or an error saying how to get one."""
     path = Path(path) if path is not None else default_model_path()
     if not path.is_file():
         raise InputError(path, None, "no segmentation model here. "
                          "Pass label masks (--mask / --masks), or train one (harborsight train), "
                          "export it (harborsight export) and pass --model MODEL.onnx")
-    return load_onnx_segmenter(path)
+    return load_onnx_segmenter(path, reference_arithmetic=reference_arithmetic)
 
 
 def describe(segmenter: OnnxSegmenter) -> str:

@@ -13,6 +13,34 @@ from harborsight.errors import InputError
 from harborsight.perception.confidence import SolidConfidence
 
 
+def cpu_int8_dot_product() -> str:
+    """How this CPU sums ONNX Runtime's fused uint8 x int8 products, from the Linux CPU
+    flags: ``vnni`` (32-bit sums, exact), ``avx2 without vnni`` (pairs of products in 16-bit
+    saturating sums), or ``unknown`` (not x86 Linux, or no flags to read)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "unknown"
+    flags = next((line.split(":", 1)[1].split() for line in text.splitlines()
+                  if line.startswith("flags")), None)
+    if flags is None:
+        return "unknown"
+    if "avx512_vnni" in flags or "avx_vnni" in flags:
+        return "vnni"
+    return "avx2 without vnni" if "avx2" in flags else "unknown"
+
+
+def int8_arithmetic(path: str | Path, reference_arithmetic: bool) -> str | None:
+    """How ONNX Runtime computes the convolutions of the int8 model at ``path`` (None for a
+    float model): ``reference`` (the graph as written) or ``fused (<this CPU's kind>)``."""
+    import onnx
+
+    graph = onnx.load(str(path), load_external_data=False).graph
+    if not any(node.op_type == "QuantizeLinear" for node in graph.node):
+        return None
+    return "reference" if reference_arithmetic else f"fused ({cpu_int8_dot_product()})"
+
+
 class OnnxSegmenter:
     """Runs a ``harborsight`` ONNX model on BGR frames of any size.
 
@@ -46,6 +74,7 @@ class OnnxSegmenter:
         options = ort.SessionOptions()
         if threads:
             options.intra_op_num_threads = threads
+        self.reference_arithmetic = reference_arithmetic
         if reference_arithmetic:
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
         try:
@@ -57,6 +86,10 @@ class OnnxSegmenter:
         self.metadata = json.loads(meta) if meta else {}
         self.sidecar: dict = {}  # the export sidecar, filled by perception.default_model
         self.input_height, self.input_width = self._check_interface()
+
+    def int8_arithmetic(self) -> str | None:
+        """:func:`int8_arithmetic` of this session."""
+        return int8_arithmetic(self.path, self.reference_arithmetic)
 
     def _check_interface(self) -> tuple[int, int]:
         """Reject graphs that are not a ``harborsight export``: one uint8 input ``image``

@@ -356,8 +356,10 @@ def auto_options(segmenter: OnnxSegmenter, image_bgr: np.ndarray) -> SegmentOpti
 
 
 def model_summary(segmenter: OnnxSegmenter) -> dict:
-    """What ``segment.json`` says about the model: file, network, input, batch and the held-out
-    scores of its sidecar (None where it has none)."""
+    """What ``segment.json`` says about the model: file, network, input, batch, the held-out
+    scores of its sidecar (None where it has none) and, for an int8 model, how its
+    convolutions ran (``reference``, or ``fused (vnni)`` / ``fused (avx2 without vnni)``: the
+    latter's labels differ a little from the graph's)."""
     from harborsight.perception.default_model import describe
 
     sidecar, metadata = segmenter.sidecar, segmenter.metadata
@@ -372,6 +374,7 @@ def model_summary(segmenter: OnnxSegmenter) -> dict:
         "heldout_frames": heldout.get("frames"),
         "heldout_data": heldout.get("data"),
         "meets_target": sidecar.get("meets_target"),
+        "int8_arithmetic": segmenter.int8_arithmetic(),
         "description": describe(segmenter),
     }
 
