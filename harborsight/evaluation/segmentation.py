@@ -353,7 +353,9 @@ def evaluate_segmentation(
         if loaded.kind == "onnx":
             from harborsight.perception.onnx_segmenter import int8_arithmetic
 
-            mode["int8_arithmetic"] = int8_arithmetic(loaded.path, reference_arithmetic)
+            arithmetic = int8_arithmetic(loaded.path, reference_arithmetic)
+            if arithmetic is not None:      # an int8 model: how its convolutions ran
+                mode["int8_arithmetic"] = arithmetic
     rows, sizes = [], []
     for split in splits:
         frames = SegmentationFrames(data_dirs, [split])
