@@ -216,3 +216,31 @@ def test_boat_kinds_are_drawn_with_their_shares_and_yachts_only_when_long():
     assert share == pytest.approx(_BOAT_KIND_P[_BOAT_KINDS.index("rib")], abs=0.02)
     assert long.count("yacht") / len(long) == pytest.approx(
         _BOAT_KIND_P[_BOAT_KINDS.index("yacht")], abs=0.015)
+
+
+def test_lake_shores_have_jetski_ports_with_jetskis_on_them(vessels):
+    """Drive-on jet-ski ports beside the docks are obstacle; a jet ski on one is ship, lies
+    (nearly) within the port's outline and stands on its deck, out of the water (so the ray cast sees
+    the jet ski, ringed by the port, as in the lake-shore photos)."""
+    from harborsight.sim.families import _JETSKI_ON_PORT_LIFT_M, _PORT_DECK_Z_M
+
+    config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario="lakeshore")
+    ports = on_ports = 0
+    for index in range(6):
+        scene = plan_frame(config, index, vessels)
+        port_objects = [o for o in scene.objects if o.kind == "port"]
+        ports += len(port_objects)
+        assert all(o.class_id == OBSTACLE for o in port_objects)
+        for jetski in (o for o in scene.objects if o.name.startswith("jetski")):
+            assert jetski.class_id == SHIP
+            holder = [p for p in port_objects       # (its bow may overhang the port's point)
+                      if jetski.footprint().intersection(p.footprint()).area
+                      > 0.95 * jetski.footprint().area]
+            bottom_z = min(np.asarray(part.mesh.vertices)[:, 2].min() for part in jetski.parts)
+            if holder:
+                on_ports += 1
+                assert bottom_z >= _PORT_DECK_Z_M - 1e-6
+                assert jetski.footprint().area < 0.7 * holder[0].footprint().area
+            else:       # tied alongside a dock, afloat
+                assert bottom_z < 0 < bottom_z + _JETSKI_ON_PORT_LIFT_M
+    assert ports >= 6 and on_ports >= 4, (ports, on_ports)
