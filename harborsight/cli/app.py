@@ -134,8 +134,8 @@ EXACT_INT8_HELP = ("Run an int8 model's graph as written (dequantise, float conv
                    "quantise) instead of ONNX Runtime's fused integer kernels: the same labels "
                    "on every CPU, at about twice the time. On x86 CPUs without VNNI (AVX2 "
                    "only) the fused kernels' 16-bit sums saturate: the default model's labels "
-                   "then differ on 0.3-0.7 % of pixels, up to 0.8 mIoU points on our real val "
-                   "splits (docs/results.md).")
+                   "then differ on 0.3 % of pixels (0.7 % in the worst frame), up to 0.8 mIoU "
+                   "points on our real val splits (docs/results.md).")
 
 
 def load_segmenter(model: Path | None, reference_arithmetic: bool = False):

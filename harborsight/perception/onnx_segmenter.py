@@ -62,8 +62,8 @@ class OnnxSegmenter:
     every CPU. With the optimisations on (the default, about twice as fast) ONNX Runtime fuses
     them into integer kernels, and on x86 CPUs without VNNI (AVX2 only) its uint8 x int8
     kernel sums pairs of products in saturating 16-bit registers: labels differ from the
-    graph's on 0.3-0.7 % of the default model's pixels there (docs/results.md, "The int8
-    model on CPUs without VNNI").
+    graph's on 0.3 % of the default model's pixels there, 0.7 % in the worst frame
+    (docs/results.md, "The int8 model on CPUs without VNNI").
     """
 
     def __init__(self, path: str | Path, threads: int | None = None,
