@@ -52,3 +52,34 @@ def saturating_qdq_model(path: Path) -> Path:
         [numpy_helper.from_array(v, k) for k, v in constants.items()])
     onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(path))
     return path
+
+
+def qoperator_model(path: Path) -> Path:
+    """The same convolution in ONNX Runtime's QOperator format: one ``QLinearConv``, an
+    integer operator that no session option turns into float arithmetic."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    weights = np.zeros((3, 3, 1, 1), np.int8)
+    weights[0], weights[1] = 64, 127
+    nodes = [
+        helper.make_node("Cast", ["image"], ["f"], to=TensorProto.FLOAT),
+        helper.make_node("Transpose", ["f"], ["x"], perm=[0, 3, 1, 2]),
+        helper.make_node("QuantizeLinear", ["x", "one", "zero_u8"], ["xq"]),
+        helper.make_node("QLinearConv", ["xq", "one", "zero_u8", "wq", "one", "zero_s8",
+                                         "out_scale", "zero_u8"], ["yq"]),
+        helper.make_node("DequantizeLinear", ["yq", "out_scale", "zero_u8"], ["logits"]),
+        helper.make_node("ArgMax", ["logits"], ["best"], axis=1, keepdims=0),
+        helper.make_node("Cast", ["best"], ["labels"], to=TensorProto.UINT8),
+    ]
+    constants = {"one": np.array(1.0, np.float32), "zero_u8": np.array(0, np.uint8),
+                 "zero_s8": np.array(0, np.int8), "out_scale": np.array(OUT_SCALE, np.float32),
+                 "wq": weights}
+    graph = helper.make_graph(
+        nodes, "qoperator",
+        [helper.make_tensor_value_info("image", TensorProto.UINT8, [1, HEIGHT, WIDTH, 3])],
+        [helper.make_tensor_value_info("logits", TensorProto.FLOAT, None),
+         helper.make_tensor_value_info("labels", TensorProto.UINT8, None)],
+        [numpy_helper.from_array(v, k) for k, v in constants.items()])
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(path))
+    return path

@@ -178,7 +178,14 @@ def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
     """With ``reference_arithmetic`` ONNX Runtime computes dequantise, float convolution,
     quantise, as the graph says, on every CPU; its fused integer kernel saturates on x86
     without VNNI (there the default session gives class 1 the logit 65,400, not 129,600)."""
-    from tests.int8_models import EXACT_LOGITS, HEIGHT, WIDTH, saturating_qdq_model
+    from harborsight.perception.onnx_segmenter import cpu_int8_dot_product
+    from tests.int8_models import (
+        EXACT_LOGITS,
+        HEIGHT,
+        WIDTH,
+        qoperator_model,
+        saturating_qdq_model,
+    )
 
     path = saturating_qdq_model(tmp_path / "sat.onnx")
     white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
@@ -189,4 +196,11 @@ def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
                                   * np.ones((1, HEIGHT, WIDTH)))
     assert (segmenter.segment(white) == 1).all()
     assert segmenter.int8_arithmetic() == "reference"
-    assert OnnxSegmenter(path).int8_arithmetic().startswith("fused (")
+    fused = OnnxSegmenter(path)
+    assert fused.int8_arithmetic() == f"fused ({cpu_int8_dot_product()})"
+    if cpu_int8_dot_product() == "avx2 without vnni":      # the saturation itself
+        assert fused.logits(white)[1, 0, 0] == 65_400.0 and (fused.segment(white) == 0).all()
+    # a QOperator graph computes in integers whatever the options, and says so
+    integer = OnnxSegmenter(qoperator_model(tmp_path / "q.onnx"), reference_arithmetic=True)
+    assert integer.int8_arithmetic().startswith("integer operators (")
+    assert OnnxSegmenter(tmp_path / "q.onnx").logits(white).shape == (3, HEIGHT, WIDTH)

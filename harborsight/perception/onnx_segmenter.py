@@ -30,13 +30,28 @@ def cpu_int8_dot_product() -> str:
     return "avx2 without vnni" if "avx2" in flags else "unknown"
 
 
+#: operators that compute in integers whatever the session's options: a QOperator graph
+#: (ONNX Runtime's other quantisation format) cannot be run "as written" in float
+INTEGER_OPERATORS = frozenset({"QLinearConv", "QLinearMatMul", "ConvInteger", "MatMulInteger",
+                               "DynamicQuantizeMatMul", "MatMulIntegerToFloat"})
+
+
 def int8_arithmetic(path: str | Path, reference_arithmetic: bool) -> str | None:
-    """How ONNX Runtime computes the convolutions of the int8 model at ``path`` (None for a
-    float model): ``reference`` (the graph as written) or ``fused (<this CPU's kind>)``."""
+    """How ONNX Runtime computes the convolutions of the model at ``path``: None for a float
+    model; for a QDQ int8 model ``reference`` (the graph as written: dequantise, float
+    convolution, quantise) or ``fused (<this CPU's kind>)``; ``integer operators (<kind>)``
+    for a graph with integer operators, whatever the options; ``unknown`` when the graph
+    cannot be read."""
     import onnx
 
-    graph = onnx.load(str(path), load_external_data=False).graph
-    if not any(node.op_type == "QuantizeLinear" for node in graph.node):
+    try:
+        operators = {node.op_type for node in
+                     onnx.load(str(path), load_external_data=False).graph.node}
+    except Exception:  # protobuf raises several types; this is a report only
+        return "unknown"
+    if operators & INTEGER_OPERATORS:
+        return f"integer operators ({cpu_int8_dot_product()})"
+    if "QuantizeLinear" not in operators:
         return None
     return "reference" if reference_arithmetic else f"fused ({cpu_int8_dot_product()})"
 
@@ -58,12 +73,14 @@ class OnnxSegmenter:
 
     ``reference_arithmetic``: run the graph as written, with ONNX Runtime's graph
     optimisations off. An int8 (QDQ) model then computes each quantised convolution as
-    dequantise, float convolution, quantise: the arithmetic the graph defines, the same on
-    every CPU. With the optimisations on (the default, about twice as fast) ONNX Runtime fuses
-    them into integer kernels, and on x86 CPUs without VNNI (AVX2 only) its uint8 x int8
-    kernel sums pairs of products in saturating 16-bit registers: labels differ from the
-    graph's on 0.3 % of the default model's pixels there, 0.7 % in the worst frame
-    (docs/results.md, "The int8 model on CPUs without VNNI").
+    dequantise, float convolution, quantise: the arithmetic the graph defines, with no
+    integer saturation, equal on every CPU up to float rounding (a QOperator graph's integer
+    operators stay integer: :func:`int8_arithmetic` says so). With the optimisations on (the
+    default, about twice as fast) ONNX Runtime fuses them into integer kernels, and on x86
+    CPUs without VNNI (AVX2 only) its uint8 x int8 kernel sums pairs of products in
+    saturating 16-bit registers: labels differ from the graph's on 0.3 % of the default
+    model's pixels there, 0.7 % in the worst frame (docs/results.md, "The int8 model on CPUs
+    without VNNI").
     """
 
     def __init__(self, path: str | Path, threads: int | None = None,
@@ -88,8 +105,10 @@ class OnnxSegmenter:
         self.input_height, self.input_width = self._check_interface()
 
     def int8_arithmetic(self) -> str | None:
-        """:func:`int8_arithmetic` of this session."""
-        return int8_arithmetic(self.path, self.reference_arithmetic)
+        """:func:`int8_arithmetic` of this session (the graph is read once)."""
+        if not hasattr(self, "_int8_arithmetic"):
+            self._int8_arithmetic = int8_arithmetic(self.path, self.reference_arithmetic)
+        return self._int8_arithmetic
 
     def _check_interface(self) -> tuple[int, int]:
         """Reject graphs that are not a ``harborsight export``: one uint8 input ``image``

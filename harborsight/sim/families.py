@@ -391,21 +391,23 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
     return edge_at
 
 
-#: dock decking: weathered and stained wood, then white and grey composite boards (the
-#: lake-shore photos' docks are as often white as brown)
-_DECK_RGB = [(0.28, 0.2, 0.12), (0.35, 0.3, 0.24), (0.2, 0.14, 0.08), (0.45, 0.42, 0.38),
-             (0.72, 0.72, 0.7), (0.58, 0.58, 0.56)]
+#: dock and pontoon decking: weathered and stained wood
+_WOOD_RGB = [(0.28, 0.2, 0.12), (0.35, 0.3, 0.24), (0.2, 0.14, 0.08), (0.45, 0.42, 0.38)]
+#: white and grey composite boards, which many of the lake-shore photos' docks are
+_COMPOSITE_RGB = [(0.72, 0.72, 0.7), (0.58, 0.58, 0.56)]
 #: drive-on jet-ski ports: white, light grey, black and blue plastic floats
 _PORT_RGB = [(0.8, 0.8, 0.78), (0.55, 0.56, 0.58), (0.06, 0.06, 0.07), (0.08, 0.16, 0.4)]
 _PORT_P = np.array([0.5, 0.25, 0.15, 0.1])
-#: a port's deck above the water, and how far a jet ski on it is lifted from afloat
-_PORT_DECK_Z_M = 0.18
-_JETSKI_ON_PORT_LIFT_M = 0.42
+#: a port's deck above the water, and the height of its two keel rails on it
+PORT_DECK_Z_M = 0.18
+PORT_RAIL_HEIGHT_M = 0.12
 
 
-def _wood(b: _Builder, tag: str):
+def _wood(b: _Builder, tag: str, composite: bool = False):
+    """A planked deck material: wood, or with ``composite`` wood in 4 of 6 draws and white or
+    grey composite boards in 2 (a lake-shore dock; marina pontoons stay wood)."""
     rng = b.rng
-    rgb = _pick(_DECK_RGB, rng)
+    rgb = _pick(_WOOD_RGB + _COMPOSITE_RGB if composite else _WOOD_RGB, rng)
     return b.material(f"{tag}-wood", Material(_jitter(rgb, rng, 0.2), 0.85, 0.0, 0.35, 3.0, pattern="planks"))
 
 
@@ -413,8 +415,8 @@ def add_jetski_port(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float,
                     with_jetski: bool):
     """A drive-on jet-ski port (a floating plastic cradle, ``obstacle``) centred at
     ``(x_v, y_v)``, its long axis along ``rel_heading_deg``: a slab 3.3-3.8 m by 1.9-2.3 m,
-    pointed at its outer end, with two keel rails on top; with a jet ski (``ship``) lifted onto
-    it when ``with_jetski``. Returns the objects made."""
+    pointed at its +x end (toward the dock), with two keel rails on top; with a jet ski
+    (``ship``) resting on the rails when ``with_jetski``. Returns the objects made."""
     rng = b.rng
     length, width = rng.uniform(3.3, 3.8), rng.uniform(1.9, 2.3)
     plastic = b.material(f"{tag}-port", Material(_jitter(_pick(_PORT_RGB, rng, _PORT_P), rng, 0.08),
@@ -422,14 +424,17 @@ def add_jetski_port(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float,
     half_l, half_w = length / 2, width / 2
     outline = np.array([(-half_l, -half_w), (half_l - 0.6, -half_w), (half_l, -0.35),
                         (half_l, 0.35), (half_l - 0.6, half_w), (-half_l, half_w)])
-    parts = [(_prism(outline, -0.12, _PORT_DECK_Z_M), plastic)]
-    parts += [(_box(length * 0.7, 0.25, 0.12, -0.1 * length, side * (half_w - 0.3), _PORT_DECK_Z_M),
-               plastic) for side in (-1, 1)]
+    parts = [(_prism(outline, -0.12, PORT_DECK_Z_M), plastic)]
+    parts += [(_box(length * 0.7, 0.25, PORT_RAIL_HEIGHT_M, -0.1 * length, side * (half_w - 0.3),
+                    PORT_DECK_Z_M), plastic) for side in (-1, 1)]
     made = [b.add(f"{tag}-port", "port", OBSTACLE, parts, x_v, y_v, rel_heading_deg)]
     if with_jetski:
         jetski = add_leisure_boat(b, x_v, y_v, rel_heading_deg, length * 0.88, "jetski")
-        for part in jetski.parts:       # out of the water, its hull on the port's deck
-            part.mesh.apply_translation((0.0, 0.0, _JETSKI_ON_PORT_LIFT_M))
+        # out of the water, its hull resting on the rails (above every part of the port)
+        lift_m = PORT_DECK_Z_M + PORT_RAIL_HEIGHT_M - min(
+            float(np.asarray(part.mesh.vertices)[:, 2].min()) for part in jetski.parts)
+        for part in jetski.parts:
+            part.mesh.apply_translation((0.0, 0.0, lift_m))
         made.append(jetski)
     return made
 
@@ -442,7 +447,7 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
     one or two drive-on jet-ski ports (most with a jet ski on) or a boat or jet ski tied
     alongside."""
     rng = b.rng
-    wood = _wood(b, tag)
+    wood = _wood(b, tag, composite=True)
     width = rng.uniform(1.2, 2.4)
     deck_z = rng.uniform(0.3, 0.9)
     parts = [(_box(length_m, width, 0.25, length_m / 2, 0.0, deck_z), wood)]
@@ -486,7 +491,7 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
             xv, yv = beside(x_c + 2.6 * k, y_c)
             made = add_jetski_port(b, xv, yv, out_deg - side * 90.0, f"{tag}-{k}",
                                    with_jetski=bool(rng.random() < 0.65))
-            if _overlaps_others(made[:1], b.objects[:-len(made)], margin_m=0.1):
+            if _overlaps_others(made, b.objects, margin_m=0.1):
                 del b.objects[-len(made):]
             else:
                 placed += made

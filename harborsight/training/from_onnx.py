@@ -22,8 +22,8 @@ model.onnx``), its weights are read back into the network it was exported from:
 The result is checked against ONNX Runtime on the calibration frames (label agreement and
 largest logit difference; an int8 model differs by its activation rounding). ONNX Runtime
 runs the graph's own arithmetic there (``reference_arithmetic``), not the fused integer
-kernels, whose results depend on the CPU (saturating on x86 without VNNI): the check gives
-the same figure on every machine.
+kernels, whose results depend on the CPU (saturating on x86 without VNNI): the check then
+measures the weights, not the CPU (up to float rounding).
 """
 
 from __future__ import annotations
