@@ -173,7 +173,6 @@ def test_percentile_calibration_clips_the_activation_ranges(tmp_path):
             quantize_int8(fp32, tmp_path / "c.onnx", calibration, method, percentile)
 
 
-
 def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
     """With ``reference_arithmetic`` ONNX Runtime computes dequantise, float convolution,
     quantise, as the graph says, on every CPU; its fused integer kernel saturates on x86

@@ -70,6 +70,7 @@ def segment_command(
     Exit status: 0 when at least one mask was written (left-out images are listed);
     1 when none was; 2 for a usage error (missing input or model file, bad option).
     """
+    from harborsight.perception.onnx_segmenter import SATURATING_CPU
     from harborsight.perception.segment_images import (
         SegmentOptions,
         collect_images,
@@ -80,8 +81,7 @@ def segment_command(
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         paths = collect_images(inputs, recursive)
         segmenter = load_segmenter(model, exact_int8)
-        arithmetic = segmenter.int8_arithmetic()
-        if arithmetic == "fused (avx2 without vnni)":
+        if segmenter.int8_arithmetic() == f"fused ({SATURATING_CPU})":
             console.print("int8 arithmetic: fused kernels on a CPU without VNNI, whose 16-bit "
                           "sums saturate (--exact-int8 runs the graph as written)",
                           markup=False, highlight=False)

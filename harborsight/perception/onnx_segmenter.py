@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -12,7 +13,11 @@ import onnxruntime as ort
 from harborsight.errors import InputError
 from harborsight.perception.confidence import SolidConfidence
 
+#: :func:`cpu_int8_dot_product` of a CPU whose fused uint8 x int8 sums saturate
+SATURATING_CPU = "avx2 without vnni"
 
+
+@functools.cache
 def cpu_int8_dot_product() -> str:
     """How this CPU sums ONNX Runtime's fused uint8 x int8 products, from the Linux CPU
     flags: ``vnni`` (32-bit sums, exact), ``avx2 without vnni`` (pairs of products in 16-bit
@@ -27,7 +32,7 @@ def cpu_int8_dot_product() -> str:
         return "unknown"
     if "avx512_vnni" in flags or "avx_vnni" in flags:
         return "vnni"
-    return "avx2 without vnni" if "avx2" in flags else "unknown"
+    return SATURATING_CPU if "avx2" in flags else "unknown"
 
 
 #: operators that compute in integers whatever the session's options: a QOperator graph

@@ -486,8 +486,8 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
         # one or two drive-on jet-ski ports along the dock, across it, opposite the lift
         n_ports = int(rng.integers(1, 3))
         x_c = rng.uniform(3.0, max(3.1, length_m - 2.6 * n_ports))
+        y_c = -side * (width / 2 + 0.25 + 1.8)
         for k in range(n_ports):
-            y_c = -side * (width / 2 + 0.25 + 1.8)
             xv, yv = beside(x_c + 2.6 * k, y_c)
             made = add_jetski_port(b, xv, yv, out_deg - side * 90.0, f"{tag}-{k}",
                                    with_jetski=bool(rng.random() < 0.65))
