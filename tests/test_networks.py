@@ -175,9 +175,16 @@ def test_percentile_calibration_clips_the_activation_ranges(tmp_path):
 
 def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
     """With ``reference_arithmetic`` ONNX Runtime computes dequantise, float convolution,
-    quantise, as the graph says, on every CPU; its fused integer kernel saturates on x86
-    without VNNI (there the default session gives class 1 the logit 65,400, not 129,600)."""
-    from harborsight.perception.onnx_segmenter import cpu_int8_dot_product
+    quantise, as the graph says, on every CPU. The default (fused) session gives the same
+    logits: on x86 without VNNI, where a plain ONNX Runtime session's uint8 x int8 kernel
+    saturates (class 1's logit 65,400, not 129,600), it runs the weights as uint8."""
+    import onnxruntime as ort
+
+    from harborsight.perception.onnx_segmenter import (
+        SATURATING_CPU,
+        UINT8_WEIGHTS,
+        cpu_int8_dot_product,
+    )
     from tests.int8_models import (
         EXACT_LOGITS,
         HEIGHT,
@@ -188,18 +195,58 @@ def test_reference_arithmetic_runs_the_int8_graph_as_written(tmp_path):
 
     path = saturating_qdq_model(tmp_path / "sat.onnx")
     white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
+    exact = np.array(EXACT_LOGITS)[:, None, None] * np.ones((1, HEIGHT, WIDTH))
     segmenter = OnnxSegmenter(path, reference_arithmetic=True)
     logits = segmenter.logits(white)
     assert logits.shape == (3, HEIGHT, WIDTH)
-    np.testing.assert_array_equal(logits, np.array(EXACT_LOGITS)[:, None, None]
-                                  * np.ones((1, HEIGHT, WIDTH)))
+    np.testing.assert_array_equal(logits, exact)
     assert (segmenter.segment(white) == 1).all()
     assert segmenter.int8_arithmetic() == "reference"
     fused = OnnxSegmenter(path)
-    assert fused.int8_arithmetic() == f"fused ({cpu_int8_dot_product()})"
-    if cpu_int8_dot_product() == "avx2 without vnni":      # the saturation itself
-        assert fused.logits(white)[1, 0, 0] == 65_400.0 and (fused.segment(white) == 0).all()
+    np.testing.assert_array_equal(fused.logits(white), exact)
+    assert (fused.segment(white) == 1).all()
+    saturating = cpu_int8_dot_product() == SATURATING_CPU
+    assert fused.int8_arithmetic() == (UINT8_WEIGHTS if saturating
+                                       else f"fused ({cpu_int8_dot_product()})")
+    if saturating:      # the saturation itself, in a plain session of the int8 weights
+        plain = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        assert plain.run(["logits"], {"image": white[None]})[0][0, 1, 0, 0] == 65_400.0
     # a QOperator graph computes in integers whatever the options, and says so
     integer = OnnxSegmenter(qoperator_model(tmp_path / "q.onnx"), reference_arithmetic=True)
     assert integer.int8_arithmetic().startswith("integer operators (")
     assert OnnxSegmenter(tmp_path / "q.onnx").logits(white).shape == (3, HEIGHT, WIDTH)
+
+
+def test_weights_as_uint8_are_the_same_numbers(tmp_path):
+    """``weights_as_uint8`` shifts int8 weights and their zero points by 128: the graph as
+    written gives bit-identical logits for the hand-built model and the default model, and
+    no int8 weight is left; a weight and a zero point shared by two nodes are shifted once."""
+    import onnx
+
+    from harborsight.perception.default_model import default_model_path
+    from harborsight.perception.onnx_segmenter import (
+        _int8_weight_dequantizers,
+        weights_as_uint8,
+    )
+    from tests.int8_models import HEIGHT, WIDTH, saturating_qdq_model
+
+    white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
+    frame = np.random.default_rng(3).integers(0, 256, (90, 160, 3), np.uint8)
+    for source, image in ((saturating_qdq_model(tmp_path / "sat.onnx"), white),
+                          (default_model_path(), frame)):
+        model = onnx.load(str(source))
+        changed = weights_as_uint8(model)
+        assert changed > 0 and not _int8_weight_dequantizers(model.graph)
+        shifted = tmp_path / f"u8-{changed}.onnx"
+        onnx.save(model, str(shifted))
+        before = OnnxSegmenter(source, reference_arithmetic=True).logits(image)
+        after = OnnxSegmenter(shifted, reference_arithmetic=True).logits(image)
+        np.testing.assert_array_equal(before, after)
+    # one int8 weight and one zero point read by two DequantizeLinear nodes
+    model = onnx.load(str(tmp_path / "sat.onnx"))
+    twin = onnx.helper.make_node("DequantizeLinear", ["wq", "one", "zero_s8"], ["wd2"])
+    model.graph.node.insert(5, twin)
+    assert weights_as_uint8(model) == 2
+    names = {t.name: onnx.numpy_helper.to_array(t) for t in model.graph.initializer}
+    assert "wq" not in names and "zero_s8" not in names
+    assert names["zero_s8_as_uint8"] == 128 and names["wq_as_uint8"][1].max() == 255

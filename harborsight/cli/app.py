@@ -131,12 +131,11 @@ OWN_RIM_HELP = ("Ship-class slivers up to this many pixels thick hugging the ves
 
 #: help of --exact-int8 (segment, evaluate segmentation)
 EXACT_INT8_HELP = ("Run an int8 model's graph as written (dequantise, float convolution, "
-                   "quantise) instead of ONNX Runtime's fused integer kernels: no integer "
-                   "saturation, the same labels on every CPU up to float rounding, at about "
-                   "twice the time. On x86 CPUs without VNNI (AVX2 "
-                   "only) the fused kernels' 16-bit sums saturate: the default model's labels "
-                   "then differ on 0.3 % of pixels (0.7 % in the worst frame), up to 0.8 mIoU "
-                   "points on our real val splits (docs/results.md).")
+                   "quantise) instead of ONNX Runtime's fused integer kernels, at 1.5-2x the "
+                   "time. The fused kernels' labels differ from it by rounding only (0.1-0.5 % "
+                   "of the default model's pixels on real frames): on x86 CPUs without VNNI, "
+                   "whose uint8 x int8 sums saturate, the weights run as uint8 "
+                   "(docs/results.md).")
 
 
 def load_segmenter(model: Path | None, reference_arithmetic: bool = False):

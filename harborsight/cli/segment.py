@@ -70,7 +70,7 @@ def segment_command(
     Exit status: 0 when at least one mask was written (left-out images are listed);
     1 when none was; 2 for a usage error (missing input or model file, bad option).
     """
-    from harborsight.perception.onnx_segmenter import SATURATING_CPU
+    from harborsight.perception.onnx_segmenter import SATURATING_CPU, UINT8_WEIGHTS
     from harborsight.perception.segment_images import (
         SegmentOptions,
         collect_images,
@@ -81,10 +81,15 @@ def segment_command(
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
         paths = collect_images(inputs, recursive)
         segmenter = load_segmenter(model, exact_int8)
-        if segmenter.int8_arithmetic() == f"fused ({SATURATING_CPU})":
-            console.print("int8 arithmetic: fused kernels on a CPU without VNNI, whose 16-bit "
-                          "sums saturate (--exact-int8 runs the graph as written)",
-                          markup=False, highlight=False)
+        arithmetic = segmenter.int8_arithmetic()
+        if arithmetic == UINT8_WEIGHTS:
+            console.print("int8 arithmetic: this CPU has no VNNI, so the int8 weights run as "
+                          "uint8, whose fused kernels do not saturate", markup=False,
+                          highlight=False)
+        elif arithmetic == f"integer operators ({SATURATING_CPU})":
+            console.print("int8 arithmetic: integer operators on a CPU without VNNI, whose "
+                          "16-bit sums can saturate (a QDQ export does not)", markup=False,
+                          highlight=False)
         console.print(f"mode: {options.describe()}; {len(paths)} image(s)", markup=False,
                       highlight=False)
         with progress_report("segment", len(paths), console, unit="images") as progress:

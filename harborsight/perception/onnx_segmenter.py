@@ -41,24 +41,90 @@ INTEGER_OPERATORS = frozenset({"QLinearConv", "QLinearMatMul", "ConvInteger", "M
                                "DynamicQuantizeMatMul", "MatMulIntegerToFloat"})
 
 
+#: :func:`int8_arithmetic` of fused kernels given the weights as uint8 on a saturating CPU
+UINT8_WEIGHTS = f"fused, uint8 weights ({SATURATING_CPU})"
+
+
+def _int8_weight_dequantizers(graph) -> list:
+    """The ``DequantizeLinear`` nodes of ``graph`` that read an int8 initialiser (weights)."""
+    from onnx import TensorProto
+
+    int8 = {t.name for t in graph.initializer if t.data_type == TensorProto.INT8}
+    return [n for n in graph.node if n.op_type == "DequantizeLinear" and n.input[0] in int8]
+
+
+def weights_as_uint8(model) -> int:
+    """Rewrite, in place, every int8 initialiser read by a ``DequantizeLinear`` as uint8:
+    ``w' = w + 128`` with zero point ``z' = z + 128``, so ``(w' - z')·s = (w - z)·s`` and
+    the real weights are exactly the same. Returns how many nodes changed.
+
+    Why: ONNX Runtime fuses a QDQ convolution with int8 weights into its uint8 x int8
+    kernel, which on x86 without VNNI multiplies with ``vpmaddubsw`` and adds each pair of
+    products in a saturating 16-bit register (two products of 255 x 127 give 32,767, not
+    64,770). With uint8 weights it takes its uint8 x uint8 kernel instead, which widens to
+    16 bits before multiplying and sums in 32 bits: no saturation, at some speed
+    (docs/results.md, "uint8 weights on CPUs without VNNI")."""
+    from onnx import numpy_helper
+
+    graph = model.graph
+    values = {t.name: t for t in graph.initializer}
+    converted: dict[str, str] = {}
+
+    def as_uint8(name: str | None, like: np.ndarray) -> str:
+        """The name of a uint8 copy (+128) of initialiser ``name`` (0 when absent)."""
+        key = name or f"zero_point_like_{like.shape}"
+        if key not in converted:
+            signed = (numpy_helper.to_array(values[name]) if name
+                      else np.zeros(like.shape, np.int8))
+            shifted = (signed.astype(np.int16) + 128).astype(np.uint8)
+            new_name = f"{key}_as_uint8"
+            graph.initializer.append(numpy_helper.from_array(shifted, new_name))
+            converted[key] = new_name
+        return converted[key]
+
+    nodes = _int8_weight_dequantizers(graph)
+    for node in nodes:
+        scale = numpy_helper.to_array(values[node.input[1]])
+        zero_point = node.input[2] if len(node.input) > 2 and node.input[2] else None
+        node.input[0] = as_uint8(node.input[0], scale)
+        if len(node.input) > 2:
+            node.input[2] = as_uint8(zero_point, scale)
+        else:
+            node.input.append(as_uint8(None, scale))
+    used = {name for n in graph.node for name in n.input}
+    unused = [t for t in graph.initializer if t.name not in used]
+    for tensor in unused:
+        graph.initializer.remove(tensor)
+    return len(nodes)
+
+
 def int8_arithmetic(path: str | Path, reference_arithmetic: bool) -> str | None:
-    """How ONNX Runtime computes the convolutions of the model at ``path``: None for a float
-    model; for a QDQ int8 model ``reference`` (the graph as written: dequantise, float
-    convolution, quantise) or ``fused (<this CPU's kind>)``; ``integer operators (<kind>)``
-    for a graph with integer operators, whatever the options; ``unknown`` when the graph
-    cannot be read."""
+    """How :class:`OnnxSegmenter` computes the convolutions of the model at ``path``: None
+    for a float model; for a QDQ int8 model ``reference`` (the graph as written: dequantise,
+    float convolution, quantise), ``fused (<this CPU's kind>)``, or on a CPU whose uint8 x
+    int8 sums saturate :data:`UINT8_WEIGHTS` (:func:`weights_as_uint8`); ``integer operators
+    (<kind>)`` for a graph with integer operators, whatever the options; ``unknown`` when
+    the graph cannot be read."""
     import onnx
 
     try:
-        operators = {node.op_type for node in
-                     onnx.load(str(path), load_external_data=False).graph.node}
+        graph = onnx.load(str(path), load_external_data=False).graph
     except Exception:  # protobuf raises several types; this is a report only
         return "unknown"
+    return _int8_arithmetic(graph, reference_arithmetic)
+
+
+def _int8_arithmetic(graph, reference_arithmetic: bool) -> str | None:
+    operators = {node.op_type for node in graph.node}
     if operators & INTEGER_OPERATORS:
         return f"integer operators ({cpu_int8_dot_product()})"
     if "QuantizeLinear" not in operators:
         return None
-    return "reference" if reference_arithmetic else f"fused ({cpu_int8_dot_product()})"
+    if reference_arithmetic:
+        return "reference"
+    if cpu_int8_dot_product() == SATURATING_CPU and _int8_weight_dequantizers(graph):
+        return UINT8_WEIGHTS
+    return f"fused ({cpu_int8_dot_product()})"
 
 
 class OnnxSegmenter:
@@ -81,11 +147,12 @@ class OnnxSegmenter:
     dequantise, float convolution, quantise: the arithmetic the graph defines, with no
     integer saturation, equal on every CPU up to float rounding (a QOperator graph's integer
     operators stay integer: :func:`int8_arithmetic` says so). With the optimisations on (the
-    default, about twice as fast) ONNX Runtime fuses them into integer kernels, and on x86
-    CPUs without VNNI (AVX2 only) its uint8 x int8 kernel sums pairs of products in
-    saturating 16-bit registers: labels differ from the graph's on 0.3 % of the default
-    model's pixels there, 0.7 % in the worst frame (docs/results.md, "The int8 model on CPUs
-    without VNNI").
+    default, about twice as fast) ONNX Runtime fuses them into integer kernels. On x86 CPUs
+    without VNNI (AVX2 only) its uint8 x int8 kernel sums pairs of products in saturating
+    16-bit registers, which turned the default model's boats into obstacle on a quarter of a
+    marina tile's pixels; there the session is given the same weights as uint8
+    (:func:`weights_as_uint8`), whose kernel does not saturate (docs/results.md, "uint8
+    weights on CPUs without VNNI").
     """
 
     def __init__(self, path: str | Path, threads: int | None = None,
@@ -99,8 +166,20 @@ class OnnxSegmenter:
         self.reference_arithmetic = reference_arithmetic
         if reference_arithmetic:
             options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+        source: str | bytes = str(self.path)
         try:
-            self.session = ort.InferenceSession(str(self.path), options,
+            import onnx
+
+            graph_model = onnx.load(source)
+        except Exception:  # protobuf raises several types; ONNX Runtime names the fault below
+            graph_model = None
+        self._int8_arithmetic = ("unknown" if graph_model is None
+                                 else _int8_arithmetic(graph_model.graph, reference_arithmetic))
+        if self._int8_arithmetic == UINT8_WEIGHTS:
+            weights_as_uint8(graph_model)
+            source = graph_model.SerializeToString()
+        try:
+            self.session = ort.InferenceSession(source, options,
                                                 providers=["CPUExecutionProvider"])
         except Exception as exc:  # ORT raises its own exception types for bad files
             raise InputError(self.path, None, f"not a loadable ONNX model: {exc}") from exc
@@ -110,9 +189,7 @@ class OnnxSegmenter:
         self.input_height, self.input_width = self._check_interface()
 
     def int8_arithmetic(self) -> str | None:
-        """:func:`int8_arithmetic` of this session (the graph is read once)."""
-        if not hasattr(self, "_int8_arithmetic"):
-            self._int8_arithmetic = int8_arithmetic(self.path, self.reference_arithmetic)
+        """:func:`int8_arithmetic` of this session."""
         return self._int8_arithmetic
 
     def _check_interface(self) -> tuple[int, int]:

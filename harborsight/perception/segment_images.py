@@ -358,8 +358,8 @@ def auto_options(segmenter: OnnxSegmenter, image_bgr: np.ndarray) -> SegmentOpti
 def model_summary(segmenter: OnnxSegmenter) -> dict:
     """What ``segment.json`` says about the model: file, network, input, batch, the held-out
     scores of its sidecar (None where it has none) and, for an int8 model, how its
-    convolutions ran (``reference``, or ``fused (vnni)`` / ``fused (avx2 without vnni)``: the
-    latter's labels differ a little from the graph's)."""
+    convolutions ran (:func:`~harborsight.perception.onnx_segmenter.int8_arithmetic`:
+    ``reference``, ``fused (vnni)``, or ``fused, uint8 weights (avx2 without vnni)``)."""
     from harborsight.perception.default_model import describe
 
     sidecar, metadata = segmenter.sidecar, segmenter.metadata
