@@ -250,3 +250,54 @@ def test_weights_as_uint8_are_the_same_numbers(tmp_path):
     names = {t.name: onnx.numpy_helper.to_array(t) for t in model.graph.initializer}
     assert "wq" not in names and "zero_s8" not in names
     assert names["zero_s8_as_uint8"] == 128 and names["wq_as_uint8"][1].max() == 255
+
+
+def test_weights_as_uint8_leaves_what_it_cannot_shift(tmp_path):
+    """A zero point made by a Constant node, and weights that are also graph inputs, are
+    left as they are (no crash, the model still loads and runs); an int8 initialiser that a
+    subgraph still reads is kept beside its uint8 copy, and a name already taken is not
+    reused."""
+    import onnx
+    from onnx import helper, numpy_helper
+
+    from harborsight.perception.onnx_segmenter import _int8_weight_dequantizers, weights_as_uint8
+    from tests.int8_models import HEIGHT, WIDTH, saturating_qdq_model
+
+    path = saturating_qdq_model(tmp_path / "sat.onnx")
+    white = np.full((HEIGHT, WIDTH, 3), 255, np.uint8)
+    # the zero point from a Constant node
+    model = onnx.load(str(path))
+    zero = next(t for t in model.graph.initializer if t.name == "zero_s8")
+    model.graph.node.insert(0, helper.make_node("Constant", [], ["zero_s8"], value=zero))
+    model.graph.initializer.remove(zero)
+    assert weights_as_uint8(model) == 0
+    onnx.save(model, str(tmp_path / "constant.onnx"))
+    assert OnnxSegmenter(tmp_path / "constant.onnx").logits(white).shape == (3, HEIGHT, WIDTH)
+    # the weights also a graph input (an export that keeps initialisers as inputs)
+    model = onnx.load(str(path))
+    model.graph.input.append(helper.make_tensor_value_info("wq", onnx.TensorProto.INT8, [3, 4, 1, 1]))
+    assert not _int8_weight_dequantizers(model.graph) and weights_as_uint8(model) == 0
+    # read by a subgraph too, and "wq_as_uint8" already taken
+    model = onnx.load(str(path))
+    model.graph.initializer.append(numpy_helper.from_array(np.zeros(1, np.float32), "wq_as_uint8"))
+    branch = helper.make_graph([helper.make_node("Identity", ["wq"], ["w_out"])], "branch", [],
+                               [helper.make_tensor_value_info("w_out", onnx.TensorProto.INT8, None)])
+    model.graph.node.append(helper.make_node("If", ["cond"], ["w_if"], then_branch=branch,
+                                             else_branch=branch))
+    assert weights_as_uint8(model) == 1
+    names = [t.name for t in model.graph.initializer]
+    assert "wq" in names and names.count("wq_as_uint8") == 1 and "wq_as_uint8_1" in names
+
+
+def test_cpu_flags_come_from_py_cpuinfo_without_proc_cpuinfo(monkeypatch):
+    """Where /proc/cpuinfo is missing (Windows, macOS) py-cpuinfo's flags decide."""
+    import cpuinfo
+
+    from harborsight.perception import onnx_segmenter
+
+    monkeypatch.setattr(onnx_segmenter, "_linux_cpu_flags", lambda: None)
+    read = onnx_segmenter.cpu_int8_dot_product.__wrapped__
+    for flags, kind in ((["sse4_2", "avx2"], "avx2 without vnni"),
+                        (["avx2", "avx512f", "avx512vnni"], "vnni"), (["neon"], "unknown")):
+        monkeypatch.setattr(cpuinfo, "get_cpu_info", lambda flags=flags: {"flags": flags})
+        assert read() == kind

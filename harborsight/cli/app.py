@@ -131,11 +131,11 @@ OWN_RIM_HELP = ("Ship-class slivers up to this many pixels thick hugging the ves
 
 #: help of --exact-int8 (segment, evaluate segmentation)
 EXACT_INT8_HELP = ("Run an int8 model's graph as written (dequantise, float convolution, "
-                   "quantise) instead of ONNX Runtime's fused integer kernels, at 1.5-2x the "
-                   "time. The fused kernels' labels differ from it by rounding only (0.1-0.5 % "
-                   "of the default model's pixels on real frames): on x86 CPUs without VNNI, "
-                   "whose uint8 x int8 sums saturate, the weights run as uint8 "
-                   "(docs/results.md).")
+                   "quantise) instead of ONNX Runtime's fused integer kernels, at 1.3-2.2x the "
+                   "time. The fused kernels' labels differ from it where two classes nearly "
+                   "tie (0.1-0.5 % of the default model's pixels on average over our real "
+                   "frames, up to 1.8 % in a frame); on x86 CPUs without VNNI, whose uint8 x "
+                   "int8 sums saturate, the weights run as uint8 (docs/results.md).")
 
 
 def load_segmenter(model: Path | None, reference_arithmetic: bool = False):

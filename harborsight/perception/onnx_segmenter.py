@@ -19,20 +19,34 @@ SATURATING_CPU = "avx2 without vnni"
 
 @functools.cache
 def cpu_int8_dot_product() -> str:
-    """How this CPU sums ONNX Runtime's fused uint8 x int8 products, from the Linux CPU
-    flags: ``vnni`` (32-bit sums, exact), ``avx2 without vnni`` (pairs of products in 16-bit
-    saturating sums), or ``unknown`` (not x86 Linux, or no flags to read)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return "unknown"
-    flags = next((line.split(":", 1)[1].split() for line in text.splitlines()
-                  if line.startswith("flags")), None)
+    """How this CPU sums ONNX Runtime's fused uint8 x int8 products, from its CPU flags:
+    ``vnni`` (32-bit sums, exact), ``avx2 without vnni`` (pairs of products in 16-bit
+    saturating sums), or ``unknown`` (not x86, or no flags to read). The flags come from
+    ``/proc/cpuinfo`` on Linux and from py-cpuinfo elsewhere (Windows, macOS), which knows
+    AVX-512 VNNI but not AVX-VNNI: such a CPU counts as saturating there, which costs speed,
+    not labels."""
+    flags = _linux_cpu_flags()
     if flags is None:
-        return "unknown"
+        try:
+            import cpuinfo
+
+            flags = [f.replace("avx512vnni", "avx512_vnni")
+                     for f in cpuinfo.get_cpu_info().get("flags", [])]
+        except Exception:  # py-cpuinfo probes the CPU in several ways; any may fail
+            return "unknown"
     if "avx512_vnni" in flags or "avx_vnni" in flags:
         return "vnni"
     return SATURATING_CPU if "avx2" in flags else "unknown"
+
+
+def _linux_cpu_flags() -> list[str] | None:
+    """The ``flags`` of the first CPU in ``/proc/cpuinfo``; None where there is none."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None
+    return next((line.split(":", 1)[1].split() for line in text.splitlines()
+                 if line.startswith("flags")), None)
 
 
 #: operators that compute in integers whatever the session's options: a QOperator graph
@@ -45,18 +59,40 @@ INTEGER_OPERATORS = frozenset({"QLinearConv", "QLinearMatMul", "ConvInteger", "M
 UINT8_WEIGHTS = f"fused, uint8 weights ({SATURATING_CPU})"
 
 
+def _referenced_names(graph) -> set[str]:
+    """Every name ``graph`` reads or exposes: node inputs (subgraphs of ``If``, ``Loop`` and
+    ``Scan`` included), graph inputs and graph outputs."""
+    names = {v.name for v in graph.input} | {v.name for v in graph.output}
+    for node in graph.node:
+        names.update(node.input)
+        for attribute in node.attribute:
+            for subgraph in [attribute.g, *attribute.graphs]:
+                if subgraph.node or subgraph.input or subgraph.output:
+                    names |= _referenced_names(subgraph)
+    return names
+
+
 def _int8_weight_dequantizers(graph) -> list:
-    """The ``DequantizeLinear`` nodes of ``graph`` that read an int8 initialiser (weights)."""
+    """The ``DequantizeLinear`` nodes of ``graph`` that read an int8 initialiser (weights)
+    whose scale, and zero point where given, are initialisers too; weights that are also
+    graph inputs or outputs are left out (a caller may override those, so they are not
+    constants)."""
     from onnx import TensorProto
 
-    int8 = {t.name for t in graph.initializer if t.data_type == TensorProto.INT8}
-    return [n for n in graph.node if n.op_type == "DequantizeLinear" and n.input[0] in int8]
+    exposed = {v.name for v in graph.input} | {v.name for v in graph.output}
+    constants = {t.name for t in graph.initializer} - exposed
+    int8 = {t.name for t in graph.initializer if t.data_type == TensorProto.INT8} - exposed
+    return [n for n in graph.node if n.op_type == "DequantizeLinear" and n.input[0] in int8
+            and n.input[1] in constants
+            and (len(n.input) < 3 or not n.input[2] or n.input[2] in constants)]
 
 
 def weights_as_uint8(model) -> int:
-    """Rewrite, in place, every int8 initialiser read by a ``DequantizeLinear`` as uint8:
-    ``w' = w + 128`` with zero point ``z' = z + 128``, so ``(w' - z')·s = (w - z)·s`` and
-    the real weights are exactly the same. Returns how many nodes changed.
+    """Rewrite, in place, every int8 weight read by a ``DequantizeLinear``
+    (:func:`_int8_weight_dequantizers`) as uint8: ``w' = w + 128`` with zero point
+    ``z' = z + 128``, so ``(w' - z')·s = (w - z)·s`` and the real weights are exactly the
+    same. The int8 originals go only where nothing else reads them. Returns how many nodes
+    changed.
 
     Why: ONNX Runtime fuses a QDQ convolution with int8 weights into its uint8 x int8
     kernel, which on x86 without VNNI multiplies with ``vpmaddubsw`` and adds each pair of
@@ -68,6 +104,7 @@ def weights_as_uint8(model) -> int:
 
     graph = model.graph
     values = {t.name: t for t in graph.initializer}
+    taken = _referenced_names(graph) | set(values) | {o for n in graph.node for o in n.output}
     converted: dict[str, str] = {}
 
     def as_uint8(name: str | None, like: np.ndarray) -> str:
@@ -77,7 +114,10 @@ def weights_as_uint8(model) -> int:
             signed = (numpy_helper.to_array(values[name]) if name
                       else np.zeros(like.shape, np.int8))
             shifted = (signed.astype(np.int16) + 128).astype(np.uint8)
-            new_name = f"{key}_as_uint8"
+            new_name, k = f"{key}_as_uint8", 1
+            while new_name in taken:
+                new_name, k = f"{key}_as_uint8_{k}", k + 1
+            taken.add(new_name)
             graph.initializer.append(numpy_helper.from_array(shifted, new_name))
             converted[key] = new_name
         return converted[key]
@@ -91,10 +131,10 @@ def weights_as_uint8(model) -> int:
             node.input[2] = as_uint8(zero_point, scale)
         else:
             node.input.append(as_uint8(None, scale))
-    used = {name for n in graph.node for name in n.input}
-    unused = [t for t in graph.initializer if t.name not in used]
-    for tensor in unused:
-        graph.initializer.remove(tensor)
+    still_read = _referenced_names(graph)
+    for name in converted:
+        if name in values and name not in still_read:
+            graph.initializer.remove(values[name])
     return len(nodes)
 
 
@@ -176,8 +216,11 @@ class OnnxSegmenter:
         self._int8_arithmetic = ("unknown" if graph_model is None
                                  else _int8_arithmetic(graph_model.graph, reference_arithmetic))
         if self._int8_arithmetic == UINT8_WEIGHTS:
-            weights_as_uint8(graph_model)
-            source = graph_model.SerializeToString()
+            try:
+                weights_as_uint8(graph_model)
+                source = graph_model.SerializeToString()
+            except Exception:  # e.g. protobuf's 2 GB limit: run the file as it is
+                self._int8_arithmetic = f"fused ({SATURATING_CPU})"
         try:
             self.session = ort.InferenceSession(source, options,
                                                 providers=["CPUExecutionProvider"])
