@@ -108,6 +108,10 @@ class FrameMetadata:
     #: ground velocities (east, north) in m/s, when the file gives them
     uav_velocity_en_mps: tuple[float, float] | None = None
     vessel_velocity_en_mps: tuple[float, float] | None = None
+    #: the sun (``sun`` block: elevation above the horizon, azimuth clockwise from north),
+    #: when the file gives it; else the geometry computes it from ``timestamp``
+    sun_elevation_deg: float | None = None
+    sun_azimuth_deg: float | None = None
 
     @property
     def height_above_water_m(self) -> float:
@@ -130,6 +134,9 @@ class FrameMetadata:
         }
         if self.timestamp is not None:
             data["timestamp"] = self.timestamp
+        if self.sun_elevation_deg is not None and self.sun_azimuth_deg is not None:
+            data["sun"] = {"elevation_deg": self.sun_elevation_deg,
+                           "azimuth_deg": self.sun_azimuth_deg}
         for (section, key), name in FRAME_SIGMA_FIELDS.items():
             if name in self.sensor_sigmas:
                 data[section][key] = self.sensor_sigmas[name]
@@ -274,7 +281,17 @@ def _frame_sigmas(reader: _Reader, sections: dict[str, dict]) -> dict[str, float
 
 
 _KNOWN_KEYS = {"schema", "image", "timestamp", "camera", "uav", "camera_attitude", "vessel",
-               "water_level_m"}
+               "water_level_m", "sun"}
+
+
+def _parse_sun(reader: _Reader, data: dict) -> tuple[float | None, float | None]:
+    """The optional ``sun`` block: ``elevation_deg`` in [-90, 90], ``azimuth_deg`` in
+    [-360, 360] (clockwise from north), both required when the block is there."""
+    if data.get("sun") is None:
+        return None, None
+    sun = reader.section(data, "sun")
+    return (reader.number(sun, "elevation_deg", "sun.", low=-90, high=90),
+            reader.number(sun, "azimuth_deg", "sun.", low=-360, high=360))
 
 
 def parse_frame_metadata(
@@ -304,6 +321,7 @@ def parse_frame_metadata(
     uav = reader.section(data, "uav")
     att = reader.section(data, "camera_attitude")
     ves = reader.section(data, "vessel")
+    sun_elevation_deg, sun_azimuth_deg = _parse_sun(reader, data)
     meta = FrameMetadata(
         image=image,
         camera=intr,
@@ -326,6 +344,8 @@ def parse_frame_metadata(
         uav_velocity_en_mps=reader.optional_pair(uav, "velocity_en_mps", "uav.", MAX_SPEED_MPS),
         vessel_velocity_en_mps=reader.optional_pair(ves, "velocity_en_mps", "vessel.",
                                                     MAX_SPEED_MPS),
+        sun_elevation_deg=sun_elevation_deg,
+        sun_azimuth_deg=sun_azimuth_deg,
     )
     if meta.height_above_water_m <= 0:
         raise InputError(
@@ -382,6 +402,17 @@ def parse_frame_metadata_untimed_on_error(
         return parse_frame_metadata(untimed, source, **options), str(exc)
 
 
+def _aware_time(timestamp: str | None) -> datetime | None:
+    """The frame's time when it carries a UTC offset (``Z`` or ``+hh:mm``), else None."""
+    if timestamp is None:
+        return None
+    try:
+        when = datetime.fromisoformat(timestamp)
+    except (TypeError, ValueError):
+        return None
+    return when if when.tzinfo is not None else None
+
+
 @dataclass(frozen=True)
 class FrameGeometry:
     """The posed scene of one frame in local ENU (origin: vessel GPS at the water level)."""
@@ -391,6 +422,22 @@ class FrameGeometry:
     vessel_heading_rad: float
     vessel_position_enu: np.ndarray = field(default_factory=lambda: np.zeros(2))
     source: str | None = None
+    #: the sun's elevation and azimuth (degrees) as the frame gives them, or the frame's time
+    #: (with its UTC offset) to compute them from: :meth:`sun_ray_enu`
+    sun_deg: tuple[float, float] | None = None
+    time: datetime | None = None
+
+    def sun_ray_enu(self) -> np.ndarray | None:
+        """The direction sunlight travels here (:mod:`harborsight.geometry.sun`), from the
+        frame's ``sun`` block, else from its time and place; None when neither is known or
+        the sun is too low to cast a usable shadow."""
+        from harborsight.geometry.sun import sun_position_deg, sun_ray_enu
+
+        if self.sun_deg is not None:
+            return sun_ray_enu(*self.sun_deg)
+        if self.time is None or self.time.tzinfo is None:
+            return None
+        return sun_ray_enu(*sun_position_deg(self.origin.lat_deg, self.origin.lon_deg, self.time))
 
     @classmethod
     def from_metadata(cls, meta: FrameMetadata) -> FrameGeometry:
@@ -404,6 +451,9 @@ class FrameGeometry:
             camera=Camera(meta.camera, cam_enu, rotation),
             vessel_heading_rad=math.radians(meta.vessel_heading_deg),
             source=meta.source,
+            sun_deg=(None if meta.sun_elevation_deg is None or meta.sun_azimuth_deg is None
+                     else (meta.sun_elevation_deg, meta.sun_azimuth_deg)),
+            time=_aware_time(meta.timestamp),
         )
         geometry.check_plausible(meta)
         geometry.check_sees_water()

@@ -46,6 +46,10 @@ def edit_frame(path: Path, edit) -> None:
     (lambda d: d["camera"].update(height=float("nan")), "camera.height", "whole number"),
     (lambda d: d.update(timestamp=1714564800), "timestamp", "ISO 8601"),
     (lambda d: d.update(timestamp="noon"), "timestamp", "ISO 8601"),
+    (lambda d: d.update(sun={"elevation_deg": 95.0, "azimuth_deg": 10.0}), "sun.elevation_deg",
+     "outside"),
+    (lambda d: d.update(sun={"elevation_deg": 40.0}), "sun.azimuth_deg", "missing"),
+    (lambda d: d.update(sun=[40.0, 10.0]), "sun", "expected an object"),
 ])
 def test_bad_metadata_names_file_and_field(dataset, edit, field, message):
     frame = dataset / "frames" / "000000.json"

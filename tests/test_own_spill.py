@@ -28,7 +28,8 @@ def _labels_by_east(geometry, classes_of_east) -> np.ndarray:
     return classes_of_east(ground[:, 0]).reshape(SIZE_PX, SIZE_PX).astype(np.uint8)
 
 
-def _contact(geometry, labels, refinement=NOT_REFINED, confidence=None) -> SectionClearance:
+def _contact(geometry, labels, refinement=NOT_REFINED, confidence=None,
+             vessel_points=None) -> SectionClearance:
     """A contact reading at the hull point (5, 0), measured and given its uncertainty."""
     camera = geometry.camera
     hull_px = camera.project(np.array([[HULL_E, 0.0, 0.0]]))[0][0].tolist()
@@ -36,7 +37,8 @@ def _contact(geometry, labels, refinement=NOT_REFINED, confidence=None) -> Secti
                                hull_point_enu=[HULL_E, 0.0], obstacle_point_enu=[HULL_E, 0.0],
                                hull_point_px=hull_px, obstacle_point_px=hull_px)
     add_section_uncertainty([section], geometry, np.column_stack((BOX, np.zeros(len(BOX)))),
-                            refinement, ZERO, confidence=confidence, labels=labels)
+                            refinement, ZERO, confidence=confidence, labels=labels,
+                            vessel_points_enu=vessel_points)
     return section
 
 
@@ -87,3 +89,41 @@ def test_with_a_model_the_first_pixel_it_is_sure_of_ends_the_walk():
         (e > -5.0) & (e < 8.0), 0.95, np.where(e < 12.0, 0.05, np.where(e < 15.0, 0.6, 0.95))))
     section = _contact(geometry, labels, confidence=confidence)
     assert section.sigma_m == pytest.approx(math.hypot(10.0 / Z_90, GRID_M), abs=0.15 / Z_90)
+
+
+#: the box hull as a body 2 m high: its points on the water and 2 m above it
+BODY = np.vstack((np.column_stack((BOX, np.zeros(4))), np.column_stack((BOX, np.full(4, 2.0)))))
+
+
+def _blob_to(end_e: float):
+    """The vessel's pixels, a gap, then a ship blob from its side to ``end_e``, water to 12 m
+    and a quay beyond."""
+    return lambda e: np.where((e > -5.0) & (e < 4.7), SHIP, np.where(e < 4.95, WATER, np.where(
+        e < end_e, SHIP, np.where(e < 12.0, WATER, OBSTACLE))))
+
+
+def test_when_the_image_placed_the_hull_a_blob_in_its_shadow_widens_the_bar():
+    """With the sun known, a contact with a ship blob that ends inside the vessel's shadow
+    may be that shadow, labelled ship by a model: the bar reaches to the quay as with the
+    sensors' pose. The sun in the west at 30 degrees casts the 2 m body's shadow 3.46 m east
+    of the hull (to e = 8.46): a blob to e = 8 ends in it. A blob to e = 10 ends beyond it
+    (a neighbour), and with the sun in the east the shadow falls the other way: both keep
+    the bar of a reading. The distance and its lower bound stay as read."""
+    from dataclasses import replace
+
+    west_sun = replace(_nadir(), sun_deg=(30.0, 270.0))
+    labels = _labels_by_east(west_sun, _blob_to(8.0))
+    section = _contact(west_sun, labels, REFINED, vessel_points=BODY)
+    assert section.sigma_m == pytest.approx(math.hypot(7.0 / Z_90, GRID_M), abs=0.1 / Z_90)
+    assert section.distance_m == 0.0 and section.distance_lower_m == 0.0
+    beyond = _labels_by_east(west_sun, _blob_to(10.0))
+    assert _contact(west_sun, beyond, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
+        GRID_M, rel=1e-3)
+    east_sun = replace(_nadir(), sun_deg=(30.0, 90.0))
+    assert _contact(east_sun, labels, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
+        GRID_M, rel=1e-3)
+    # without the vessel's points, or with the sun under 5 degrees, no shadow is predicted
+    assert _contact(west_sun, labels, REFINED).sigma_m == pytest.approx(GRID_M, rel=1e-3)
+    low_sun = replace(_nadir(), sun_deg=(4.0, 270.0))
+    assert _contact(low_sun, labels, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
+        GRID_M, rel=1e-3)

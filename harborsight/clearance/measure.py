@@ -523,7 +523,8 @@ def measure_clearance(
 
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px,
-                            confidence=confidence, labels=labels)
+                            confidence=confidence, labels=labels,
+                            vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,

@@ -46,6 +46,9 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
   ``σ_c = (s_c - d) / Φ⁻¹(CONFIDENT_SOLID_P)`` as for the doubt. The distance and its lower
   bound stay as read (a neighbour moored alongside looks the same, and the crew's alarm goes
   by the bound): only the bar, and the weight a filter over time gives the reading, change.
+  When the image placed the hull, the same holds for a blob that ends inside the vessel's
+  predicted shadow on the water, where the sun is known (:mod:`harborsight.geometry.sun`):
+  a model paints that shadow ship, and the alignment leaves it outside the hull.
 
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
 any correction), the hull is placed by the image, not by the vessel's
@@ -72,6 +75,7 @@ from dataclasses import dataclass
 from statistics import NormalDist
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
@@ -93,6 +97,9 @@ REFINEMENT_COVARIANCE_SCALE = 25.0
 #: the solid probability at which the model counts as sure of an obstacle (calibrated on
 #: the seed-7 bench's frames 0-259, validated on 260-519: docs/results.md)
 CONFIDENT_SOLID_P = 0.9
+#: a ship run that ends this close outside the vessel's predicted shadow (pixels) may still
+#: be that shadow: the model's edges and the pixel grid blur it by a pixel or two
+SHADOW_TOLERANCE_PX = 3.0
 _CONFIDENT_Z = NormalDist().inv_cdf(CONFIDENT_SOLID_P)
 #: step (px) of the look along the ray beyond the obstacle point, and the stretches (in
 #: steps) it is read in; 0: to the image's edge
@@ -253,12 +260,16 @@ def _first_per_walk(hits: np.ndarray, walk_of: np.ndarray, ends: np.ndarray) -> 
 
 def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
                 distance_m: np.ndarray, antenna_px: np.ndarray, camera: Camera,
-                labels: np.ndarray, confidence: SolidConfidence | None = None) -> np.ndarray:
+                labels: np.ndarray, confidence: SolidConfidence | None = None,
+                shadow_px: np.ndarray | None = None) -> np.ndarray:
     """``s_c - d`` of each contact reading against a ship (module docstring): walking from
     the hull point ``hull_px`` away from the antenna's pixel, through the first run of ship
     pixels it meets (the ship the reading touches), how far on the water the first pixel
     sure to be solid beyond that run lies beyond the reading; 0 for a reading whose
-    obstacle pixel is not ship. One pixel steps, every walk at once."""
+    obstacle pixel is not ship. With ``shadow_px`` (the vessel's shadow on the water, a
+    convex polygon of pixels) only runs that end inside it, within
+    :data:`SHADOW_TOLERANCE_PX`, count: the blob may be that shadow. One pixel steps, every
+    walk at once."""
     spill = np.zeros(len(hull_px))
     height, width = labels.shape
     at = np.rint(obstacle_px).astype(int) if len(obstacle_px) else np.zeros((0, 2), int)
@@ -295,7 +306,30 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     far_enu, valid = camera.back_project_to_plane(walk[first])
     far_m = np.hypot(*(far_enu[:, :2] - hull_enu[todo]).T)
     spill[todo] = np.where(valid, np.maximum(far_m - distance_m[todo], 0.0), 0.0)
+    if shadow_px is not None:
+        # where each run's last ship sample lies (the walk's start when it met no ship)
+        last = walk[np.maximum(run_end - 1, ends - steps)]
+        polygon = np.asarray(shadow_px, np.float32).reshape(-1, 1, 2)
+        in_shadow = np.array([cv2.pointPolygonTest(polygon, (float(x), float(y)), True)
+                              >= -SHADOW_TOLERANCE_PX for x, y in last], bool)
+        spill[todo[~in_shadow]] = 0.0
     return spill
+
+
+def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
+                   ) -> np.ndarray | None:
+    """The pixels ``(M, 2)`` of the vessel's shadow on the water, a convex polygon; None
+    without the vessel's points or the sun, or when a corner does not project."""
+    if vessel_points_enu is None:
+        return None
+    ray = geometry.sun_ray_enu()
+    if ray is None:
+        return None
+    from harborsight.geometry.sun import shadow_on_water
+
+    shadow = shadow_on_water(vessel_points_enu, ray)
+    pixels, _ = geometry.camera.project(np.column_stack((shadow, np.zeros(len(shadow)))))
+    return pixels if np.isfinite(pixels).all() else None
 
 
 def add_section_uncertainty(
@@ -303,13 +337,15 @@ def add_section_uncertainty(
     refinement: PoseRefinement, sigmas: SensorSigmas,
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
     confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
+    vessel_points_enu: np.ndarray | None = None,
 ) -> None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
     measured with (refined or not); ``outline_enu`` the hull outline's points on the water;
     ``outline_px`` their pixels with that geometry's camera (NaN where they do not project),
     when the caller has them already (else they are projected here); ``confidence`` the
-    model's probabilities, when the mask came from a model."""
+    model's probabilities, when the mask came from a model; ``vessel_points_enu`` the
+    vessel's hull points (above the waterline), for its shadow when the sun is known."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
           and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
     if not ok:
@@ -403,12 +439,15 @@ def add_section_uncertainty(
         doubt = edge_doubt_m(hull_px, obstacle_px, hull[:, :2], distance_m, camera, confidence)
         random += (doubt / _CONFIDENT_Z) ** 2
     contact = np.array([bool(s.contact) for s in ok])
-    if labels is not None and not refined and contact.any():
+    shadow_px = None
+    if labels is not None and refined and contact.any():
+        shadow_px = _own_shadow_px(geometry, vessel_points_enu)
+    if labels is not None and contact.any() and (not refined or shadow_px is not None):
         antenna_px, _ = camera.project(np.array([[*geometry.vessel_position_enu[:2], 0.0]]))
         spill = np.zeros(len(ok))
         spill[contact] = own_spill_m(hull_px[contact], obstacle_px[contact], hull[contact, :2],
                                      distance_m[contact], antenna_px[0], camera, labels,
-                                     confidence)
+                                     confidence, shadow_px)
         random += (spill / _CONFIDENT_Z) ** 2
 
     total = np.sqrt(systematic + random)

@@ -11,11 +11,13 @@ from harborsight.geometry.geodesy import enu_to_geodetic
 class PosedScene:
     """Mixin for scenes with ``intrinsics``, ``uav_enu`` (camera centre in ENU metres, origin at
     the vessel's antenna on the water), ``yaw_deg``/``pitch_deg``/``roll_deg``,
-    ``vessel_heading_deg``, ``origin`` (a GeoOrigin at the antenna) and ``timestamp``."""
+    ``vessel_heading_deg``, ``origin`` (a GeoOrigin at the antenna) and ``timestamp``; a
+    rendered scene's ``environment`` gives the frame its ``sun`` block."""
 
     def metadata(self, image: str) -> FrameMetadata:
         """``harborsight.frame/1`` metadata of the true poses (drone GPS from ENU by pymap3d)."""
         lat, lon, alt = enu_to_geodetic(np.asarray(self.uav_enu, float), self.origin)
+        env = getattr(self, "environment", None)        # a rendered scene's sun
         return FrameMetadata(
             image=image, camera=self.intrinsics,
             uav_lat_deg=float(lat), uav_lon_deg=float(lon), uav_alt_m=float(alt),
@@ -23,6 +25,8 @@ class PosedScene:
             vessel_lat_deg=self.origin.lat_deg, vessel_lon_deg=self.origin.lon_deg,
             vessel_heading_deg=self.vessel_heading_deg, water_level_m=self.origin.alt_m,
             timestamp=self.timestamp,
+            sun_elevation_deg=None if env is None else float(env.sun_elevation_deg),
+            sun_azimuth_deg=None if env is None else float(env.sun_azimuth_deg),
         )
 
     def geometry(self) -> FrameGeometry:
