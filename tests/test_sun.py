@@ -4,7 +4,7 @@ measured with shapely."""
 
 import json
 import math
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 import pytest
@@ -21,11 +21,11 @@ def test_noon_at_the_solstice_matches_a_hand_calculation():
     """On 2026-06-21 at 12:02 UTC the sun crosses Greenwich's meridian (the equation of time
     is -1.7 min) at 90 - 51.4769 + 23.44 = 61.96 degrees, due south; six hours later it is
     low in the west-north-west."""
-    elevation, azimuth = sun_position_deg(*GREENWICH, datetime(2026, 6, 21, 12, 2, tzinfo=timezone.utc))
+    elevation, azimuth = sun_position_deg(*GREENWICH, datetime(2026, 6, 21, 12, 2, tzinfo=UTC))
     assert elevation == pytest.approx(61.96, abs=0.1)
     assert azimuth == pytest.approx(180.0, abs=1.0)
     evening_el, evening_az = sun_position_deg(*GREENWICH, datetime(2026, 6, 21, 18, 2,
-                                                                  tzinfo=timezone.utc))
+                                                                  tzinfo=UTC))
     assert 10.0 < evening_el < 25.0 and 270.0 < evening_az < 300.0
     with pytest.raises(ValueError, match="UTC offset"):
         sun_position_deg(*GREENWICH, datetime(2026, 6, 21, 12, 2))
