@@ -2,7 +2,7 @@
 
 A frame gives the sun either in its ``sun`` block (elevation above the horizon and azimuth
 clockwise from north, degrees: the simulator writes it) or through its ``timestamp`` and the
-drone's position, from which pysolar computes both (the timestamp must carry its UTC offset:
+vessel's position, from which astral computes both (the timestamp must carry its UTC offset:
 a time without one could be any zone's). Sunlight travels along
 
     s = (-sin(az) cos(el), -cos(az) cos(el), -sin(el))       (east, north, up)
@@ -16,7 +16,6 @@ waterline, that hull's shadow contains the vessel's.
 from __future__ import annotations
 
 import math
-import warnings
 from datetime import datetime
 
 import cv2
@@ -36,17 +35,16 @@ def sun_ray_enu(elevation_deg: float, azimuth_deg: float) -> np.ndarray | None:
 
 
 def sun_position_deg(lat_deg: float, lon_deg: float, when: datetime) -> tuple[float, float]:
-    """``(elevation, azimuth)`` of the sun in degrees (azimuth clockwise from north) at a
-    place and a time that carries its UTC offset, by pysolar (within about 0.1 degree; its
-    warnings about leap seconds it does not know are not the user's concern)."""
+    """``(elevation, azimuth)`` of the sun in degrees (azimuth clockwise from north; the
+    elevation as seen, atmospheric refraction included) at a place and a time that carries
+    its UTC offset, by astral (NOAA's algorithm)."""
     if when.tzinfo is None:
         raise ValueError("a time without a UTC offset")
-    from pysolar.solar import get_altitude, get_azimuth
+    from astral import Observer
+    from astral.sun import azimuth, elevation
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return (float(get_altitude(lat_deg, lon_deg, when)),
-                float(get_azimuth(lat_deg, lon_deg, when)))
+    observer = Observer(lat_deg, lon_deg)
+    return float(elevation(observer, when)), float(azimuth(observer, when))
 
 
 def shadow_on_water(points_enu: np.ndarray, ray_enu: np.ndarray) -> np.ndarray:
