@@ -402,6 +402,21 @@ def parse_frame_metadata_untimed_on_error(
         return parse_frame_metadata(untimed, source, **options), str(exc)
 
 
+def _sun_of(meta: FrameMetadata) -> tuple[float, float] | None:
+    """The frame's ``sun`` block; for a simulator frame written before that block existed,
+    the sun it was rendered with (``simulation.environment``), which its synthetic time does
+    not give."""
+    if meta.sun_elevation_deg is not None and meta.sun_azimuth_deg is not None:
+        return meta.sun_elevation_deg, meta.sun_azimuth_deg
+    simulation = meta.extra.get("simulation")
+    env = simulation.get("environment") if isinstance(simulation, dict) else None
+    if isinstance(env, dict):
+        el, az = env.get("sun_elevation_deg"), env.get("sun_azimuth_deg")
+        if all(isinstance(v, (int, float)) and math.isfinite(v) for v in (el, az)):
+            return float(el), float(az)
+    return None
+
+
 def _aware_time(timestamp: str | None) -> datetime | None:
     """The frame's time when it carries a UTC offset (``Z`` or ``+hh:mm``), else None."""
     if timestamp is None:
@@ -451,8 +466,7 @@ class FrameGeometry:
             camera=Camera(meta.camera, cam_enu, rotation),
             vessel_heading_rad=math.radians(meta.vessel_heading_deg),
             source=meta.source,
-            sun_deg=(None if meta.sun_elevation_deg is None or meta.sun_azimuth_deg is None
-                     else (meta.sun_elevation_deg, meta.sun_azimuth_deg)),
+            sun_deg=_sun_of(meta),
             time=_aware_time(meta.timestamp),
         )
         geometry.check_plausible(meta)

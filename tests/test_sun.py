@@ -50,6 +50,7 @@ def test_a_frame_gives_the_sun_by_its_block_or_by_its_time(tmp_path):
     source = SAMPLES / "frames" / "000000.json"
     data = json.loads(source.read_text())
     data.pop("sun", None)
+    data.pop("simulation", None)        # a frame of a real flight: no render's sun
     data["uav"].update(lat=GREENWICH[0], lon=GREENWICH[1])
     data["vessel"].update(lat=GREENWICH[0], lon=GREENWICH[1])
     path = tmp_path / "frame.json"
@@ -84,3 +85,15 @@ def test_a_rendered_scene_writes_its_sun_into_the_frame():
                    "azimuth_deg": scene.environment.sun_azimuth_deg}
     np.testing.assert_allclose(scene.geometry().sun_ray_enu(),
                                sun_ray_enu(sun["elevation_deg"], sun["azimuth_deg"]))
+
+
+def test_a_simulator_frame_without_a_sun_block_uses_the_sun_it_was_rendered_with():
+    """Frames the simulator wrote before the ``sun`` block (the bundled flight among them)
+    carry their render's sun in ``simulation.environment``: that, not their synthetic time."""
+    source = SAMPLES / "flight" / "frames" / "000000.json"
+    data = json.loads(source.read_text())
+    env = data["simulation"]["environment"]
+    assert "sun" not in data and data["timestamp"]
+    geometry = FrameGeometry.from_metadata(load_frame_metadata(source))
+    np.testing.assert_allclose(geometry.sun_ray_enu(),
+                               sun_ray_enu(env["sun_elevation_deg"], env["sun_azimuth_deg"]))
