@@ -122,6 +122,12 @@ def test_when_the_image_placed_the_hull_a_blob_in_its_shadow_widens_the_bar():
     east_sun = replace(_nadir(), sun_deg=(30.0, 90.0))
     assert _contact(east_sun, labels, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
         GRID_M, rel=1e-3)
+    # a run that ends within 3 px of the hull's own edge is the vessel drawn wide, not its
+    # shadow: it keeps the bar of a reading whichever way the shadow falls
+    rim = _labels_by_east(west_sun, _blob_to(5.2))
+    for sun in (west_sun, east_sun):
+        assert _contact(sun, rim, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
+            GRID_M, rel=1e-3)
     # without the vessel's points, or with the sun under 5 degrees, no shadow is predicted
     assert _contact(west_sun, labels, REFINED).sigma_m == pytest.approx(GRID_M, rel=1e-3)
     low_sun = replace(_nadir(), sun_deg=(4.0, 270.0))

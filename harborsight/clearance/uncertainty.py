@@ -261,15 +261,17 @@ def _first_per_walk(hits: np.ndarray, walk_of: np.ndarray, ends: np.ndarray) -> 
 def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarray,
                 distance_m: np.ndarray, antenna_px: np.ndarray, camera: Camera,
                 labels: np.ndarray, confidence: SolidConfidence | None = None,
-                shadow_px: np.ndarray | None = None) -> np.ndarray:
+                shadow_px: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``s_c - d`` of each contact reading against a ship (module docstring): walking from
     the hull point ``hull_px`` away from the antenna's pixel, through the first run of ship
     pixels it meets (the ship the reading touches), how far on the water the first pixel
     sure to be solid beyond that run lies beyond the reading; 0 for a reading whose
-    obstacle pixel is not ship. With ``shadow_px`` (the vessel's shadow on the water, a
-    convex polygon of pixels) only runs that end inside it, within
-    :data:`SHADOW_TOLERANCE_PX`, count: the blob may be that shadow. One pixel steps, every
-    walk at once."""
+    obstacle pixel is not ship. With ``shadow_px``, the pixels of the vessel's shadow on
+    the water and of its footprint (two convex polygons, the first containing the second),
+    only runs that end inside the shadow, within :data:`SHADOW_TOLERANCE_PX`, and outside
+    the footprint by more than that count: the blob may be that shadow (a run that ends at
+    the hull's own edge is the vessel drawn a little wide, and a walk that meets no ship
+    run is not explained by it). One pixel steps, every walk at once."""
     spill = np.zeros(len(hull_px))
     height, width = labels.shape
     at = np.rint(obstacle_px).astype(int) if len(obstacle_px) else np.zeros((0, 2), int)
@@ -307,19 +309,22 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     far_m = np.hypot(*(far_enu[:, :2] - hull_enu[todo]).T)
     spill[todo] = np.where(valid, np.maximum(far_m - distance_m[todo], 0.0), 0.0)
     if shadow_px is not None:
-        # where each run's last ship sample lies (the walk's start when it met no ship)
-        last = walk[np.maximum(run_end - 1, ends - steps)]
-        polygon = np.asarray(shadow_px, np.float32).reshape(-1, 1, 2)
-        in_shadow = np.array([cv2.pointPolygonTest(polygon, (float(x), float(y)), True)
-                              >= -SHADOW_TOLERANCE_PX for x, y in last], bool)
+        has_run = run_start < ends
+        last = walk[np.where(has_run, run_end - 1, ends - 1)]      # each run's last ship sample
+        shadow, footprint = (np.asarray(p, np.float32).reshape(-1, 1, 2) for p in shadow_px)
+        in_shadow = np.array([
+            cv2.pointPolygonTest(shadow, point, True) >= -SHADOW_TOLERANCE_PX
+            and cv2.pointPolygonTest(footprint, point, True) < -SHADOW_TOLERANCE_PX
+            for point in map(tuple, last.astype(float))], bool) & has_run
         spill[todo[~in_shadow]] = 0.0
     return spill
 
 
 def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
-                   ) -> np.ndarray | None:
-    """The pixels ``(M, 2)`` of the vessel's shadow on the water, a convex polygon; None
-    without the vessel's points or the sun, or when a corner does not project."""
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pixels of the vessel's shadow on the water and of its footprint, two convex
+    polygons ``(M, 2)``; None without the vessel's points or the sun, or when a corner does
+    not project (behind the camera, past the lens model's fold: the term is then left out)."""
     if vessel_points_enu is None:
         return None
     ray = geometry.sun_ray_enu()
@@ -327,9 +332,15 @@ def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
         return None
     from harborsight.geometry.sun import shadow_on_water
 
-    shadow = shadow_on_water(vessel_points_enu, ray)
-    pixels, _ = geometry.camera.project(np.column_stack((shadow, np.zeros(len(shadow)))))
-    return pixels if np.isfinite(pixels).all() else None
+    points = np.asarray(vessel_points_enu, float)
+    polygons = []
+    for outline in (shadow_on_water(points, ray),
+                    cv2.convexHull(points[:, :2].astype(np.float32)).reshape(-1, 2)):
+        pixels, _ = geometry.camera.project(np.column_stack((outline, np.zeros(len(outline)))))
+        if not np.isfinite(pixels).all():
+            return None
+        polygons.append(pixels)
+    return polygons[0], polygons[1]
 
 
 def add_section_uncertainty(
