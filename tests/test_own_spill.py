@@ -4,6 +4,7 @@ scene (10 cm a pixel)."""
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -133,3 +134,28 @@ def test_when_the_image_placed_the_hull_a_blob_in_its_shadow_widens_the_bar():
     low_sun = replace(_nadir(), sun_deg=(4.0, 270.0))
     assert _contact(low_sun, labels, REFINED, vessel_points=BODY).sigma_m == pytest.approx(
         GRID_M, rel=1e-3)
+
+
+def test_a_shadow_reaching_behind_the_camera_still_gives_its_near_part():
+    """A low sun in the north casts the body's shadow 19 m south, behind an oblique camera
+    looking north: the corners behind it are left out and the rest of the polygon is kept
+    (it used to drop the term for the frame)."""
+    from dataclasses import replace
+
+    from harborsight.clearance.uncertainty import _own_shadow_px
+    from harborsight.geometry.camera import Camera, CameraIntrinsics
+    from harborsight.geometry.rotations import world_from_camera_rotation
+
+    intrinsics = CameraIntrinsics(640, 360, 450.0, 450.0, 319.5, 179.5)
+    rotation = world_from_camera_rotation(0.0, math.radians(-20.0), 0.0)
+    geometry = replace(_nadir(), camera=Camera(intrinsics, np.array([0.0, -10.0, 10.0]), rotation),
+                       sun_deg=(6.0, 0.0))
+    behind, _ = geometry.camera.project(np.array([[0.0, -21.0, 0.0]]))
+    assert not np.isfinite(behind).all()
+    shadow, footprint = _own_shadow_px(geometry, BODY)
+    assert len(shadow) >= 3 and len(footprint) == 4 and np.isfinite(shadow).all()
+    # a point of the shadow in front of the camera is inside the polygon, one outside is not
+    polygon = shadow.astype(np.float32).reshape(-1, 1, 2)
+    for point_en, inside in (((0.0, -8.0), True), ((8.0, -8.0), False)):
+        pixel, _ = geometry.camera.project(np.array([[*point_en, 0.0]]))
+        assert (cv2.pointPolygonTest(polygon, tuple(map(float, pixel[0])), False) > 0) == inside

@@ -320,24 +320,48 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     return spill
 
 
+#: the shadow is cut this far in front of the camera's plane (metres along its axis)
+_IN_FRONT_M = 0.5
+
+
 def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
                    ) -> tuple[np.ndarray, np.ndarray] | None:
     """The pixels of the vessel's shadow on the water and of its footprint, two convex
-    polygons ``(M, 2)``; None without the vessel's points or the sun, or when a corner does
-    not project (behind the camera, past the lens model's fold: the term is then left out)."""
+    polygons ``(M, 2)``, each cut on the water to the part in front of the camera (shapely)
+    and its edges bent by the lens (``Camera.project_convex_outline``); None without the
+    vessel's points or the sun, or when either has nothing in front of the camera."""
     if vessel_points_enu is None:
         return None
     ray = geometry.sun_ray_enu()
     if ray is None:
         return None
+    from shapely.geometry import Polygon
+
     from harborsight.geometry.sun import shadow_on_water
 
+    camera = geometry.camera
+    axis = camera.world_from_camera[:, 2]              # the optical axis, in ENU
+    # water points p in front: (p - c)·axis >= _IN_FRONT_M, a half-plane a·(e, n) >= b
+    a, b = axis[:2], _IN_FRONT_M + float(camera.position_enu @ axis)
     points = np.asarray(vessel_points_enu, float)
     polygons = []
     for outline in (shadow_on_water(points, ray),
                     cv2.convexHull(points[:, :2].astype(np.float32)).reshape(-1, 2)):
-        pixels, _ = geometry.camera.project(np.column_stack((outline, np.zeros(len(outline)))))
-        if not np.isfinite(pixels).all():
+        region = Polygon(outline)
+        if float(np.min(outline @ a)) < b:            # some of it is not in front: cut it
+            reach = 10.0 * (float(np.abs(outline).max())
+                            + float(np.abs(camera.position_enu).max()) + 1.0)
+            along = np.array([-a[1], a[0]]) / max(float(np.hypot(*a)), 1e-12)
+            foot = a * b / max(float(a @ a), 1e-12)     # the cut line's point nearest the origin
+            inward = a / max(float(np.hypot(*a)), 1e-12)
+            region = region.intersection(Polygon([foot - reach * along, foot + reach * along,
+                                                  foot + reach * along + reach * inward,
+                                                  foot - reach * along + reach * inward]))
+            if region.is_empty or region.geom_type != "Polygon":
+                return None
+        corners = np.asarray(region.exterior.coords)[:-1]
+        pixels = camera.project_convex_outline(np.column_stack((corners, np.zeros(len(corners)))))
+        if len(pixels) < 3:
             return None
         polygons.append(pixels)
     return polygons[0], polygons[1]
