@@ -324,19 +324,32 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
 _IN_FRONT_M = 0.5
 
 
+def _clip_convex(polygon: np.ndarray, a: np.ndarray, b: float) -> np.ndarray:
+    """The part of a convex polygon ``(M, 2)`` where ``a·p >= b`` (one Sutherland-Hodgman
+    step: keep the corners inside, add where an edge crosses the line)."""
+    side = polygon @ a - b
+    following, side_following = np.roll(polygon, -1, axis=0), np.roll(side, -1)
+    kept = []
+    for p, q, sp, sq in zip(polygon, following, side, side_following, strict=True):
+        if sp >= 0:
+            kept.append(p)
+        if (sp >= 0) != (sq >= 0):
+            kept.append(p + (q - p) * sp / (sp - sq))
+    return np.array(kept).reshape(-1, 2)
+
+
 def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
                    ) -> tuple[np.ndarray, np.ndarray] | None:
     """The pixels of the vessel's shadow on the water and of its footprint, two convex
-    polygons ``(M, 2)``, each cut on the water to the part in front of the camera (shapely)
-    and its edges bent by the lens (``Camera.project_convex_outline``); None without the
-    vessel's points or the sun, or when either has nothing in front of the camera."""
+    polygons ``(M, 2)``, each cut on the water to the part in front of the camera
+    (:func:`_clip_convex`) and its edges bent by the lens (``Camera.project_convex_outline``);
+    None without the vessel's points or the sun, or when either has nothing in front of the
+    camera."""
     if vessel_points_enu is None:
         return None
     ray = geometry.sun_ray_enu()
     if ray is None:
         return None
-    from shapely.geometry import Polygon
-
     from harborsight.geometry.sun import shadow_on_water
 
     camera = geometry.camera
@@ -347,19 +360,9 @@ def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
     polygons = []
     for outline in (shadow_on_water(points, ray),
                     cv2.convexHull(points[:, :2].astype(np.float32)).reshape(-1, 2)):
-        region = Polygon(outline)
-        if float(np.min(outline @ a)) < b:            # some of it is not in front: cut it
-            reach = 10.0 * (float(np.abs(outline).max())
-                            + float(np.abs(camera.position_enu).max()) + 1.0)
-            along = np.array([-a[1], a[0]]) / max(float(np.hypot(*a)), 1e-12)
-            foot = a * b / max(float(a @ a), 1e-12)     # the cut line's point nearest the origin
-            inward = a / max(float(np.hypot(*a)), 1e-12)
-            region = region.intersection(Polygon([foot - reach * along, foot + reach * along,
-                                                  foot + reach * along + reach * inward,
-                                                  foot - reach * along + reach * inward]))
-            if region.is_empty or region.geom_type != "Polygon":
-                return None
-        corners = np.asarray(region.exterior.coords)[:-1]
+        corners = _clip_convex(outline, a, b)
+        if len(corners) < 3:
+            return None
         pixels = camera.project_convex_outline(np.column_stack((corners, np.zeros(len(corners)))))
         if len(pixels) < 3:
             return None
