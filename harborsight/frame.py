@@ -207,6 +207,28 @@ class _Reader:
         return east, north
 
 
+#: how far the image's aspect may differ from the sensor's for ``focal_length_mm`` (a share)
+SENSOR_ASPECT_TOLERANCE = 0.01
+
+
+def _check_sensor_aspect(src, width: int, height: int, sensor_w_mm: float, sensor_h_mm: float,
+                         focal_mm: float) -> None:
+    """``fx = f·width/sensor_width`` and ``fy = f·height/sensor_height`` hold only for an image
+    of the whole sensor. A 16:9 video from a 4:3 sensor is a crop of it: the two would give
+    pixels 1.33 times taller than wide, and distances off by up to a third, so such a camera
+    block is refused with the fx of the common crop (the sensor's full width) to check."""
+    image_aspect, sensor_aspect = width / height, sensor_w_mm / sensor_h_mm
+    if abs(image_aspect / sensor_aspect - 1.0) <= SENSOR_ASPECT_TOLERANCE:
+        return
+    full_width_fx = focal_mm * width / sensor_w_mm
+    raise InputError(src, "camera.sensor_height_mm",
+                     f"the sensor ({sensor_w_mm:g} x {sensor_h_mm:g} mm, {sensor_aspect:.3f}:1) "
+                     f"and the image ({width}x{height}, {image_aspect:.3f}:1) differ in aspect: "
+                     "the image is a crop of the sensor, and which part is not known; give fx "
+                     "and fy in pixels (for a video across the sensor's full width, as DJI's, "
+                     f"fx = fy = {full_width_fx:.1f})")
+
+
 def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIntrinsics:
     src = reader.source
     if "calibration" in cam:
@@ -248,13 +270,11 @@ def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIn
             distortion=distortion,
         )
     elif "focal_length_mm" in cam:
-        intr = CameraIntrinsics.from_sensor(
-            width, height,
-            reader.number(cam, "sensor_width_mm", "camera.", low=1e-6),
-            reader.number(cam, "sensor_height_mm", "camera.", low=1e-6),
-            reader.number(cam, "focal_length_mm", "camera.", low=1e-6),
-            distortion,
-        )
+        sensor_w = reader.number(cam, "sensor_width_mm", "camera.", low=1e-6)
+        sensor_h = reader.number(cam, "sensor_height_mm", "camera.", low=1e-6)
+        focal = reader.number(cam, "focal_length_mm", "camera.", low=1e-6)
+        _check_sensor_aspect(src, width, height, sensor_w, sensor_h, focal)
+        intr = CameraIntrinsics.from_sensor(width, height, sensor_w, sensor_h, focal, distortion)
     else:
         raise InputError(src, "camera.fx", "missing (give fx/fy/cx/cy, focal_length_mm with "
                          "sensor_width_mm/sensor_height_mm, or calibration)")

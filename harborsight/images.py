@@ -8,6 +8,12 @@ So before an image is used, its container is checked for completeness, without d
 * PNG: the chunks run from the signature to ``IEND``, each with its CRC-32 right;
 * TIFF: Pillow reads every strip or tile (a truncated strip raises).
 
+A frame to be measured must also hold the camera's own pixels: a picture stored turned, with
+an EXIF Orientation other than 1, is turned back as it is read (OpenCV does for JPEG and
+PNG), and the frame's intrinsics and attitude no longer describe it. With Orientation 3 the size is the
+same, so nothing else would notice: the hull lands on the wrong side of the picture and a
+0.7 m contact reads clear. ``read_image(path, camera_pixels=True)`` refuses such a file.
+
 ``read_image`` and ``read_mask`` are the readers every part uses (measuring, training,
 evaluation, ``segment``); they live here, not in ``harborsight.pipeline``, so that training on
 a machine without the geodesy and mesh libraries needs none of the clearance stack.
@@ -25,6 +31,8 @@ import numpy as np
 from harborsight.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: the EXIF tag of the picture's orientation (1: stored as the camera saw it)
+EXIF_ORIENTATION_TAG = 0x0112
 
 
 def incomplete_reason(data: bytes) -> str | None:
@@ -79,31 +87,64 @@ def _tiff_reason(data: bytes) -> str | None:
     return None
 
 
-def decode_image_file(path: Path, flags: int) -> tuple[np.ndarray | None, str | None]:
-    """The file at ``path`` read once, checked by :func:`incomplete_reason`, then decoded
-    by OpenCV with ``flags`` (EXIF orientation applied as ``cv2.imread`` does). Returns
-    ``(image, None)``, ``(None, reason)`` for an incomplete file, or ``(None, None)`` when
-    it cannot be read or decoded."""
+def exif_orientation(data: bytes) -> int | None:
+    """The EXIF Orientation of the encoded image ``data`` (JPEG, TIFF, PNG, WebP), or None
+    when it has none or cannot be read."""
+    import io
+
+    from PIL import Image
+
+    if data[:8] == PNG_SIGNATURE and b"eXIf" not in data:
+        return None             # Pillow would decode the whole PNG looking for the chunk
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            value = image.getexif().get(EXIF_ORIENTATION_TAG)
+    except Exception:  # Pillow raises many kinds on odd files; OpenCV decides on those
+        return None
+    return int(value) if isinstance(value, int) else None
+
+
+def turned_reason(data: bytes) -> str | None:
+    """Why the encoded image ``data`` does not hold the camera's own pixels (an EXIF
+    Orientation other than 1), or None."""
+    orientation = exif_orientation(data)
+    if orientation in (None, 1):
+        return None
+    return (f"EXIF Orientation {orientation}: the picture is stored turned (OpenCV turns a "
+            "JPEG or PNG back as it reads it), so which way the camera saw it, as the frame's "
+            "intrinsics and attitude describe it, is unknown; save the camera's pixels with "
+            "Orientation 1")
+
+
+def decode_image_file(path: Path, flags: int, camera_pixels: bool = False
+                      ) -> tuple[np.ndarray | None, str | None]:
+    """The file at ``path`` read once, checked by :func:`incomplete_reason` (and with
+    ``camera_pixels`` by :func:`turned_reason`), then decoded by OpenCV with ``flags`` (EXIF
+    orientation applied as ``cv2.imread`` does). Returns ``(image, None)``, ``(None,
+    reason)`` for an incomplete or turned file, or ``(None, None)`` when it cannot be read
+    or decoded."""
     try:
         data = Path(path).read_bytes()
     except OSError:
         return None, None
-    reason = incomplete_reason(data)
+    reason = incomplete_reason(data) or (turned_reason(data) if camera_pixels else None)
     if reason:
         return None, reason
     image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
     return image, None
 
 
-def read_image(path: Path) -> np.ndarray:
-    """BGR image; a clear error for a missing or unreadable file."""
+def read_image(path: Path, camera_pixels: bool = False) -> np.ndarray:
+    """BGR image; a clear error for a missing or unreadable file, and with
+    ``camera_pixels`` (a frame to be measured) for one stored turned (module docstring)."""
     if path.is_dir():
         raise InputError(path, None, "is a folder, not an image file")
     if not path.is_file():
         raise InputError(path, None, "image file not found")
-    image, reason = decode_image_file(path, cv2.IMREAD_COLOR)  # a cut JPEG decodes half grey
+    # a cut JPEG decodes half grey
+    image, reason = decode_image_file(path, cv2.IMREAD_COLOR, camera_pixels)
     if reason:
-        raise InputError(path, None, reason)
+        raise InputError(path, "Orientation" if reason.startswith("EXIF") else None, reason)
     if image is None:
         raise InputError(path, None, "cannot decode image (corrupt or not an image)")
     return image

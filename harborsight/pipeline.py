@@ -155,7 +155,7 @@ def measure_job(
     ``segmenter``; raises :class:`InputError` on bad input."""
     meta = load_frame_metadata(job.meta_path, camera=camera)
     image_path = frame_image_path(job, meta)
-    image = read_image(image_path)
+    image = read_image(image_path, camera_pixels=True)
     check_image_size(image, meta, image_path)
     mask = frame_labels(image, job.mask_path, segmenter, job.meta_path)
     report = measure_mask(mask, meta, vessels.for_frame(meta, job.meta_path), settings)

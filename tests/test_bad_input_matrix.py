@@ -76,6 +76,20 @@ def _cut_jpeg(data: Path) -> str:
     return "000001.jpg"
 
 
+def _turned_jpeg(data: Path) -> str:
+    """Frame 1's picture as a JPEG whose EXIF says it is stored turned by 180 degrees: the
+    same size, so only the tag tells (OpenCV would turn it, and a 0.7 m contact read clear)."""
+    from PIL import Image
+
+    image = cv2.imread(str(data / "images" / "000001.png"))
+    (data / "images" / "000001.png").unlink()
+    exif = Image.Exif()
+    exif[0x0112] = 3
+    Image.fromarray(image[..., ::-1]).save(data / "images" / "000001.jpg", quality=95, exif=exif)
+    _set_raw(data / "frames" / "000001.json", "image", '"000001.jpg"')
+    return "000001.jpg"
+
+
 def _vessel_spec_of_frame_2(make: Callable[[Path], Path]) -> Callable[[Path], str]:
     def breaking(data: Path) -> str:
         path = make(data)
@@ -127,6 +141,8 @@ class BatchCase:
 
 BATCH = [
     BatchCase("cut JPEG", _cut_jpeg, ("cannot decode image", "JPEG")),
+    BatchCase("JPEG stored turned (EXIF Orientation 3)", _turned_jpeg,
+              ("Orientation", "stored turned")),
     BatchCase("cut PNG mask", _cut_mask, ("mask", "PNG cut short")),
     BatchCase("NaN hull mesh", _vessel_spec_of_frame_2(_nan_mesh_vessel),
               ("hull_mesh", "not finite")),

@@ -50,6 +50,10 @@ def edit_frame(path: Path, edit) -> None:
      "outside"),
     (lambda d: d.update(sun={"elevation_deg": 40.0}), "sun.azimuth_deg", "missing"),
     (lambda d: d.update(sun=[40.0, 10.0]), "sun", "expected an object"),
+    # a 16:9 frame from the Mavic 3's 4:3 sensor: a crop, so fy would be 340 px, not 455
+    (lambda d: d.update(camera={"width": 640, "height": 360, "sensor_width_mm": 17.3,
+                                "sensor_height_mm": 13.0, "focal_length_mm": 12.29}),
+     "camera.sensor_height_mm", r"differ in aspect.*fx = fy = 454\.7\)"),
 ])
 def test_bad_metadata_names_file_and_field(dataset, edit, field, message):
     frame = dataset / "frames" / "000000.json"
@@ -179,6 +183,41 @@ def test_batch_of_only_bad_frames_fails(dataset):
     result = runner.invoke(app, ["measure", str(dataset), "--out", str(dataset / "out")])
     assert result.exit_code == 1
     assert "camera: missing" in result.output
+
+
+def test_a_camera_from_its_sensor_has_square_pixels_as_a_datasheet_gives_them(dataset):
+    """The DJI Mavic 3's 4/3" sensor (17.3 x 13.0 mm, 12.29 mm lens) at 640x481, its own
+    aspect: fx = 12.29 / 17.3 * 640 = 454.66 px, fy = 12.29 / 13.0 * 481 = 454.73 px."""
+    frame = dataset / "frames" / "000000.json"
+    edit_frame(frame, lambda d: d.update(camera={"width": 640, "height": 481,
+                                                 "sensor_width_mm": 17.3, "sensor_height_mm": 13.0,
+                                                 "focal_length_mm": 12.29}))
+    camera = load_frame_metadata(frame).camera
+    assert camera.fx == pytest.approx(454.66, abs=0.01)
+    assert camera.fy == pytest.approx(454.73, abs=0.01)
+    assert (camera.cx, camera.cy) == (319.5, 240.0)
+
+
+@pytest.mark.parametrize("extra, field", [
+    ("fisheye_model: 1\n", "fisheye_model"),
+    ('distortion_model: "equidistant"\n', "distortion_model"),
+])
+def test_a_fisheye_calibration_is_refused_not_read_as_a_pinhole(tmp_path, extra, field):
+    """OpenCV's fisheye calibration has four coefficients, as k1, k2, p1, p2 have: read as
+    the pinhole model, its edge rays would be 15-20 % off."""
+    from harborsight.geometry.camera import load_camera_calibration
+
+    path = tmp_path / "fisheye.yaml"
+    path.write_text("%YAML:1.0\n---\nimage_width: 640\nimage_height: 360\n" + extra
+                    + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+                    "   data: [ 300., 0., 319.5, 0., 300., 179.5, 0., 0., 1. ]\n"
+                    "distortion_coefficients: !!opencv-matrix\n   rows: 4\n   cols: 1\n   dt: d\n"
+                    "   data: [ 0.05, -0.01, 0.002, -0.0004 ]\n")
+    with pytest.raises(InputError, match=rf"fisheye.yaml: {field}: "):
+        load_camera_calibration(path)
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(path.read_text().replace(extra, 'distortion_model: "plumb_bob"\n'))
+    assert load_camera_calibration(plain).distortion == (0.05, -0.01, 0.002, -0.0004)
 
 
 def test_camera_calibration_override(dataset, tmp_path):

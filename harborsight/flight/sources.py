@@ -92,7 +92,7 @@ class FolderSource:
                     read_frame_json(job.meta_path), job.meta_path, camera=self.camera,
                     base_dir=job.meta_path.parent)
                 image_path = frame_image_path(job, frame.meta)
-                frame.image = read_image(image_path)
+                frame.image = read_image(image_path, camera_pixels=True)
                 check_image_size(frame.image, frame.meta, image_path)
             except Exception as exc:  # one bad frame must not end the run
                 frame.error = (str(exc) if isinstance(exc, InputError)

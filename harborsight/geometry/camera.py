@@ -327,6 +327,30 @@ def filestorage_nesting_depth(text: str) -> tuple[int, int]:
     return deepest, where
 
 
+#: the lens models harborsight's camera is (OpenCV's pinhole with radial and tangential terms)
+PINHOLE_MODELS = ("plumb_bob", "rational_polynomial", "radtan", "radial-tangential", "pinhole")
+
+
+def _check_filestorage_model(fs, path: Path) -> None:
+    """Refuse a FileStorage calibration of another lens model: OpenCV's fisheye calibration
+    (``fisheye_model: 1`` in its calibration sample's output) or a ``distortion_model`` such
+    as ``equidistant``. Its four coefficients would otherwise be read as k1, k2, p1, p2, and
+    a fisheye's edge rays would be 15-20 % off."""
+    fisheye = fs.getNode("fisheye_model")
+    if not fisheye.empty() and (fisheye.isInt() or fisheye.isReal()) and fisheye.real() != 0:
+        raise InputError(path, "fisheye_model", "a fisheye calibration (OpenCV's "
+                         "cv::fisheye model); harborsight's camera is the pinhole model with "
+                         f"radial and tangential distortion ({', '.join(PINHOLE_MODELS[:2])})")
+    model = fs.getNode("distortion_model")
+    if model.empty():
+        return
+    name = model.string() if model.isString() else None
+    if name is None or name.strip().lower() not in PINHOLE_MODELS:
+        shown = repr(name) if name is not None else "not a name"
+        raise InputError(path, "distortion_model", f"{shown} is not a pinhole model "
+                         f"harborsight reads ({', '.join(PINHOLE_MODELS)})")
+
+
 def _load_opencv_filestorage(path: Path, text: str) -> CameraIntrinsics:
     """cv2.FileStorage YAML/XML as written by OpenCV's calibration sample."""
     _check_filestorage_numbers(text, path)
@@ -359,6 +383,8 @@ def _load_opencv_filestorage(path: Path, text: str) -> CameraIntrinsics:
         field_name = k_name
         K = _filestorage_matrix(k_node, path, k_name, lambda r, c: (r, c) == (3, 3),
                                 "a 3x3 matrix")
+        field_name = "distortion_model"
+        _check_filestorage_model(fs, path)
         field_name = "distortion_coefficients"
         d_name, d_node = first("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
         if d_node is None:
