@@ -172,6 +172,38 @@ def test_distances_from_a_wrong_height_come_back_to_the_truth():
     assert np.mean(height_held) > 1.5 * np.mean(refined)        # the height error left in
 
 
+@pytest.mark.parametrize("height_error_m, heading_error_deg", [(-6.0, 0.0), (0.0, 16.0), (0.0, -16.0)])
+def test_a_pose_the_image_contradicts_beyond_the_limits_leaves_no_lower_bound_standing(
+        height_error_m, heading_error_deg):
+    """A barometer 6 m off (a water level left at 0 on a tide) or a magnetic heading taken
+    for true: the alignment finds the error and fits the mask, but the correction is beyond
+    its limits (4 m, 12 degrees), so the sensors' pose stays. Their distances are then known
+    to be read with a wrong pose: the frame says so, every lower bound is 0 and every sigma
+    at least the distance, so no truth lies under a bound (against shapely's distances).
+    Here the sensors' readings happen to hold their own bounds; on the bundled sample frame 3
+    with the height 5 m off they did not (a quay 5.05 m away read 21.6 +- 2.3 m). Read 6 m
+    too high, this frame's sensors' pose still fits 87 % of the outline and its readings
+    hold their bounds: that is not a contradiction."""
+    scene, labels = scene_and_labels(21, "alongside", 50)
+    truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+    meta = scene.metadata("frame.png")
+    noisy = replace(meta, uav_alt_m=meta.uav_alt_m + height_error_m,
+                    vessel_heading_deg=meta.vessel_heading_deg + heading_error_deg)
+    report = measure_frame(labels, noisy, TUG)
+    found = report.pose_refinement
+    assert not found["applied"] and "beyond" in found["reason"]
+    assert found["sensors_contradicted"] and report.sensors_contradicted
+    ok = [(s, t) for s, t in zip(report.sections, truth, strict=True) if s.status == "ok"]
+    assert len(ok) >= 4
+    assert all(s.distance_lower_m == 0.0 and s.sigma_m >= s.distance_m for s, _ in ok)
+    assert all(t is None or t >= s.distance_lower_m for s, t in ok)
+    # a correction within the limits is applied, and nothing is contradicted
+    within = measure_frame(labels, replace(meta, uav_alt_m=meta.uav_alt_m + height_error_m / 3,
+                                           vessel_heading_deg=meta.vessel_heading_deg
+                                           + heading_error_deg / 3), TUG)
+    assert within.pose_refinement["applied"] and not within.sensors_contradicted
+
+
 def test_nothing_to_align_to_is_a_flag_not_an_error():
     scene, labels = scene_and_labels(5, "alongside", 60)
     geometry = scene.geometry()
@@ -417,6 +449,12 @@ def test_a_batch_summary_counts_the_frames_and_the_reasons():
         {"applied": False, "reason": "no ship pixels near the projected hull"}])
     assert line.startswith("pose refined on 1 of 4 frame(s); the sensors' pose kept on 3 (2x ")
     assert "1x no ship pixels near the projected hull" in line
+    contradicted = refinement_summary([
+        {"applied": True, "reason": None},
+        {"applied": False, "reason": "height change -5.0 m beyond 4 m", "sensors_contradicted": True}])
+    assert contradicted.startswith("the image contradicts the sensors' pose beyond the refinement's "
+                                   "limits on 1 frame(s): their distances' lower bounds are 0; "
+                                   "pose refined on 1 of 2")
 
 
 def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):

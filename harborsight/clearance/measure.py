@@ -365,6 +365,18 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> Pos
     return replace(alignment, prior_height_m=max(sigmas.height_above_water_m, 1e-3))
 
 
+def _distrust(results: list[SectionClearance]) -> None:
+    """The sections of a frame whose pose the image contradicts: each reading keeps its
+    value, but its sigma becomes at least the reading itself and its lower bound 0 (the
+    hull's own region and bands were placed with a pose known to be off, so a quay 5 m away
+    can read 21 m, beyond any propagated sigma)."""
+    for result in results:
+        if result.status == STATUS_OK:
+            result.sigma_m = max(result.sigma_m or 0.0, result.distance_m)
+            result.sigma_random_m = max(result.sigma_random_m or 0.0, result.distance_m)
+            result.distance_lower_m = 0.0
+
+
 def measure_clearance(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: ClearanceSettings = ClearanceSettings(), *, sigmas: SensorSigmas | None = None,
@@ -525,6 +537,8 @@ def measure_clearance(
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px,
                             confidence=confidence, labels=labels,
                             vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
+    if refinement.sensors_contradicted:
+        _distrust(results)
     return ClearanceReport(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,

@@ -142,6 +142,10 @@ class PoseRefinement:
     edge_points: int = 0
     ship_fill: float | None = None
     reason: str | None = None
+    #: the sensors' pose fits the mask badly and a correction beyond the limits fits it well:
+    #: the image says the sensors are off by more than the refinement may correct
+    #: (:func:`contradicts_sensors`)
+    sensors_contradicted: bool = False
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -159,6 +163,7 @@ class PoseRefinement:
             "edge_points": self.edge_points,
             "ship_fill": rounded(self.ship_fill, 3),
             "reason": self.reason,
+            "sensors_contradicted": self.sensors_contradicted,
         }
 
 
@@ -679,8 +684,33 @@ def refine_vessel_pose(
             and before_rms_px <= residual_px + SAME_FIT_RMS_PX):
         reason = SENSORS_FIT      # a correction would only follow the pixels' rounding
     if reason is not None:
-        return geometry, replace(found, reason=reason)
+        beyond = reason.startswith(BEYOND_LIMITS)
+        return geometry, replace(found, reason=reason, sensors_contradicted=beyond and contradicts_sensors(
+            before, fraction, ship_fill, residual_px, settings))
     return corrected_geometry(geometry, params), replace(found, applied=True)
+
+
+#: a refused correction that puts this much more of the outline on ship edges than the
+#: sensors' pose contradicts the sensors (:func:`contradicts_sensors`)
+CONTRADICTION_GAIN = 0.25
+#: the reasons that refuse a correction for its size alone
+BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
+
+
+def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: float,
+                        residual_px: float | None, settings: PoseRefinementSettings) -> bool:
+    """Whether a correction refused for its size alone shows the sensors' pose wrong: it
+    passes every test of fit (inliers, ship fill, residual), and the sensors' pose leaves
+    fewer than ``min_inlier_fraction`` of the outline on a ship edge or
+    :data:`CONTRADICTION_GAIN` fewer than the correction. An altitude 5 m off (a water level
+    left at 0 on a tide) or a magnetic heading taken for true 15 degrees off is such a case:
+    the pose the distances are read with is then known to be wrong, by more than any sigma
+    says (on the sample frames a quay 5.05 m away read 21.6 ± 2.3 m)."""
+    return ((fraction_before < settings.min_inlier_fraction
+             or fraction - fraction_before >= CONTRADICTION_GAIN)
+            and fraction >= settings.min_inlier_fraction
+            and ship_fill >= settings.min_ship_fill
+            and residual_px is not None and residual_px <= settings.max_residual_px)
 
 
 def refinement_counts(refinements: list[dict[str, Any] | None]) -> dict[str, int]:
@@ -703,6 +733,10 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
     if not ran:
         return None
     line = f"pose refined on {counts['applied']} of {ran} frame(s)"
+    contradicted = sum(bool(r and r.get("sensors_contradicted")) for r in refinements)
+    if contradicted:
+        line = (f"the image contradicts the sensors' pose beyond the refinement's limits on "
+                f"{contradicted} frame(s): their distances' lower bounds are 0; ") + line
     if counts["sensors_pose_fitted"]:
         line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
     kept = [str(r.get("reason") or "") for r in refinements

@@ -80,6 +80,13 @@ class ClearanceReport:
     uncertainty: dict[str, Any] | None = None
 
     @property
+    def sensors_contradicted(self) -> bool:
+        """The image showed the sensors' pose wrong by more than the refinement may correct
+        (:func:`harborsight.clearance.pose_refinement.contradicts_sensors`): the distances
+        were read with a pose known to be off, so trackers and alarms leave them out."""
+        return bool(self.pose_refinement and self.pose_refinement.get("sensors_contradicted"))
+
+    @property
     def closest_section(self) -> int | None:
         ok = [s for s in self.sections if s.status == STATUS_OK]
         return min(ok, key=lambda s: s.distance_m).index if ok else None

@@ -153,7 +153,8 @@ class ClearanceTimeline:
         trends, rows = {}, []
         for section in report.sections:
             trend = SectionTrend()
-            fits = section.status == STATUS_OK and not section.truncated
+            fits = (section.status == STATUS_OK and not section.truncated
+                    and not report.sensors_contradicted)
             if timed:
                 history = self._history[section.index]
                 if fits:

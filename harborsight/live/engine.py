@@ -174,7 +174,8 @@ class LiveEngine:
         self._errors = []
         sections = []
         for section in report.sections:
-            fits = section.status == STATUS_OK and not section.truncated
+            fits = (section.status == STATUS_OK and not section.truncated
+                    and not report.sensors_contradicted)
             estimate = None
             if time_s is not None:
                 tracker = self._trackers.setdefault(section.index, SectionTracker(self.tracker_settings))
@@ -186,7 +187,9 @@ class LiveEngine:
             closing = estimate.closing_speed_mps if estimate is not None and fits else None
             ttc = estimate.time_to_contact_s if estimate is not None and fits else None
             alarm = self._alarms.setdefault(section.index, SectionAlarm(self.alarm_settings))
-            if section.status == STATUS_OK:
+            if report.sensors_contradicted:
+                pass                # no distance to trust: the pose is known to be off
+            elif section.status == STATUS_OK:
                 lower = section.distance_lower_m
                 alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
             elif section.status == STATUS_CLEAR:     # measured: nothing solid in its band

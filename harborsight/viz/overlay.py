@@ -137,6 +137,8 @@ def _pose_note(refinement: dict | None) -> str:
     nothing when it was off."""
     if not refinement or refinement.get("reason") == "off":
         return ""
+    if refinement.get("sensors_contradicted"):
+        return "  POSE CONTRADICTED: distances untrusted"
     if refinement.get("applied"):
         shift = float(np.hypot(*refinement["shift_m"]))
         note = f"  pose {shift:+.1f} m {refinement['rotation_deg']:+.1f} deg"
