@@ -108,6 +108,21 @@ def test_equal_times_are_in_order_and_truncated_distances_stay_out_of_the_fit():
     assert trends[0].closing_speed_raw_mps == pytest.approx(1.0)
 
 
+def test_a_frame_whose_pose_the_image_contradicts_stays_out_of_the_tracks():
+    """Its distances were read with a pose known to be off (a quay 5 m away read 21 m):
+    neither the closing-speed fit nor the tracker takes them; the frames around it do."""
+    timeline = ClearanceTimeline(window_s=5.0, min_samples=3)
+    for k, (t, d, contradicted) in enumerate([(0.0, 10.0, False), (1.0, 9.0, False),
+                                              (2.0, 21.0, True), (3.0, 7.0, False)]):
+        report = _report([d])
+        report.pose_refinement = {"applied": False, "sensors_contradicted": contradicted}
+        trends, _, _ = timeline.add(k, t, report)
+        if contradicted:
+            assert trends[0].closing_speed_raw_mps is None
+            assert trends[0].estimate.state == "coasting"
+    assert trends[0].closing_speed_raw_mps == pytest.approx(1.0)     # (0, 10), (1, 9), (3, 7)
+
+
 def test_without_times_there_are_no_speeds():
     timeline = ClearanceTimeline()
     for k in range(5):
