@@ -127,6 +127,49 @@ def test_image_border_is_not_an_obstacle():
     assert all(s.status in ("clear", "out_of_view") for s in report.sections)
 
 
+def test_a_clear_section_says_how_far_its_band_was_seen():
+    """``clear_to_m``: nothing solid lies nearer, and the band leaves the picture there.
+    Checked with shapely: the image's footprint on the water (its four corner pixels
+    back-projected; a pinhole maps the border to straight lines on the plane) and the band
+    of each section on a straight side (the strip between the normals at its ends); the
+    distance from the section to the part of its strip outside the footprint."""
+    from shapely.geometry import LineString, Polygon
+
+    vessel = flat_box_vessel()
+    scene = sample_scene(vessel, np.random.default_rng(4), altitude_m=40, scenario="open")
+    scene.footprints = []
+    _, rendered, _ = render(scene)
+    labels = np.where(rendered == SHIP, SHIP, WATER).astype(np.uint8)
+    geometry = scene.geometry()
+    assert not geometry.camera.intrinsics.has_distortion
+    report = measure_clearance(labels, geometry, vessel)
+    h, w = labels.shape
+    corners, ok = geometry.pixels_to_vessel_xy(np.array([[0.0, 0], [w - 1, 0], [w - 1, h - 1],
+                                                          [0, h - 1]]))
+    assert ok.all()
+    footprint = Polygon(corners)
+    outline = vessel.sections(16)
+    checked = 0
+    for s in report.sections:
+        if s.status != "clear":
+            continue
+        assert s.clear_to_m is not None and s.clear_to_m >= 0.0
+        k = s.index
+        start, end = outline.break_points[k], outline.break_points[(k + 1) % len(outline.break_points)]
+        edge = outline.break_edge[k]
+        if outline.break_edge[(k + 1) % len(outline.break_edge)] != edge:
+            continue                                  # a corner inside: not a plain strip
+        normal = outline.edge_normal[edge]
+        strip = Polygon([start, end, end + 500 * normal, start + 500 * normal])
+        outside = strip.difference(footprint)
+        expected = LineString([start, end]).distance(outside)
+        # the border is sampled every 2 px: at most a pixel's ground size farther
+        assert expected - 1e-6 <= s.clear_to_m <= expected + 1.5 * report.gsd_m_per_px, (k, expected)
+        checked += 1
+    assert checked >= 4
+    assert all(s.clear_to_m is None for s in report.sections if s.status != "clear")
+
+
 def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():
     """A wedge whose tip enters section k's band by 0.3 px leaves no pixel centre there; the
     pixel squares that reach across the break still give section k its (true) distance."""

@@ -365,6 +365,34 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> Pos
     return replace(alignment, prior_height_m=max(sigmas.height_above_water_m, 1e-3))
 
 
+#: spacing of the image-border points a clear section's reach is measured on, pixels
+BORDER_STEP_PX = 2
+
+
+def _band_reach_m(outline: SectionedOutline, to_outline, shape: tuple[int, int],
+                  metres_per_unit: float) -> dict[int, float]:
+    """How far each section's band is seen: the distance from the hull to the nearest
+    image-border point in its band (points every :data:`BORDER_STEP_PX` along the four
+    edges, on the water plane), in metres. A section missing from the result has no
+    border point in its band on the water: its band runs to the horizon. A ``clear``
+    section says only that nothing solid lies nearer than this."""
+    h, w = shape
+    u = np.arange(0, w, BORDER_STEP_PX, dtype=float)
+    v = np.arange(0, h, BORDER_STEP_PX, dtype=float)
+    border = np.vstack((np.column_stack((u, np.zeros_like(u))),
+                        np.column_stack((u, np.full_like(u, h - 1.0))),
+                        np.column_stack((np.zeros_like(v), v)),
+                        np.column_stack((np.full_like(v, w - 1.0), v))))
+    points, valid = to_outline(border)
+    assignment = outline.assign(np.where(valid[:, None], points, 0.0))
+    seen = valid & (assignment.section >= 0) & np.isfinite(assignment.distance)
+    reach: dict[int, float] = {}
+    for k, d in zip(assignment.section[seen].tolist(), assignment.distance[seen].tolist(),
+                    strict=True):
+        reach[k] = min(reach.get(k, np.inf), d * metres_per_unit)
+    return reach
+
+
 def _distrust(results: list[SectionClearance]) -> None:
     """The sections of a frame whose pose the image contradicts: each reading keeps its
     value, but its sigma becomes at least the reading itself and its lower bound 0 (the
@@ -533,6 +561,12 @@ def measure_clearance(
             result.hull_point_enu, result.obstacle_point_enu = h_enu, o_enu
             result.contact, result.truncated = contact, truncated
 
+    clear = [r for r in results if r.status == STATUS_CLEAR]
+    if clear:
+        reach_m = _band_reach_m(outline, to_outline, labels.shape,
+                                1.0 if outline is sections_v else gsd)
+        for result in clear:
+            result.clear_to_m = reach_m.get(result.index)
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px,
                             confidence=confidence, labels=labels,

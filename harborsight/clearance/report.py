@@ -42,6 +42,9 @@ class SectionClearance:
     sigma_m: float | None = None
     sigma_random_m: float | None = None
     distance_lower_m: float | None = None
+    #: a ``clear`` section: how far out its band was seen, metres from the hull to where the
+    #: band first leaves the image (None: to the horizon); nothing solid lies nearer
+    clear_to_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -54,6 +57,7 @@ class SectionClearance:
             "sigma_random_m": None if self.sigma_random_m is None else round(self.sigma_random_m, 3),
             "distance_lower_m": (None if self.distance_lower_m is None
                                  else round(self.distance_lower_m, 3)),
+            "clear_to_m": None if self.clear_to_m is None else round(self.clear_to_m, 3),
             "hull_point_px": _round_list(self.hull_point_px, 2),
             "obstacle_point_px": _round_list(self.obstacle_point_px, 2),
             "hull_point_enu": _round_list(self.hull_point_enu, 3),

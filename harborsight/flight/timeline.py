@@ -35,7 +35,8 @@ CSV_COLUMNS = [
     "frame", "image", "timestamp", "time_s", "altitude_m", "gsd_m_per_px", "method", "section",
     "status", "distance_m", "sigma_m", "distance_lower_m", "distance_px", "contact", "truncated",
     "closing_speed_raw_mps", "filtered_distance_m", "filtered_sigma_m", "closing_speed_mps",
-    "closing_speed_sigma_mps", "time_to_contact_s", "track", "track_state",
+    "closing_speed_sigma_mps", "time_to_contact_s", "track", "track_state", "clear_to_m",
+    "pose_contradicted",
 ]
 
 
@@ -190,6 +191,8 @@ class ClearanceTimeline:
                 "closing_speed_sigma_mps": _round(estimate.closing_speed_sigma_mps, 3),
                 "time_to_contact_s": _round(estimate.time_to_contact_s, 1),
                 "track": estimate.track, "track_state": estimate.state if timed else "",
+                "clear_to_m": _round(section.clear_to_m, 2),
+                "pose_contradicted": int(report.sensors_contradicted),
             })
         if timed:
             self._last_time_s = time_s

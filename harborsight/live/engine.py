@@ -192,13 +192,17 @@ class LiveEngine:
             elif section.status == STATUS_OK:
                 lower = section.distance_lower_m
                 alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
-            elif section.status == STATUS_CLEAR:     # measured: nothing solid in its band
+            elif section.status == STATUS_CLEAR and (
+                    section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m):
+                # measured: nothing solid in its band, seen past the caution distance (a band
+                # that leaves the picture sooner says nothing, and the alarm holds its level)
                 alarm.update(time.monotonic(), None, None)
             sections.append({
                 "index": section.index, "measured": section.status,
                 "distance_m": _rounded(section.distance_m, 3),
                 "distance_lower_m": _rounded(section.distance_lower_m, 3),
                 "sigma_m": _rounded(section.sigma_m, 3),
+                "clear_to_m": _rounded(section.clear_to_m, 2),
                 "filtered_distance_m": _rounded(estimate.distance_m if estimate else None, 3),
                 "closing_speed_mps": _rounded(closing, 3),
                 "time_to_contact_s": _rounded(ttc, 1),
