@@ -44,6 +44,7 @@ from harborsight.clearance.uncertainty import (
     CONFIDENT_SOLID_P,
     LOWER_BOUND_QUANTILE,
     FrameVelocities,
+    add_nadir_approximation,
     add_section_uncertainty,
 )
 from harborsight.errors import InputError
@@ -571,6 +572,8 @@ def measure_clearance(
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px,
                             confidence=confidence, labels=labels,
                             vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
+    if settings.method == "gsd":
+        add_nadir_approximation(results)
     if refinement.sensors_contradicted:
         _distrust(results)
     return ClearanceReport(

@@ -495,3 +495,24 @@ def add_section_uncertainty(
         section.sigma_m = float(sigma)
         section.sigma_random_m = float(sigma_random)
         section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * float(sigma))
+
+
+def add_nadir_approximation(sections: list[SectionClearance]) -> None:
+    """Widen the sigmas of the paper's ``gsd`` method by its own error: it reads a distance
+    as pixels times the nadir GSD, which holds only straight below a level camera. The same
+    two pixels back-projected onto the water (the ``hull_point_enu`` and
+    ``obstacle_point_enu`` of the section) are ``|O - H|`` apart; the difference
+    ``b = |d_gsd - |O - H||`` is the approximation's error for this pair of pixels (8 % of
+    the distance at 8 degrees of tilt). It is systematic, and added in quadrature:
+    ``sigma² += b²``; the lower bound is taken again."""
+    for section in sections:
+        if (section.status != STATUS_OK or section.sigma_m is None
+                or section.hull_point_enu is None or section.obstacle_point_enu is None):
+            continue
+        plane_m = math.dist(section.hull_point_enu[:2], section.obstacle_point_enu[:2])
+        bias_m = abs(section.distance_m - plane_m)
+        if not math.isfinite(bias_m):
+            continue
+        section.sigma_m = math.hypot(section.sigma_m, bias_m)
+        section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * section.sigma_m)
+
