@@ -504,6 +504,39 @@ def test_video_metadata_from_a_dji_srt_and_a_vessel_csv(tmp_path):
     assert meta.camera.fx == pytest.approx(8.8 / 13.2 * 1280)   # the preset's f / sensor width
 
 
+def test_frames_a_dji_srt_says_were_zoomed_are_left_out_with_the_reason(tmp_path):
+    """The Air 2S's SRT states the focal length (``focal_len : 240``: 24 mm, 35 mm
+    equivalent). A frame zoomed to 2x (480) has pixels half as large on the water as the
+    preset's 24 mm intrinsics say, and every distance would read double: it is left out
+    with the reason; the frames at 24 mm are written. With a calibration file, the log's
+    first focal length is the one it is taken to hold for."""
+    from harborsight.telemetry.metadata import CameraMount, build_video_metadata, camera_block_for
+    from harborsight.telemetry.vessel_track import read_vessel_csv
+
+    lines = (DJI / "air2s.srt").read_text(encoding="utf-8").splitlines(keepends=True)
+    blocks = "".join(lines).split("\n\n")
+    zoomed = "\n\n".join(b.replace("focal_len : 240", "focal_len : 480") if k >= 8 else b
+                          for k, b in enumerate(blocks))
+    srt = tmp_path / "zoomed.srt"
+    srt.write_text(zoomed, encoding="utf-8")
+    drone = read_dji_srt(srt, utc_offset_h=2.0)
+    assert drone.focal_35mm_mm[0] == 24.0 and drone.focal_35mm_mm[-1] == 48.0
+    start = drone.utc_start
+    vessel = read_vessel_csv(_vessel_csv(tmp_path / "ship.csv", start, 2))
+    camera = camera_block_for("dji-mavic3", 1280, 720, None)
+    result = build_video_metadata(drone, vessel, camera, 16, 30.0, water_level_m=0.0,
+                                  mount=CameraMount("stabilised", yaw_deg=0.0))
+    kept = [f["frame_index"] for f in result.frames]
+    assert kept == list(range(8))                        # blocks 0-7 at 24 mm, 1/30 s apart
+    reasons = dict(result.skipped)
+    assert "zoomed: focal_len 48 mm" in reasons[10] and "hold for 24 mm" in reasons[10]
+    assert all("focal_35mm_mm" not in f["camera"] for f in result.frames)
+    # the unchanged file: nothing is left out for its zoom
+    whole = build_video_metadata(read_dji_srt(DJI / "air2s.srt", utc_offset_h=2.0), vessel, camera,
+                                 16, 30.0, water_level_m=0.0, mount=CameraMount("stabilised", yaw_deg=0.0))
+    assert not any("zoomed" in why for _, why in whole.skipped)
+
+
 def test_video_metadata_needs_a_clock_and_an_attitude(tmp_path):
     start = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
     vessel = read_vessel_track(_vessel_csv(tmp_path / "ship.csv", start, 30))

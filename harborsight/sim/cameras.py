@@ -18,6 +18,8 @@ class CameraPreset:
     sensor_width_mm: float
     sensor_height_mm: float
     source: str
+    #: the lens as a 35 mm equivalent (a DJI SRT's focal_len says when the camera zoomed)
+    focal_35mm_mm: float = 24.0
 
     def intrinsics(self, width: int, height: int) -> CameraIntrinsics:
         f_px = self.focal_length_mm / self.sensor_width_mm * width

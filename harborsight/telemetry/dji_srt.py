@@ -52,8 +52,8 @@ from harborsight.telemetry.track import Track
 _NUMBER = r"[-+]?\d+(?:\.\d+)?"
 # hours of at most 6 digits: a longer run is not a timecode (and 400 digits overflow a float)
 _TIMECODE = re.compile(r"^(\d{1,6}):(\d{2}):(\d{2})[,.](\d{3})\s*-->\s*(\d{1,6}):(\d{2}):(\d{2})[,.](\d{3})")
-_BRACKET = re.compile(r"\b(latitude|longitude|longtitude|rel_alt|abs_alt|altitude)\s*:\s*(" + _NUMBER + ")",
-                      re.IGNORECASE)
+_BRACKET = re.compile(r"\b(latitude|longitude|longtitude|rel_alt|abs_alt|altitude|focal_len)\s*:\s*("
+                      + _NUMBER + ")", re.IGNORECASE)
 _GPS = re.compile(r"\bGPS\s*\(\s*(" + _NUMBER + r")\s*,\s*(" + _NUMBER + r")\s*(?:,\s*(" + _NUMBER
                   + r")\s*(M)?)?\s*\)", re.IGNORECASE)
 _BARO = re.compile(r"\b(?:BAROMETER\s*:\s*|Hb\s*:\s*|H\s+)(" + _NUMBER + r")\s*m?\b", re.IGNORECASE)
@@ -278,6 +278,11 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
             altitude, reference = column(key), words
             break
     gimbal = column("gimbal", 3)
+    # the 35 mm equivalent focal length: in tenths of a millimetre in the files of the Air 2
+    # and Air 2S ("240" is 24 mm); a value under 100 is taken as millimetres
+    focal_len = column("focal_len")
+    if focal_len is not None:
+        focal_len = np.where(focal_len >= 100.0, focal_len / 10.0, focal_len)
 
     notes = [f"{len(lines)} block(s) {what} (" + _lines(lines) + ")" for lines, what in (
         (skipped, "without a position skipped"),
@@ -308,5 +313,5 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         pitch_deg=None if gimbal is None else gimbal[:, 1],
         roll_deg=None if gimbal is None else gimbal[:, 2],
         attitude_of=None if gimbal is None else "gimbal",
-        utc_start=utc_start, clock=clock, notes=notes,
+        focal_35mm_mm=focal_len, utc_start=utc_start, clock=clock, notes=notes,
     )

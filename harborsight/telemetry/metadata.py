@@ -129,7 +129,9 @@ def camera_block_for(camera: str, width: int | None, height: int | None,
             raise InputError(source, "size", f"camera preset {camera!r} needs the image size: "
                              "give --video or --image-size")
         intrinsics = CAMERA_PRESETS[camera].intrinsics(width, height)
+        focal_35mm = CAMERA_PRESETS[camera].focal_35mm_mm
     else:
+        focal_35mm = None
         if not Path(camera).is_file():
             raise InputError(camera, "--camera", "neither a camera preset ("
                              + ", ".join(CAMERA_PRESETS) + ") nor a calibration file")
@@ -137,9 +139,12 @@ def camera_block_for(camera: str, width: int | None, height: int | None,
         if width and height and (intrinsics.width, intrinsics.height) != (width, height):
             raise InputError(camera, "calibration", f"calibrated for {intrinsics.width}x"
                              f"{intrinsics.height}, the video is {width}x{height}")
-    return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
-            "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
-            "distortion": list(intrinsics.distortion)}
+    block = {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
+             "fy": intrinsics.fy, "cx": intrinsics.cx, "cy": intrinsics.cy,
+             "distortion": list(intrinsics.distortion)}
+    if focal_35mm is not None:      # not written to frames: what zoom_reason compares with
+        block["focal_35mm_mm"] = focal_35mm
+    return block
 
 
 @dataclass
@@ -207,6 +212,8 @@ def frames_at_times(
     n_frames = len(utc)
     indices = list(range(n_frames)) if indices is None else indices
     uav = drone.sample(drone_t, max_gap_s, hold_s)
+    focal = uav.get("focal_35mm_mm")
+    reference_focal = camera.get("focal_35mm_mm") or _first_focal(drone)
     ship = vessel.sample(vessel_t, max_gap_s, hold_s)
     yaw, pitch, roll = camera_attitude_deg(drone, uav, mount)
     frames, skipped = [], []
@@ -220,6 +227,10 @@ def frames_at_times(
             skipped.append((indices[i], f"no {', '.join(missing)}: none within reach of "
                                         f"{utc[i].isoformat()}"))
             continue
+        zoomed = zoom_reason(None if focal is None else focal[i], reference_focal, camera)
+        if zoomed:
+            skipped.append((indices[i], zoomed))
+            continue
         height_m = uav["alt_m"][i] - water_level_m
         if height_m <= 0:
             skipped.append((indices[i], f"drone not above the water level: altitude "
@@ -228,7 +239,7 @@ def frames_at_times(
         frames.append({
             "schema": "harborsight.frame/1", "frame_index": indices[i],
             "timestamp": utc[i].isoformat().replace("+00:00", "Z"),
-            "camera": camera,
+            "camera": {k: v for k, v in camera.items() if k != "focal_35mm_mm"},
             "uav": {"lat": round(float(uav["lat_deg"][i]), 8), "lon": round(float(uav["lon_deg"][i]), 8),
                     "alt_m": round(float(uav["alt_m"][i]), 3)},
             "camera_attitude": {"yaw_deg": round(float(yaw[i]), 3), "pitch_deg": round(float(pitch[i]), 3),
@@ -247,6 +258,34 @@ def frames_at_times(
                 if value is not None:
                     frames[-1][section][key] = value
     return FrameMetadataResult(frames, skipped, mount.resolve(drone))
+
+
+#: how far a frame's focal length may differ from the camera's (a share)
+ZOOM_TOLERANCE = 0.01
+
+
+def _first_focal(drone: Track) -> float | None:
+    """The log's first stated focal length (35 mm equivalent): what a calibration file is
+    taken to hold for, when the camera block does not say."""
+    if drone.focal_35mm_mm is None:
+        return None
+    finite = drone.focal_35mm_mm[np.isfinite(drone.focal_35mm_mm)]
+    return float(finite[0]) if len(finite) else None
+
+
+def zoom_reason(focal_mm: float | None, reference_mm: float | None, camera: dict) -> str | None:
+    """Why a frame cannot be measured with ``camera``: the log says the camera was zoomed to
+    ``focal_mm`` (35 mm equivalent), and the intrinsics hold for ``reference_mm`` (a preset's
+    24 mm, or the log's first value for a calibration file). A zoom of 2x halves every
+    distance, and nothing in the picture says so; None when the two agree or either is
+    unknown."""
+    if focal_mm is None or reference_mm is None or not np.isfinite(focal_mm):
+        return None
+    if abs(focal_mm / reference_mm - 1.0) <= ZOOM_TOLERANCE:
+        return None
+    return (f"zoomed: focal_len {focal_mm:g} mm (35 mm equivalent) in the log, the camera's "
+            f"intrinsics ({camera.get('fx', 0):.1f} px) hold for {reference_mm:g} mm; a zoomed "
+            "frame needs intrinsics of its own")
 
 
 def _frame_sigma(values: np.ndarray | None, i: int) -> float | None:

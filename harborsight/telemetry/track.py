@@ -30,10 +30,13 @@ import numpy as np
 
 #: The quantities a track may carry, each an array over samples or None.
 QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg",
-              "position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
+              "position_sigma_m", "alt_sigma_m", "heading_sigma_deg", "focal_35mm_mm")
 #: the accuracy figures among them (one sigma; see the module docstring)
 SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
 ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
+#: quantities that change in steps, sampled at the nearest sample rather than interpolated
+#: (a zoom between 24 and 48 mm is either, never 24.2 mm)
+STEPS = frozenset({"focal_35mm_mm"})
 #: Quantities that may run on their own time axis (``attitude_t_s``): autopilots log attitude
 #: 10-50 times as often as position, and a gyrocompass sends heading more often than a GNSS
 #: receiver sends fixes.
@@ -63,6 +66,9 @@ class Track:
     position_sigma_m: np.ndarray | None = None   # one sigma per horizontal axis, m
     alt_sigma_m: np.ndarray | None = None        # one sigma of alt_m, m
     heading_sigma_deg: np.ndarray | None = None  # one sigma of heading_deg, deg
+    #: the camera's focal length as its 35 mm equivalent, where the log states it (a DJI
+    #: SRT's ``focal_len``): a zoom changes the intrinsics (:func:`zoom_reason`)
+    focal_35mm_mm: np.ndarray | None = None
     utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
     clock: str = ""                          # what t_s counts, in words
     notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
@@ -136,6 +142,14 @@ class Track:
             t, v = t[finite], values[finite]
             if len(t) == 0:
                 out[name] = np.full(times_s.shape, np.nan)
+                continue
+            if name in STEPS:
+                after = np.clip(np.searchsorted(t, times_s), 1, max(len(t) - 1, 1))
+                before = after - 1
+                nearer = np.where(np.abs(times_s - t[before]) <= np.abs(t[np.minimum(after, len(t) - 1)]
+                                                                       - times_s), before, after)
+                sampled = v[np.minimum(nearer, len(t) - 1)]
+                out[name] = np.where(_reachable(t, times_s, max_gap_s, hold_s), sampled, np.nan)
                 continue
             wraps = name in ANGLES or name == "lon_deg"
             if wraps:
