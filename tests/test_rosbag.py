@@ -157,3 +157,25 @@ def test_a_damaged_bag_too_large_to_read_whole_is_refused_with_the_repair(tmp_pa
     monkeypatch.setattr(rosbag_io, "MAX_DAMAGED_BYTES", 1000)
     with pytest.raises(InputError, match="rosbag reindex"):
         open_bag(torn)
+
+
+def test_a_rectified_image_topic_takes_p_and_no_distortion():
+    """ROS's image_proc publishes ``image_rect`` undistorted, its intrinsics in CameraInfo's
+    P; K and D describe the raw image. Distorting a rectified image again would move its
+    edges by the lens's whole distortion."""
+    from types import SimpleNamespace
+
+    from harborsight.telemetry.rosbag import camera_from_info, is_rectified_topic
+
+    info = SimpleNamespace(k=[500.0, 0, 320, 0, 500.0, 180, 0, 0, 1], d=[-0.2, 0.05, 0, 0, 0],
+                           p=[480.0, 0, 318, 0, 0, 481.0, 178, 0, 0, 0, 1, 0],
+                           distortion_model="plumb_bob", width=640, height=360)
+    raw = camera_from_info(info)
+    assert (raw["fx"], raw["cx"], raw["distortion"][0]) == (500.0, 320.0, -0.2)
+    rect = camera_from_info(info, rectified=True)
+    assert (rect["fx"], rect["fy"], rect["cx"], rect["cy"]) == (480.0, 481.0, 318.0, 178.0)
+    assert not any(rect["distortion"])
+    assert [is_rectified_topic(t) for t in ("/cam/image_rect", "/cam/image_rect_color/compressed",
+                                            "/cam/image_raw", "/cam/image_raw/compressed",
+                                            "image_rect")] == [True, True, False, False, True]
+

@@ -249,11 +249,29 @@ def _fix_sigmas(fixes: list, notes: list[str]) -> tuple[np.ndarray | None, np.nd
             vertical if np.isfinite(vertical).any() else None)
 
 
-def camera_from_info(message: object) -> dict:
+def is_rectified_topic(topic: str) -> bool:
+    """An image topic that image_proc has rectified (``image_rect``, ``image_rect_color``,
+    and their ``compressed`` transports): its pixels follow CameraInfo's P, not K and D."""
+    names = [part for part in topic.strip("/").split("/") if part]
+    while names and names[-1] in ("compressed", "compressedDepth", "theora"):
+        names.pop()
+    return bool(names) and names[-1].startswith("image_rect")
+
+
+def camera_from_info(message: object, rectified: bool = False) -> dict:
     """A frame/1 camera block from a CameraInfo message; :class:`InputError` for a model
-    other than plumb_bob / rational_polynomial or a K without a focal length."""
+    other than plumb_bob / rational_polynomial or a K without a focal length. For a
+    ``rectified`` image (:func:`is_rectified_topic`) the intrinsics are P's left 3x3 and no
+    distortion, as ROS defines them: K and D describe the raw image, and applying D to an
+    image already undistorted bends it a second time."""
     k = [float(v) for v in message.k] if hasattr(message, "k") else [float(v) for v in message.K]
     d = [float(v) for v in (message.d if hasattr(message, "d") else message.D)]
+    if rectified:
+        p = [float(v) for v in (message.p if hasattr(message, "p") else message.P)]
+        if len(p) != 12 or not (p[0] > 0 and p[5] > 0) or not all(map(math.isfinite, p)):
+            raise InputError(None, "CameraInfo", "the image topic is rectified but P has no "
+                             "focal length: give --camera")
+        k, d = [p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]], []
     model = str(message.distortion_model or "plumb_bob")
     if model not in ("plumb_bob", "rational_polynomial", ""):
         raise InputError(None, "CameraInfo", f"distortion model {model!r}: give --camera with "
@@ -352,10 +370,12 @@ def write_bag_frames(
         if info is None:
             raise InputError(reader.path, topics.camera_info, "no readable CameraInfo message")
         try:
-            camera = camera_from_info(info.message)
+            rectified = is_rectified_topic(topics.image)
+            camera = camera_from_info(info.message, rectified)
         except InputError as exc:
             raise InputError(reader.path, topics.camera_info, exc.message) from None
-        result.camera_from = f"CameraInfo ({topics.camera_info})"
+        result.camera_from = (f"CameraInfo ({topics.camera_info})"
+                              + (", P (the image topic is rectified)" if rectified else ""))
     else:
         result.camera_from = "given (--camera)"
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
