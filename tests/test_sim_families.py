@@ -246,3 +246,28 @@ def test_lake_shores_have_jetski_ports_with_jetskis_on_them(vessels):
             else:           # tied alongside a dock, afloat
                 assert bottom_z < 0
     assert ports >= 6 and on_ports >= 4, (ports, on_ports)
+
+
+def test_a_tree_crown_is_a_lumpy_mass_of_convex_lobes():
+    """Real canopy seen from above is clumps of leaf clusters (docs/simulator.md). A crown
+    of radius r: 5-8 lobes, each convex (the scene's rule: a part's footprint is the convex
+    hull of its vertices), within 1.15 r of the trunk, and their union not convex: its
+    footprint leaves part of its convex hull uncovered (3-3.5 % with seed 5)."""
+    import trimesh
+    from shapely.geometry import MultiPoint
+    from shapely.ops import unary_union
+
+    from harborsight.sim.families import _crown_lobes
+
+    rng = np.random.default_rng(5)
+    for r in (2.0, 4.5, 7.0):
+        lobes = _crown_lobes(r, 10.0, rng)
+        assert 5 <= len(lobes) <= 8
+        reach = max(float(np.hypot(*np.asarray(m.vertices)[:, :2].T).max()) for m in lobes)
+        assert 0.8 * r < reach <= 1.15 * r
+        for lobe in lobes:
+            hull = trimesh.convex.convex_hull(lobe.vertices)
+            assert lobe.volume == pytest.approx(hull.volume, rel=1e-6)
+        footprint = unary_union([MultiPoint(np.asarray(m.vertices)[:, :2]).convex_hull for m in lobes])
+        assert footprint.area < 0.99 * footprint.convex_hull.area     # one ellipsoid: 1.0
+

@@ -103,10 +103,32 @@ def _prism(outline_xy: np.ndarray, z_low: float, z_high: float,
                                   np.column_stack((top_xy, np.full(len(top_xy), z_high))))))
 
 
-def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float) -> trimesh.Trimesh:
+def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float, x: float = 0.0,
+               y: float = 0.0) -> trimesh.Trimesh:
     vertices = _UNIT_SPHERE.vertices * np.array([radius_xy, radius_xy, radius_z])
-    vertices += (0.0, 0.0, z_centre)
+    vertices += (x, y, z_centre)
     return trimesh.Trimesh(vertices, _UNIT_SPHERE.faces.copy(), process=False)
+
+
+def _crown_lobes(radius_m: float, z_centre: float, rng: np.random.Generator) -> list[trimesh.Trimesh]:
+    """A tree's crown as real canopy looks from above: a lumpy mass of leaf clusters, not one
+    smooth ellipsoid. A central lobe of 0.6-0.75 r and 4-7 lobes of 0.35-0.55 r around it,
+    their centres 0.3-0.6 r out at evenly spread bearings (jittered) and from 0.3 r lower to
+    0.15 r higher, each flattened to 0.6-0.9 of its radius. Every lobe is convex (the
+    scene's rule); together they stay within about 1.15 r of the trunk. Their own shading
+    and the shadows they cast on each other give the crown its clumps."""
+    lobes = [_ellipsoid(radius_m * rng.uniform(0.6, 0.75), radius_m * rng.uniform(0.45, 0.6),
+                        z_centre)]
+    n = int(rng.integers(4, 8))
+    start = rng.uniform(0.0, 2 * math.pi)
+    for k in range(n):
+        bearing = start + 2 * math.pi * k / n + rng.uniform(-0.35, 0.35)
+        out = radius_m * rng.uniform(0.3, 0.6)
+        lobe_r = radius_m * rng.uniform(0.35, 0.55)
+        lobes.append(_ellipsoid(lobe_r, lobe_r * rng.uniform(0.6, 0.9),
+                                z_centre + radius_m * rng.uniform(-0.3, 0.15),
+                                out * math.cos(bearing), out * math.sin(bearing)))
+    return lobes
 
 
 # ------------------------------------------------------------------------ boats
@@ -356,8 +378,8 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
         tall = float(rng.uniform(1.5, 3.0)) * r
         xv, yv = place(x, y)
         b.add(f"{tag}-tree{b.next_instance}", "tree", OBSTACLE,
-              [(_cylinder(0.25 + 0.03 * r, tall - r, 0, 0, height, 6), bark),
-               (_ellipsoid(r, r * rng.uniform(0.6, 0.9), height + tall - 0.5 * r), crown)],
+              [(_cylinder(0.25 + 0.03 * r, tall - r, 0, 0, height, 6), bark)]
+              + [(lobe, crown) for lobe in _crown_lobes(r, height + tall - 0.5 * r, rng)],
               xv, yv, along_deg)
     # a road behind the houses, houses with gabled roofs, cars on drives
     road_y = -rng.uniform(40.0, 80.0)
