@@ -76,6 +76,8 @@ def _pick(palette: list, rng: np.random.Generator, p: np.ndarray | None = None):
 #: a quarter turn about y: local z to x
 _TURN_Z_TO_X = trimesh.transformations.rotation_matrix(math.pi / 2, (0, 1, 0))
 _UNIT_SPHERE = trimesh.creation.icosphere(subdivisions=1, radius=1.0)
+#: a crown's lobes are rounder (320 faces, not 80): their facets showed at 40 m
+_LOBE_SPHERE = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
 
 
 def _rotated_cylinder_x(radius: float, length: float, x: float, y: float, z: float) -> trimesh.Trimesh:
@@ -104,10 +106,10 @@ def _prism(outline_xy: np.ndarray, z_low: float, z_high: float,
 
 
 def _ellipsoid(radius_xy: float, radius_z: float, z_centre: float, x: float = 0.0,
-               y: float = 0.0) -> trimesh.Trimesh:
-    vertices = _UNIT_SPHERE.vertices * np.array([radius_xy, radius_xy, radius_z])
+               y: float = 0.0, unit: trimesh.Trimesh = _UNIT_SPHERE) -> trimesh.Trimesh:
+    vertices = unit.vertices * np.array([radius_xy, radius_xy, radius_z])
     vertices += (x, y, z_centre)
-    return trimesh.Trimesh(vertices, _UNIT_SPHERE.faces.copy(), process=False)
+    return trimesh.Trimesh(vertices, unit.faces.copy(), process=False)
 
 
 def _crown_lobes(radius_m: float, z_centre: float, rng: np.random.Generator) -> list[trimesh.Trimesh]:
@@ -118,7 +120,7 @@ def _crown_lobes(radius_m: float, z_centre: float, rng: np.random.Generator) -> 
     scene's rule); together they stay within about 1.15 r of the trunk. Their own shading
     and the shadows they cast on each other give the crown its clumps."""
     lobes = [_ellipsoid(radius_m * rng.uniform(0.6, 0.75), radius_m * rng.uniform(0.45, 0.6),
-                        z_centre)]
+                        z_centre, unit=_LOBE_SPHERE)]
     n = int(rng.integers(4, 8))
     start = rng.uniform(0.0, 2 * math.pi)
     for k in range(n):
@@ -127,7 +129,7 @@ def _crown_lobes(radius_m: float, z_centre: float, rng: np.random.Generator) -> 
         lobe_r = radius_m * rng.uniform(0.35, 0.55)
         lobes.append(_ellipsoid(lobe_r, lobe_r * rng.uniform(0.6, 0.9),
                                 z_centre + radius_m * rng.uniform(-0.3, 0.15),
-                                out * math.cos(bearing), out * math.sin(bearing)))
+                                out * math.cos(bearing), out * math.sin(bearing), _LOBE_SPHERE))
     return lobes
 
 
@@ -371,10 +373,12 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
         back = float(rng.exponential(12.0)) + 0.5
         y = edge_at(x) - back
         r = float(rng.uniform(2.0, 7.0))
+        # greens of sunlit deciduous canopy in the lake-shore photos (linear RGB), and darker
+        # conifers; leaf clusters a metre or less across in the texture
         crown_rgb = _pick([(0.04, 0.1, 0.02), (0.07, 0.14, 0.03), (0.1, 0.16, 0.04), (0.05, 0.08, 0.03),
-                           (0.12, 0.13, 0.05)], rng)
+                           (0.12, 0.13, 0.05), (0.1, 0.22, 0.04), (0.14, 0.25, 0.06)], rng)
         crown = b.material(f"{tag}-crown{b.next_instance}", Material(_jitter(crown_rgb, rng), 0.95,
-                                                                     0.0, 0.5, 1.2))
+                                                                     0.0, 0.5, 2.5))
         tall = float(rng.uniform(1.5, 3.0)) * r
         xv, yv = place(x, y)
         b.add(f"{tag}-tree{b.next_instance}", "tree", OBSTACLE,
