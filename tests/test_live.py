@@ -138,6 +138,54 @@ def test_stale_video_raises_its_alarm_and_marks_every_distance_stale():
     assert any(a["kind"] == "frame_error" for a in bad["alarms"])
 
 
+class _MaskSegmenter:
+    """A stand-in model that returns the frame's exact label mask."""
+
+    path = Path("exact-labels")
+
+    def __init__(self, mask: np.ndarray) -> None:
+        self.mask = mask
+
+    def segment(self, image_bgr: np.ndarray) -> np.ndarray:
+        return self.mask
+
+
+def test_a_pose_the_image_contradicts_shows_no_distance_and_raises_its_own_alarm():
+    """A vessel heading taken 16 degrees off (a magnetic compass read as true): the image
+    contradicts it beyond the refinement's limits. The crew sees a pose_contradicted alarm
+    and no distance (none published to Signal K either), the section alarms hold their
+    levels, and the next frame with a good heading shows its distances again."""
+    from dataclasses import replace
+
+    from harborsight.live.signalk import SignalKPublisher
+
+    mask = cv2.imread(str(FLIGHT / "labels" / "000030.png"), cv2.IMREAD_UNCHANGED)
+    engine = LiveEngine(_MaskSegmenter(mask), VesselCache(load_vessel_spec(TUG)))
+    meta = load_frame_metadata(FLIGHT / "frames" / "000030.json")
+    image = cv2.imread(str(FLIGHT / "images" / "000030.jpg"))
+    now = time.monotonic()
+    for name in ("video", "drone", "vessel"):
+        engine.source_arrived(name, now)
+    good = engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
+    assert not good["pose_refinement"]["sensors_contradicted"]
+    wrong = replace(meta, vessel_heading_deg=meta.vessel_heading_deg + 16.0)
+    state = engine.process(31, image, wrong, FLIGHT / "frames" / "000030.json", 15.5, now + 0.5)
+    assert state["pose_refinement"]["sensors_contradicted"]
+    held = [a["kind"] for a in good["alarms"]]              # the sections near the quay
+    assert [a["kind"] for a in state["alarms"]] == [*held, "pose_contradicted"]
+    assert "contradicts the sensors' pose" in state["alarms"][-1]["message"]
+    assert state["min_distance_m"] is None
+    assert all(s["status"] == "pose_contradicted" and s["distance_m"] is None
+               for s in state["sections"])
+    deltas = SignalKPublisher("ws://127.0.0.1:1").deltas(state, now + 1.0)
+    values = {v["path"]: v["value"] for d in deltas for u in d["updates"] for v in u["values"]}
+    assert values["harborsight.clearance.minimum"] is None
+    assert values["notifications.harborsight.section0"]["state"] == "alert"
+    again = engine.process(32, image, meta, FLIGHT / "frames" / "000030.json", 16.0, now + 1.0)
+    assert [a["kind"] for a in again["alarms"]] == held
+    assert any(s["distance_m"] is not None for s in again["sections"])
+
+
 def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     """Realtime replay at 10 fps through the whole loop, the state read over HTTP while it
     runs and pushed over a WebSocket; the distances of the frame the state names against

@@ -50,6 +50,8 @@ SCHEMA = "harborsight.live/1"
 SOURCES = ("video", "drone", "vessel")
 #: how long an input's warning stays in the state, and how many are kept
 WARNING_SHOWN_S, WARNINGS_KEPT = 30.0, 8
+#: a section's state, and an alarm's kind, when the image contradicts the sensors' pose
+POSE_CONTRADICTED = "pose_contradicted"
 logger = logging.getLogger("harborsight.live")
 
 
@@ -188,8 +190,14 @@ class LiveEngine:
             ttc = estimate.time_to_contact_s if estimate is not None and fits else None
             alarm = self._alarms.setdefault(section.index, SectionAlarm(self.alarm_settings))
             if report.sensors_contradicted:
-                pass                # no distance to trust: the pose is known to be off
-            elif section.status == STATUS_OK:
+                # no distance to show, publish or alarm on: the pose it was read with is known
+                # wrong (the frame's own alarm says so); the section's alarm holds its level
+                sections.append({"index": section.index, "measured": POSE_CONTRADICTED,
+                                 "distance_m": None, "distance_lower_m": None, "sigma_m": None,
+                                 "clear_to_m": None, "filtered_distance_m": None,
+                                 "closing_speed_mps": None, "time_to_contact_s": None})
+                continue
+            if section.status == STATUS_OK:
                 lower = section.distance_lower_m
                 alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
             elif section.status == STATUS_CLEAR and (
@@ -238,6 +246,12 @@ class LiveEngine:
         for error in self._errors:
             alarms.append({"kind": "frame_error", "message": error["message"],
                            "since": _wall_iso(now_s, now_s)})
+        if self._report is not None and self._report.sensors_contradicted:
+            reason = (self._report.pose_refinement or {}).get("reason") or ""
+            alarms.append({"kind": POSE_CONTRADICTED, "message": (
+                f"the image contradicts the sensors' pose ({reason}): no distance is shown; "
+                "check the altitude, the water level and the heading source"),
+                "since": _wall_iso(now_s, now_s)})
         warnings = [{"source": w["source"], "message": w["message"],
                      "since": _wall_iso(now_s, w["at_s"])}
                     for w in self._warnings if now_s - w["at_s"] <= WARNING_SHOWN_S]

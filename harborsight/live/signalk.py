@@ -34,7 +34,8 @@ from harborsight.live.telemetry import LiveTrack
 
 STREAM_PATH = "/signalk/v1/stream"
 #: a section's status as a Signal K notification state
-NOTIFICATION_STATES = {"ok": "normal", "caution": "warn", "danger": "alarm"}
+NOTIFICATION_STATES = {"ok": "normal", "caution": "warn", "danger": "alarm",
+                       "pose_contradicted": "alert"}
 
 
 def stream_url(text: str, option: str) -> str:
