@@ -220,13 +220,15 @@ def _check_sensor_aspect(src, width: int, height: int, sensor_w_mm: float, senso
     image_aspect, sensor_aspect = width / height, sensor_w_mm / sensor_h_mm
     if abs(image_aspect / sensor_aspect - 1.0) <= SENSOR_ASPECT_TOLERANCE:
         return
-    full_width_fx = focal_mm * width / sensor_w_mm
+    hint = ""
+    if image_aspect > sensor_aspect >= 1.0:     # a wide crop of a landscape sensor
+        hint = (" (for a video across the sensor's full width, as DJI's, fx = fy = "
+                f"{focal_mm * width / sensor_w_mm:.1f})")
     raise InputError(src, "camera.sensor_height_mm",
                      f"the sensor ({sensor_w_mm:g} x {sensor_h_mm:g} mm, {sensor_aspect:.3f}:1) "
                      f"and the image ({width}x{height}, {image_aspect:.3f}:1) differ in aspect: "
-                     "the image is a crop of the sensor, and which part is not known; give fx "
-                     "and fy in pixels (for a video across the sensor's full width, as DJI's, "
-                     f"fx = fy = {full_width_fx:.1f})")
+                     "the image is a crop of the sensor, or turned, and which is not known; "
+                     f"give fx and fy in pixels{hint}")
 
 
 def _parse_camera(reader: _Reader, cam: dict, base_dir: Path | None) -> CameraIntrinsics:

@@ -108,7 +108,7 @@ def turned_reason(data: bytes) -> str | None:
     """Why the encoded image ``data`` does not hold the camera's own pixels (an EXIF
     Orientation other than 1), or None."""
     orientation = exif_orientation(data)
-    if orientation in (None, 1):
+    if orientation not in range(2, 9):      # 1: as stored; 0 and 9+: not defined, not turned
         return None
     return (f"EXIF Orientation {orientation}: the picture is stored turned (OpenCV turns a "
             "JPEG or PNG back as it reads it), so which way the camera saw it, as the frame's "

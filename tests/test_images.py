@@ -111,3 +111,20 @@ def test_training_and_segmentation_need_no_clearance_stack():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             check=True)
     assert result.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("orientation, refused", [(1, False), (0, False), (3, True), (6, True)])
+def test_a_frame_stored_turned_is_refused_for_measuring_only(tmp_path, orientation, refused):
+    """EXIF Orientation 2-8 says the picture is stored turned (OpenCV turns a JPEG back);
+    0 is not defined and turns nothing. ``segment`` and training read it as decoded."""
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "frame.jpg"
+    Image.fromarray(np.zeros((36, 64, 3), np.uint8)).save(path, exif=exif)
+    assert read_image(path).shape[2] == 3
+    if refused:
+        with pytest.raises(InputError, match=rf"frame.jpg: Orientation: EXIF Orientation {orientation}"):
+            read_image(path, camera_pixels=True)
+    else:
+        assert read_image(path, camera_pixels=True).shape == (36, 64, 3)
+

@@ -175,6 +175,9 @@ def test_a_rectified_image_topic_takes_p_and_no_distortion():
     rect = camera_from_info(info, rectified=True)
     assert (rect["fx"], rect["fy"], rect["cx"], rect["cy"]) == (480.0, 481.0, 318.0, 178.0)
     assert not any(rect["distortion"])
+    # image_proc rectifies a fisheye camera to a pinhole P too
+    fisheye = SimpleNamespace(**{**vars(info), "distortion_model": "equidistant"})
+    assert camera_from_info(fisheye, rectified=True)["fx"] == 480.0
     assert [is_rectified_topic(t) for t in ("/cam/image_rect", "/cam/image_rect_color/compressed",
                                             "/cam/image_raw", "/cam/image_raw/compressed",
                                             "image_rect")] == [True, True, False, False, True]

@@ -531,6 +531,11 @@ def test_frames_a_dji_srt_says_were_zoomed_are_left_out_with_the_reason(tmp_path
     reasons = dict(result.skipped)
     assert "zoomed: focal_len 48 mm" in reasons[10] and "hold for 24 mm" in reasons[10]
     assert all("focal_35mm_mm" not in f["camera"] for f in result.frames)
+    # a file that writes millimetres with decimals: "240.00" is a 10x zoom, not 24 mm
+    (tmp_path / "mm.srt").write_text(zoomed.replace("focal_len : 240", "focal_len : 24.00")
+                                     .replace("focal_len : 480", "focal_len : 240.00"), encoding="utf-8")
+    in_mm = read_dji_srt(tmp_path / "mm.srt", utc_offset_h=2.0)
+    assert in_mm.focal_35mm_mm[0] == 24.0 and in_mm.focal_35mm_mm[-1] == 240.0
     # the unchanged file: nothing is left out for its zoom
     whole = build_video_metadata(read_dji_srt(DJI / "air2s.srt", utc_offset_h=2.0), vessel, camera,
                                  16, 30.0, water_level_m=0.0, mount=CameraMount("stabilised", yaw_deg=0.0))

@@ -92,6 +92,10 @@ class ClearanceReport:
 
     @property
     def closest_section(self) -> int | None:
+        """The ``ok`` section nearest an obstacle; None when there is none, or when the
+        image contradicts the sensors' pose (no reading of the frame is trusted)."""
+        if self.sensors_contradicted:
+            return None
         ok = [s for s in self.sections if s.status == STATUS_OK]
         return min(ok, key=lambda s: s.distance_m).index if ok else None
 

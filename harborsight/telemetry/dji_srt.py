@@ -177,6 +177,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         if len(last) < len(before) or len(last[-1]) < len(before[-1]) - 3:
             torn.append(blocks[-1][0])
             blocks = blocks[:-1]
+    focal_in_mm = False
     for line_number, lines in blocks:
         row: dict = {"line": line_number}
         body = []
@@ -192,6 +193,8 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         for key, value in _BRACKET.findall(content):
             key = key.lower().replace("longtitude", "longitude")
             row[key] = float(value)
+            if key == "focal_len" and "." in value:
+                focal_in_mm = True
         if (m := _GPS.search(content)) is not None:
             first, second = float(m.group(1)), float(m.group(2))
             if m.group(4) and m.group(3) is not None:       # (lat, lon, altM): DJI Pilot
@@ -278,11 +281,12 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
             altitude, reference = column(key), words
             break
     gimbal = column("gimbal", 3)
-    # the 35 mm equivalent focal length: in tenths of a millimetre in the files of the Air 2
-    # and Air 2S ("240" is 24 mm); a value under 100 is taken as millimetres
+    # the 35 mm equivalent focal length, one unit for the whole file: whole tenths of a
+    # millimetre in the files of the Air 2 and Air 2S ("240" is 24 mm), millimetres where
+    # the file writes decimals ("24.00"); a 10x zoom's "240.00" is 240 mm
     focal_len = column("focal_len")
-    if focal_len is not None:
-        focal_len = np.where(focal_len >= 100.0, focal_len / 10.0, focal_len)
+    if focal_len is not None and not focal_in_mm:
+        focal_len = focal_len / 10.0
 
     notes = [f"{len(lines)} block(s) {what} (" + _lines(lines) + ")" for lines, what in (
         (skipped, "without a position skipped"),

@@ -269,8 +269,9 @@ def _first_focal(drone: Track) -> float | None:
     taken to hold for, when the camera block does not say."""
     if drone.focal_35mm_mm is None:
         return None
-    finite = drone.focal_35mm_mm[np.isfinite(drone.focal_35mm_mm)]
-    return float(finite[0]) if len(finite) else None
+    values = drone.focal_35mm_mm
+    stated = values[np.isfinite(values) & (values > 0)]
+    return float(stated[0]) if len(stated) else None
 
 
 def zoom_reason(focal_mm: float | None, reference_mm: float | None, camera: dict) -> str | None:
@@ -279,8 +280,9 @@ def zoom_reason(focal_mm: float | None, reference_mm: float | None, camera: dict
     24 mm, or the log's first value for a calibration file). A zoom of 2x halves every
     distance, and nothing in the picture says so; None when the two agree or either is
     unknown."""
-    if focal_mm is None or reference_mm is None or not np.isfinite(focal_mm):
-        return None
+    if (focal_mm is None or reference_mm is None or not np.isfinite(focal_mm)
+            or focal_mm <= 0 or not reference_mm > 0):
+        return None                 # unknown (a log's 0 is no focal length)
     if abs(focal_mm / reference_mm - 1.0) <= ZOOM_TOLERANCE:
         return None
     return (f"zoomed: focal_len {focal_mm:g} mm (35 mm equivalent) in the log, the camera's "

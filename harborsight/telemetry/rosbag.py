@@ -20,7 +20,8 @@ Topics read (chosen by option, else found by type and name, :func:`choose_topics
 * images: ``sensor_msgs/CompressedImage`` (written as the JPEG or PNG it holds) or ``Image``
   (``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``mono8``, ``mono16``; written as PNG);
 * intrinsics: the first ``sensor_msgs/CameraInfo`` (K, and D for ``plumb_bob`` or
-  ``rational_polynomial``; other models need ``--camera``).
+  ``rational_polynomial``; other models need ``--camera``), or its P with no distortion when
+  the image topic is image_proc's rectified ``image_rect...``.
 
 Time: each message's ``header.stamp`` (the bag's receive time where the stamp is zero), Unix
 time: UTC when the recording computer's clock was synchronised (NTP, GPS). A track's ``t_s`` is
@@ -268,10 +269,13 @@ def camera_from_info(message: object, rectified: bool = False) -> dict:
     d = [float(v) for v in (message.d if hasattr(message, "d") else message.D)]
     if rectified:
         p = [float(v) for v in (message.p if hasattr(message, "p") else message.P)]
+        # (p is P, row-major 3x4; its left 3x3 is the rectified image's K)
         if len(p) != 12 or not (p[0] > 0 and p[5] > 0) or not all(map(math.isfinite, p)):
             raise InputError(None, "CameraInfo", "the image topic is rectified but P has no "
                              "focal length: give --camera")
-        k, d = [p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]], []
+        # the raw camera's model does not matter: image_proc rectifies a fisheye to P too
+        return {"width": int(message.width), "height": int(message.height), "fx": p[0],
+                "fy": p[5], "cx": p[2], "cy": p[6], "distortion": [0.0] * 5}
     model = str(message.distortion_model or "plumb_bob")
     if model not in ("plumb_bob", "rational_polynomial", ""):
         raise InputError(None, "CameraInfo", f"distortion model {model!r}: give --camera with "

@@ -115,10 +115,12 @@ def draw_overlay(
             spread = "" if s.sigma_m is None else f"+-{s.sigma_m:.1f}"
             text = f"{s.distance_m:.1f}{spread}m" + ("!" if s.contact else "")
             colour = section_colour(alarm_distance_m(s), warn_m, alarm_m)
+        elif report.sensors_contradicted:   # read with a pose known to be wrong
+            text, colour = "??", WHITE
         elif s.clear_to_m is not None:      # nothing solid as far as its band was seen
             text, colour = f">{s.clear_to_m:.1f}m", WHITE
-        else:
-            text, colour = "??", WHITE
+        else:                               # seen to the horizon
+            text, colour = "clear", WHITE
         _label(out, text, mid + outward * 18 * scale / 0.5, colour, scale)
 
     md = report.min_distance_m
