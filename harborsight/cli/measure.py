@@ -71,8 +71,14 @@ def print_report_table(outcome: FrameOutcome) -> None:
         table.add_row(*row, notes, style=style)
     console.print(table)
     md = report.min_distance_m
-    console.print(f"closest: section {report.closest_section} at {fmt_number(md, 2)} m"
-                  if md is not None else "no obstacle in view")
+    if report.sensors_contradicted:
+        reason = (report.pose_refinement or {}).get("reason")
+        console.print(f"[bold red]the image contradicts the sensors' pose ({reason}): these "
+                      "distances were read with a wrong pose; check the altitude, the water "
+                      "level and the heading source[/bold red]")
+    else:
+        console.print(f"closest: section {report.closest_section} at {fmt_number(md, 2)} m"
+                      if md is not None else "no obstacle in view")
 
 
 def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
