@@ -204,6 +204,20 @@ def test_a_pose_the_image_contradicts_beyond_the_limits_leaves_no_lower_bound_st
     assert within.pose_refinement["applied"] and not within.sensors_contradicted
 
 
+def test_only_a_hull_mostly_in_view_can_contradict_the_sensors():
+    """Of a bow alone a wrong height and shift fit as well as the truth: a 30 m bench frame
+    with 36 % of its hull in view "found" its height 10.7 m off, with every outline point
+    in view on an edge. The same fit of a hull 70 % or more in view contradicts."""
+    from harborsight.clearance.pose_refinement import contradicts_sensors
+
+    settings = PoseRefinementSettings()
+    assert not contradicts_sensors(0.49, 1.0, 0.999, 0.29, settings, in_view=0.36)
+    assert contradicts_sensors(0.49, 1.0, 0.999, 0.29, settings, in_view=0.7)
+    assert not contradicts_sensors(0.88, 1.0, 1.0, 0.25, settings)      # the sensors fit too
+    assert contradicts_sensors(0.58, 1.0, 1.0, 0.25, settings)          # 0.42 more inliers
+    assert not contradicts_sensors(0.2, 1.0, 0.8, 0.25, settings)       # silhouette not filled
+
+
 def test_nothing_to_align_to_is_a_flag_not_an_error():
     scene, labels = scene_and_labels(5, "alongside", 60)
     geometry = scene.geometry()

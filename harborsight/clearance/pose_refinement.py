@@ -685,29 +685,38 @@ def refine_vessel_pose(
         reason = SENSORS_FIT      # a correction would only follow the pixels' rounding
     if reason is not None:
         beyond = reason.startswith(BEYOND_LIMITS)
+        in_view = len(value) / max(outline.shape[1], 1)
         return geometry, replace(found, reason=reason, sensors_contradicted=beyond and contradicts_sensors(
-            before, fraction, ship_fill, residual_px, settings))
+            before, fraction, ship_fill, residual_px, settings, in_view))
     return corrected_geometry(geometry, params), replace(found, applied=True)
 
 
 #: a refused correction that puts this much more of the outline on ship edges than the
 #: sensors' pose contradicts the sensors (:func:`contradicts_sensors`)
 CONTRADICTION_GAIN = 0.25
+#: the share of the outline that must be in view for a correction to contradict the sensors
+CONTRADICTION_MIN_IN_VIEW = 0.7
 #: the reasons that refuse a correction for its size alone
 BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
 
 
 def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: float,
-                        residual_px: float | None, settings: PoseRefinementSettings) -> bool:
+                        residual_px: float | None, settings: PoseRefinementSettings,
+                        in_view: float = 1.0) -> bool:
     """Whether a correction refused for its size alone shows the sensors' pose wrong: it
     passes every test of fit (inliers, ship fill, residual), and the sensors' pose leaves
     fewer than ``min_inlier_fraction`` of the outline on a ship edge or
     :data:`CONTRADICTION_GAIN` fewer than the correction. An altitude 5 m off (a water level
     left at 0 on a tide) or a magnetic heading taken for true 15 degrees off is such a case:
     the pose the distances are read with is then known to be wrong, by more than any sigma
-    says (on the sample frames a quay 5.05 m away read 21.6 ± 2.3 m)."""
-    return ((fraction_before < settings.min_inlier_fraction
-             or fraction - fraction_before >= CONTRADICTION_GAIN)
+    says (on the sample frames a quay 5.05 m away read 21.6 ± 2.3 m). Only a hull mostly in
+    view (``in_view``, the share of the outline's samples in the image, at least
+    :data:`CONTRADICTION_MIN_IN_VIEW`) can say so: of a bow alone, a wrong height and shift
+    fit as well as the truth (a 30 m bench frame with 36 % of the hull in view "found" a
+    height 10.7 m off)."""
+    return (in_view >= CONTRADICTION_MIN_IN_VIEW
+            and (fraction_before < settings.min_inlier_fraction
+                 or fraction - fraction_before >= CONTRADICTION_GAIN)
             and fraction >= settings.min_inlier_fraction
             and ship_fill >= settings.min_ship_fill
             and residual_px is not None and residual_px <= settings.max_residual_px)
