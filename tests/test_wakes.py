@@ -64,17 +64,17 @@ def test_wakes_are_painted_on_water_pixels_only(nadir_scene):
 
 
 def test_a_rendered_wake_changes_the_water_and_no_label(tmp_path):
-    """Frame 10 of a tiny lake-shore dataset (seed 21) has a boat under way in view (frame 24
-    had before RIBs and yachts changed the families' draws, frame 17 before jet-ski ports
-    and composite docks did, both 2026-11-27; found by rendering each frame of the seed that
-    has a boat under way, with and without wakes)."""
+    """Frame 23 of a tiny lake-shore dataset (seed 21) has a boat under way in view (frame 10
+    had before the lumpy tree crowns changed the families' draws, 2026-11-28; frame 24 before
+    RIBs and yachts did, frame 17 before jet-ski ports and composite docks, both 2026-11-27;
+    found by rendering frames 0-39 of the seed with and without wakes)."""
     config = SimulationConfig(seed=21, preset="tiny", vessel_pool=1, scenario="lakeshore")
     prepare_vessels(tmp_path, config)
     files = {}
     for wakes in (True, False):
-        files[wakes] = FrameRenderer(tmp_path, replace(config, wakes=wakes)).render_files(10).files
+        files[wakes] = FrameRenderer(tmp_path, replace(config, wakes=wakes)).render_files(23).files
     def decode(wakes, name):
-        return cv2.imdecode(np.frombuffer(files[wakes][f"{name}/000010.png"], np.uint8),
+        return cv2.imdecode(np.frombuffer(files[wakes][f"{name}/000023.png"], np.uint8),
                             cv2.IMREAD_UNCHANGED)
     assert np.array_equal(decode(True, "labels"), decode(False, "labels"))
     labels = decode(True, "labels")
