@@ -425,6 +425,31 @@ def test_frames_naming_one_image_do_not_overwrite_each_other(tmp_path):
         "000003.json", "000004.json", "flight-000001.json", "flight-000002.json", "flight.json"]
 
 
+def test_overlay_labels_do_not_cover_each_other(monkeypatch):
+    """Labels that would stack (neighbouring sections, a long ``>14.7m``) move outward, then
+    sideways; the banner keeps its line. Measured by the labels' black boxes: each label is
+    drawn in a box of its own."""
+    from harborsight.viz import overlay
+
+    image = np.full((360, 640, 3), 90, np.uint8)
+    drawn = []
+    real_rectangle = overlay.cv2.rectangle
+
+    def spy(img, p0, p1, colour, thickness, *args):
+        if colour == overlay.BLACK and thickness == -1:
+            drawn.append((*p0, *p1))
+        return real_rectangle(img, p0, p1, colour, thickness, *args)
+
+    anchor, outward = np.array([320.0, 30.0]), np.array([0.0, 1.0])
+    labels = [(f"{k}.0+-0.1m", anchor, outward, overlay.WHITE) for k in range(5)]
+    monkeypatch.setattr(overlay.cv2, "rectangle", spy)
+    overlay._place_labels(image, labels, 0.4, [(0, 0, 640, 22)])
+    assert len(drawn) == 5
+    for i, box in enumerate(drawn):
+        assert box[1] >= 22                                  # below the banner
+        assert not overlay._overlaps(box, drawn[:i])
+
+
 def test_overlay_of_a_point_projected_far_out_of_the_image():
     from harborsight.viz.overlay import draw_overlay
 

@@ -41,14 +41,50 @@ def _on_canvas(point, width: int, height: int) -> bool:
                 and -height <= point[1] <= 2 * height)
 
 
-def _label(image: np.ndarray, text: str, anchor: np.ndarray, colour, scale: float) -> None:
-    font = cv2.FONT_HERSHEY_SIMPLEX
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+#: a label that would cover one already placed moves outward by its own height, at most
+#: this many times, then sideways
+_LABEL_TRIES = 6
+
+
+def _label_box(text: str, anchor: np.ndarray, scale: float, shape: tuple[int, ...]
+               ) -> tuple[int, int, int, int]:
+    """The label's black box ``(x0, y0, x1, y1)`` centred on ``anchor``, kept in the picture."""
     thickness = max(1, round(scale * 2))
-    (w, h), base = cv2.getTextSize(text, font, scale, thickness)
-    x = int(np.clip(anchor[0] - w / 2, 1, image.shape[1] - w - 2))
-    y = int(np.clip(anchor[1] + h / 2, h + 2, image.shape[0] - base - 2))
-    cv2.rectangle(image, (x - 2, y - h - 2), (x + w + 2, y + base), BLACK, -1)
-    cv2.putText(image, text, (x, y), font, scale, colour, thickness, cv2.LINE_AA)
+    (w, h), base = cv2.getTextSize(text, _FONT, scale, thickness)
+    x = int(np.clip(anchor[0] - w / 2, 1, shape[1] - w - 2))
+    y = int(np.clip(anchor[1] + h / 2, h + 2, shape[0] - base - 2))
+    return x - 2, y - h - 2, x + w + 2, y + base
+
+
+def _overlaps(box, others) -> bool:
+    return any(box[0] < o[2] and o[0] < box[2] and box[1] < o[3] and o[1] < box[3] for o in others)
+
+
+def _place_labels(image: np.ndarray, labels: list[tuple[str, np.ndarray, np.ndarray, tuple]],
+                  scale: float, taken: list[tuple[int, int, int, int]]) -> None:
+    """Draw ``(text, anchor, outward unit vector, colour)`` labels in order, each where it
+    covers none placed before it (nor the boxes in ``taken``): at its anchor, else moved
+    outward by its height up to :data:`_LABEL_TRIES` times, else sideways; where nothing is
+    free, at its anchor."""
+    thickness = max(1, round(scale * 2))
+    placed = list(taken)
+    for text, anchor, outward, colour in labels:
+        box = _label_box(text, anchor, scale, image.shape)
+        step = (box[3] - box[1]) + 2
+        side = np.array([-outward[1], outward[0]])
+        candidates = ([anchor + outward * step * k for k in range(_LABEL_TRIES + 1)]
+                      + [anchor + side * step * k * sign for k in (1, 2) for sign in (1, -1)])
+        for candidate in candidates:
+            trial = _label_box(text, candidate, scale, image.shape)
+            if not _overlaps(trial, placed):
+                box = trial
+                break
+        placed.append(box)
+        cv2.rectangle(image, box[:2], box[2:], BLACK, -1)
+        base = cv2.getTextSize(text, _FONT, scale, thickness)[1]
+        cv2.putText(image, text, (box[0] + 2, box[3] - base), _FONT, scale, colour, thickness,
+                    cv2.LINE_AA)
 
 
 def section_colour(distance_m: float | None, warn_m: float, alarm_m: float):
@@ -98,6 +134,7 @@ def draw_overlay(
         if _on_canvas(end[0], w, h):
             cv2.circle(out, _fixed(end[0]), 2 * _SCALE, BLACK, -1, cv2.LINE_AA, _SHIFT)
 
+    labels = []         # (priority, text, anchor, outward, colour): measured, nearest first
     for s, mid in zip(report.sections, anchors, strict=True):
         if s.status not in (STATUS_OK, STATUS_CLEAR) or mid is None:
             continue
@@ -121,7 +158,12 @@ def draw_overlay(
             text, colour = f">{s.clear_to_m:.1f}m", WHITE
         else:                               # seen to the horizon
             text, colour = "clear", WHITE
-        _label(out, text, mid + outward * 18 * scale / 0.5, colour, scale)
+        priority = s.distance_m if s.status == STATUS_OK else np.inf
+        labels.append((priority, text, mid + outward * 18 * scale / 0.5, outward, colour))
+    labels.sort(key=lambda label: label[0])
+    band = int(22 * scale / 0.4)            # the banners' height (draw_banner)
+    banners = [(0, 0, w, band)] + ([(0, h - band, w, h)] if footer else [])
+    _place_labels(out, [label[1:] for label in labels], scale, banners)
 
     md = report.min_distance_m
     # the method only when it is not the default (the banner has one line of a 640-px frame)
