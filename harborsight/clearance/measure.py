@@ -57,7 +57,7 @@ from harborsight.geometry.sensor_sigmas import (
     sigmas_for_frame,
 )
 from harborsight.perception.confidence import SolidConfidence
-from harborsight.vessel.sections import SectionedOutline
+from harborsight.vessel.sections import SectionAssignment, SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
 METHODS = ("ground_plane", "gsd")
@@ -370,27 +370,25 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> Pos
 BORDER_STEP_PX = 2
 
 
-def _band_reach_m(outline: SectionedOutline, to_outline, shape: tuple[int, int],
-                  metres_per_unit: float) -> dict[int, float]:
-    """How far each section's band is seen: the distance from the hull to the nearest
-    image-border point in its band (points every :data:`BORDER_STEP_PX` along the four
-    edges, on the water plane), in metres. A section missing from the result has no
-    border point in its band on the water: its band runs to the horizon. A ``clear``
-    section says only that nothing solid lies nearer than this."""
-    h, w = shape
-    u = np.arange(0, w, BORDER_STEP_PX, dtype=float)
-    v = np.arange(0, h, BORDER_STEP_PX, dtype=float)
-    border = np.vstack((np.column_stack((u, np.zeros_like(u))),
-                        np.column_stack((u, np.full_like(u, h - 1.0))),
-                        np.column_stack((np.zeros_like(v), v)),
-                        np.column_stack((np.full_like(v, w - 1.0), v))))
-    points, valid = to_outline(border)
-    assignment = outline.assign(np.where(valid[:, None], points, 0.0))
-    seen = valid & (assignment.section >= 0) & np.isfinite(assignment.distance)
-    reach: dict[int, float] = {}
-    for k, d in zip(assignment.section[seen].tolist(), assignment.distance[seen].tolist(),
-                    strict=True):
-        reach[k] = min(reach.get(k, np.inf), d * metres_per_unit)
+def _border_points(width: int, height: int, step_px: float = BORDER_STEP_PX) -> np.ndarray:
+    """Pixel centres on the image's border every ``step_px``, clockwise from the top left."""
+    u = np.arange(0.0, width, step_px)
+    v = np.arange(0.0, height, step_px)
+    return np.vstack((np.column_stack((u, np.zeros_like(u))),
+                      np.column_stack((u, np.full_like(u, height - 1.0))),
+                      np.column_stack((np.zeros_like(v), v)),
+                      np.column_stack((np.full_like(v, width - 1.0), v))))
+
+
+def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
+                n_sections: int) -> np.ndarray:
+    """How far each section's band is seen, from the image-border points (their section,
+    distance to the hull on the water, and whether they reach the water): the distance to
+    the nearest one in the band, in the outline's units; inf where none is (the band runs
+    to the horizon). A ``clear`` section says only that nothing solid lies nearer."""
+    seen = valid & (section >= 0) & np.isfinite(distance)
+    reach = np.full(n_sections, np.inf)
+    np.minimum.at(reach, section[seen], distance[seen])
     return reach
 
 
@@ -484,8 +482,16 @@ def measure_clearance(
 
         def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return uv, np.ones(len(uv), bool)
-    points, valid = to_outline(points_px)
-    assignment = outline.assign(np.where(valid[:, None], points, 0.0))
+    # the image's border goes through the same map and assignment, for the clear bands' reach
+    border_px = _border_points(labels.shape[1], labels.shape[0])
+    n_contour = len(points_px)
+    mapped, mapped_valid = to_outline(np.vstack((points_px, border_px)))
+    everything = outline.assign(np.where(mapped_valid[:, None], mapped, 0.0))
+    reach = _band_reach(everything.section[n_contour:], everything.distance[n_contour:],
+                        mapped_valid[n_contour:], len(in_image.visible_fraction))
+    points, valid = mapped[:n_contour], mapped_valid[:n_contour]
+    assignment = SectionAssignment(everything.section[:n_contour], everything.distance[:n_contour],
+                                   everything.nearest[:n_contour])
     section = np.where(valid, assignment.section, -1)
     candidates = _Candidates.joined(
         _Candidates(section=section, distance=assignment.distance, nearest=assignment.nearest,
@@ -562,12 +568,10 @@ def measure_clearance(
             result.hull_point_enu, result.obstacle_point_enu = h_enu, o_enu
             result.contact, result.truncated = contact, truncated
 
-    clear = [r for r in results if r.status == STATUS_CLEAR]
-    if clear:
-        reach_m = _band_reach_m(outline, to_outline, labels.shape,
-                                1.0 if outline is sections_v else gsd)
-        for result in clear:
-            result.clear_to_m = reach_m.get(result.index)
+    metres_per_unit = 1.0 if outline is sections_v else gsd
+    for result in results:
+        if result.status == STATUS_CLEAR and np.isfinite(reach[result.index]):
+            result.clear_to_m = float(reach[result.index]) * metres_per_unit
     add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
                             refinement, sigmas, velocities, outline_px=in_image.vertices_px,
                             confidence=confidence, labels=labels,
