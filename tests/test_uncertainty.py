@@ -226,6 +226,10 @@ def test_run_writes_sigmas_and_filtered_values_and_takes_sigma_options(tmp_path)
     assert ok and all(r["sigma_m"] and r["distance_lower_m"] for r in ok)
     assert any(r["filtered_distance_m"] and r["closing_speed_mps"] for r in ok)
     assert {r["track_state"] for r in rows} <= {"updated", "new", "held", "coasting", "none"}
+    clear = [r for r in rows if r["status"] == "clear"]
+    assert clear and any(r["clear_to_m"] for r in clear) and not any(r["clear_to_m"] for r in ok)
+    assert all(float(r["clear_to_m"]) >= 0 for r in clear if r["clear_to_m"])
+    assert {r["pose_contradicted"] for r in rows} == {"0"}
     record = json.loads((out / "run.json").read_text())
     assert record["settings"]["sigma_options"] == {"uav_gps": 0.02, "vessel_gps": 0.05}
     report = json.loads(next((out / "reports").glob("*.json")).read_text())
