@@ -65,8 +65,8 @@ def _place_labels(image: np.ndarray, labels: list[tuple[str, np.ndarray, np.ndar
                   scale: float, taken: list[tuple[int, int, int, int]]) -> None:
     """Draw ``(text, anchor, outward unit vector, colour)`` labels in order, each where it
     covers none placed before it (nor the boxes in ``taken``): at its anchor, else moved
-    outward by its height up to :data:`_LABEL_TRIES` times, else sideways; where nothing is
-    free, at its anchor."""
+    outward by its height up to :data:`_LABEL_TRIES` times, else sideways, else inward (at
+    the picture's edge); where nothing is free, at its anchor."""
     thickness = max(1, round(scale * 2))
     placed = list(taken)
     for text, anchor, outward, colour in labels:
@@ -74,7 +74,9 @@ def _place_labels(image: np.ndarray, labels: list[tuple[str, np.ndarray, np.ndar
         step = (box[3] - box[1]) + 2
         side = np.array([-outward[1], outward[0]])
         candidates = ([anchor + outward * step * k for k in range(_LABEL_TRIES + 1)]
-                      + [anchor + side * step * k * sign for k in (1, 2) for sign in (1, -1)])
+                      + [anchor + side * step * k * sign for k in (1, 2) for sign in (1, -1)]
+                      # at the picture's edge, outward is where it cannot go: inward then
+                      + [anchor - outward * step * k for k in range(1, _LABEL_TRIES + 1)])
         for candidate in candidates:
             trial = _label_box(text, candidate, scale, image.shape)
             if not _overlaps(trial, placed):
