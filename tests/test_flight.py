@@ -425,6 +425,36 @@ def test_frames_naming_one_image_do_not_overwrite_each_other(tmp_path):
         "000003.json", "000004.json", "flight-000001.json", "flight-000002.json", "flight.json"]
 
 
+def test_a_video_its_container_turns_is_refused(monkeypatch, tmp_path):
+    """A container's rotation (a phone video held upside down: 180 degrees) is applied by
+    OpenCV as it reads the frames: same size, pixels turned, the metadata no longer theirs.
+    No video with such a tag can be written here (FFmpeg's muxer drops PyAV's `rotate`), so
+    the capture is a stand-in that reports it, as OpenCV's does."""
+    from harborsight.flight import sources
+
+    class Turned:
+        def __init__(self, path):
+            self.path = path
+
+        def isOpened(self):
+            return True
+
+        def get(self, prop):
+            return 180.0 if prop == cv2.CAP_PROP_ORIENTATION_META else 0.0
+
+        def release(self):
+            pass
+
+    (tmp_path / "flight.mp4").write_bytes(b"x")
+    (tmp_path / "flight.jsonl").write_text("")
+    monkeypatch.setattr(sources.cv2, "VideoCapture", Turned)
+    with pytest.raises(InputError, match=r"flight\.mp4: rotation: .*turn the picture 180 degrees"):
+        sources.VideoSource(tmp_path / "flight.mp4", tmp_path / "flight.jsonl")
+    monkeypatch.undo()
+    real = cv2.VideoCapture(str(SAMPLES / "flight" / "logs" / "flight.mp4"))
+    assert sources.video_rotation_deg(real) == 0.0          # the bundled flight has none
+
+
 def test_overlay_labels_do_not_cover_each_other(monkeypatch):
     """Labels that would stack (neighbouring sections, a long ``>14.7m``) move outward, then
     sideways; the banner keeps its line. Measured by the labels' black boxes: each label is

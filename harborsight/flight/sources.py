@@ -212,6 +212,26 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
     return by_frame, orphans, line_of, time_errors
 
 
+def video_rotation_deg(capture) -> float:
+    """The rotation a video's container asks for (a phone's display matrix or ``rotate``
+    tag), which OpenCV's FFmpeg reader applies to every frame; 0 when none. A picture turned
+    by 180 degrees keeps its size, so nothing else would notice it."""
+    value = capture.get(cv2.CAP_PROP_ORIENTATION_META)
+    return float(value) % 360.0 if math.isfinite(value) else 0.0
+
+
+def refuse_turned_video(capture, video: Path) -> None:
+    """:class:`InputError` naming ``rotation`` for a video its container turns (the capture
+    is released first)."""
+    turned = video_rotation_deg(capture)
+    if turned:
+        capture.release()
+        raise InputError(video, "rotation", f"the container asks players to turn the picture "
+                         f"{turned:g} degrees, and OpenCV does as it reads it, so the frames "
+                         "are not the camera's pixels that the metadata describes; re-mux "
+                         "the video without its rotation")
+
+
 class VideoSource:
     """A video file and its per-frame metadata (module docstring)."""
 
@@ -223,6 +243,7 @@ class VideoSource:
         capture = cv2.VideoCapture(str(video))
         if not capture.isOpened():
             raise InputError(video, None, "cannot open the video (unknown format or corrupt)")
+        refuse_turned_video(capture, video)
         self.container_fps = plausible_fps(capture.get(cv2.CAP_PROP_FPS))
         count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 
 from harborsight.errors import InputError
-from harborsight.flight.sources import FlightFrame, VideoSource
+from harborsight.flight.sources import FlightFrame, VideoSource, refuse_turned_video
 
 
 @dataclass
@@ -78,6 +78,7 @@ class VideoFrames:
         capture = cv2.VideoCapture(str(video))
         if not capture.isOpened():
             raise InputError(video, None, "cannot open the video")
+        refuse_turned_video(capture, video)
         self.video, self.fps = video, capture.get(cv2.CAP_PROP_FPS) or None
         capture.release()
 
