@@ -9,9 +9,9 @@ So before an image is used, its container is checked for completeness, without d
 * TIFF: Pillow reads every strip or tile (a truncated strip raises).
 
 A frame to be measured must also hold the camera's own pixels: a picture stored turned, with
-an EXIF Orientation other than 1, is turned back as it is read (OpenCV does for JPEG and
-PNG), and the frame's intrinsics and attitude no longer describe it. With Orientation 3 the size is the
-same, so nothing else would notice: the hull lands on the wrong side of the picture and a
+an EXIF Orientation from 2 to 8, is turned back as it is read (OpenCV does for JPEG and PNG),
+and the frame's intrinsics and attitude no longer describe it. With Orientation 3 the size is
+the same, so nothing else would notice: the hull lands on the wrong side of the picture and a
 0.7 m contact reads clear. ``read_image(path, camera_pixels=True)`` refuses such a file.
 
 ``read_image`` and ``read_mask`` are the readers every part uses (measuring, training,

@@ -113,13 +113,20 @@ def _engine(**alarms) -> LiveEngine:
                       alarm_settings=AlarmSettings(**alarms))
 
 
-def test_stale_video_raises_its_alarm_and_marks_every_distance_stale():
-    engine = _engine()
+def _frame_30_with_every_source_current(engine: LiveEngine):
+    """The bundled flight's frame 30 (metadata, picture) and a time at which every source
+    has just arrived."""
     meta = load_frame_metadata(FLIGHT / "frames" / "000030.json")
     image = cv2.imread(str(FLIGHT / "images" / "000030.jpg"))
     now = time.monotonic()
     for name in ("video", "drone", "vessel"):
         engine.source_arrived(name, now)
+    return meta, image, now
+
+
+def test_stale_video_raises_its_alarm_and_marks_every_distance_stale():
+    engine = _engine()
+    meta, image, now = _frame_30_with_every_source_current(engine)
     state = engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
     assert state["schema"] == SCHEMA and not state["stale"]
     assert not [a for a in state["alarms"] if a["kind"].startswith("stale")]
@@ -161,11 +168,7 @@ def test_a_pose_the_image_contradicts_shows_no_distance_and_raises_its_own_alarm
 
     mask = cv2.imread(str(FLIGHT / "labels" / "000030.png"), cv2.IMREAD_UNCHANGED)
     engine = LiveEngine(_MaskSegmenter(mask), VesselCache(load_vessel_spec(TUG)))
-    meta = load_frame_metadata(FLIGHT / "frames" / "000030.json")
-    image = cv2.imread(str(FLIGHT / "images" / "000030.jpg"))
-    now = time.monotonic()
-    for name in ("video", "drone", "vessel"):
-        engine.source_arrived(name, now)
+    meta, image, now = _frame_30_with_every_source_current(engine)
     good = engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
     assert not good["pose_refinement"]["sensors_contradicted"]
     wrong = replace(meta, vessel_heading_deg=meta.vessel_heading_deg + 16.0)

@@ -26,6 +26,7 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
@@ -370,14 +371,18 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> Pos
 BORDER_STEP_PX = 2
 
 
+@functools.lru_cache(maxsize=8)
 def _border_points(width: int, height: int, step_px: float = BORDER_STEP_PX) -> np.ndarray:
-    """Pixel centres on the image's border every ``step_px``, clockwise from the top left."""
+    """Pixel centres on the image's border every ``step_px`` (read-only: one array per image
+    size, made once)."""
     u = np.arange(0.0, width, step_px)
     v = np.arange(0.0, height, step_px)
-    return np.vstack((np.column_stack((u, np.zeros_like(u))),
+    points = np.vstack((np.column_stack((u, np.zeros_like(u))),
                       np.column_stack((u, np.full_like(u, height - 1.0))),
                       np.column_stack((np.zeros_like(v), v)),
                       np.column_stack((np.full_like(v, width - 1.0), v))))
+    points.flags.writeable = False
+    return points
 
 
 def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
