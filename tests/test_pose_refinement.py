@@ -18,18 +18,20 @@ import pyproj
 import pytest
 from typer.testing import CliRunner
 
+from harborsight.clearance.alignment import (
+    FILL_INTERIOR_MIN_PX,
+    Alignment,
+    SignedDistance,
+    corrected_geometry,
+    homogeneous,
+    outline_points,
+    ship_fill,
+)
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance, measure_frame
 from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_refinement import (
-    FILL_INTERIOR_MIN_PX,
     PoseRefinementSettings,
-    _Alignment,
-    _homogeneous,
-    _outline_points,
-    _ship_fill,
-    _SignedDistance,
     _translation_search,
-    corrected_geometry,
     refine_vessel_pose,
 )
 from harborsight.cli import app
@@ -89,9 +91,9 @@ def test_a_pose_two_sigma_off_is_found_by_the_translation_search(seed, scenario,
     shift_m, turn_deg = pose_error(found, true)
     assert shift_m < 0.2 and turn_deg < 0.3
     wrong = corrected_geometry(true, error)
-    align = _Alignment(wrong, _SignedDistance(labels == SHIP, (0, 0)))
-    hull_h = _homogeneous(TUG.hull_points)
-    outline = _outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
+    align = Alignment(wrong, SignedDistance(labels == SHIP, (0, 0)))
+    hull_h = homogeneous(TUG.hull_points)
+    outline = outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
     starts = _translation_search(align, outline, PoseRefinementSettings(), [np.zeros(4)])
     # the best cell lies within a grid step's diagonal (1.4 m) of the error undone
     assert np.hypot(*(np.array(starts[0]) + error[:2])) < 1.5
@@ -262,9 +264,9 @@ def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distor
     _, labels = render(scene)[:2]
     geometry = scene.geometry()
     window = (slice(20, 350), slice(10, 630))
-    sdf = _SignedDistance(labels[window] == SHIP, (window[1].start, window[0].start))
-    align = _Alignment(geometry, sdf)
-    hull_h = _homogeneous(TUG.hull_points)
+    sdf = SignedDistance(labels[window] == SHIP, (window[1].start, window[0].start))
+    align = Alignment(geometry, sdf)
+    hull_h = homogeneous(TUG.hull_points)
     origin = np.array([window[1].start, window[0].start])
 
     def distances(params):
@@ -276,7 +278,7 @@ def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distor
         moved = corrected_geometry(geometry, params)
         expected = moved.camera.project(moved.vessel_to_enu(hull_h[:3].T))[0]
         assert np.allclose(align.pixels(hull_h, params), expected, atol=1e-9, equal_nan=True)
-        points = _outline_points(hull_h, expected)
+        points = outline_points(hull_h, expected)
         assert points.shape[1] > 100
         value, jac_t = align.linearised(points, params)
         assert len(value) == points.shape[1]            # all in view and in the window
@@ -294,10 +296,10 @@ def test_the_per_pose_projection_and_its_jacobian_follow_the_camera_model(distor
 def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window():
     scene, labels = scene_and_labels(4, "touching", 60)
     geometry = scene.geometry()
-    hull_h = _homogeneous(TUG.hull_points)
+    hull_h = homogeneous(TUG.hull_points)
     for window in ((slice(0, 360), slice(0, 640)), (slice(40, 300), slice(90, 420))):
         ship, known = labels[window] == SHIP, labels[window] != IGNORE
-        align = _Alignment(geometry, _SignedDistance(ship, (window[1].start, window[0].start)))
+        align = Alignment(geometry, SignedDistance(ship, (window[1].start, window[0].start)))
         for params in (np.zeros(4), np.array([2.0, -3.0, 0.05, 0.0]), np.array([-9.0, 4.0, -0.2, 1.5])):
             uv = align.pixels(hull_h, params)
             # the whole window, as drawn before
@@ -310,7 +312,7 @@ def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window()
                 inside = interior
             counted = (inside > 0) & known
             expected = float((ship & counted).sum()) / counted.sum() if counted.any() else 0.0
-            assert _ship_fill(uv, window, ship, known) == expected
+            assert ship_fill(uv, window, ship, known) == expected
 
 
 def test_the_ship_fill_counts_the_silhouette_s_interior():
@@ -322,12 +324,12 @@ def test_the_ship_fill_counts_the_silhouette_s_interior():
     ship = np.zeros((60, 80), bool)
     ship[21:31, 21:59] = True                                                  # 38 x 10 px
     known = np.ones_like(ship)
-    assert _ship_fill(uv, window, ship, known) == 1.0
+    assert ship_fill(uv, window, ship, known) == 1.0
     assert (ship[20:32, 20:60].mean()) == pytest.approx(380 / 480)
     sliver = np.array([[20.0, 20.0], [59.0, 20.0], [59.0, 21.0], [20.0, 21.0]])   # 40 x 2 px
     half = np.zeros_like(ship)
     half[20, 20:60] = True
-    assert _ship_fill(sliver, window, half, known) == pytest.approx(0.5)
+    assert ship_fill(sliver, window, half, known) == pytest.approx(0.5)
 
 
 def test_exact_poses_are_left_where_they_are():
