@@ -401,12 +401,16 @@ def _distrust(results: list[SectionClearance]) -> None:
     """The sections of a frame whose pose the image contradicts: each reading keeps its
     value, but its sigma becomes at least the reading itself and its lower bound 0 (the
     hull's own region and bands were placed with a pose known to be off, so a quay 5 m away
-    can read 21 m, beyond any propagated sigma)."""
+    can read 21 m, beyond any propagated sigma). A ``clear`` section's ``clear_to_m``
+    becomes 0: its band was not where the section is (with the vessel 14 m off, sections
+    0.7 m from a ship read ``clear``)."""
     for result in results:
         if result.status == STATUS_OK:
             result.sigma_m = max(result.sigma_m or 0.0, result.distance_m)
             result.sigma_random_m = max(result.sigma_random_m or 0.0, result.distance_m)
             result.distance_lower_m = 0.0
+        elif result.clear_to_m is not None:
+            result.clear_to_m = 0.0
 
 
 def measure_clearance(

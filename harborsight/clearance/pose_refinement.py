@@ -74,6 +74,13 @@ from harborsight.clearance.alignment import (
     tukey_cost,
 )
 from harborsight.clearance.obstacles import IGNORE, SHIP
+from harborsight.clearance.pose_search import (
+    Placement,
+    edge_share,
+    place_hull,
+    silhouette_overlap,
+    whole_image_alignment,
+)
 from harborsight.errors import require_positive
 from harborsight.frame import FrameGeometry
 from harborsight.vessel.spec import VesselSpec
@@ -108,6 +115,8 @@ class PoseRefinementSettings:
     #: fit straight edges of the wrong blobs, but then it covers water or a quay
     min_ship_fill: float = 0.9
     max_residual_px: float = 1.5
+    #: search the whole image for the hull when the outline fits badly (a gross sensor error)
+    search_whole_image: bool = True
 
     def __post_init__(self) -> None:
         require_positive(self, ("prior_shift_m", "prior_heading_deg", "prior_height_m", "edge_sigma_px",
@@ -138,6 +147,10 @@ class PoseRefinement:
     #: the image says the sensors are off by more than the refinement may correct
     #: (:func:`contradicts_sensors`)
     sensors_contradicted: bool = False
+    #: the share of the outline's points in view on a ship edge at the pose kept or applied
+    #: (:func:`pose_search.edge_share`; None when nothing was aligned): what decides whether
+    #: the whole image is searched
+    edge_share: float | None = field(default=None, compare=False)
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -254,18 +267,132 @@ def refine_vessel_pose(
     """Align the vessel's projected silhouette to the mask's ship pixels (module docstring).
 
     Returns the geometry to measure with (refined, or the given one when the alignment is
-    not trustworthy) and what was found. Never raises for a failed alignment.
+    not trustworthy) and what was found. When neither the sensors' pose nor the correction
+    puts the outline on ship edges, the whole image is searched for the hull
+    (:func:`_gross_error`). A placement found there within the limits becomes one more start
+    of the refinement; one beyond them in exactly one of shift, rotation and height, with
+    the other two within the refinement's reach (2.5 sigma of the prior), contradicts the
+    sensors. Beyond in two at once, it is more often a bad mask than two gross sensor errors
+    (on the bench with the default model, 6 of 130 frames with 2 m and 2 degree sensors
+    had such placements); a height counts as gross only beyond :data:`GROSS_HEIGHT_SHARE` of
+    the camera's height. Never raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
+    refined, found = _refine_within_prior(labels, geometry, vessel, settings)
+    if not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW:
+        return refined, found
+    placement = _gross_error(labels, geometry, found, vessel, settings)
+    if placement is None:
+        return refined, found
+    shift_m, rotation_deg, height_change_m = _sizes(placement.params)
+    limits = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg,
+                     settings.max_height_change_m)
+    if not any(limits):
+        # within the limits, beyond the refinement's basin: refine again from there
+        return _refine_within_prior(labels, geometry, vessel, settings, extra_start=placement.params)
+    gross = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg, max(
+        settings.max_height_change_m, GROSS_HEIGHT_SHARE * float(geometry.camera.position_enu[2])))
+    reach = _beyond(placement.params, min(settings.max_shift_m, 2.5 * settings.prior_shift_m),
+                    min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
+                    settings.max_height_change_m)
+    if sum(gross) != 1 or sum(reach) > 1:
+        return refined, found       # not one gross error: two at once are more often a bad mask
+    return geometry, PoseRefinement(
+        False, (float(placement.params[0]), float(placement.params[1])), rotation_deg, height_change_m,
+        placement.residual_px, placement.inlier_fraction, found.inlier_fraction_before,
+        placement.edge_points, ship_fill=placement.ship_fill, sensors_contradicted=True,
+        reason=(f"the image puts the hull {shift_m:.1f} m, {rotation_deg:+.0f} deg and "
+                f"{height_change_m:+.1f} m of height from the sensors' pose"))
+
+
+def _sizes(params: np.ndarray) -> tuple[float, float, float]:
+    """``(shift m, rotation deg in [-180, 180), height change m)`` of a correction."""
+    turn = (float(params[2]) + math.pi) % (2 * math.pi) - math.pi
+    return float(np.hypot(*params[:2])), math.degrees(turn), float(params[3])
+
+
+def _beyond(params: np.ndarray, shift_m: float, rotation_deg: float, height_m: float) -> list[bool]:
+    """Which of a correction's shift, rotation and height change exceed ``shift_m``,
+    ``rotation_deg`` and ``height_m``."""
+    shift, rotation, height = _sizes(params)
+    return [shift > shift_m, abs(rotation) > rotation_deg, abs(height) > height_m]
+
+
+#: a height change found by the whole-image search counts as a gross error only beyond this
+#: share of the camera's height as well as the limit: a model's mask a pixel or two narrow
+#: all round shrinks a hull 60 px long by several per cent (a 120 m bench frame "found" its
+#: height 10 m off, 9 %; ellipsoidal heights read as heights above the water were 23 % and
+#: more of the bench's altitudes)
+GROSS_HEIGHT_SHARE = 0.15
+
+
+#: the refinement's reasons when the hull is not in view at the sensors' pose: nothing to
+#: search for (a ship in view is another)
+NOT_IN_VIEW = ("the hull does not project into the image", "the hull is not in the image")
+#: the whole image is searched when the pose kept or applied puts fewer of the outline's
+#: points in view on a ship edge than this (:func:`pose_search.edge_share`)
+SEARCH_BELOW_SHARE = 0.8
+#: when the pose kept or applied sits on ship pixels, a placement must overlap it by this
+#: share of the smaller silhouette (the same ship, seen larger or turned): a hull laid on
+#: another, smaller boat fits it as well (a bench frame "found" its hull 26 m away, turned
+#: 177 degrees and 72 m higher, on a neighbour)
+SAME_SHIP_OVERLAP = 0.5
+
+
+def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
+                 vessel: VesselSpec, settings: PoseRefinementSettings) -> Placement | None:
+    """The image's own placement of the hull (:func:`pose_search.place_hull`) when it shows
+    the pose the refinement kept or applied wrong: that pose puts under
+    :data:`SEARCH_BELOW_SHARE` of its outline's points in view on a ship edge, and the
+    placement puts :data:`CONTRADICTION_GAIN` more there (and at least that share), passes
+    every test of fit, has at least :data:`CONTRADICTION_MIN_IN_VIEW` of its outline in view
+    and, when the pose sits on ship pixels, overlaps it (:data:`SAME_SHIP_OVERLAP`). None
+    otherwise."""
+    share = found.edge_share or 0.0
+    if share >= SEARCH_BELOW_SHARE:
+        return None
+    ship = labels == SHIP
+    if not ship.any():
+        return None
+    align = whole_image_alignment(ship, geometry)
+    hull_h = homogeneous(vessel.hull_points)
+    chosen = (np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m])
+              if found.applied else np.zeros(4))
+    known = labels != IGNORE
+    placement = place_hull(align, hull_h, ship, known, settings.edge_sigma_px ** -2.0,
+                           settings.min_ship_fill)
+    if (placement is None or placement.edge_share < max(share + CONTRADICTION_GAIN, SEARCH_BELOW_SHARE)
+            or placement.in_view < CONTRADICTION_MIN_IN_VIEW
+            or placement.inlier_fraction < settings.min_inlier_fraction
+            or placement.ship_fill < settings.min_ship_fill
+            or placement.residual_px is None or placement.residual_px > settings.max_residual_px):
+        return None
+    chosen_uv = align.pixels(hull_h, chosen)
+    whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
+    if (ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill
+            and silhouette_overlap(chosen_uv, align.pixels(hull_h, placement.params)) < SAME_SHIP_OVERLAP):
+        return None     # the pose sits on a ship, the placement on another one
+    return placement
+
+
+def _refine_within_prior(
+    labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec, settings: PoseRefinementSettings,
+    extra_start: np.ndarray | None = None,
+) -> tuple[FrameGeometry, PoseRefinement]:
+    """The refinement proper, within the sensors' prior; ``extra_start`` (a correction the
+    whole-image search found within the limits) joins the starts, and the window reaches it."""
     hull_h = homogeneous(vessel.hull_points)
     outline = outline_points(hull_h, geometry.camera.project(geometry.vessel_to_enu(hull_h[:3].T))[0])
     if outline.shape[1] == 0:
-        return geometry, PoseRefinement(False, reason="the hull does not project into the image")
+        return geometry, PoseRefinement(False, reason=NOT_IN_VIEW[0])
     uv0 = geometry.camera.project(geometry.vessel_to_enu(outline[:3].T))[0]
+    if extra_start is not None:
+        moved = corrected_geometry(geometry, extra_start)
+        uv0 = np.vstack((uv0, moved.camera.project(moved.vessel_to_enu(outline[:3].T))[0]))
     window = _search_window(uv0, geometry, vessel, settings, labels.shape)
     if window is None:
-        return geometry, PoseRefinement(False, reason="the hull is not in the image")
+        return geometry, PoseRefinement(False, reason=NOT_IN_VIEW[1])
     ship = labels[window] == SHIP
     if not ship.any():
         return geometry, PoseRefinement(False, reason="no ship pixels near the projected hull")
@@ -273,7 +400,8 @@ def refine_vessel_pose(
         return geometry, PoseRefinement(False, reason="only ship pixels around the projected hull")
     align = Alignment(geometry, SignedDistance(ship, (window[1].start, window[0].start)))
 
-    before, before_rms_px, _ = outline_fit(align.residuals(outline, np.zeros(4)))
+    at_sensors = align.residuals(outline, np.zeros(4))
+    before, before_rms_px, _ = outline_fit(at_sensors)
 
     # without height refinement a prior of a micrometre holds the height where it is
     prior_sigma = np.array([settings.prior_shift_m, settings.prior_shift_m,
@@ -301,6 +429,8 @@ def refine_vessel_pose(
         starts = [np.zeros(4), across, -across]
         starts += [np.array([de, dn, 0.0, 0.0])
                    for de, dn in _translation_search(align, outline, settings, starts)]
+        if extra_start is not None:
+            starts.append(extra_start)
         for start in starts:
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
@@ -317,6 +447,7 @@ def refine_vessel_pose(
     if n_edge < MIN_EDGE_POINTS:
         return geometry, PoseRefinement(
             False, shift, rotation_deg, edge_points=n_edge, inlier_fraction_before=before,
+            edge_share=edge_share(at_sensors),
             reason=f"only {n_edge} outline points in view where the mask can tell "
                    f"(at least {MIN_EDGE_POINTS} needed)")
     try:
@@ -351,9 +482,10 @@ def refine_vessel_pose(
     if reason is not None:
         beyond = reason.startswith(BEYOND_LIMITS)
         in_view = len(value) / max(outline.shape[1], 1)
-        return geometry, replace(found, reason=reason, sensors_contradicted=beyond and contradicts_sensors(
+        return geometry, replace(found, reason=reason, edge_share=edge_share(at_sensors),
+                                 sensors_contradicted=beyond and contradicts_sensors(
             before, fraction, fill_share, residual_px, settings, in_view))
-    return corrected_geometry(geometry, params), replace(found, applied=True)
+    return corrected_geometry(geometry, params), replace(found, applied=True, edge_share=edge_share(value))
 
 
 #: a refused correction that puts this much more of the outline on ship edges than the

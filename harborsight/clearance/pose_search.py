@@ -1,0 +1,254 @@
+"""Whole-image search for the hull: where the image itself puts the vessel.
+
+The refinement (:mod:`harborsight.clearance.pose_refinement`) corrects the sensors' pose
+within their prior: 12 m, 12 degrees, 4 m of height. Real logs also hold gross errors: a
+stale or wrong-antenna fix (tens of metres), an ellipsoidal height read as height above the
+water (20-50 m in Europe), a course over ground taken for the heading while the vessel goes
+astern (180 degrees). Then the refinement's outline lies on water and finds nothing, or it
+fits a wrong correction: an outline too small for the ship nestles into a corner of its
+pixels, where the points deep inside cannot tell. The distances are then wrong with
+nothing said (docs/results.md).
+
+**Hypotheses from the ship blobs.** The mask's largest connected ship regions (8-connected,
+at least :data:`MIN_BLOB_SHARE` of the predicted silhouette's area) each give poses that lay
+the silhouette on the blob: its scale from the blob's length and area against the predicted
+silhouette's (``s``, the height becoming ``H / s`` for a camera ``H`` above the water), its
+heading from the blob's principal axis (both ways along it) or the sensors' heading (both
+ways), and its position by moving the silhouette's centroid onto the blob's. The principal
+axis of a region with central moments ``mu20, mu02, mu11`` is at
+``theta = atan2(2 mu11, mu20 - mu02) / 2``, and its length along that axis is taken as
+``sqrt(12 lambda_1)`` (a uniform bar of length ``L`` has variance ``L^2 / 12``).
+
+**Verification.** Each start is scored by the Tukey cost of its outline at the refinement's
+wide scale, and the best :data:`VERIFY_STARTS` are fitted by the same Gauss-Newton with a
+flat prior, on the signed distance of the whole image. A placement is described by its
+**edge share**, the share of its outline's points in view within
+:data:`~harborsight.clearance.alignment.INLIER_PX` of a ship edge. Unlike the
+refinement's inlier fraction, points deep inside ship pixels count against it: a right
+placement has its whole outline on the ship's edge unless a neighbour touches it, while a
+shrunken outline in a corner of a large ship has half its points deep inside.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from harborsight.clearance.alignment import (
+    INLIER_PX,
+    MIN_EDGE_POINTS,
+    SCHEDULES,
+    Alignment,
+    SignedDistance,
+    gauss_newton,
+    outline_fit,
+    outline_points,
+    ship_fill,
+    tukey_cost,
+)
+from harborsight.frame import FrameGeometry
+
+#: at most this many blobs, the largest, give hypotheses
+MAX_BLOBS = 3
+#: a blob smaller than this share of the predicted silhouette's area gives none (a height
+#: off by a factor of three shrinks the ship's area ninefold)
+MIN_BLOB_SHARE = 0.08
+#: scales (predicted to seen) outside this range are not tried
+SCALE_RANGE = (0.3, 3.0)
+#: a drone lower than this above the water is not a hypothesis
+MIN_HEIGHT_M = 3.0
+#: how many of the starts, the cheapest, are fitted
+VERIFY_STARTS = 4
+#: the Tukey scale (px) the starts are scored at: the refinement's second schedule's first
+START_TUKEY_PX = SCHEDULES[1][0][1]
+#: one sigma of the search's prior, (m, m, rad, m): flat over any placement in the image
+FLAT_PRIOR_SIGMA = np.array([1e3, 1e3, 1e3, 1e3])
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the image puts the hull: ``params`` ``(de, dn, dpsi, dh)`` from the sensors'
+    pose, and the fit there."""
+
+    params: np.ndarray
+    edge_share: float
+    inlier_fraction: float
+    residual_px: float | None
+    ship_fill: float
+    in_view: float
+    edge_points: int
+
+
+def edge_share(value: np.ndarray) -> float:
+    """Share of an outline's points in view (their signed distances ``value``) within
+    ``INLIER_PX`` of a ship edge; 0 for none in view."""
+    return float(np.count_nonzero(np.abs(value) <= INLIER_PX) / len(value)) if len(value) else 0.0
+
+
+def whole_image_alignment(labels_ship: np.ndarray, geometry: FrameGeometry) -> Alignment:
+    """An alignment on the signed distance of the whole image's ship pixels."""
+    return Alignment(geometry, SignedDistance(labels_ship, (0, 0)))
+
+
+def silhouette_overlap(uv_a: np.ndarray, uv_b: np.ndarray) -> float:
+    """The area two silhouettes (convex hulls of the hull points' pixels ``(N, 2)``, NaN
+    where they do not project) share, as a share of the smaller one's; 0 when either has
+    no area."""
+    hulls = []
+    for uv in (uv_a, uv_b):
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        if len(uv) < 3:
+            return 0.0
+        hulls.append(cv2.convexHull(uv.astype(np.float32)))
+    smaller = min(cv2.contourArea(h) for h in hulls)
+    if smaller <= 0:
+        return 0.0
+    shared, _ = cv2.intersectConvexConvex(hulls[0], hulls[1])
+    return float(shared) / smaller
+
+
+def _region(points_or_mask: np.ndarray, polygon: bool) -> tuple[float, np.ndarray, float, float] | None:
+    """``(area px, centroid (2,), axis angle rad, length px)`` of a filled polygon
+    ``(N, 2)`` or of a binary mask, from its moments (module docstring)."""
+    m = cv2.moments(points_or_mask.astype(np.float32) if polygon else points_or_mask, binaryImage=not polygon)
+    area = m["m00"]
+    if area <= 0:
+        return None
+    centroid = np.array([m["m10"] / area, m["m01"] / area])
+    mu20, mu02, mu11 = m["mu20"] / area, m["mu02"] / area, m["mu11"] / area
+    angle = 0.5 * math.atan2(2 * mu11, mu20 - mu02)
+    major = 0.5 * (mu20 + mu02) + math.sqrt(0.25 * (mu20 - mu02) ** 2 + mu11 ** 2)
+    return area, centroid, angle, math.sqrt(12 * major)
+
+
+def _silhouette(align: Alignment, hull_h: np.ndarray, params: np.ndarray
+                ) -> tuple[float, np.ndarray, float, float] | None:
+    """The projected silhouette's region (:func:`_region`) under ``params``."""
+    uv = align.pixels(hull_h, params)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) < 3:
+        return None
+    return _region(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2), polygon=True)
+
+
+def _wrap_axis(angle: float) -> float:
+    """An axis angle (defined modulo pi) in ``[-pi/2, pi/2)``."""
+    return (angle + math.pi / 2) % math.pi - math.pi / 2
+
+
+def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.ndarray]:
+    """Poses ``(de, dn, dpsi, dh)`` that lay the silhouette on the largest ship blobs."""
+    predicted = _silhouette(align, hull_h, np.zeros(4))
+    height_m = float(align.camera.position_enu[2])
+    if predicted is None or height_m <= 0:
+        return []
+    area_pred, _, angle_pred, length_pred = predicted
+    turned = _silhouette(align, hull_h, np.array([0.0, 0.0, 0.2, 0.0]))
+    # +1 when the image axis turns with the heading, -1 when against it (a mirrored view)
+    sense = 1.0 if turned is None or _wrap_axis(turned[2] - angle_pred) >= 0 else -1.0
+    _, components, stats, _ = cv2.connectedComponentsWithStats(ship.view(np.uint8), connectivity=8)
+    order = np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:MAX_BLOBS] + 1
+    starts: list[np.ndarray] = []
+    for label in order:
+        if stats[label, cv2.CC_STAT_AREA] < MIN_BLOB_SHARE * area_pred:
+            break
+        x, y, w, h = stats[label, :4]
+        blob = _region((components[y:y + h, x:x + w] == label).view(np.uint8), polygon=False)
+        if blob is None:
+            continue
+        area, centroid, angle, length = blob
+        centroid = centroid + np.array([x, y])
+        scales = []
+        for scale in (1.0, length / length_pred, math.sqrt(area / area_pred)):
+            scale = min(max(scale, SCALE_RANGE[0]), SCALE_RANGE[1])
+            if all(abs(scale / other - 1) > 0.1 for other in scales):
+                scales.append(scale)
+        turns = []
+        for turn in (sense * _wrap_axis(angle - angle_pred), 0.0):
+            for flip in (0.0, math.pi):
+                turn_rad = (turn + flip + math.pi) % (2 * math.pi) - math.pi
+                if all(abs((turn_rad - t + math.pi) % (2 * math.pi) - math.pi) > math.radians(15)
+                       for t in turns):
+                    turns.append(turn_rad)
+        for scale in scales:
+            dh = height_m / scale - height_m
+            if height_m + dh < MIN_HEIGHT_M:
+                continue
+            for turn in turns:
+                start = _centred(align, hull_h, np.array([0.0, 0.0, turn, dh]), centroid)
+                if start is not None:
+                    starts.append(start)
+    return starts
+
+
+def _centred(align: Alignment, hull_h: np.ndarray, params: np.ndarray, centroid: np.ndarray
+             ) -> np.ndarray | None:
+    """``params`` with the shift that puts the silhouette's centroid on ``centroid`` (px):
+    two Newton steps on ``c(t) = centroid`` with the centroid's Jacobian in the shift taken
+    from projections 1 m east and 1 m north."""
+    params = params.copy()
+    east_1m, north_1m = np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0, 0.0])
+    for _ in range(2):
+        here = _silhouette(align, hull_h, params)
+        east = _silhouette(align, hull_h, params + east_1m)
+        north = _silhouette(align, hull_h, params + north_1m)
+        if here is None or east is None or north is None:
+            return None
+        jacobian = np.column_stack((east[1] - here[1], north[1] - here[1]))
+        try:
+            params[:2] += np.linalg.solve(jacobian, centroid - here[1])
+        except np.linalg.LinAlgError:
+            return None
+    return params if np.isfinite(params).all() else None
+
+
+def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np.ndarray,
+               edge_weight: float = 1.0, min_ship_fill: float = 0.9) -> Placement | None:
+    """The best placement of the hull on the image's ship blobs (module docstring): among
+    those whose silhouette is at least ``min_ship_fill`` ship pixels if any, the highest edge
+    share (then the lowest fitted cost); None when no start fits. A fit whose height leaves
+    :data:`SCALE_RANGE` is dropped. ``align`` is
+    :func:`whole_image_alignment`'s, ``ship`` and ``known`` are the whole image's ship and
+    labelled pixels."""
+    starts = _starts(align, hull_h, ship)
+    if not starts:
+        return None
+    scored = []
+    for start in starts:
+        outline = outline_points(hull_h, align.pixels(hull_h, start))
+        if outline.shape[1] == 0:
+            continue
+        value = align.residuals(outline, start)
+        out_of_view = outline.shape[1] - len(value)
+        cost = tukey_cost(value, START_TUKEY_PX).sum() + out_of_view * START_TUKEY_PX ** 2 / 6
+        scored.append((cost / outline.shape[1], start, outline))
+    scored.sort(key=lambda item: item[0])
+    window = (slice(0, ship.shape[0]), slice(0, ship.shape[1]))
+    height_m = float(align.camera.position_enu[2])
+    lowest_m, highest_m = max(MIN_HEIGHT_M, height_m / SCALE_RANGE[1]), height_m / SCALE_RANGE[0]
+    best: tuple[tuple[float, float], Placement] | None = None
+    for _, start, outline in scored[:VERIFY_STARTS]:
+        params, _, cost, _ = gauss_newton(align, hull_h, outline, SCHEDULES[1], start,
+                                          FLAT_PRIOR_SIGMA ** -2.0, edge_weight)
+        if not (math.isfinite(cost) and np.isfinite(params).all()):
+            continue
+        if not lowest_m <= height_m + params[3] <= highest_m:
+            continue            # shrunk to a speck far away, or grown past the scales tried
+        final = outline_points(hull_h, align.pixels(hull_h, params))
+        if final.shape[1] == 0:
+            continue
+        value = align.residuals(final, params)
+        fraction, residual_px, telling = outline_fit(value)
+        if telling < MIN_EDGE_POINTS:
+            continue
+        found = Placement(params, edge_share(value), fraction, residual_px,
+                          ship_fill(align.pixels(hull_h, params), window, ship, known),
+                          len(value) / final.shape[1], telling)
+        filled = found.ship_fill >= min_ship_fill
+        key = (filled, found.edge_share, -cost)
+        if best is None or key > best[0]:
+            best = (key, found)
+    return None if best is None else best[1]

@@ -1,0 +1,183 @@
+"""The whole-image search for the hull: gross sensor errors (a fix tens of metres off, an
+ellipsoidal height, a heading reversed) are found in the image and flag the frame, where
+the refinement alone kept or applied a wrong pose without a word."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from shapely.geometry import MultiPoint
+
+from harborsight.clearance import pose_refinement
+from harborsight.clearance.alignment import corrected_geometry
+from harborsight.clearance.measure import ClearanceSettings, measure_clearance
+from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
+from harborsight.clearance.pose_search import _region, edge_share, silhouette_overlap
+from harborsight.sim.schematic import ground_truth
+from tests.test_pose_refinement import TUG, pose_error, scene_and_labels
+
+NO_SEARCH = ClearanceSettings(pose_refinement=PoseRefinementSettings(search_whole_image=False))
+
+
+def _flagged_with_nothing_standing(report) -> None:
+    assert report.sensors_contradicted and not report.pose_refinement["applied"]
+    assert report.min_distance_m is None and report.closest_section is None
+    for section in report.sections:
+        if section.status == "ok":
+            assert section.distance_lower_m == 0.0 and section.sigma_m >= section.distance_m
+        if section.status == "clear":
+            assert section.clear_to_m == 0.0
+
+
+@pytest.mark.parametrize(("offset_e_m", "offset_n_m"), [(14.0, 0.0), (0.0, -25.0)])
+def test_a_vessel_far_from_its_fix_is_found_in_the_image_and_flags_the_frame(offset_e_m, offset_n_m):
+    """A fix 14 or 25 m off (a stale position, the wrong antenna): the refinement's search
+    reaches 7.5 m, its outline lies on water and it keeps the sensors' pose; on the sample
+    frames that read a quay 5.05 m away as 9.9 m and sections 12-17 m from a ship as
+    `clear`. The whole-image search finds the hull where it is and the frame is flagged."""
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([offset_e_m, offset_n_m, 0.0, 0.0]))
+    assert measure_clearance(labels, told, TUG, NO_SEARCH).sensors_contradicted is False
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    found = report.pose_refinement
+    assert found["shift_m"] == pytest.approx([-offset_e_m, -offset_n_m], abs=0.3)
+    assert abs(found["rotation_deg"]) < 1.0 and abs(found["height_change_m"]) < 0.5
+    assert found["reason"].startswith("the image puts the hull")
+
+
+def test_an_ellipsoidal_height_is_no_longer_corrected_into_a_wrong_pose():
+    """A height 40 m too high (an ellipsoidal height read as height above the water): the
+    hull projects at half its size, and the refinement nestled that small outline into a
+    corner of the ship's pixels and applied it (points deep inside the ship cannot tell).
+    The search lays the hull at its true size, 40 m lower, and flags the frame."""
+    scene, labels = scene_and_labels(21, "alongside", 100)
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([0.0, 0.0, 0.0, 40.0]))
+    before = measure_clearance(labels, told, TUG, NO_SEARCH)
+    assert before.pose_refinement["applied"] and not before.sensors_contradicted
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    assert report.pose_refinement["height_change_m"] == pytest.approx(-40.0, abs=1.0)
+
+
+def test_a_reversed_heading_is_caught():
+    """A course over ground taken for the heading while the vessel goes astern: 180 degrees
+    off. The refinement fitted the reversed outline with a shift and applied it, so the bow's
+    sections read the stern's water. The search turns the hull back and flags the frame."""
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    true = scene.geometry()
+    told = replace(true, vessel_heading_rad=true.vessel_heading_rad + math.pi)
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    turn = report.pose_refinement["rotation_deg"]
+    assert abs(abs(turn) - 180.0) < 2.0
+
+
+def test_a_placement_within_the_limits_is_refined_and_applied():
+    """A fix 10 m off is within the 12 m limit, beyond the refinement's own basin (its
+    translation search reaches 7.5 m): the image's placement becomes one more start, and
+    the corrected distances come back to the truth."""
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([-7.0, 7.5, 0.0, 0.0]))
+    alone = refine_vessel_pose(labels, told, TUG, PoseRefinementSettings(search_whole_image=False))[1]
+    assert not alone.applied and "fits a ship edge" in alone.reason
+    found, refinement = refine_vessel_pose(labels, told, TUG)
+    assert refinement.applied and not refinement.sensors_contradicted, refinement.reason
+    shift, turn = pose_error(found, true)
+    assert shift < 0.3 and turn < 0.5
+    truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+    report = measure_clearance(labels, told, TUG)
+    errors = [abs(s.distance_m - t) for s, t in zip(report.sections, truth, strict=True)
+              if s.status == "ok" and t is not None]
+    assert len(errors) >= 4 and max(errors) < 0.3
+
+
+@pytest.mark.parametrize(("seed", "scenario", "altitude_m"), [
+    (1, "alongside", 60), (4, "touching", 60), (3, "open", 100)])
+def test_a_right_pose_is_neither_searched_nor_flagged(monkeypatch, seed, scenario, altitude_m):
+    """The search runs only where the pose kept or applied leaves the outline short of ship
+    edges; a touching neighbour does not make it flag a right pose."""
+    scene, labels = scene_and_labels(seed, scenario, altitude_m)
+    noisy = corrected_geometry(scene.geometry(), np.array([1.2, -0.9, math.radians(1.5), 0.0]))
+    called = []
+    original = pose_refinement.place_hull
+    monkeypatch.setattr(pose_refinement, "place_hull", lambda *a, **k: called.append(1) or original(*a, **k))
+    _, refinement = refine_vessel_pose(labels, noisy, TUG)
+    assert refinement.applied and not refinement.sensors_contradicted
+    assert called == [] or scenario == "touching"
+
+
+def _with_a_twin(labels: np.ndarray, geometry) -> np.ndarray:
+    """``labels`` with a clean copy of the vessel's silhouette drawn on open water in view,
+    20-40 m from it."""
+    hull = TUG.hull_points
+    h, w = labels.shape
+    for distance_m in (20.0, 30.0, 40.0):
+        for bearing_deg in range(0, 360, 30):
+            offset = distance_m * np.array([math.sin(math.radians(bearing_deg)),
+                                            math.cos(math.radians(bearing_deg)), 0.0, 0.0])
+            moved = corrected_geometry(geometry, offset)
+            uv = moved.camera.project(moved.vessel_to_enu(hull))[0]
+            if not np.isfinite(uv).all() or uv.min() < 5 or (uv.max(axis=0) > (w - 5, h - 5)).any():
+                continue
+            twin = np.zeros_like(labels)
+            cv2.fillConvexPoly(twin, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
+            grown = cv2.dilate(twin, np.ones((9, 9), np.uint8)).astype(bool)
+            if (labels[grown] == 0).all():
+                out = labels.copy()
+                out[twin.astype(bool)] = 1
+                return out
+    raise AssertionError("no open water for the twin")
+
+
+def test_a_hull_on_another_ship_does_not_contradict_a_pose_on_its_own(monkeypatch):
+    """A vessel touching a neighbour leaves a third of its outline deep in ship pixels, so
+    the search runs; a clean twin of its hull on open water fits better. When the pose sits
+    on ship pixels, only a placement overlapping its own silhouette (the same ship, seen
+    larger or turned) can flag it: a bench frame "found" its hull 26 m away, turned 177
+    degrees and 72 m higher, on another boat."""
+    scene, labels = scene_and_labels(4, "touching", 60)
+    true = scene.geometry()
+    labels = _with_a_twin(labels, true)
+    _, refinement = refine_vessel_pose(labels, true, TUG)
+    assert not refinement.sensors_contradicted, refinement.reason
+    monkeypatch.setattr(pose_refinement, "SAME_SHIP_OVERLAP", 0.0)     # without the rule
+    _, refinement = refine_vessel_pose(labels, true, TUG)
+    assert refinement.sensors_contradicted
+
+
+def test_the_overlap_of_two_silhouettes_matches_shapely():
+    a = np.array([[0, 0], [40, 0], [40, 10], [0, 10], [np.nan, np.nan]], float)
+    b = np.array([[30, -5], [70, 2], [65, 20], [28, 12]], float)
+    expected = (MultiPoint(a[:4]).convex_hull.intersection(MultiPoint(b).convex_hull).area
+                / min(MultiPoint(a[:4]).convex_hull.area, MultiPoint(b).convex_hull.area))
+    assert silhouette_overlap(a, b) == pytest.approx(expected, rel=1e-4)
+    assert silhouette_overlap(a, b + 100) == 0.0
+    assert silhouette_overlap(a[:2], b) == 0.0
+
+
+def test_a_region_s_axis_and_length_match_its_rotated_rectangle():
+    """The principal axis and the ``sqrt(12 lambda_1)`` length of a drawn bar, against the
+    rectangle OpenCV's minAreaRect fits to it."""
+    mask = np.zeros((200, 300), np.uint8)
+    corners = cv2.boxPoints(((150.0, 100.0), (160.0, 30.0), 25.0))
+    cv2.fillConvexPoly(mask, np.round(corners).astype(np.int32), 1)
+    area, centroid, angle, length = _region(mask, polygon=False)
+    (cx, cy), (w, h), rect_angle = cv2.minAreaRect(cv2.findNonZero(mask))
+    long_side, long_angle = (w, rect_angle) if w >= h else (h, rect_angle + 90)
+    assert length == pytest.approx(long_side, rel=0.03)
+    assert math.degrees(angle) % 180 == pytest.approx(long_angle % 180, abs=1.0)
+    assert centroid == pytest.approx([cx, cy], abs=1.0)
+    assert area == pytest.approx(160 * 30, rel=0.05)     # drawn with its boundary pixels
+
+
+def test_the_edge_share_counts_points_deep_inside_against_a_placement():
+    assert edge_share(np.array([0.3, -1.5, -9.0, 6.0])) == 0.5
+    assert edge_share(np.array([])) == 0.0
