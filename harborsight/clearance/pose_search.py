@@ -62,6 +62,8 @@ SCALE_RANGE = (0.3, 3.0)
 MIN_HEIGHT_M = 3.0
 #: how many of the starts, the cheapest, are fitted
 VERIFY_STARTS = 4
+#: a filled placement with this edge share ends the verification
+CLEAR_FIT_SHARE = 0.95
 #: the Tukey scale (px) the starts are scored at: the refinement's second schedule's first
 START_TUKEY_PX = SCHEDULES[1][0][1]
 #: one sigma of the search's prior, (m, m, rad, m): flat over any placement in the image
@@ -177,31 +179,38 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
             dh = height_m / scale - height_m
             if height_m + dh < MIN_HEIGHT_M:
                 continue
+            jacobian = _centroid_jacobian(align, hull_h, np.array([0.0, 0.0, 0.0, dh]))
+            if jacobian is None:
+                continue
             for turn in turns:
-                start = _centred(align, hull_h, np.array([0.0, 0.0, turn, dh]), centroid)
+                start = _centred(align, hull_h, np.array([0.0, 0.0, turn, dh]), centroid, jacobian)
                 if start is not None:
                     starts.append(start)
     return starts
 
 
-def _centred(align: Alignment, hull_h: np.ndarray, params: np.ndarray, centroid: np.ndarray
-             ) -> np.ndarray | None:
+def _centroid_jacobian(align: Alignment, hull_h: np.ndarray, params: np.ndarray) -> np.ndarray | None:
+    """``d(centroid px)/d(de, dn)`` of the silhouette at ``params``, from projections 1 m
+    east and 1 m north (the same for any heading: the silhouette moves as a whole)."""
+    here = _silhouette(align, hull_h, params)
+    east = _silhouette(align, hull_h, params + np.array([1.0, 0.0, 0.0, 0.0]))
+    north = _silhouette(align, hull_h, params + np.array([0.0, 1.0, 0.0, 0.0]))
+    if here is None or east is None or north is None:
+        return None
+    jacobian = np.column_stack((east[1] - here[1], north[1] - here[1]))
+    return jacobian if abs(np.linalg.det(jacobian)) > 1e-9 else None
+
+
+def _centred(align: Alignment, hull_h: np.ndarray, params: np.ndarray, centroid: np.ndarray,
+             jacobian: np.ndarray) -> np.ndarray | None:
     """``params`` with the shift that puts the silhouette's centroid on ``centroid`` (px):
-    two Newton steps on ``c(t) = centroid`` with the centroid's Jacobian in the shift taken
-    from projections 1 m east and 1 m north."""
+    two Newton steps on ``c(t) = centroid`` with the centroid's ``jacobian`` in the shift."""
     params = params.copy()
-    east_1m, north_1m = np.array([1.0, 0.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0, 0.0])
     for _ in range(2):
         here = _silhouette(align, hull_h, params)
-        east = _silhouette(align, hull_h, params + east_1m)
-        north = _silhouette(align, hull_h, params + north_1m)
-        if here is None or east is None or north is None:
+        if here is None:
             return None
-        jacobian = np.column_stack((east[1] - here[1], north[1] - here[1]))
-        try:
-            params[:2] += np.linalg.solve(jacobian, centroid - here[1])
-        except np.linalg.LinAlgError:
-            return None
+        params[:2] += np.linalg.solve(jacobian, centroid - here[1])
     return params if np.isfinite(params).all() else None
 
 
@@ -251,4 +260,6 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
         key = (filled, found.edge_share, -cost)
         if best is None or key > best[0]:
             best = (key, found)
+        if filled and found.edge_share >= CLEAR_FIT_SHARE:
+            break               # no other start can do much better
     return None if best is None else best[1]
