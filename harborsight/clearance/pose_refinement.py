@@ -493,6 +493,10 @@ def _refine_within_prior(
 CONTRADICTION_GAIN = 0.25
 #: the share of the outline that must be in view for a correction to contradict the sensors
 CONTRADICTION_MIN_IN_VIEW = 0.7
+#: what a user should check when the image contradicts the sensors' pose
+CONTRADICTION_ADVICE = ("check the GPS positions, the altitude (ellipsoidal or above the water), "
+                        "the water level and the heading source (a course over ground while "
+                        "going astern)")
 #: the reasons that refuse a correction for its size alone
 BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
 

@@ -72,10 +72,11 @@ def print_report_table(outcome: FrameOutcome) -> None:
     console.print(table)
     md = report.min_distance_m
     if report.sensors_contradicted:
+        from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
+
         reason = (report.pose_refinement or {}).get("reason")
         console.print(f"[bold red]the image contradicts the sensors' pose ({reason}): these "
-                      "distances were read with a wrong pose; check the altitude, the water "
-                      "level and the heading source[/bold red]")
+                      f"distances were read with a wrong pose; {CONTRADICTION_ADVICE}[/bold red]")
     else:
         console.print(f"closest: section {report.closest_section} at {fmt_number(md, 2)} m"
                       if md is not None else "no obstacle in view")

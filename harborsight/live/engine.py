@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings
+from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.errors import HarborsightError
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
@@ -250,7 +251,7 @@ class LiveEngine:
             reason = (self._report.pose_refinement or {}).get("reason") or ""
             alarms.append({"kind": POSE_CONTRADICTED, "message": (
                 f"the image contradicts the sensors' pose ({reason}): no distance is shown; "
-                "check the altitude, the water level and the heading source"),
+                f"{CONTRADICTION_ADVICE}"),
                 "since": _wall_iso(now_s, now_s)})
         warnings = [{"source": w["source"], "message": w["message"],
                      "since": _wall_iso(now_s, w["at_s"])}
