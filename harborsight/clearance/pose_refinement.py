@@ -365,7 +365,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
               if found.applied else np.zeros(4))
     known = labels != IGNORE
     placement = place_hull(align, hull_h, ship, known, settings.edge_sigma_px ** -2.0,
-                           settings.min_ship_fill)
+                           settings.min_ship_fill, against=chosen)
     if (placement is None or placement.edge_share < max(share + SEARCH_GAIN, SEARCH_BELOW_SHARE)
             or placement.in_view < CONTRADICTION_MIN_IN_VIEW
             or placement.inlier_fraction < settings.min_inlier_fraction

@@ -142,17 +142,27 @@ def _wrap_axis(angle: float) -> float:
 
 
 def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.ndarray]:
-    """Poses ``(de, dn, dpsi, dh)`` that lay the silhouette on the largest ship blobs."""
+    """Poses ``(de, dn, dpsi, dh)`` that lay the silhouette on the largest ship blobs. The
+    shift puts the silhouette's centroid on the blob's in one Newton step, with the
+    centroid's Jacobian in the shift taken at the sensors' pose from projections 1 m east
+    and 1 m north and scaled by ``H / (H + dh)`` (pixels per metre go as one over the
+    range); the silhouette moves as a whole, so the Jacobian holds for any heading."""
     predicted = _silhouette(align, hull_h, np.zeros(4))
-    height_m = float(align.camera.position_enu[2])
-    if predicted is None or height_m <= 0:
-        return []
-    area_pred, _, angle_pred, length_pred = predicted
+    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
+    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
     turned = _silhouette(align, hull_h, np.array([0.0, 0.0, 0.2, 0.0]))
+    height_m = float(align.camera.position_enu[2])
+    if predicted is None or east is None or north is None or height_m <= 0:
+        return []
+    area_pred, centroid_pred, angle_pred, length_pred = predicted
+    jacobian = np.column_stack((east[1] - centroid_pred, north[1] - centroid_pred))
+    if abs(np.linalg.det(jacobian)) < 1e-9:
+        return []
     # +1 when the image axis turns with the heading, -1 when against it (a mirrored view)
     sense = 1.0 if turned is None or _wrap_axis(turned[2] - angle_pred) >= 0 else -1.0
     _, components, stats, _ = cv2.connectedComponentsWithStats(ship.view(np.uint8), connectivity=8)
     order = np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:MAX_BLOBS] + 1
+    centroids: dict[tuple[float, float], np.ndarray | None] = {}    # of the silhouette, by pose
     starts: list[np.ndarray] = []
     for label in order:
         if stats[label, cv2.CC_STAT_AREA] < MIN_BLOB_SHARE * area_pred:
@@ -163,12 +173,12 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
             continue
         area, centroid, angle, length = blob
         centroid = centroid + np.array([x, y])
-        scales = []
+        scales: list[float] = []
         for scale in (1.0, length / length_pred, math.sqrt(area / area_pred)):
             scale = min(max(scale, SCALE_RANGE[0]), SCALE_RANGE[1])
             if all(abs(scale / other - 1) > 0.1 for other in scales):
                 scales.append(scale)
-        turns = []
+        turns: list[float] = []
         for turn in (sense * _wrap_axis(angle - angle_pred), 0.0):
             for flip in (0.0, math.pi):
                 turn_rad = (turn + flip + math.pi) % (2 * math.pi) - math.pi
@@ -179,47 +189,38 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
             dh = height_m / scale - height_m
             if height_m + dh < MIN_HEIGHT_M:
                 continue
-            jacobian = _centroid_jacobian(align, hull_h, np.array([0.0, 0.0, 0.0, dh]))
-            if jacobian is None:
-                continue
             for turn in turns:
-                start = _centred(align, hull_h, np.array([0.0, 0.0, turn, dh]), centroid, jacobian)
-                if start is not None:
-                    starts.append(start)
+                key = (round(turn, 6), round(dh, 6))
+                if key not in centroids:
+                    here = _silhouette(align, hull_h, np.array([0.0, 0.0, turn, dh]))
+                    centroids[key] = None if here is None else here[1]
+                if centroids[key] is None:
+                    continue
+                shift = np.linalg.solve(jacobian * scale, centroid - centroids[key])
+                if np.isfinite(shift).all():
+                    starts.append(np.array([shift[0], shift[1], turn, dh]))
     return starts
 
 
-def _centroid_jacobian(align: Alignment, hull_h: np.ndarray, params: np.ndarray) -> np.ndarray | None:
-    """``d(centroid px)/d(de, dn)`` of the silhouette at ``params``, from projections 1 m
-    east and 1 m north (the same for any heading: the silhouette moves as a whole)."""
-    here = _silhouette(align, hull_h, params)
-    east = _silhouette(align, hull_h, params + np.array([1.0, 0.0, 0.0, 0.0]))
-    north = _silhouette(align, hull_h, params + np.array([0.0, 1.0, 0.0, 0.0]))
-    if here is None or east is None or north is None:
-        return None
-    jacobian = np.column_stack((east[1] - here[1], north[1] - here[1]))
-    return jacobian if abs(np.linalg.det(jacobian)) > 1e-9 else None
-
-
-def _centred(align: Alignment, hull_h: np.ndarray, params: np.ndarray, centroid: np.ndarray,
-             jacobian: np.ndarray) -> np.ndarray | None:
-    """``params`` with the shift that puts the silhouette's centroid on ``centroid`` (px):
-    two Newton steps on ``c(t) = centroid`` with the centroid's ``jacobian`` in the shift."""
-    params = params.copy()
-    for _ in range(2):
-        here = _silhouette(align, hull_h, params)
-        if here is None:
-            return None
-        params[:2] += np.linalg.solve(jacobian, centroid - here[1])
-    return params if np.isfinite(params).all() else None
+def _start_cost(align: Alignment, outline: np.ndarray, params: np.ndarray) -> float:
+    """Tukey's cost at :data:`START_TUKEY_PX` per outline point under ``params`` (points out
+    of view count as outliers)."""
+    value = align.residuals(outline, params)
+    out_of_view = outline.shape[1] - len(value)
+    cost = tukey_cost(value, START_TUKEY_PX).sum() + out_of_view * START_TUKEY_PX ** 2 / 6
+    return float(cost) / outline.shape[1]
 
 
 def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np.ndarray,
-               edge_weight: float = 1.0, min_ship_fill: float = 0.9) -> Placement | None:
+               edge_weight: float = 1.0, min_ship_fill: float = 0.9,
+               against: np.ndarray | None = None) -> Placement | None:
     """The best placement of the hull on the image's ship blobs (module docstring): among
     those whose silhouette is at least ``min_ship_fill`` ship pixels if any, the highest edge
     share (then the lowest fitted cost); None when no start fits. A fit whose height leaves
-    :data:`SCALE_RANGE` is dropped. ``align`` is
+    :data:`SCALE_RANGE` is dropped. With ``against`` (the pose kept or applied), only starts
+    whose outline costs less than its outline at :data:`START_TUKEY_PX` are fitted: a
+    vessel moored against another leaves a third of its outline deep in ship pixels, and
+    the search then ran on every frame of it for nothing. ``align`` is
     :func:`whole_image_alignment`'s, ``ship`` and ``known`` are the whole image's ship and
     labelled pixels."""
     starts = _starts(align, hull_h, ship)
@@ -228,12 +229,13 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     scored = []
     for start in starts:
         outline = outline_points(hull_h, align.pixels(hull_h, start))
-        if outline.shape[1] == 0:
-            continue
-        value = align.residuals(outline, start)
-        out_of_view = outline.shape[1] - len(value)
-        cost = tukey_cost(value, START_TUKEY_PX).sum() + out_of_view * START_TUKEY_PX ** 2 / 6
-        scored.append((cost / outline.shape[1], start, outline))
+        if outline.shape[1]:
+            scored.append((_start_cost(align, outline, start), start, outline))
+    if against is not None:         # only starts that fit better than the pose already do
+        outline = outline_points(hull_h, align.pixels(hull_h, against))
+        if outline.shape[1]:
+            bar = _start_cost(align, outline, against)
+            scored = [item for item in scored if item[0] < bar]
     scored.sort(key=lambda item: item[0])
     window = (slice(0, ship.shape[0]), slice(0, ship.shape[1]))
     height_m = float(align.camera.position_enu[2])
