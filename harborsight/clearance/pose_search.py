@@ -9,7 +9,7 @@ fits a wrong correction: an outline too small for the ship nestles into a corner
 pixels, where the points deep inside cannot tell. The distances are then wrong with
 nothing said (docs/results.md).
 
-**Hypotheses from the ship blobs.** The mask's largest connected ship regions (8-connected,
+**Hypotheses from the ship blobs.** The mask's largest ship regions (their outer contours,
 at least :data:`MIN_BLOB_SHARE` of the predicted silhouette's area) each give poses that lay
 the silhouette on the blob: its scale from the blob's length and area against the predicted
 silhouette's (``s``, the height becoming ``H / s`` for a camera ``H`` above the water), its
@@ -62,6 +62,8 @@ SCALE_RANGE = (0.3, 3.0)
 MIN_HEIGHT_M = 3.0
 #: how many of the starts, the cheapest, are fitted
 VERIFY_STARTS = 4
+#: at most this many outline points (every k-th) score a start
+START_POINTS = 80
 #: a filled placement with this edge share ends the verification
 CLEAR_FIT_SHARE = 0.95
 #: the Tukey scale (px) the starts are scored at: the refinement's second schedule's first
@@ -112,10 +114,10 @@ def silhouette_overlap(uv_a: np.ndarray, uv_b: np.ndarray) -> float:
     return float(shared) / smaller
 
 
-def _region(points_or_mask: np.ndarray, polygon: bool) -> tuple[float, np.ndarray, float, float] | None:
-    """``(area px, centroid (2,), axis angle rad, length px)`` of a filled polygon
-    ``(N, 2)`` or of a binary mask, from its moments (module docstring)."""
-    m = cv2.moments(points_or_mask.astype(np.float32) if polygon else points_or_mask, binaryImage=not polygon)
+def _region(polygon: np.ndarray) -> tuple[float, np.ndarray, float, float] | None:
+    """``(area px, centroid (2,), axis angle rad, length px)`` of a filled polygon ``(N, 2)``,
+    from its moments (module docstring); None for no area."""
+    m = cv2.moments(polygon.astype(np.float32))
     area = m["m00"]
     if area <= 0:
         return None
@@ -133,7 +135,7 @@ def _silhouette(align: Alignment, hull_h: np.ndarray, params: np.ndarray
     uv = uv[np.isfinite(uv).all(axis=1)]
     if len(uv) < 3:
         return None
-    return _region(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2), polygon=True)
+    return _region(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2))
 
 
 def _wrap_axis(angle: float) -> float:
@@ -160,19 +162,14 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
         return []
     # +1 when the image axis turns with the heading, -1 when against it (a mirrored view)
     sense = 1.0 if turned is None or _wrap_axis(turned[2] - angle_pred) >= 0 else -1.0
-    _, components, stats, _ = cv2.connectedComponentsWithStats(ship.view(np.uint8), connectivity=8)
-    order = np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:MAX_BLOBS] + 1
+    # the blobs' outer contours (8-connected; holes filled): their polygons' moments are a
+    # tenth of the cost of labelling the components
+    contours, _ = cv2.findContours(ship.view(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    blobs = [blob for blob in (_region(c.reshape(-1, 2)) for c in contours if len(c) >= 3)
+             if blob is not None and blob[0] >= MIN_BLOB_SHARE * area_pred]
     centroids: dict[tuple[float, float], np.ndarray | None] = {}    # of the silhouette, by pose
     starts: list[np.ndarray] = []
-    for label in order:
-        if stats[label, cv2.CC_STAT_AREA] < MIN_BLOB_SHARE * area_pred:
-            break
-        x, y, w, h = stats[label, :4]
-        blob = _region((components[y:y + h, x:x + w] == label).view(np.uint8), polygon=False)
-        if blob is None:
-            continue
-        area, centroid, angle, length = blob
-        centroid = centroid + np.array([x, y])
+    for area, centroid, angle, length in sorted(blobs, key=lambda b: -b[0])[:MAX_BLOBS]:
         scales: list[float] = []
         for scale in (1.0, length / length_pred, math.sqrt(area / area_pred)):
             scale = min(max(scale, SCALE_RANGE[0]), SCALE_RANGE[1])
@@ -226,22 +223,22 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     starts = _starts(align, hull_h, ship)
     if not starts:
         return None
-    scored = []
-    for start in starts:
-        outline = outline_points(hull_h, align.pixels(hull_h, start))
-        if outline.shape[1]:
-            scored.append((_start_cost(align, outline, start), start, outline))
+    # the outline's samples are fixed blends of hull points, taken once at the sensors' pose
+    # (a silhouette keeps its corners under a shift, a turn or a scale of a nadir view)
+    outline = outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
+    if outline.shape[1] == 0:
+        return None
+    scoring = outline[:, ::-(-outline.shape[1] // START_POINTS)]
+    scored = [(_start_cost(align, scoring, start), start) for start in starts]
     if against is not None:         # only starts that fit better than the pose already do
-        outline = outline_points(hull_h, align.pixels(hull_h, against))
-        if outline.shape[1]:
-            bar = _start_cost(align, outline, against)
-            scored = [item for item in scored if item[0] < bar]
+        bar = _start_cost(align, scoring, against)
+        scored = [item for item in scored if item[0] < bar]
     scored.sort(key=lambda item: item[0])
     window = (slice(0, ship.shape[0]), slice(0, ship.shape[1]))
     height_m = float(align.camera.position_enu[2])
     lowest_m, highest_m = max(MIN_HEIGHT_M, height_m / SCALE_RANGE[1]), height_m / SCALE_RANGE[0]
     best: tuple[tuple[float, float], Placement] | None = None
-    for _, start, outline in scored[:VERIFY_STARTS]:
+    for _, start in scored[:VERIFY_STARTS]:
         params, _, cost, _ = gauss_newton(align, hull_h, outline, SCHEDULES[1], start,
                                           FLAT_PRIOR_SIGMA ** -2.0, edge_weight)
         if not (math.isfinite(cost) and np.isfinite(params).all()):
