@@ -79,6 +79,32 @@ def test_a_reversed_heading_is_caught():
     assert abs(abs(turn) - 180.0) < 2.0
 
 
+@pytest.mark.parametrize(("seed", "turn_deg"), [(21, 60.0), (1, -45.0), (21, -90.0)])
+def test_a_heading_far_off_either_way_is_found_along_the_blob_s_axis(seed, turn_deg):
+    """A compass 45-90 degrees off (a magnetometer near steel): the start turns the hull by
+    the angle between the blob's axis and the predicted silhouette's, in the sense the
+    image turns with the heading."""
+    scene, labels = scene_and_labels(seed, "alongside", 60)
+    true = scene.geometry()
+    told = replace(true, vessel_heading_rad=true.vessel_heading_rad + math.radians(turn_deg))
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    assert report.pose_refinement["rotation_deg"] == pytest.approx(-turn_deg, abs=1.0)
+
+
+def test_an_ellipsoidal_height_with_a_gps_error_is_found_at_its_scale():
+    """A height 40 m too high and a fix 3 m off: the start's shift must be taken at the
+    hull's true scale (pixels per metre go as one over the height)."""
+    scene, labels = scene_and_labels(21, "alongside", 100)
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([2.5, -2.0, 0.0, 40.0]))
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    found = report.pose_refinement
+    assert found["height_change_m"] == pytest.approx(-40.0, abs=1.0)
+    assert found["shift_m"] == pytest.approx([-2.5, 2.0], abs=0.3)
+
+
 def test_a_placement_within_the_limits_is_refined_and_applied():
     """A fix 10 m off is within the 12 m limit, beyond the refinement's own basin (its
     translation search reaches 7.5 m): the image's placement becomes one more start, and

@@ -49,7 +49,9 @@ the sensors' pose and the report says why.
 silhouette short, graduated Tukey from the sensors' pose, from the prior's reach to either
 side across the hull and from the best cells of a coarse translation search
 (:func:`_translation_search`), and the lowest final Tukey cost among the filled candidates
-wins.
+wins. When the pose kept or applied leaves its outline short of ship edges, the whole image
+is searched for the hull (:mod:`harborsight.clearance.pose_search`): a placement it finds
+within the limits is one more start, run whatever the first start left.
 """
 
 from __future__ import annotations
@@ -145,7 +147,7 @@ class PoseRefinement:
     reason: str | None = None
     #: the sensors' pose fits the mask badly and a correction beyond the limits fits it well:
     #: the image says the sensors are off by more than the refinement may correct
-    #: (:func:`contradicts_sensors`)
+    #: (:func:`contradicts_sensors`, or the whole-image search: :func:`_gross_error`)
     sensors_contradicted: bool = False
     #: the share of the outline's points in view on a ship edge at the pose kept or applied
     #: (:func:`pose_search.edge_share`; None when nothing was aligned): what decides whether
@@ -267,11 +269,12 @@ def refine_vessel_pose(
     """Align the vessel's projected silhouette to the mask's ship pixels (module docstring).
 
     Returns the geometry to measure with (refined, or the given one when the alignment is
-    not trustworthy) and what was found. When neither the sensors' pose nor the correction
-    puts the outline on ship edges, the whole image is searched for the hull
-    (:func:`_gross_error`). A placement found there within the limits becomes one more start
-    of the refinement; one beyond them in exactly one of shift, rotation and height, with
-    the other two within the refinement's reach (2.5 sigma of the prior), contradicts the
+    not trustworthy) and what was found. When the pose kept or applied leaves its outline
+    short of ship edges, the whole image is searched for the hull (:func:`_gross_error`). A
+    placement found there within the limits becomes one more start of the refinement (whose
+    result replaces the first only when it applies a correction); one beyond them in exactly
+    one of shift, rotation and height, with the other two within the refinement's reach
+    (2.5 sigma of the prior for shift and rotation, the limit for height), contradicts the
     sensors. Beyond in two at once, it is more often a bad mask than two gross sensor errors
     (on the bench with the default model, 6 of 130 frames with 2 m and 2 degree sensors
     had such placements); a height counts as gross only beyond :data:`GROSS_HEIGHT_SHARE` of
@@ -289,8 +292,12 @@ def refine_vessel_pose(
     limits = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg,
                      settings.max_height_change_m)
     if not any(limits):
-        # within the limits, beyond the refinement's basin: refine again from there
-        return _refine_within_prior(labels, geometry, vessel, settings, extra_start=placement.params)
+        # within the limits, beyond the refinement's basin: refine again from there, and keep
+        # the first result unless that applies a correction
+        params = placement.params.copy()
+        params[2] = math.radians(rotation_deg)
+        again = _refine_within_prior(labels, geometry, vessel, settings, extra_start=params)
+        return again if again[1].applied else (refined, found)
     gross = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg, max(
         settings.max_height_change_m, GROSS_HEIGHT_SHARE * float(geometry.camera.position_enu[2])))
     reach = _beyond(placement.params, min(settings.max_shift_m, 2.5 * settings.prior_shift_m),
@@ -302,8 +309,9 @@ def refine_vessel_pose(
         False, (float(placement.params[0]), float(placement.params[1])), rotation_deg, height_change_m,
         placement.residual_px, placement.inlier_fraction, found.inlier_fraction_before,
         placement.edge_points, ship_fill=placement.ship_fill, sensors_contradicted=True,
-        reason=(f"the image puts the hull {shift_m:.1f} m, {rotation_deg:+.0f} deg and "
-                f"{height_change_m:+.1f} m of height from the sensors' pose"))
+        edge_share=found.edge_share,
+        reason=(f"the image puts the hull {shift_m:.1f} m, {round(rotation_deg) + 0:+d} deg and "
+                f"{round(height_change_m, 1) + 0.0:+.1f} m of height from the sensors' pose"))
 
 
 def _sizes(params: np.ndarray) -> tuple[float, float, float]:
@@ -433,11 +441,12 @@ def _refine_within_prior(
         starts = [np.zeros(4), across, -across]
         starts += [np.array([de, dn, 0.0, 0.0])
                    for de, dn in _translation_search(align, outline, settings, starts)]
-        if extra_start is not None:
-            starts.append(extra_start)
         for start in starts:
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
+    if extra_start is not None:     # whatever the first start left: the search found it
+        found = solve(SCHEDULES[1], extra_start)
+        candidates.append((*found, fill(found[0])))
     full = [c for c in candidates if c[4] >= settings.min_ship_fill]
     params, information, _, value, fill_share = best = min(full or candidates, key=lambda c: c[2])
 
@@ -550,7 +559,7 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
     contradicted = sum(bool(r and r.get("sensors_contradicted")) for r in refinements)
     if contradicted:
         line = (f"the image contradicts the sensors' pose beyond the refinement's limits on "
-                f"{contradicted} frame(s): their distances' lower bounds are 0; ") + line
+                f"{contradicted} frame(s): their distances' lower bounds and clear reaches are 0; ") + line
     if counts["sensors_pose_fitted"]:
         line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
     kept = [str(r.get("reason") or "") for r in refinements
@@ -558,7 +567,7 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
     if kept:
         kinds: dict[str, int] = {}
         for reason in kept:
-            kind = " ".join("".join(ch for ch in reason if not (ch.isdigit() or ch in ".-")).split())
+            kind = " ".join("".join(ch for ch in reason if not (ch.isdigit() or ch in ".-+")).split())
             kinds[kind] = kinds.get(kind, 0) + 1
         top = sorted(kinds.items(), key=lambda kv: -kv[1])[:3]
         line += f"; the sensors' pose kept on {len(kept)} (" + "; ".join(

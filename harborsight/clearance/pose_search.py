@@ -215,7 +215,8 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     those whose silhouette is at least ``min_ship_fill`` ship pixels if any, the highest edge
     share (then the lowest fitted cost); None when no start fits. A fit whose height leaves
     :data:`SCALE_RANGE` is dropped. With ``against`` (the pose kept or applied), only starts
-    whose outline costs less than its outline at :data:`START_TUKEY_PX` are fitted: a
+    whose outline costs less than the outline does at ``against`` (Tukey at
+    :data:`START_TUKEY_PX`) are fitted: a
     vessel moored against another leaves a third of its outline deep in ship pixels, and
     the search then ran on every frame of it for nothing. ``align`` is
     :func:`whole_image_alignment`'s, ``ship`` and ``known`` are the whole image's ship and

@@ -86,7 +86,8 @@ class ClearanceReport:
     @property
     def sensors_contradicted(self) -> bool:
         """The image showed the sensors' pose wrong by more than the refinement may correct
-        (:func:`harborsight.clearance.pose_refinement.contradicts_sensors`): the distances
+        (:func:`harborsight.clearance.pose_refinement.contradicts_sensors`, or the
+        whole-image search for the hull): the distances
         were read with a pose known to be off, so trackers and alarms leave them out."""
         return bool(self.pose_refinement and self.pose_refinement.get("sensors_contradicted"))
 
