@@ -13,10 +13,17 @@ import pytest
 from shapely.geometry import MultiPoint
 
 from harborsight.clearance import pose_refinement
-from harborsight.clearance.alignment import corrected_geometry
+from harborsight.clearance.alignment import corrected_geometry, homogeneous
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
-from harborsight.clearance.pose_search import _region, edge_share, silhouette_overlap
+from harborsight.clearance.pose_search import (
+    _region,
+    _silhouette,
+    _starts,
+    edge_share,
+    silhouette_overlap,
+    whole_image_alignment,
+)
 from harborsight.sim.schematic import ground_truth
 from tests.test_pose_refinement import TUG, pose_error, scene_and_labels
 
@@ -103,6 +110,27 @@ def test_an_ellipsoidal_height_with_a_gps_error_is_found_at_its_scale():
     found = report.pose_refinement
     assert found["height_change_m"] == pytest.approx(-40.0, abs=1.0)
     assert found["shift_m"] == pytest.approx([-2.5, 2.0], abs=0.3)
+
+
+def test_a_start_puts_the_silhouette_s_centroid_on_the_blob_s():
+    """The starts' one Newton step, with the centroid's Jacobian taken at the sensors'
+    height and scaled to the start's: on a mask holding only the hull, drawn 40 m lower and
+    7 m away from where the sensors put it, the start at the blob's scale and heading puts
+    the silhouette's centroid within a pixel of the blob's."""
+    scene, _ = scene_and_labels(21, "alongside", 100)
+    true = scene.geometry()
+    uv = true.camera.project(true.vessel_to_enu(TUG.hull_points))[0]
+    mask = np.zeros((true.camera.intrinsics.height, true.camera.intrinsics.width), np.uint8)
+    cv2.fillConvexPoly(mask, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
+    told = corrected_geometry(true, np.array([5.0, -5.0, 0.0, 40.0]))
+    ship = mask.astype(bool)
+    align = whole_image_alignment(ship, told)
+    hull_h = homogeneous(TUG.hull_points)
+    starts = _starts(align, hull_h, ship)
+    start = min(starts, key=lambda s: abs(s[3] + 40.0) + abs(s[2]))
+    assert start[3] == pytest.approx(-40.0, abs=4.0) and abs(start[2]) < math.radians(5)
+    blob = _region(cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0][0].reshape(-1, 2))
+    assert _silhouette(align, hull_h, start)[1] == pytest.approx(blob[1], abs=1.0)
 
 
 def test_a_placement_within_the_limits_is_refined_and_applied():
