@@ -195,6 +195,7 @@ def test_a_pose_the_image_contradicts_beyond_the_limits_leaves_no_lower_bound_st
     found = report.pose_refinement
     assert not found["applied"] and "beyond" in found["reason"]
     assert found["sensors_contradicted"] and report.sensors_contradicted
+    assert len(found["image_hull_px"]) >= 3          # where the image puts the hull, for the overlay
     ok = [(s, t) for s, t in zip(report.sections, truth, strict=True) if s.status == "ok"]
     assert len(ok) >= 4
     assert all(s.distance_lower_m == 0.0 and s.sigma_m >= s.distance_m for s, _ in ok)

@@ -40,6 +40,29 @@ def _flagged_with_nothing_standing(report) -> None:
             assert section.clear_to_m == 0.0
 
 
+def test_the_report_and_the_overlay_show_where_the_image_puts_the_hull():
+    """A flagged frame's report carries the silhouette where the image puts the hull (within
+    a pixel of the true hull's), and the overlay draws it in magenta; an unflagged frame
+    has neither."""
+    from harborsight.viz.overlay import MAGENTA, draw_overlay
+
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    true = scene.geometry()
+    report = measure_clearance(labels, corrected_geometry(true, np.array([14.0, 0.0, 0.0, 0.0])), TUG)
+    drawn = np.asarray(report.pose_refinement["image_hull_px"])
+    uv = true.camera.project(true.vessel_to_enu(TUG.hull_points))[0]
+    corners = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
+    # every drawn corner lies on the true silhouette's outline, and the areas agree
+    assert max(abs(cv2.pointPolygonTest(corners, (float(u), float(v)), True)) for u, v in drawn) < 1.0
+    assert cv2.contourArea(drawn.astype(np.float32)) == pytest.approx(cv2.contourArea(corners), rel=0.02)
+    blank = np.zeros((*labels.shape, 3), np.uint8)
+    magenta = np.all(draw_overlay(blank, report) == MAGENTA, axis=2)
+    assert magenta.sum() > 100
+    exact = measure_clearance(labels, true, TUG)
+    assert exact.pose_refinement["image_hull_px"] is None
+    assert not np.all(draw_overlay(blank, exact) == MAGENTA, axis=2).any()
+
+
 @pytest.mark.parametrize(("offset_e_m", "offset_n_m"), [(14.0, 0.0), (0.0, -25.0)])
 def test_a_vessel_far_from_its_fix_is_found_in_the_image_and_flags_the_frame(offset_e_m, offset_n_m):
     """A fix 14 or 25 m off (a stale position, the wrong antenna): the refinement's search

@@ -60,6 +60,7 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import cv2
 import numpy as np
 
 from harborsight.clearance.alignment import (
@@ -153,6 +154,9 @@ class PoseRefinement:
     #: (:func:`pose_search.edge_share`; None when nothing was aligned): what decides whether
     #: the whole image is searched
     edge_share: float | None = field(default=None, compare=False)
+    #: where the image puts the hull when it contradicts the sensors: the silhouette's
+    #: corners ``[[u, v], ...]`` (px) under the correction found, for the overlay
+    image_hull_px: list[list[float]] | None = field(default=None, compare=False)
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -171,6 +175,7 @@ class PoseRefinement:
             "ship_fill": rounded(self.ship_fill, 3),
             "reason": self.reason,
             "sensors_contradicted": self.sensors_contradicted,
+            "image_hull_px": self.image_hull_px,
         }
 
 
@@ -309,9 +314,22 @@ def refine_vessel_pose(
         False, (float(placement.params[0]), float(placement.params[1])), rotation_deg, height_change_m,
         placement.residual_px, placement.inlier_fraction, found.inlier_fraction_before,
         placement.edge_points, ship_fill=placement.ship_fill, sensors_contradicted=True,
-        edge_share=found.edge_share,
+        edge_share=found.edge_share, image_hull_px=_silhouette_px(geometry, vessel, placement.params),
         reason=(f"the image puts the hull {shift_m:.1f} m, {round(rotation_deg) + 0:+d} deg and "
                 f"{round(height_change_m, 1) + 0.0:+.1f} m of height from the sensors' pose"))
+
+
+def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarray
+                   ) -> list[list[float]] | None:
+    """The hull's silhouette (convex hull of its projected points, px, rounded to 0.1 px)
+    under the correction ``params``; None when under 3 points project."""
+    moved = corrected_geometry(geometry, params)
+    uv = moved.camera.project(moved.vessel_to_enu(vessel.hull_points))[0]
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) < 3:
+        return None
+    corners = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
+    return [[round(float(u), 1), round(float(v), 1)] for u, v in corners]
 
 
 def _sizes(params: np.ndarray) -> tuple[float, float, float]:
@@ -495,9 +513,11 @@ def _refine_within_prior(
     if reason is not None:
         beyond = reason.startswith(BEYOND_LIMITS)
         in_view = len(value) / max(outline.shape[1], 1)
+        contradicted = beyond and contradicts_sensors(before, fraction, fill_share, residual_px,
+                                                      settings, in_view)
+        image_hull_px = _silhouette_px(geometry, vessel, params) if contradicted else None
         return geometry, replace(found, reason=reason, edge_share=edge_share(at_sensors),
-                                 sensors_contradicted=beyond and contradicts_sensors(
-            before, fraction, fill_share, residual_px, settings, in_view))
+                                 sensors_contradicted=contradicted, image_hull_px=image_hull_px)
     return corrected_geometry(geometry, params), replace(found, applied=True, edge_share=edge_share(value))
 
 

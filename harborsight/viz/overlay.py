@@ -14,6 +14,7 @@ RED = (40, 40, 230)
 GREY = (170, 170, 170)
 WHITE = (255, 255, 255)
 BLACK = (0, 0, 0)
+MAGENTA = (255, 0, 255)
 _SHIFT = 4
 _SCALE = 1 << _SHIFT
 
@@ -114,12 +115,19 @@ def draw_overlay(
     Sections are coloured by clearance (green > ``warn_m``, orange, red <= ``alarm_m``,
     grey when clear); a yellow line joins each section to its closest obstacle point; the
     distance in metres sits outside the section, ``??`` where the section is clear.
+    When the image contradicts the sensors' pose, a magenta outline shows where the image
+    puts the hull (the sections stay where the sensors put it).
     ``footer`` is a line of text on a band at the bottom (e.g. the closing speed).
     """
     out = image_bgr.copy()
     h, w = out.shape[:2]
     scale = max(0.35, min(w, h) / 900.0)
     thickness = max(2, round(min(w, h) / 220))
+    image_hull = (report.pose_refinement or {}).get("image_hull_px")
+    if report.sensors_contradicted and image_hull:
+        corners = np.round(np.clip(np.asarray(image_hull, float), [-w, -h], [2 * w, 2 * h])
+                           * _SCALE).astype(np.int32)
+        cv2.polylines(out, [corners], True, MAGENTA, thickness, cv2.LINE_AA, _SHIFT)
     ends = [np.asarray(s.hull_px, float) for s in report.sections]
     anchors = [_label_anchor(s, end, w, h) for s, end in zip(report.sections, ends, strict=True)]
     known = [a for a in anchors if a is not None]
