@@ -156,6 +156,24 @@ def test_a_start_puts_the_silhouette_s_centroid_on_the_blob_s():
     assert _silhouette(align, hull_h, start)[1] == pytest.approx(blob[1], abs=1.0)
 
 
+@pytest.mark.parametrize("yaw_error_deg", [36.0, -84.0, 180.0])
+def test_a_camera_yaw_off_is_one_error_and_flags_the_frame(yaw_error_deg):
+    """A camera yaw given from the drone's nose instead of true north turns the whole scene
+    about the camera: the hull the image shows is turned and shifted at once, which the
+    "one gross error" rule took for a bad mask. The shift is the turn of the antenna about
+    the camera's ground point, so it is one error: flagged, and named."""
+    from harborsight.frame import FrameGeometry
+
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    meta = scene.metadata("frame.png")
+    told = FrameGeometry.from_metadata(replace(meta, yaw_deg=meta.yaw_deg + yaw_error_deg))
+    alone = measure_clearance(labels, told, TUG, NO_SEARCH)
+    assert not alone.sensors_contradicted
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    assert f"as a camera yaw {abs(round(yaw_error_deg))} deg off would" in report.pose_refinement["reason"]
+
+
 def test_a_placement_within_the_limits_is_refined_and_applied():
     """A fix 10 m off is within the 12 m limit, beyond the refinement's own basin (its
     translation search reaches 7.5 m): the image's placement becomes one more start, and
