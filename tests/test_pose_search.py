@@ -171,7 +171,12 @@ def test_a_camera_yaw_off_is_one_error_and_flags_the_frame(yaw_error_deg):
     assert not alone.sensors_contradicted
     report = measure_clearance(labels, told, TUG)
     _flagged_with_nothing_standing(report)
-    assert f"as a camera yaw {abs(round(yaw_error_deg))} deg off would" in report.pose_refinement["reason"]
+    # named where the shift alone is beyond the refinement's 7.5 m reach; a turn with a
+    # small shift is as well the vessel's compass
+    named = f"as a camera yaw {abs(round(yaw_error_deg))} deg off would" in report.pose_refinement["reason"]
+    assert named == (float(np.hypot(*report.pose_refinement["shift_m"])) > 7.5)
+    assert report.pose_refinement["rotation_deg"] == pytest.approx(
+        (yaw_error_deg + 180) % 360 - 180, abs=1.0) or abs(yaw_error_deg) == 180.0
 
 
 def test_a_placement_within_the_limits_is_refined_and_applied():

@@ -281,10 +281,10 @@ def refine_vessel_pose(
     one of shift, rotation and height, with the other two within the refinement's reach
     (2.5 sigma of the prior for shift and rotation, the limit for height), contradicts the
     sensors; a shift and a turn that one camera yaw error explains count as one
-    (:func:`_camera_yaw_explains`). Beyond in two at once, it is more often a bad mask than two gross sensor errors
-    (on the bench with the default model, 6 of 130 frames with 2 m and 2 degree sensors
-    had such placements); a height counts as gross only beyond :data:`GROSS_HEIGHT_SHARE` of
-    the camera's height. Never raises for a failed alignment.
+    (:func:`_camera_yaw_explains`). Beyond in two at once, it is more often a bad mask than
+    two gross sensor errors (on the bench with the default model, 6 of 130 frames with 2 m
+    and 2 degree sensors had such placements); a height counts as gross only beyond
+    :data:`GROSS_HEIGHT_SHARE` of the camera's height. Never raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
@@ -311,13 +311,16 @@ def refine_vessel_pose(
                     min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
                     settings.max_height_change_m)
     camera_yaw = (gross[0] or gross[1]) and _camera_yaw_explains(placement.params, geometry, reach_shift_m)
+    # the reason names the camera's yaw where the shift alone is beyond the reach (a turn with
+    # a small shift is as well a heading's error)
+    yaw_named = camera_yaw and reach[0]
     if camera_yaw:      # shift and turn together are one error: the camera's yaw
         gross, reach = [True, False, gross[2]], [True, False, reach[2]]
     if sum(gross) != 1 or sum(reach) > 1:
         return refined, found       # not one gross error: two at once are more often a bad mask
     reason = (f"the image puts the hull {shift_m:.1f} m, {round(rotation_deg) + 0:+d} deg and "
               f"{round(height_change_m, 1) + 0.0:+.1f} m of height from the sensors' pose")
-    if camera_yaw and gross[0]:
+    if yaw_named:
         reason += f" (as a camera yaw {abs(round(rotation_deg))} deg off would)"
     return geometry, PoseRefinement(
         False, (float(placement.params[0]), float(placement.params[1])), rotation_deg, height_change_m,
