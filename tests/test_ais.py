@@ -64,6 +64,20 @@ def test_the_own_vessel_track_is_timed_by_the_receiver_and_the_reports_second(tm
     assert "10 message(s) of other vessels left out" in notes and "1 unreadable" in notes
 
 
+def test_positions_no_working_fix_gave_are_skipped_and_counted(tmp_path):
+    """Time stamps 61 (manual input), 62 (dead reckoning) and 63 (position system
+    inoperative: a transponder that lost its GPS repeats its last position) are not fixes."""
+    lines = [ais_tag_block(START + 2 * k + 1.4)
+             + encode_dict(_report(k, second=(2 * k) % 60 if k < 4 else 61 + k % 3))[0]
+             for k in range(7)]
+    track = read_ais_track(_log(tmp_path, lines))
+    assert len(track) == 4 and np.allclose(track.t_s, 2.0 * np.arange(4))
+    assert any("3 position report(s) not from a working position fix" in n for n in track.notes)
+    frozen = [ais_tag_block(START + 2 * k + 1.4) + encode_dict(_report(k, second=63))[0] for k in range(3)]
+    with pytest.raises(InputError, match="not from a working position fix"):
+        read_ais_track(_log(tmp_path, frozen, "frozen.ais"))
+
+
 def test_the_hull_dimensions_come_from_the_two_part_static_report(tmp_path):
     dims, _ = read_ais_dimensions(_own_log(tmp_path))
     assert (dims.to_bow, dims.to_stern, dims.to_port, dims.to_starboard) == (20, 12, 5, 5)

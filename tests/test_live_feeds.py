@@ -388,9 +388,13 @@ def test_the_vessel_from_its_ais_transponder_live():
     listener.feed(encode_dict(other, sentence_type="VDM")[0], 20.1)
     listener.feed(encode_dict(dict(own, heading=511), sentence_type="VDM")[0], 20.2)
     listener.feed("!AIVDM,1,1,,B,13@ndh@P080flT`P8ES4VCd1P000,0*00", 20.3)
+    # a transponder that lost its GPS repeats its last position with time stamp 63
+    listener.feed(encode_dict(dict(own, second=63), sentence_type="VDM")[0], 20.4)
     vessel = track.track()
     assert len(vessel) == 1 and vessel.heading_deg[0] == 118.0
     assert vessel.lat_deg[0] == pytest.approx(56.1517, abs=2e-6)
     assert abs(vessel.t_s[0] - 20.0) <= 1.5             # the fix's second: at most a second back
     assert listener.others == 1 and listener.no_heading == 1 and listener.unreadable == 1
+    assert listener.unmeasured == 1 and listener.reports == 1
     assert any("true heading" in w for w in warnings) and any("unreadable" in w for w in warnings)
+    assert any("position system inoperative" in w for w in warnings)

@@ -22,6 +22,7 @@ from harborsight.telemetry.ais import (
     report_identity,
     report_position,
     sentence_start,
+    unmeasured_position,
 )
 
 
@@ -36,6 +37,7 @@ class AisVessel:
         self.others = 0
         self.unreadable = 0
         self.no_heading = 0
+        self.unmeasured = 0
 
     def feed(self, line: str, now_s: float) -> None:
         from pyais.messages import NMEAMessage
@@ -68,6 +70,13 @@ class AisVessel:
             return
         position = report_position(fields)
         if position is None:
+            return
+        unmeasured = unmeasured_position(fields)
+        if unmeasured is not None:      # a frozen position must not keep the source fresh
+            self.unmeasured += 1
+            if self.unmeasured in (1, 10, 100) or self.unmeasured % 1000 == 0:
+                self.track.warn(f"AIS: {self.unmeasured} position report(s) not from a working "
+                                f"position fix skipped (the last: {unmeasured})")
             return
         heading, _ = report_heading(fields, self.allow_cog_heading)
         if heading is None:

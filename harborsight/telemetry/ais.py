@@ -15,9 +15,12 @@ transponder's delay removed, up to ±30 s). A file with neither has no usable ti
 refused.
 
 Position reports: types 1, 2, 3 (class A), 18 and 19 (class B); a longitude of 181 or latitude
-of 91 means none. Heading: the true heading (511 = not available); without one the report is
-refused, or, with ``allow_cog_heading``, takes the course over ground (3600 = none) with a
-note, since a vessel berthing moves sideways and its course is not its heading.
+of 91 means none, and a time stamp of 61-63 a position no working fix gave (manual input,
+dead reckoning, the position system inoperative: a transponder that lost its GPS repeats its
+last position); both are counted and skipped. Heading: the true heading (511 = not
+available); without one the report is refused, or, with ``allow_cog_heading``, takes the
+course over ground (3600 = none) with a note, since a vessel berthing moves sideways and its
+course is not its heading.
 
 Dimensions (types 5 and 24 part B, and 19): A to the bow, B to the stern, C to port, D to
 starboard, in metres from the position reference point: exactly the vessel frame's origin
@@ -126,6 +129,18 @@ def report_position(fields: dict) -> tuple[float, float] | None:
     if lat is None or lon is None or abs(lat) > 90 or abs(lon) > 180:
         return None
     return float(lat), float(lon)
+
+
+#: the time stamp (``second``) values of a position that no working position fix gave
+UNMEASURED_SECONDS = {61: "manual input", 62: "dead reckoning", 63: "position system inoperative"}
+
+
+def unmeasured_position(fields: dict) -> str | None:
+    """Why a report's position was not measured, from its time stamp (61 manual input, 62
+    dead reckoning, 63 the position system inoperative: a transponder that lost its GPS
+    repeats its last position), or None for a measured one (0-59, or 60 for no time)."""
+    second = fields.get("second")
+    return UNMEASURED_SECONDS.get(second) if isinstance(second, int) else None
 
 
 def report_heading(fields: dict, allow_cog_heading: bool) -> tuple[float | None, bool]:
@@ -239,7 +254,7 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
     ais = read_ais_file(path)
     chosen = pick_mmsi(ais, mmsi)
     others = sum(1 for r in ais.reports if r.mmsi != chosen)
-    rows, untimed, no_position, no_heading, cog_used = [], 0, 0, 0, 0
+    rows, untimed, no_position, no_heading, cog_used, unmeasured = [], 0, 0, 0, 0, 0
     for report in ais.reports:
         if report.mmsi != chosen or report.msg_type not in POSITION_TYPES:
             continue
@@ -247,6 +262,9 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
         position = report_position(f)
         if position is None:
             no_position += 1
+            continue
+        if unmeasured_position(f) is not None:
+            unmeasured += 1
             continue
         if report.received is None:
             untimed += 1
@@ -265,13 +283,17 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
     if not rows:
         why = (f"{no_heading} report(s) without a true heading (511): a berthing vessel's "
                "course is not its heading; --allow-cog-heading uses it anyway" if no_heading
-               else "no position report (types 1, 2, 3, 18, 19) with a position")
+               else f"{unmeasured} position report(s) not from a working position fix (time "
+               "stamp 61-63: manual input, dead reckoning, position system inoperative)"
+               if unmeasured else "no position report (types 1, 2, 3, 18, 19) with a position")
         raise InputError(ais.path, None, f"MMSI {chosen}: {why}")
     rows.sort(key=lambda r: r[0])
     notes = ais.notes()
     if others:
         notes.append(f"{others} message(s) of other vessels left out (MMSI {chosen} kept)")
     for count, what in ((no_position, "without a position (lat 91 / lon 181)"),
+                        (unmeasured, "not from a working position fix (time stamp 61-63: "
+                                     "manual input, dead reckoning, position system inoperative)"),
                         (untimed, "without a receiver time"),
                         (no_heading, "without a true heading (511)")):
         if count:
