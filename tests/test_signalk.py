@@ -17,6 +17,7 @@ import urllib.request
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from harborsight.live.signalk import SignalKPublisher, SignalKVessel, stream_url
@@ -77,6 +78,39 @@ def test_stream_urls_are_checked():
         "ws://10.0.0.5:3000/signalk/v1/stream?subscribe=none"
     with pytest.raises(Exception, match="--signalk-out"):
         stream_url("http://10.0.0.5:3000", "--signalk-out")
+
+
+START_S = 1_777_636_800                 # 2026-05-01T12:00:00Z
+
+
+def test_only_the_self_vessel_and_one_source_per_path_are_read():
+    """A chart plotter's GPS and the AIS transponder's publish the same paths 12 m apart, and
+    a server may relay another vessel: mixed, the vessel jumped between them. The first
+    source of each path is kept, and the others, and other vessels, are counted and said."""
+    track = LiveTrack("vessel", "signalk")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = SignalKVessel("ws://127.0.0.1:1/signalk/v1/stream", track)
+    me = "vessels.urn:mrn:imo:mmsi:219000001"
+    reader.handle(json.dumps({"name": "signalk-server", "self": me, "version": "2.23.0"}), 10.0)
+
+    def delta(context, source, k, lat):
+        stamp = datetime.fromtimestamp(START_S + k, UTC).isoformat().replace("+00:00", "Z")
+        heading_rad = math.radians(117.7 if source == "gps" else 123.7)
+        return json.dumps({"context": context, "updates": [{"$source": source, "timestamp": stamp, "values": [
+            {"path": "navigation.position", "value": {"latitude": lat, "longitude": 10.2283}},
+            {"path": "navigation.headingTrue", "value": heading_rad}]}]})
+
+    for k in range(4):
+        reader.handle(delta(me, "gps", k, 56.1517), 10.0 + k)
+        reader.handle(delta(me, "ais", k + 0.5, 56.1517 + 12 / 111_000), 10.5 + k)
+        reader.handle(delta("vessels.urn:mrn:imo:mmsi:219999999", "gps", k + 0.7, 56.16), 10.7 + k)
+    vessel = track.track()
+    assert len(vessel) == 4 and np.allclose(vessel.lat_deg, 56.1517)
+    assert np.allclose(vessel.heading_deg, 117.7)
+    assert reader.other_sources == 8 and reader.other_vessels == 4
+    assert any("'gps', heard first, is kept" in w for w in warnings)
+    assert any("other vessels" in w for w in warnings)
 
 
 def test_the_vessel_pose_comes_from_the_server(signalk):

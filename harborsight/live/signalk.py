@@ -6,7 +6,11 @@ security on). Both reconnect when the server goes away and warn about it.
 
 In: the self vessel's ``navigation.position`` (``latitude``, ``longitude`` in degrees) and
 ``navigation.headingTrue`` (radians), each at its update's ``timestamp`` (UTC, mapped to the
-monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`).
+monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`). Only the
+self vessel's deltas count (the server's hello names it), and each path keeps the first source
+it is heard from (``$source``, else ``source.label``): a chart plotter's GPS and the AIS
+transponder's 12 m apart, mixed, made the vessel jump between them. Other vessels' deltas
+and other sources' values are counted, with a warning, and left out.
 
 Out, as deltas from source ``harborsight`` to the self vessel:
 
@@ -70,6 +74,12 @@ class SignalKVessel:
         track.source_clock_is_utc()
         self.updates = 0
         self.unreadable = 0
+        #: the self vessel's context, from the server's hello
+        self.self_context: str | None = None
+        #: the source each path is read from: the first heard
+        self.sources: dict[str, str] = {}
+        self.other_vessels = 0
+        self.other_sources = 0
 
     def handle(self, message: str, now_s: float) -> None:
         try:
@@ -77,14 +87,33 @@ class SignalKVessel:
         except ValueError:
             self.unreadable += 1
             return
+        if isinstance(delta, dict) and isinstance(delta.get("self"), str):
+            self.self_context = delta["self"]       # the hello
         if not isinstance(delta, dict) or not isinstance(delta.get("updates"), list):
             return                                  # the hello, or not a delta
+        context = delta.get("context")
+        if context not in (None, "vessels.self") and self.self_context is not None \
+                and context != self.self_context:
+            self.other_vessels += 1
+            if self.other_vessels in (1, 10, 100):
+                self.track.warn(f"Signal K: {self.other_vessels} delta(s) of other vessels "
+                                f"({str(context)[:60]}) left out")
+            return
         for update in delta["updates"]:
             try:
                 stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
                 t_s = self.track.clock.observe(stamp.timestamp(), now_s)
+                source = update.get("$source") or (update.get("source") or {}).get("label") or ""
                 for item in update.get("values", []):
-                    self._value(item.get("path"), item.get("value"), t_s, now_s)
+                    path = item.get("path")
+                    if self.sources.setdefault(path, source) != source:
+                        self.other_sources += 1
+                        if self.other_sources in (1, 10, 100):
+                            self.track.warn(f"Signal K: {path} also comes from {source!r}; "
+                                            f"{self.sources[path]!r}, heard first, is kept "
+                                            f"({self.other_sources} value(s) left out)")
+                        continue
+                    self._value(path, item.get("value"), t_s, now_s)
             except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 self.unreadable += 1
                 if self.unreadable in (1, 10, 100):
