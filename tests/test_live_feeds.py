@@ -111,7 +111,7 @@ def test_a_track_holds_its_newest_sample_only_as_long_as_asked():
     assert track.sample([1.8], hold_s=1.0)["lat_deg"][0] == 1.0
 
 
-def _mavlink_bytes(build) -> bytes:
+def _mavlink_bytes(build, system: int = 1) -> bytes:
     from pymavlink.dialects.v20 import ardupilotmega as dialect
 
     class Sink:
@@ -119,7 +119,7 @@ def _mavlink_bytes(build) -> bytes:
 
         def write(self, chunk):
             Sink.data += chunk
-    mav = dialect.MAVLink(Sink(), srcSystem=1, srcComponent=1)
+    mav = dialect.MAVLink(Sink(), srcSystem=system, srcComponent=1)
     build(mav)
     return Sink.data
 
@@ -160,6 +160,29 @@ def test_mavlink_messages_become_the_drone_track_with_the_gimbal_yaw_on_the_airf
     assert track.attitude_of == "gimbal"
     # SYSTEM_TIME: the boot clock's 5 s is 2026-05-01T12:00:00Z
     assert track.utc_clock.to_local(5.0) == pytest.approx(1_777_636_800.0)
+
+
+def test_a_second_vehicle_on_the_mavlink_link_is_left_out():
+    """The drone is the first system to send its position; another vehicle's position and
+    attitude on the same link are counted and said, never mixed in."""
+    drone = _mavlink_bytes(lambda mav: (
+        mav.attitude_send(5000, 0.0, 0.0, math.radians(30.0), 0, 0, 0),
+        mav.global_position_int_send(5000, 561516256, 102282340, 75000, 60000, 0, 0, 0, 65535)))
+    other = _mavlink_bytes(lambda mav: (
+        mav.attitude_send(5100, 0.0, 0.0, math.radians(200.0), 0, 0, 0),
+        mav.global_position_int_send(5100, 561616256, 102382340, 95000, 80000, 0, 0, 0, 65535)),
+        system=2)
+    track = LiveTrack("drone", "mavlink")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = MavlinkDrone(None, track, altitude="relative")
+    for message in _decoded(drone + other):
+        reader.handle(message, 100.0)
+    drone_track = track.track()
+    assert reader.system_id == 1 and reader.other_systems == 2
+    assert len(drone_track) == 1 and drone_track.lat_deg[0] == pytest.approx(56.1516256)
+    assert np.allclose(drone_track.yaw_deg, 30.0)
+    assert any("system 2 left out" in w for w in warnings)
 
 
 def test_the_nmea_listener_times_headings_by_the_fix_before_them():

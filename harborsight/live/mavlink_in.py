@@ -20,7 +20,9 @@ Messages read (MAVLink common and ArduPilot dialects, v1 and v2 frames):
 
 Every message's boot time goes through :class:`harborsight.live.telemetry.ClockMap`; a
 message without one (``MOUNT_STATUS``) takes its arrival time. Frames that fail their CRC are
-counted and warned about, never read.
+counted and warned about, never read. The drone is the first system (MAVLink system id) that
+sends its position; these messages from any other system (a second vehicle on the link) are
+counted, said and left out: mixed in, its position would be the drone's.
 """
 
 from __future__ import annotations
@@ -73,6 +75,11 @@ def _euler_deg(q_wxyz, vehicle_yaw_deg: float | None) -> tuple[float, float, flo
     return float(yaw) % 360.0, float(pitch), float(roll)
 
 
+#: the messages of the drone's own state: read from the drone's system id only
+_DRONE_STATE = frozenset({"GLOBAL_POSITION_INT", "GPS_RAW_INT", "ATTITUDE",
+                          "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_STATUS", "SYSTEM_TIME"})
+
+
 class MavlinkDrone:
     """Reads a MAVLink connection into a :class:`LiveTrack` (module docstring)."""
 
@@ -88,6 +95,9 @@ class MavlinkDrone:
         self._sigma_m = math.nan
         self.bad_frames = 0
         self.messages = 0
+        #: the drone's MAVLink system id: the first to send its position
+        self.system_id: int | None = None
+        self.other_systems = 0
 
     def _warn(self, message: str) -> None:
         self.track.warn(message)
@@ -101,6 +111,16 @@ class MavlinkDrone:
                            "garbage)")
             return
         self.messages += 1
+        if kind in _DRONE_STATE:
+            system = message.get_srcSystem()
+            if self.system_id is None and kind == "GLOBAL_POSITION_INT":
+                self.system_id = system
+            if self.system_id is not None and system != self.system_id:
+                self.other_systems += 1
+                if self.other_systems in (1, 10, 100) or self.other_systems % 1000 == 0:
+                    self._warn(f"{self.other_systems} MAVLink message(s) of system {system} left "
+                               f"out (the drone is system {self.system_id})")
+                return
         track, clock = self.track, self.track.clock
         jumps = clock.jumps
         if kind == "GLOBAL_POSITION_INT":
