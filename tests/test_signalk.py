@@ -113,6 +113,21 @@ def test_only_the_self_vessel_and_one_source_per_path_are_read():
     assert any("other vessels" in w for w in warnings)
 
 
+def test_a_clock_jump_on_the_bus_is_said():
+    """Two clocks on the bus (a position stamped by its GPS, another value by a server
+    without time sync): each jump restarts the time alignment, and the reader says so."""
+    track = LiveTrack("vessel", "signalk")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = SignalKVessel("ws://127.0.0.1:1/signalk/v1/stream", track)
+    for k, skew_s in enumerate((0, 0, 30, 0)):
+        stamp = datetime.fromtimestamp(START_S + k + skew_s, UTC).isoformat().replace("+00:00", "Z")
+        reader.handle(json.dumps({"updates": [{"$source": "gps", "timestamp": stamp, "values": [
+            {"path": "navigation.headingTrue", "value": 2.0}]}]}), 10.0 + k)
+    assert track.clock.jumps == 2
+    assert any("clock jumped (1 time(s))" in w for w in warnings)
+
+
 def test_the_vessel_pose_comes_from_the_server(signalk):
     """The ship's GPS and gyro publish to the server; harborsight reads the self vessel."""
     from websockets.sync.client import connect

@@ -102,7 +102,12 @@ class SignalKVessel:
         for update in delta["updates"]:
             try:
                 stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
+                jumps = self.track.clock.jumps
                 t_s = self.track.clock.observe(stamp.timestamp(), now_s)
+                if self.track.clock.jumps != jumps and self.track.clock.jumps in (1, 10, 100):
+                    self.track.warn(f"Signal K: the vessel's clock jumped ({self.track.clock.jumps} "
+                                    "time(s)): its time alignment starts again (two clocks on "
+                                    "the bus, or a server without time sync?)")
                 source = update.get("$source") or (update.get("source") or {}).get("label") or ""
                 for item in update.get("values", []):
                     path = item.get("path")
