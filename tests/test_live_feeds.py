@@ -132,6 +132,17 @@ def _decoded(data: bytes) -> list:
     return [m for m in (parser.parse_buffer(data) or [])]
 
 
+def _read_mavlink(data: bytes) -> tuple[MavlinkDrone, LiveTrack, list[str]]:
+    """A drone reader fed ``data`` at 100 s: the reader, its track and the warnings said."""
+    track = LiveTrack("drone", "mavlink")
+    warnings: list[str] = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = MavlinkDrone(None, track, altitude="relative")
+    for message in _decoded(data):
+        reader.handle(message, 100.0)
+    return reader, track, warnings
+
+
 def test_mavlink_messages_become_the_drone_track_with_the_gimbal_yaw_on_the_airframe_yaw():
     from scipy.spatial.transform import Rotation
 
@@ -144,12 +155,7 @@ def test_mavlink_messages_become_the_drone_track_with_the_gimbal_yaw_on_the_airf
         mav.gps_raw_int_send(0, 3, 0, 0, 0, 0, 0, 0, 0, 12, 0, 2000, 0, 0, 0),
         mav.global_position_int_send(5000, 561516256, 102282340, 75000, 60000, 0, 0, 0, 65535)))
     garbage = data[:20] + bytes([data[20] ^ 0xFF]) + data[21:]          # one frame's CRC fails
-    track = LiveTrack("drone", "mavlink")
-    warnings = []
-    track.on_warning = lambda source, message: warnings.append(message)
-    reader = MavlinkDrone(None, track, altitude="relative")
-    for message in _decoded(garbage + data):
-        reader.handle(message, 100.0)
+    reader, track, warnings = _read_mavlink(garbage + data)
     assert reader.bad_frames >= 1 and any("unreadable MAVLink" in w for w in warnings)
     sampled = track.track().sample([100.0], hold_s=1.0)
     assert sampled["yaw_deg"][0] == pytest.approx(40.0, abs=1e-4)     # float32 quaternion
@@ -172,12 +178,7 @@ def test_a_second_vehicle_on_the_mavlink_link_is_left_out():
         mav.attitude_send(5100, 0.0, 0.0, math.radians(200.0), 0, 0, 0),
         mav.global_position_int_send(5100, 561616256, 102382340, 95000, 80000, 0, 0, 0, 65535)),
         system=2)
-    track = LiveTrack("drone", "mavlink")
-    warnings = []
-    track.on_warning = lambda source, message: warnings.append(message)
-    reader = MavlinkDrone(None, track, altitude="relative")
-    for message in _decoded(drone + other):
-        reader.handle(message, 100.0)
+    reader, track, warnings = _read_mavlink(drone + other)
     drone_track = track.track()
     assert reader.system_id == 1 and reader.other_systems == 2
     assert len(drone_track) == 1 and drone_track.lat_deg[0] == pytest.approx(56.1516256)
