@@ -461,7 +461,8 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     assert len(ok) >= 3
     again = [replace(s, sigma_m=None, sigma_random_m=None, distance_lower_m=None) for s in ok]
     add_section_uncertainty(again, refined, refined.vessel_to_enu(sections_v.vertices), refinement,
-                            settings.sensor_sigmas())
+                            settings.sensor_sigmas(), labels=labels,
+                            vessel_points_enu=refined.vessel_to_enu(vessel.hull_points))
     for field in ("sigma_m", "sigma_random_m", "distance_lower_m"):
         np.testing.assert_allclose([getattr(s, field) for s in ok],
                                    [getattr(s, field) for s in again], rtol=1e-12)

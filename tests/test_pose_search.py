@@ -282,3 +282,93 @@ def test_a_region_s_axis_and_length_match_its_rotated_rectangle():
 def test_the_edge_share_counts_points_deep_inside_against_a_placement():
     assert edge_share(np.array([0.3, -1.5, -9.0, 6.0])) == 0.5
     assert edge_share(np.array([])) == 0.0
+
+
+def test_a_camera_tilted_12_degrees_given_as_straight_down_is_one_error_and_flags_the_frame():
+    """At 100 m a camera 12 degrees off nadir told as straight down shows the hull 21 m from
+    the sensors' pose and at a scale 4 m of height away: two gross components, which the
+    "one gross error" rule took for a bad mask, and the distances were read with the wrong
+    pose without a word. One camera tilt explains both (camera_errors): flagged, and the
+    tilt named within a degree."""
+    import re
+
+    from harborsight.frame import FrameGeometry
+
+    scene, labels = scene_and_labels(3, "open", 100, tilt_deg=12.0)
+    meta = scene.metadata("frame.png")
+    told = FrameGeometry.from_metadata(replace(meta, pitch_deg=-90.0, roll_deg=0.0))
+    true_tilt_deg = math.degrees(math.acos(math.cos(math.radians(90 + meta.pitch_deg))
+                                           * math.cos(math.radians(meta.roll_deg))))
+    alone = measure_clearance(labels, told, TUG, NO_SEARCH)
+    assert not alone.sensors_contradicted
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    reason = report.pose_refinement["reason"]
+    named = re.search(r"as a camera tilted (\d+) deg more than stated would", reason)
+    assert named and abs(int(named.group(1)) - true_tilt_deg) <= 1.0, reason
+
+
+def test_the_refinement_s_refused_correction_is_a_start_of_the_search(monkeypatch):
+    """The refinement may find the hull beyond its limits while the search's blob starts lay
+    it on another ship (a bench frame at 150 m: a 22 m shift, a half-size hull on a
+    neighbour). The refused correction joins the starts, and the search keeps it."""
+    from harborsight.clearance import pose_search
+    from harborsight.clearance.obstacles import SHIP
+    from harborsight.clearance.pose_search import place_hull
+
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    told = corrected_geometry(scene.geometry(), np.array([16.0, 0.0, 0.0, 0.0]))
+    ship = labels == SHIP
+    align = whole_image_alignment(ship, told)
+    hull_h = homogeneous(TUG.hull_points)
+    monkeypatch.setattr(pose_search, "_starts", lambda *args: [])    # no blob start fits
+    assert place_hull(align, hull_h, ship, labels != 255) is None
+    refused = np.array([-15.2, 0.6, 0.01, 0.3])                       # near the truth
+    placement = place_hull(align, hull_h, ship, labels != 255, extra_starts=(refused,))
+    assert placement is not None and placement.edge_share > 0.9
+    assert placement.params[:2] == pytest.approx([-16.0, 0.0], abs=0.2)
+
+
+def test_the_sliding_search_finds_a_hull_no_blob_start_reaches(monkeypatch):
+    """The predicted silhouette slid over the whole image (a chamfer match of its outline
+    against the ship edges) finds the hull 16 m from its fix where the blob starts give
+    nothing (they lay the silhouette's centroid on a blob's, which misses a hull moored
+    against a neighbour)."""
+    from harborsight.clearance import pose_search
+    from harborsight.clearance.obstacles import SHIP
+    from harborsight.clearance.pose_search import _sliding_starts, place_hull
+
+    scene, labels = scene_and_labels(21, "alongside", 60)
+    told = corrected_geometry(scene.geometry(), np.array([16.0, -5.0, 0.0, 0.0]))
+    ship = labels == SHIP
+    align = whole_image_alignment(ship, told)
+    hull_h = homogeneous(TUG.hull_points)
+    starts = _sliding_starts(align, hull_h)
+    assert 1 <= len(starts) <= 6
+    nearest = min(starts, key=lambda s: np.hypot(s[0] + 16.0, s[1] - 5.0) + abs(s[2]))
+    assert np.hypot(nearest[0] + 16.0, nearest[1] - 5.0) < 1.5 and nearest[2] == 0.0
+    monkeypatch.setattr(pose_search, "_starts", lambda *args: [])
+    known = labels != 255
+    assert place_hull(align, hull_h, ship, known) is None
+    placement = place_hull(align, hull_h, ship, known, slide=True)
+    assert placement is not None and placement.edge_share > 0.9
+    assert placement.params[:2] == pytest.approx([-16.0, 5.0], abs=0.2)
+
+
+def test_a_tilt_given_wrong_over_a_vessel_against_its_neighbour_is_flagged(monkeypatch):
+    """At 130 m a camera 10 degrees off nadir told as straight down puts the hull 23 m from
+    its fix, the vessel touching a neighbour. The blob starts' best clean fit was a hull
+    shrunk and turned onto other edges (three gross errors, so nothing was said); the
+    sliding starts and the preference for the fewest gross errors find the own vessel:
+    flagged."""
+    from harborsight.clearance import pose_search
+    from harborsight.frame import FrameGeometry
+
+    scene, labels = scene_and_labels(1, "touching", 130, tilt_deg=10.0)
+    meta = scene.metadata("frame.png")
+    told = FrameGeometry.from_metadata(replace(meta, pitch_deg=-90.0, roll_deg=0.0))
+    _flagged_with_nothing_standing(measure_clearance(labels, told, TUG))
+    original = pose_search.place_hull
+    monkeypatch.setattr(pose_refinement, "place_hull", lambda *args, slide=False, gross_errors=None, **kw:
+                        original(*args, **kw))
+    assert not measure_clearance(labels, told, TUG).sensors_contradicted

@@ -431,3 +431,88 @@ def test_the_gsd_method_s_bar_holds_its_nadir_error_on_tilted_frames():
             checked += 1
     assert checked >= 15
 
+
+
+# --- a camera tilt the sensors' stated accuracy does not explain ---
+
+def test_the_points_at_their_own_heights_are_each_cameras_back_projection():
+    """The silhouette's points are back-projected onto the plane at their own height (the
+    deck's edge), each camera at once: the same points as Camera.back_project_to_plane."""
+    from harborsight.clearance.uncertainty import _perturbed_cameras, _points_at_heights
+
+    geometry = _oblique((-0.12, 0.03, 0.0, 0.0, 0.0), pitch_deg=-60.0)
+    cameras = [geometry.camera, *_perturbed_cameras(geometry.camera, SensorSigmas(camera_tilt_deg=4.0))]
+    uv = np.stack(np.meshgrid(np.linspace(0, 999, 7), np.linspace(0, 999, 9)), -1).reshape(-1, 2)
+    heights = np.resize([0.0, 1.5, 3.2, 6.0], len(uv))
+    points = _points_at_heights(cameras, uv, heights)
+    for camera, found in zip(cameras, points, strict=True):
+        for z in np.unique(heights):
+            at = heights == z
+            expected = camera.back_project_to_plane(uv[at], z)[0][:, :2]
+            np.testing.assert_allclose(found[at], expected, atol=1e-9, equal_nan=True)
+
+
+def _told_straight_down(seed: int, scenario: str, altitude_m: float, tilt_deg: float):
+    """A schematic scene whose camera looks ``tilt_deg`` off nadir, its metadata saying
+    straight down (a stabilised mount's default), and the truth's distances (shapely)."""
+    from dataclasses import replace
+
+    from harborsight.sim.schematic import ground_truth
+    from tests.test_pose_refinement import TUG, scene_and_labels
+
+    scene, labels = scene_and_labels(seed, scenario, altitude_m, tilt_deg=tilt_deg)
+    meta = scene.metadata("frame.png")
+    told = FrameGeometry.from_metadata(replace(meta, pitch_deg=-90.0, roll_deg=0.0))
+    truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+    return labels, told, TUG, truth, 90.0 + meta.pitch_deg
+
+
+FILE_SIGMAS = SensorSigmas(edge_px=1.0, edge_m=0.0)
+
+
+@pytest.mark.parametrize("seed", [1, 21])
+def test_a_gimbal_7_degrees_off_nadir_given_as_straight_down_widens_the_bars(monkeypatch, seed):
+    """At 60 m a camera 7 degrees off nadir told as straight down shows the hull 7 m from
+    the sensors' pose: the refinement applies that as a vessel shift, but the obstacles are
+    back-projected with the wrong tilt and the hull's deck edge moves less than the water
+    (parallax). A 7 m shift is 3.5 sigma of two standalone receivers: the tilt that would
+    explain it enters the bars, and every lower bound holds against the truth. Without
+    that term a 6.65 m gap read 7.11 m with its lower bound at 6.71 m (seed 1)."""
+    from harborsight.clearance import uncertainty
+    from harborsight.clearance.measure import measure_clearance
+
+    labels, told, vessel, truth, tilt_deg = _told_straight_down(seed, "alongside", 60, 7.0)
+    report = measure_clearance(labels, told, vessel, sigmas=FILE_SIGMAS)
+    assert report.pose_refinement["applied"] and not report.sensors_contradicted
+    unexplained = report.uncertainty["unexplained_shift"]
+    assert unexplained is not None and unexplained["shift_sigmas"] > 3.0
+    assert unexplained["tilt_deg"] == pytest.approx(tilt_deg, abs=1.0)
+    pairs = [(s, t) for s, t in zip(report.sections, truth, strict=True)
+             if s.status == "ok" and t is not None]
+    assert len(pairs) >= 6
+    assert all(s.distance_lower_m <= t for s, t in pairs)
+    assert all(abs(s.distance_m - t) <= 2 * s.sigma_m for s, t in pairs)
+    if seed == 1:       # the term is what holds the bound
+        monkeypatch.setattr(uncertainty, "UNEXPLAINED_SHIFT_CHI2", math.inf)
+        before = measure_clearance(labels, told, vessel, sigmas=FILE_SIGMAS)
+        assert any(s.distance_lower_m > t for s, t in zip(before.sections, truth, strict=True)
+                   if s.status == "ok" and t is not None)
+
+
+def test_a_shift_the_receivers_explain_leaves_the_bars_alone():
+    """The same scene with the tilt given right and the vessel's fix 2.3 m off: the shift is
+    the receivers' to explain, and nothing is added."""
+    from dataclasses import replace
+
+    from harborsight.clearance.measure import measure_clearance
+    from tests.test_pose_refinement import TUG, scene_and_labels
+
+    scene, labels = scene_and_labels(1, "alongside", 60, tilt_deg=7.0)
+    meta = scene.metadata("frame.png")
+    east_m, north_m = 1.8, -1.5
+    told = FrameGeometry.from_metadata(meta)
+    told = replace(told, vessel_position_enu=told.vessel_position_enu + np.array([east_m, north_m]))
+    report = measure_clearance(labels, told, TUG, sigmas=FILE_SIGMAS)
+    assert report.pose_refinement["applied"]
+    assert report.pose_refinement["shift_m"] == pytest.approx([-east_m, -north_m], abs=0.1)
+    assert report.uncertainty["unexplained_shift"] is None

@@ -581,10 +581,10 @@ def measure_clearance(
     for result in results:
         if result.status == STATUS_CLEAR and np.isfinite(reach[result.index]):
             result.clear_to_m = float(reach[result.index]) * metres_per_unit
-    add_section_uncertainty(results, geometry, geometry.vessel_to_enu(sections_v.vertices),
-                            refinement, sigmas, velocities, outline_px=in_image.vertices_px,
-                            confidence=confidence, labels=labels,
-                            vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
+    unexplained = add_section_uncertainty(
+        results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
+        velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
+        vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
     if settings.method == "gsd":
         add_nadir_approximation(results)
     if refinement.sensors_contradicted:
@@ -594,5 +594,6 @@ def measure_clearance(
         method=settings.method, sections=results, vessel=vessel.name,
         enu_origin=geometry.origin.to_dict(), pose_refinement=refinement.to_dict(),
         uncertainty={"sigmas": sigmas.to_dict(), "lower_bound_quantile": LOWER_BOUND_QUANTILE,
-                     "confident_solid_p": CONFIDENT_SOLID_P if confidence is not None else None},
+                     "confident_solid_p": CONFIDENT_SOLID_P if confidence is not None else None,
+                     "unexplained_shift": unexplained},
     )

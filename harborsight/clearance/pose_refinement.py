@@ -76,6 +76,7 @@ from harborsight.clearance.alignment import (
     ship_fill,
     tukey_cost,
 )
+from harborsight.clearance.camera_errors import camera_tilt_explaining, camera_yaw_explains
 from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_search import (
     Placement,
@@ -281,9 +282,12 @@ def refine_vessel_pose(
     one of shift, rotation and height, with the other two within the refinement's reach
     (2.5 sigma of the prior for shift and rotation, the limit for height), contradicts the
     sensors; a shift and a turn that one camera yaw error explains count as one
-    (:func:`_camera_yaw_explains`). Beyond in two at once, it is more often a bad mask than
-    two gross sensor errors (on the bench with the default model, 6 of 130 frames with 2 m
-    and 2 degree sensors had such placements); a height counts as gross only beyond
+    (:func:`~harborsight.clearance.camera_errors.camera_yaw_explains`), and so do a shift
+    and a height change (with a turn) that one camera tilt explains
+    (:func:`~harborsight.clearance.camera_errors.camera_tilt_explaining`). Beyond in two at
+    once, it is more often a bad mask than two gross sensor errors (on the bench with the
+    default model, 6 of 130 frames with 2 m and 2 degree sensors had such placements); a
+    height counts as gross only beyond
     :data:`GROSS_HEIGHT_SHARE` of the camera's height. Never raises for a failed alignment.
     """
     if not settings.enabled:
@@ -304,44 +308,44 @@ def refine_vessel_pose(
         params[2] = math.radians(rotation_deg)
         again = _refine_within_prior(labels, geometry, vessel, settings, extra_start=params)
         return again if again[1].applied else (refined, found)
-    gross = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg, max(
-        settings.max_height_change_m, GROSS_HEIGHT_SHARE * float(geometry.camera.position_enu[2])))
+    gross = _gross(placement.params, geometry, settings)
     reach_shift_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
     reach = _beyond(placement.params, reach_shift_m,
                     min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
                     settings.max_height_change_m)
-    camera_yaw = (gross[0] or gross[1]) and _camera_yaw_explains(placement.params, geometry, reach_shift_m)
+    camera_yaw = (gross[0] or gross[1]) and camera_yaw_explains(placement.params, geometry, reach_shift_m)
     # the reason names the camera's yaw where the shift alone is beyond the reach (a turn with
     # a small shift is as well a heading's error)
     yaw_named = camera_yaw and reach[0]
     if camera_yaw:      # shift and turn together are one error: the camera's yaw
         gross, reach = [True, False, gross[2]], [True, False, reach[2]]
+    tilt_deg = None
+    if gross[0] and (sum(gross) != 1 or sum(reach) > 1):
+        # shift and height (and the turn a tilt gives) may be one error: the camera's tilt
+        tilt_deg = camera_tilt_explaining(
+            placement.params, geometry, vessel.hull_points, labels == SHIP,
+            np.array([settings.prior_shift_m, settings.prior_shift_m,
+                      math.radians(settings.prior_heading_deg), settings.prior_height_m]),
+            np.array([reach_shift_m, math.radians(min(settings.max_rotation_deg,
+                                                      2.5 * settings.prior_heading_deg)),
+                      settings.max_height_change_m]),
+            settings.edge_sigma_px ** -2.0, settings.max_residual_px, SEARCH_BELOW_SHARE)
+        if tilt_deg is not None:
+            gross, reach = [True, False, False], [True, False, False]
     if sum(gross) != 1 or sum(reach) > 1:
         return refined, found       # not one gross error: two at once are more often a bad mask
     reason = (f"the image puts the hull {shift_m:.1f} m, {round(rotation_deg) + 0:+d} deg and "
               f"{round(height_change_m, 1) + 0.0:+.1f} m of height from the sensors' pose")
     if yaw_named:
         reason += f" (as a camera yaw {abs(round(rotation_deg))} deg off would)"
+    elif tilt_deg is not None:
+        reason += f" (as a camera tilted {tilt_deg:.0f} deg more than stated would)"
     return geometry, PoseRefinement(
         False, (float(placement.params[0]), float(placement.params[1])), rotation_deg, height_change_m,
         placement.residual_px, placement.inlier_fraction, found.inlier_fraction_before,
         placement.edge_points, ship_fill=placement.ship_fill, sensors_contradicted=True,
         edge_share=found.edge_share, image_hull_px=_silhouette_px(geometry, vessel, placement.params),
         reason=reason)
-
-
-def _camera_yaw_explains(params: np.ndarray, geometry: FrameGeometry, tolerance_m: float) -> bool:
-    """Whether a correction's shift and turn are one error of the camera's yaw: that turns
-    the whole scene about the vertical through the camera, so the vessel's antenna ``A``
-    moves about the camera's ground point ``C`` by the turn, ``phi = -dpsi`` counter-clockwise
-    in ENU (a compass heading turns the other way), to ``C + R(phi) (A - C)``. True when the
-    shift is that motion within ``tolerance_m`` (the GPS errors' reach). On the sample frames
-    a camera yaw 30-180 degrees off gave placements within 0.04 m of it."""
-    phi = -float(params[2])
-    offset = (np.asarray(geometry.vessel_position_enu[:2], float)
-              - np.asarray(geometry.camera.position_enu[:2], float))
-    turned = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]]) @ offset
-    return bool(np.hypot(*(np.asarray(params[:2], float) - (turned - offset))) <= tolerance_m)
 
 
 def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarray
@@ -355,6 +359,13 @@ def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarr
         return None
     corners = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
     return [[round(float(u), 1), round(float(v), 1)] for u, v in corners]
+
+
+def _gross(params: np.ndarray, geometry: FrameGeometry, settings: PoseRefinementSettings) -> list[bool]:
+    """Which of shift, rotation and height of a correction are gross: beyond the limits, the
+    height also beyond :data:`GROSS_HEIGHT_SHARE` of the camera's height."""
+    return _beyond(params, settings.max_shift_m, settings.max_rotation_deg, max(
+        settings.max_height_change_m, GROSS_HEIGHT_SHARE * float(geometry.camera.position_enu[2])))
 
 
 def _sizes(params: np.ndarray) -> tuple[float, float, float]:
@@ -384,6 +395,10 @@ NOT_IN_VIEW = ("the hull does not project into the image", "the hull is not in t
 #: the whole image is searched when the pose kept or applied puts fewer of the outline's
 #: points in view on a ship edge than this (:func:`pose_search.edge_share`)
 SEARCH_BELOW_SHARE = 0.8
+#: and slides the predicted silhouette over the whole image (a chamfer match of its outline,
+#: :func:`pose_search._sliding_starts`) when the pose leaves under this share there: the
+#: outline is then off its ship altogether, not pressed against a neighbour
+SLIDE_BELOW_SHARE = 0.5
 #: a placement must put this much more of its outline on ship edges than the pose kept or
 #: applied (a reversed heading applied at 100-140 m still put 75-79 % of its small outline
 #: on edges; at 0.15, 0 of 390 bench frames with 2 m and 2 degree sensors were flagged)
@@ -415,18 +430,38 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     chosen = (np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m])
               if found.applied else np.zeros(4))
     known = labels != IGNORE
+    # the refinement's own correction, refused for its size, is a start too: the search's
+    # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)
+    refused = (np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m]),
+               ) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
+    chosen_uv = align.pixels(hull_h, chosen)
+    whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
+    on_a_ship = ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill
+
+    def elsewhere(params: np.ndarray) -> bool:
+        """The pose sits on a ship, and ``params`` lay the hull on another one."""
+        return on_a_ship and silhouette_overlap(chosen_uv, align.pixels(hull_h, params)) < SAME_SHIP_OVERLAP
+
+    reach_shift_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
+
+    def gross_errors(params: np.ndarray) -> int:
+        gross = _gross(params, geometry, settings)
+        if (gross[0] or gross[1]) and camera_yaw_explains(params, geometry, reach_shift_m):
+            return 1 + gross[2]             # shift and turn are one error: the camera's yaw
+        return sum(gross)
+
     placement = place_hull(align, hull_h, ship, known, settings.edge_sigma_px ** -2.0,
-                           settings.min_ship_fill, against=chosen)
+                           settings.min_ship_fill, against=chosen, extra_starts=refused,
+                           slide=share < SLIDE_BELOW_SHARE, slide_beyond_m=reach_shift_m,
+                           gross_errors=gross_errors,
+                           count_share=SEARCH_BELOW_SHARE)
     if (placement is None or placement.edge_share < max(share + SEARCH_GAIN, SEARCH_BELOW_SHARE)
             or placement.in_view < CONTRADICTION_MIN_IN_VIEW
             or placement.inlier_fraction < settings.min_inlier_fraction
             or placement.ship_fill < settings.min_ship_fill
             or placement.residual_px is None or placement.residual_px > settings.max_residual_px):
         return None
-    chosen_uv = align.pixels(hull_h, chosen)
-    whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
-    if (ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill
-            and silhouette_overlap(chosen_uv, align.pixels(hull_h, placement.params)) < SAME_SHIP_OVERLAP):
+    if elsewhere(placement.params):
         return None     # the pose sits on a ship, the placement on another one
     return placement
 
@@ -554,7 +589,9 @@ CONTRADICTION_MIN_IN_VIEW = 0.7
 #: what a user should check when the image contradicts the sensors' pose
 CONTRADICTION_ADVICE = ("check the GPS positions, the altitude (ellipsoidal or above the water), "
                         "the water level, the heading source (a course over ground while going "
-                        "astern) and the camera's yaw (from true north, not from the drone's nose)")
+                        "astern), the camera's yaw (from true north, not from the drone's nose) "
+                        "and its pitch (a gimbal given as straight down, --mount stabilised, "
+                        "that is not)")
 #: the reasons that refuse a correction for its size alone
 BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
 

@@ -32,6 +32,7 @@ shrunken outline in a corner of a large ship has half its points deep inside.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -62,9 +63,16 @@ SCALE_RANGE = (0.3, 3.0)
 MIN_HEIGHT_M = 3.0
 #: how many of the starts, the cheapest, are fitted
 VERIFY_STARTS = 4
+#: the sliding search (:func:`_sliding_starts`): its field is truncated at this many pixels,
+#: it runs on the image scaled by this factor, and this many minima per heading are starts
+SLIDE_TRUNCATE_PX = 8.0
+SLIDE_SCALE = 0.5
+SLIDE_STARTS = 3
+#: how many of the sliding starts, the cheapest, are fitted besides the others
+VERIFY_SLIDING = 2
 #: at most this many outline points (every k-th) score a start
 START_POINTS = 80
-#: a filled placement with this edge share ends the verification
+#: a filled placement with this edge share and at most one gross error ends the verification
 CLEAR_FIT_SHARE = 0.95
 #: the Tukey scale (px) the starts are scored at: the refinement's second schedule's first
 START_TUKEY_PX = SCHEDULES[1][0][1]
@@ -199,6 +207,71 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
     return starts
 
 
+def _sliding_starts(align: Alignment, hull_h: np.ndarray, beyond_m: float = 0.0) -> list[np.ndarray]:
+    """Poses ``(de, dn, dpsi, 0)`` that slide the predicted silhouette, at the sensors'
+    heading and reversed and at their scale, to where its outline lies best along ship
+    edges anywhere in the image: a chamfer match. The blob starts lay the silhouette's
+    centroid on a blob's, which misses a vessel moored against another (one blob, its
+    centroid between the two hulls).
+
+    With ``f = min(|s|, T)`` the signed distance's magnitude truncated at
+    :data:`SLIDE_TRUNCATE_PX` (``T`` beyond the image), the cost of a translation ``t`` is
+    ``sum_k f(x_k + t)`` over the outline's points ``x_k`` relative to the silhouette's
+    centroid: one correlation of ``f`` with the points drawn as a kernel gives it for every
+    ``t`` at once (on the image scaled by :data:`SLIDE_SCALE`). The
+    :data:`SLIDE_STARTS` lowest minima, at least half the silhouette's length apart, each
+    give a shift through the centroid's Jacobian (pixels per metre at the sensors' pose);
+    shifts under ``beyond_m`` are left to the refinement, whose reach they are within (at
+    150 m a poor mask's blob near the pose took a shrunk hull there for a height error)."""
+    predicted = _silhouette(align, hull_h, np.zeros(4))
+    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
+    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
+    if predicted is None or east is None or north is None:
+        return []
+    jacobian = np.column_stack((east[1] - predicted[1], north[1] - predicted[1]))
+    if abs(np.linalg.det(jacobian)) < 1e-9:
+        return []
+    field = np.minimum(np.abs(align.sdf.field), np.float32(SLIDE_TRUNCATE_PX))
+    small = cv2.resize(field, None, fx=SLIDE_SCALE, fy=SLIDE_SCALE, interpolation=cv2.INTER_AREA)
+    origin = np.array([align.sdf.u0, align.sdf.v0], float)
+    starts: list[np.ndarray] = []
+    for turn in (0.0, math.pi):
+        params = np.array([0.0, 0.0, turn, 0.0])
+        region = _silhouette(align, hull_h, params)
+        if region is None:
+            continue
+        outline = outline_points(hull_h, align.pixels(hull_h, params))
+        uv = align.pixels(outline, params)
+        uv = uv[np.isfinite(uv).all(axis=1)]
+        if len(uv) < MIN_EDGE_POINTS:
+            continue
+        offsets = np.rint((uv - region[1]) * SLIDE_SCALE).astype(int)
+        low = offsets.min(axis=0)
+        if (low > 0).any() or (offsets.max(axis=0) < 0).any():
+            continue        # the centroid off its own outline's box: no anchor for it
+        kernel = np.zeros(tuple(offsets.max(axis=0) - low + 1)[::-1], np.float32)
+        np.add.at(kernel, (offsets[:, 1] - low[1], offsets[:, 0] - low[0]), 1.0)
+        kernel /= len(offsets)
+        # pad with T so that points off the image count as outliers; correlate; crop
+        pad_y, pad_x = kernel.shape
+        padded = cv2.copyMakeBorder(small, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_CONSTANT,
+                                    value=SLIDE_TRUNCATE_PX)
+        cost = cv2.filter2D(padded, cv2.CV_32F, kernel, anchor=(int(-low[0]), int(-low[1])),
+                            borderType=cv2.BORDER_CONSTANT)[pad_y:-pad_y, pad_x:-pad_x]
+        radius = max(1.0, 0.5 * region[3] * SLIDE_SCALE)
+        rows, cols = np.indices(cost.shape)
+        for _ in range(SLIDE_STARTS):
+            y, x = np.unravel_index(int(np.argmin(cost)), cost.shape)
+            if not np.isfinite(cost[y, x]) or cost[y, x] >= SLIDE_TRUNCATE_PX:
+                break
+            cost[(rows - y) ** 2 + (cols - x) ** 2 <= radius ** 2] = np.inf
+            target = (np.array([x, y], float) + 0.5) / SLIDE_SCALE - 0.5 + origin
+            shift = np.linalg.solve(jacobian, target - region[1])
+            if np.isfinite(shift).all() and math.hypot(*shift) >= beyond_m:
+                starts.append(np.array([shift[0], shift[1], turn, 0.0]))
+    return starts
+
+
 def _start_cost(align: Alignment, outline: np.ndarray, params: np.ndarray) -> float:
     """Tukey's cost at :data:`START_TUKEY_PX` per outline point under ``params`` (points out
     of view count as outliers)."""
@@ -210,19 +283,29 @@ def _start_cost(align: Alignment, outline: np.ndarray, params: np.ndarray) -> fl
 
 def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np.ndarray,
                edge_weight: float = 1.0, min_ship_fill: float = 0.9,
-               against: np.ndarray | None = None) -> Placement | None:
+               against: np.ndarray | None = None, extra_starts: tuple[np.ndarray, ...] = (),
+               slide: bool = False, slide_beyond_m: float = 0.0,
+               gross_errors: Callable[[np.ndarray], int] | None = None,
+               count_share: float = 0.8) -> Placement | None:
     """The best placement of the hull on the image's ship blobs (module docstring): among
     those whose silhouette is at least ``min_ship_fill`` ship pixels if any, the highest edge
-    share (then the lowest fitted cost); None when no start fits. A fit whose height leaves
+    share (then the lowest fitted cost); None when no start fits. With ``gross_errors`` (how
+    many gross errors a correction holds), among the filled placements with at least
+    ``count_share`` edge share the one with the fewest comes first. A fit whose height leaves
     :data:`SCALE_RANGE` is dropped. With ``against`` (the pose kept or applied), only starts
     whose outline costs less than the outline does at ``against`` (Tukey at
     :data:`START_TUKEY_PX`) are fitted: a
     vessel moored against another leaves a third of its outline deep in ship pixels, and
-    the search then ran on every frame of it for nothing. ``align`` is
+    the search then ran on every frame of it for nothing. ``extra_starts`` join the blobs'
+    starts (the refinement's own correction, refused for its size); ``slide`` adds the
+    sliding search's (:func:`_sliding_starts`, shifts of at least ``slide_beyond_m``), whose
+    :data:`VERIFY_SLIDING` cheapest are fitted besides the others' :data:`VERIFY_STARTS`.
+    ``align`` is
     :func:`whole_image_alignment`'s, ``ship`` and ``known`` are the whole image's ship and
     labelled pixels."""
-    starts = _starts(align, hull_h, ship)
-    if not starts:
+    starts = [*_starts(align, hull_h, ship), *extra_starts]
+    sliding = _sliding_starts(align, hull_h, slide_beyond_m) if slide else []
+    if not starts and not sliding:
         return None
     # the outline's samples are fixed blends of hull points, taken once at the sensors' pose
     # (a silhouette keeps its corners under a shift, a turn or a scale of a nadir view)
@@ -230,16 +313,22 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     if outline.shape[1] == 0:
         return None
     scoring = outline[:, ::-(-outline.shape[1] // START_POINTS)]
-    scored = [(_start_cost(align, scoring, start), start) for start in starts]
+    # the sliding starts are verified on their own account: at the sensors' scale they
+    # would crowd out a blob's start at the right one (a height 40 m off)
+    scored, scored_sliding = ([(_start_cost(align, scoring, start), start) for start in group]
+                              for group in (starts, sliding))
     if against is not None:         # only starts that fit better than the pose already do
         bar = _start_cost(align, scoring, against)
-        scored = [item for item in scored if item[0] < bar]
+        scored, scored_sliding = ([item for item in group if item[0] < bar]
+                                  for group in (scored, scored_sliding))
     scored.sort(key=lambda item: item[0])
+    scored_sliding.sort(key=lambda item: item[0])
+    scored = sorted(scored[:VERIFY_STARTS] + scored_sliding[:VERIFY_SLIDING], key=lambda item: item[0])
     window = (slice(0, ship.shape[0]), slice(0, ship.shape[1]))
     height_m = float(align.camera.position_enu[2])
     lowest_m, highest_m = max(MIN_HEIGHT_M, height_m / SCALE_RANGE[1]), height_m / SCALE_RANGE[0]
     best: tuple[tuple[float, float], Placement] | None = None
-    for _, start in scored[:VERIFY_STARTS]:
+    for _, start in scored:
         params, _, cost, _ = gauss_newton(align, hull_h, outline, SCHEDULES[1], start,
                                           FLAT_PRIOR_SIGMA ** -2.0, edge_weight)
         if not (math.isfinite(cost) and np.isfinite(params).all()):
@@ -257,9 +346,14 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
                           ship_fill(align.pixels(hull_h, params), window, ship, known),
                           len(value) / final.shape[1], telling)
         filled = found.ship_fill >= min_ship_fill
-        key = (filled, found.edge_share, -cost)
+        # among fits good enough to count, the fewest gross errors: a hull shrunk and turned
+        # onto another ship's edges fits as cleanly as the own vessel slid 25 m against a
+        # neighbour (a camera tilt given wrong at 140 m), and one error is likelier than three
+        count = filled and found.edge_share >= count_share
+        errors = gross_errors(params) if (count and gross_errors is not None) else 0
+        key = (count, -errors, filled, found.edge_share, -cost)
         if best is None or key > best[0]:
             best = (key, found)
-        if filled and found.edge_share >= CLEAR_FIT_SHARE:
+        if filled and found.edge_share >= CLEAR_FIT_SHARE and errors <= 1:
             break               # no other start can do much better
     return None if best is None else best[1]

@@ -53,7 +53,9 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
 any correction), the hull is placed by the image, not by the vessel's
 sensors. Then each camera error moves the hull as well: by the rigid motion (shift and
-turn) that best fits that error's displacement of the outline's points, which is what the
+turn) that best fits that error's displacement of the silhouette's points the alignment
+fits, each at its own height (a tilt ``δ`` moves a deck edge ``z`` above the water by
+``(h - z) δ``, the water by ``h δ``: the parallax stays in the distance), which is what the
 alignment absorbs; only what no rigid motion absorbs is left (a height error scales the
 scene about the nadir: ``(d + u·(H - c))·δh / h`` remains, ``c`` the outline's centre,
 unless the alignment refined the height too: then it absorbs that scale, and the height's
@@ -61,6 +63,13 @@ posterior enters with the pose's, through ``∂d/∂h = u·(O - n) / h``, ``n`` 
 drone shift or a camera yaw is absorbed entirely, and the vessel's position and heading
 errors are replaced by the alignment's own covariance, scaled by
 :data:`REFINEMENT_COVARIANCE_SCALE` (calibrated on the bench: see docs/results.md).
+
+A shift the sensors' stated accuracy does not explain (beyond the 99 % ellipse of the two
+receivers and the camera errors' own shifts) is read as a camera tilted more than stated as
+well: a gimbal given as straight down that looks 7 degrees off shows the hull 7 m from its
+fix at 60 m, which the alignment takes for a vessel shift. The distances that tilt would
+give differ (the parallax above, and the tilted view's scale), and the difference enters
+the bar in full (:func:`_unexplained_shift`; the report's ``uncertainty.unexplained_shift``).
 
 Parts: ``sigma_random_m`` holds what changes from frame to frame (pixel grid, mask edge,
 the alignment); the rest (GPS, compasses, height, tilt, clock) drifts slowly and is not
@@ -78,6 +87,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from harborsight.clearance.alignment import homogeneous, outline_points
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
 from harborsight.clearance.report import STATUS_OK, SectionClearance
 from harborsight.frame import FrameGeometry
@@ -106,6 +116,11 @@ _CONFIDENT_Z = NormalDist().inv_cdf(CONFIDENT_SOLID_P)
 _RAY_STEP_PX = 1.0
 _RAY_STRETCHES_PX = (8, 56, 0)
 _PIXEL_STEP = 0.5
+#: at most this many of the silhouette's points take part in the rigid fits
+_SILHOUETTE_POINTS = 48
+#: χ² with two degrees of freedom at 99 %: an alignment shift beyond this many squared
+#: sigmas of the sensors' stated accuracy is not theirs to explain (:func:`_unexplained_shift`)
+UNEXPLAINED_SHIFT_CHI2 = -2.0 * math.log(0.01)
 _UNIFORM_SIGMA = 1.0 / math.sqrt(12.0)
 
 
@@ -127,8 +142,18 @@ def _world_rotation(axis: int, angle_rad: float) -> np.ndarray:
     return rotation
 
 
+def _camera_errors(sigmas: SensorSigmas) -> list[str]:
+    """The names of the camera errors :func:`_perturbed_cameras` moves the camera by, in its
+    order: ``height``, ``yaw``, ``tilt_east``, ``tilt_north`` (those with a sigma above 0)."""
+    named = (("height", sigmas.height_above_water_m), ("yaw", sigmas.camera_yaw_deg),
+             ("tilt_east", sigmas.camera_tilt_deg), ("tilt_north", sigmas.camera_tilt_deg))
+    return [name for name, sigma in named if sigma > 0]
+
+
 def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
-    """The camera moved by one sigma of each camera error (height, yaw, tilt e, tilt n)."""
+    """The camera moved by one sigma of each camera error (:func:`_camera_errors`): up by
+    the height's sigma, turned about the vertical by the yaw's, about east and north by the
+    tilt's."""
     cameras = []
     height_m = sigmas.height_above_water_m
     if height_m > 0:
@@ -141,6 +166,40 @@ def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
             cameras.append(Camera(camera.intrinsics, camera.position_enu,
                                   turn @ camera.world_from_camera))
     return cameras
+
+
+def _points_at_heights(cameras: list[Camera], uv: np.ndarray, height_m: np.ndarray) -> np.ndarray:
+    """Where pixels ``uv (N, 2)`` meet the horizontal planes ``z = height_m (N,)``, each
+    pixel its own plane, for each of ``cameras`` (same intrinsics): ``(C, N, 2)``, NaN where
+    a ray misses its plane. The ray ``c + λ R (x, y, 1)`` meets ``z`` at
+    ``λ = (z - c_z) / (R (x, y, 1))_z``."""
+    m = cameras[0].normalized_coordinates(uv)
+    rays = np.einsum("cij,nj->cni", np.stack([c.world_from_camera for c in cameras]),
+                     np.column_stack((m, np.ones(len(m)))))
+    centre = np.stack([c.position_enu for c in cameras])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = (height_m[None, :] - centre[:, 2:]) / rays[..., 2]
+        points = centre[:, None, :2] + reach[..., None] * rays[..., :2]
+    points[~(np.isfinite(reach) & (reach > 0))] = np.nan
+    return points
+
+
+def _silhouette_enu(camera: Camera, vessel_points_enu: np.ndarray) -> np.ndarray | None:
+    """What the alignment fits: points every :data:`~harborsight.clearance.alignment.SAMPLE_STEP_PX`
+    along the convex hull of the vessel's points in the image (every k-th, at most
+    :data:`_SILHOUETTE_POINTS`), in ENU with their heights (the deck's edge, not the
+    waterline), those that project into the image; None when fewer than 3 do."""
+    points = np.asarray(vessel_points_enu, float)
+    uv, _ = camera.project(points)
+    sampled = outline_points(homogeneous(points), uv)[:3].T
+    if len(sampled) < 3:
+        return None
+    sampled = sampled[::-(-len(sampled) // _SILHOUETTE_POINTS)]     # evenly, at most that many
+    pixels, _ = camera.project(sampled)
+    intr = camera.intrinsics
+    inside = (np.isfinite(pixels).all(axis=1) & (pixels >= 0).all(axis=1)
+              & (pixels[:, 0] <= intr.width - 1) & (pixels[:, 1] <= intr.height - 1))
+    return sampled[inside] if inside.sum() >= 3 else None
 
 
 def _rigid_fit(points: np.ndarray, moved_by: np.ndarray, with_scale: bool = False
@@ -320,6 +379,64 @@ def own_spill_m(hull_px: np.ndarray, obstacle_px: np.ndarray, hull_enu: np.ndarr
     return spill
 
 
+def _absorbed_motion(points: np.ndarray, moved_by: np.ndarray, at: np.ndarray,
+                     with_scale: bool) -> np.ndarray:
+    """Per camera, the rigid motion (:func:`_rigid_fit`) that best fits the displacements
+    ``moved_by (C, M, 2)`` of ``points (M, 2)``, evaluated at ``at (T, 2)``: ``(C, T, 2)``;
+    NaN for a camera that leaves fewer than 3 points on the water."""
+    usable = np.isfinite(moved_by).all(axis=2)
+    if usable.all():            # the usual case: all cameras' fits at once
+        t, turn, centre, scale = _rigid_fit(points, moved_by, with_scale)
+        return (t[:, None] + turn[:, None, None] * _perp(at - centre)
+                + scale[:, None, None] * (at - centre))
+    out = np.full((len(moved_by), len(at), 2), np.nan)
+    for i in np.flatnonzero(usable.sum(axis=1) >= 3):
+        t, turn, centre, scale = _rigid_fit(points[usable[i]], moved_by[i, usable[i]], with_scale)
+        out[i] = t + turn * _perp(at - centre) + scale * (at - centre)
+    return out
+
+
+def _unexplained_shift(refinement: PoseRefinement, sigmas: SensorSigmas, errors: list[str],
+                       at_antenna: np.ndarray, along: np.ndarray, height_m: float) -> dict | None:
+    """The camera-tilt reading of a shift the sensors' stated accuracy does not explain.
+
+    The alignment moved the hull by ``s``. Were the sensors as good as stated, ``s`` would
+    be normal with covariance ``Σ = (σ_uav² + σ_vessel²) I + Σ_c a_c a_cᵀ + k C``: the two
+    receivers per axis, each camera error's shift ``a_c`` of the hull at the antenna
+    (``at_antenna``, one sigma) and the alignment's own covariance ``C`` (scaled by
+    :data:`REFINEMENT_COVARIANCE_SCALE`). Beyond the 99 % ellipse of that
+    (``sᵀ Σ⁻¹ s >`` :data:`UNEXPLAINED_SHIFT_CHI2`), a camera tilted by more than stated
+    (a gimbal given as straight down that is not, a body pitch left out) explains it as
+    well as the receivers do, and the distances read differently then: the tilt's one-sigma
+    changes ``along`` (one row per camera error, as summed into the bar), scaled by the
+    ``k = T⁻¹ (-s)`` sigmas that move the hull by ``s`` (``T`` the two tilts' ``a_c``; the
+    alignment moves the hull against the error). The change enters the bar in full,
+    ``change_m``. None when the shift is explained, or the tilts are not modelled."""
+    if "tilt_east" not in errors or "tilt_north" not in errors:
+        return None
+    shift = np.asarray(refinement.shift_m, float)
+    absorbed = np.nan_to_num(at_antenna)
+    covariance = (sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2) * np.eye(2)
+    covariance += absorbed.T @ absorbed
+    if refinement.covariance is not None:
+        covariance += REFINEMENT_COVARIANCE_SCALE * np.asarray(refinement.covariance)[:2, :2]
+    try:
+        spread = float(shift @ np.linalg.solve(covariance, shift))
+    except np.linalg.LinAlgError:
+        return None
+    if not spread > UNEXPLAINED_SHIFT_CHI2:
+        return None
+    tilt = [errors.index("tilt_east"), errors.index("tilt_north")]
+    per_sigma = at_antenna[tilt].T                          # columns: the two tilts' shifts
+    if not np.isfinite(per_sigma).all() or abs(np.linalg.det(per_sigma)) < 1e-12:
+        return None
+    k = np.linalg.solve(per_sigma, -shift)
+    change_m = k @ along[tilt]
+    return {"change_m": change_m, "shift_sigmas": round(math.sqrt(spread), 2),
+            "tilt_deg": round(float(np.hypot(*k)) * sigmas.camera_tilt_deg, 2),
+            "height_m": round(height_m, 2)}
+
+
 #: the shadow is cut this far in front of the camera's plane (metres along its axis)
 _IN_FRONT_M = 0.5
 
@@ -376,18 +493,20 @@ def add_section_uncertainty(
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
     confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
     vessel_points_enu: np.ndarray | None = None,
-) -> None:
+) -> dict | None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
     measured with (refined or not); ``outline_enu`` the hull outline's points on the water;
     ``outline_px`` their pixels with that geometry's camera (NaN where they do not project),
     when the caller has them already (else they are projected here); ``confidence`` the
     model's probabilities, when the mask came from a model; ``vessel_points_enu`` the
-    vessel's hull points (above the waterline), for its shadow when the sun is known."""
+    vessel's hull points (above the waterline), for the silhouette the alignment fits and
+    for its shadow when the sun is known. Returns what :func:`_unexplained_shift` found
+    (``shift_sigmas``, ``tilt_deg``, ``height_m``) when it widened the bars, else None."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
           and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
     if not ok:
-        return
+        return None
     camera = geometry.camera
     obstacle = np.array([s.obstacle_point_enu for s in ok], float)
     hull = np.array([s.hull_point_enu for s in ok], float)
@@ -414,34 +533,49 @@ def add_section_uncertainty(
         outline_px = outline_px[np.isfinite(outline_px).all(axis=1)]
     else:
         outline_px = np.zeros((0, 2))
+    # the alignment fits the hull's silhouette at its own heights (the deck's edge): a camera
+    # tilt moves it in the image by (H - z)·δ, not H·δ, and the difference is the parallax the
+    # distances keep. Without the vessel's points the waterline outline stands in for it.
+    silhouette = (_silhouette_enu(camera, vessel_points_enu)
+                  if refined and vessel_points_enu is not None else None)
+    if silhouette is not None:
+        outline_px = np.zeros((0, 2))
     # one back-projection of every pixel needed, with the camera and each perturbed camera:
     # the obstacle points, the outline (its rigid fit) and the obstacle points' neighbours
     # half a pixel away (the Jacobian, with the camera only)
     n_ok, n_outline = len(ok), len(outline_px)
     du, dv = np.array([_PIXEL_STEP, 0.0]), np.array([0.0, _PIXEL_STEP])
-    planes = _plane_points([camera, *_perturbed_cameras(camera, sigmas)], np.concatenate((
+    cameras = [camera, *_perturbed_cameras(camera, sigmas)]
+    planes = _plane_points(cameras, np.concatenate((
         obstacle_px, outline_px, obstacle_px + du, obstacle_px - du, obstacle_px + dv,
         obstacle_px - dv)))
     here, outline_here = planes[0, :n_ok], planes[0, n_ok:n_ok + n_outline]
     shift_o = planes[1:, :n_ok] - here                      # (cameras, sections, 2)
     shift_h = np.zeros_like(shift_o)
+    # each camera error's shift of the hull at the antenna, as the alignment absorbs it
+    at_antenna = np.full((len(cameras) - 1, 2), np.nan)
     # the alignment also absorbs a scale when it refined the drone's height
     height_refined = bool(refined and np.shape(refinement.covariance) == (4, 4))
-    if refined and n_outline >= 3 and len(shift_o):
-        moved_outline = planes[1:, n_ok:n_ok + n_outline] - outline_here
-        usable = np.isfinite(moved_outline).all(axis=2)
-        if usable.all():            # the usual case: all cameras' fits at once
-            t, turn, centre, scale = _rigid_fit(outline_here, moved_outline, height_refined)
-            shift_h = (t[:, None] + turn[:, None, None] * _perp(hull - centre)
-                       + scale[:, None, None] * (hull - centre))
-        else:
-            for i in np.flatnonzero(usable.sum(axis=1) >= 3):
-                t, turn, centre, scale = _rigid_fit(outline_here[usable[i]], moved_outline[i, usable[i]],
-                                                    height_refined)
-                shift_h[i] = t + turn * _perp(hull - centre) + scale * (hull - centre)
+    if silhouette is not None:
+        on_planes = _points_at_heights(cameras, camera.project(silhouette)[0], silhouette[:, 2])
+        fit_points, fit_moved = on_planes[0], on_planes[1:] - on_planes[0]
+    else:
+        fit_points, fit_moved = outline_here, planes[1:, n_ok:n_ok + n_outline] - outline_here
+    if refined and len(fit_points) >= 3 and len(shift_o):
+        moved = _absorbed_motion(fit_points, fit_moved,
+                                 np.vstack((hull, geometry.vessel_position_enu[None, :2])),
+                                 height_refined)
+        shift_h, at_antenna = np.nan_to_num(moved[:, :n_ok]), moved[:, n_ok]
     # each camera error in turn (summed in order, as independent sources)
-    for along in np.nan_to_num(np.einsum("ij,cij->ci", u, shift_o - shift_h)):
+    along_u = np.nan_to_num(np.einsum("ij,cij->ci", u, shift_o - shift_h))
+    for along in along_u:
         systematic += along ** 2
+    unexplained = None
+    if refinement.applied:
+        unexplained = _unexplained_shift(refinement, sigmas, _camera_errors(sigmas), at_antenna,
+                                         along_u, float(camera.position_enu[2]))
+        if unexplained is not None:
+            systematic += unexplained.pop("change_m") ** 2
     if not refined:
         # drone shift moves O, vessel shift moves H: both along u in full (|u| = 1)
         systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
@@ -495,6 +629,7 @@ def add_section_uncertainty(
         section.sigma_m = float(sigma)
         section.sigma_random_m = float(sigma_random)
         section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * float(sigma))
+    return unexplained
 
 
 def add_nadir_approximation(sections: list[SectionClearance]) -> None:
