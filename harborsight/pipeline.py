@@ -83,18 +83,25 @@ def _find_vessel_spec(meta: FrameMetadata, meta_path: Path) -> Path:
 
 
 class VesselCache:
-    """Loads each vessel.yaml once per batch."""
+    """Loads each vessel.yaml once per batch; ``on_notes`` hears each spec's notes
+    (:attr:`VesselSpec.notes`) once, when it is first loaded, with its path."""
 
-    def __init__(self, fixed: VesselSpec | None = None) -> None:
+    def __init__(self, fixed: VesselSpec | None = None,
+                 on_notes: Callable[[str, tuple[str, ...]], None] | None = None) -> None:
         self.fixed = fixed
+        self.on_notes = on_notes
         self._specs: dict[Path, VesselSpec] = {}
+        if fixed is not None and fixed.notes and on_notes is not None:
+            on_notes(fixed.source or fixed.name, fixed.notes)
 
     def for_frame(self, meta: FrameMetadata, meta_path: Path) -> VesselSpec:
         if self.fixed is not None:
             return self.fixed
         path = _find_vessel_spec(meta, meta_path).resolve()
         if path not in self._specs:
-            self._specs[path] = load_vessel_spec(path)
+            self._specs[path] = spec = load_vessel_spec(path)
+            if spec.notes and self.on_notes is not None:
+                self.on_notes(str(path), spec.notes)
         return self._specs[path]
 
 

@@ -360,15 +360,43 @@ def test_a_tilt_given_wrong_over_a_vessel_against_its_neighbour_is_flagged(monke
     its fix, the vessel touching a neighbour. The blob starts' best clean fit was a hull
     shrunk and turned onto other edges (three gross errors, so nothing was said); the
     sliding starts and the preference for the fewest gross errors find the own vessel:
-    flagged."""
+    flagged, saying where the image puts it. Without them only the last rule (no vessel
+    where the sensors put it) flags the frame, and cannot say where the hull is."""
     from harborsight.clearance import pose_search
     from harborsight.frame import FrameGeometry
 
     scene, labels = scene_and_labels(1, "touching", 130, tilt_deg=10.0)
     meta = scene.metadata("frame.png")
     told = FrameGeometry.from_metadata(replace(meta, pitch_deg=-90.0, roll_deg=0.0))
-    _flagged_with_nothing_standing(measure_clearance(labels, told, TUG))
+    report = measure_clearance(labels, told, TUG)
+    _flagged_with_nothing_standing(report)
+    assert report.pose_refinement["reason"].startswith("the image puts the hull 2")
+    assert report.pose_refinement["image_hull_px"]
     original = pose_search.place_hull
     monkeypatch.setattr(pose_refinement, "place_hull", lambda *args, slide=False, gross_errors=None, **kw:
                         original(*args, **kw))
-    assert not measure_clearance(labels, told, TUG).sensors_contradicted
+    without = measure_clearance(labels, told, TUG).pose_refinement
+    assert not without["reason"].startswith("the image puts the hull") and not without["image_hull_px"]
+
+
+def test_a_pose_the_image_shows_no_vessel_at_is_not_trusted():
+    """The vessel's pixels gone from the mask (a model that missed it; or, alike, a pose off
+    by more than the search can tell): the sensors' pose is kept with none of its outline on
+    a ship edge, the whole image holds no placement, and the distances (read against
+    whatever lies where the hull should be) are not trusted. Without the search, as before,
+    they were."""
+    from harborsight.clearance.obstacles import SHIP, WATER
+
+    scene, labels = scene_and_labels(3, "open", 100)
+    true = scene.geometry()
+    uv = true.camera.project(true.vessel_to_enu(TUG.hull_points))[0]
+    erased = labels.copy()
+    own = np.zeros(labels.shape, np.uint8)
+    cv2.fillConvexPoly(own, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
+    erased[(own > 0) & (labels == SHIP)] = WATER
+    assert (labels == SHIP).sum() > (erased == SHIP).sum()
+    report = measure_clearance(erased, true, TUG)
+    _flagged_with_nothing_standing(report)
+    assert report.pose_refinement["reason"].startswith("only 0 % of the hull's outline lies on a ship edge")
+    assert not measure_clearance(erased, true, TUG, NO_SEARCH).sensors_contradicted
+    assert not measure_clearance(labels, true, TUG).sensors_contradicted

@@ -196,3 +196,62 @@ def test_a_section_length_that_asks_for_millions_of_sections_is_refused(tmp_path
         load_vessel_spec(path)
     assert load_vessel_spec(write_spec(tmp_path, "dimensions: {to_bow: 30, to_stern: 10, "
                                        "to_port: 5, to_starboard: 5}\nsections: 1000\n"))
+
+
+def test_a_mesh_whose_bow_end_is_the_blunter_one_is_noted(tmp_path):
+    """A generated hull (pointed bow at +x, transom at -x) read with its axes right has no
+    note; read with its x axis taken for aft, its full stern sits at +x and the spec says
+    so, naming mesh_axes. A box (both ends alike) has none either way."""
+    generate_hull_mesh().export(tmp_path / "hull.ply")
+    right = load_vessel_spec(write_spec(tmp_path, "hull_mesh: hull.ply\nmesh_axes: [bow, port, up]\n"
+                                        "gps_antenna: [20, 0, 9]\n"))
+    assert right.notes == ()
+    reversed_axes = load_vessel_spec(write_spec(
+        tmp_path, "hull_mesh: hull.ply\nmesh_axes: [stern, starboard, up]\ngps_antenna: [20, 0, 9]\n"))
+    assert len(reversed_axes.notes) == 1
+    note = reversed_axes.notes[0]
+    assert note.startswith("mesh_axes: ") and "is the bow at -x?" in note
+    # the widths it quotes are the outline's own, 10 % in from each end (shapely)
+    poly = Polygon(reversed_axes.outline)
+    x_min, y_min, x_max, y_max = poly.bounds
+    for x in (x_max - 0.1 * (x_max - x_min), x_min + 0.1 * (x_max - x_min)):
+        across = poly.intersection(shapely.LineString([(x, y_min - 1), (x, y_max + 1)])).length
+        assert f"{across:.1f} m" in note
+    box = trimesh.creation.box(extents=(20, 6, 5))
+    box.apply_translation((0, 0, 2.5))
+    box.export(tmp_path / "box.stl")
+    for axes in ("[bow, port, up]", "[stern, starboard, up]"):
+        spec = load_vessel_spec(write_spec(tmp_path, f"hull_mesh: box.stl\nmesh_axes: {axes}\n"
+                                           "gps_antenna: [5.0, 1.0, 4.0]\nwaterline_m: 2.0\n"))
+        assert spec.notes == ()
+
+
+def test_the_commands_say_a_spec_s_notes_once(tmp_path):
+    """`measure` on two frames with a vessel whose bow looks aft says the note once, on
+    standard error, naming the spec, and measures both frames."""
+    import json
+    import shutil
+    from importlib import resources
+
+    from typer.testing import CliRunner
+
+    from harborsight.cli import app
+
+    samples = Path(str(resources.files("harborsight") / "data" / "samples"))
+    vessel_dir = tmp_path / "vessel"
+    vessel_dir.mkdir()
+    shutil.copy(samples / "vessels" / "harbour-tug" / "hull.stl", vessel_dir / "hull.stl")
+    spec = vessel_dir / "vessel.yaml"
+    spec.write_text("hull_mesh: hull.stl\nmesh_axes: [stern, starboard, up]\ngps_antenna: [12.0, 0.0, 9.0]\n")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for stem in ("000000", "000001"):
+        shutil.copy(samples / "images" / f"{stem}.png", frames / f"{stem}.png")
+        shutil.copy(samples / "frames" / f"{stem}.json", frames / f"{stem}.json")
+    result = CliRunner().invoke(app, ["measure", str(frames), "--masks", str(samples / "labels"),
+                                      "--vessel", str(spec), "--out", str(tmp_path / "out"), "--no-tables"])
+    assert result.exit_code == 0, result.output
+    assert result.stderr.count("is the bow at -x?") == 1
+    assert f"note: {spec}: mesh_axes: " in result.stderr
+    for stem in ("000000", "000001"):
+        assert json.loads((tmp_path / "out" / f"{stem}.json").read_text())["sections"]

@@ -149,7 +149,8 @@ class PoseRefinement:
     reason: str | None = None
     #: the sensors' pose fits the mask badly and a correction beyond the limits fits it well:
     #: the image says the sensors are off by more than the refinement may correct
-    #: (:func:`contradicts_sensors`, or the whole-image search: :func:`_gross_error`)
+    #: (:func:`contradicts_sensors`, or the whole-image search: :func:`_gross_error`); or the
+    #: image shows no vessel where the sensors put it, and nowhere else (:func:`_unconfirmed`)
     sensors_contradicted: bool = False
     #: the share of the outline's points in view on a ship edge at the pose kept or applied
     #: (:func:`pose_search.edge_share`; None when nothing was aligned): what decides whether
@@ -288,13 +289,52 @@ def refine_vessel_pose(
     once, it is more often a bad mask than two gross sensor errors (on the bench with the
     default model, 6 of 130 frames with 2 m and 2 degree sensors had such placements); a
     height counts as gross only beyond
-    :data:`GROSS_HEIGHT_SHARE` of the camera's height. Never raises for a failed alignment.
+    :data:`GROSS_HEIGHT_SHARE` of the camera's height. When the search changes nothing and the
+    sensors' pose kept leaves its outline off the ship's edges, that contradicts the sensors
+    too (:func:`_unconfirmed`). Never raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
     refined, found = _refine_within_prior(labels, geometry, vessel, settings)
     if not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW:
         return refined, found
+    chosen, result = _search_whole_image(labels, geometry, refined, found, vessel, settings)
+    if result is found:         # the search changed nothing: is the pose kept borne out?
+        result = _unconfirmed(found, geometry, vessel)
+    return chosen, result
+
+
+def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselSpec) -> PoseRefinement:
+    """``found``, flagged ``sensors_contradicted`` when the sensors' pose is kept although
+    under :data:`UNCONFIRMED_BELOW_SHARE` of its outline's points in view lie on a ship edge
+    with the hull mostly in view (:data:`CONTRADICTION_MIN_IN_VIEW`) and the whole-image
+    search placed it nowhere: the image does not show the vessel where the sensors put it.
+    Either the pose is off by more than the search could tell (on the bench: a fix 14 m
+    off, a heading reversed, a camera yaw 60 degrees off, with a model's mask) or the mask
+    misses the vessel; the distances are untrustworthy either way."""
+    if found.applied or found.reason == SENSORS_FIT:
+        return found
+    share = found.edge_share or 0.0
+    if share >= UNCONFIRMED_BELOW_SHARE:
+        return found
+    hull_h = homogeneous(vessel.hull_points)
+    outline = outline_points(hull_h, geometry.camera.project(geometry.vessel_to_enu(hull_h[:3].T))[0])
+    if outline.shape[1] == 0:
+        return found
+    uv = geometry.camera.project(geometry.vessel_to_enu(outline[:3].T))[0]
+    if geometry.camera.in_image(uv).mean() < CONTRADICTION_MIN_IN_VIEW:
+        return found
+    return replace(found, sensors_contradicted=True, reason=(
+        f"only {100 * share:.0f} % of the hull's outline lies on a ship edge where the sensors "
+        f"put it, and the image places it nowhere else ({found.reason})"))
+
+
+def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: FrameGeometry,
+                        found: PoseRefinement, vessel: VesselSpec, settings: PoseRefinementSettings
+                        ) -> tuple[FrameGeometry, PoseRefinement]:
+    """What the whole-image search makes of the refinement's result (``refined``, ``found``):
+    that result, unchanged, unless a placement corrects or contradicts it
+    (:func:`refine_vessel_pose`)."""
     placement = _gross_error(labels, geometry, found, vessel, settings)
     if placement is None:
         return refined, found
@@ -399,6 +439,9 @@ SEARCH_BELOW_SHARE = 0.8
 #: :func:`pose_search._sliding_starts`) when the pose leaves under this share there: the
 #: outline is then off its ship altogether, not pressed against a neighbour
 SLIDE_BELOW_SHARE = 0.5
+#: a sensors' pose kept with under this share of its outline's points in view on a ship
+#: edge, and placed nowhere else by the search, is not borne out by the image (:func:`_unconfirmed`)
+UNCONFIRMED_BELOW_SHARE = 0.2
 #: a placement must put this much more of its outline on ship edges than the pose kept or
 #: applied (a reversed heading applied at 100-140 m still put 75-79 % of its small outline
 #: on edges; at 0.15, 0 of 390 bench frames with 2 m and 2 degree sensors were flagged)

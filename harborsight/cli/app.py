@@ -51,6 +51,19 @@ def fmt_number(value: float | None, digits: int) -> str:
     return "—" if value is None or value != value else f"{value:.{digits}f}"
 
 
+def vessel_cache(vessel: Path | None):
+    """A :class:`~harborsight.pipeline.VesselCache` for ``--vessel`` (or the frames' own
+    specs) that says each spec's notes once, as ``note: FILE: ...`` on standard error."""
+    from harborsight.pipeline import VesselCache
+    from harborsight.vessel.spec import load_vessel_spec
+
+    def say(source: str, notes: tuple[str, ...]) -> None:
+        for note in notes:
+            err_console.print(f"note: {source}: {note}", markup=False, highlight=False)
+
+    return VesselCache(load_vessel_spec(vessel) if vessel else None, on_notes=say)
+
+
 def check_masks_folder(masks: Path | None) -> None:
     """One error for a --masks folder that is not there, rather than one per frame."""
     if masks is not None and not masks.is_dir():

@@ -19,6 +19,7 @@ from harborsight.cli.app import (
     console,
     err_console,
     load_segmenter,
+    vessel_cache,
 )
 from harborsight.errors import HarborsightError, InputError
 
@@ -192,8 +193,6 @@ def live_command(
     from harborsight.live.signalk import SignalKPublisher, stream_url
     from harborsight.live.stream import VideoFrames
     from harborsight.live.video_in import RTSP_TRANSPORTS, is_stream, read_stream
-    from harborsight.pipeline import VesselCache
-    from harborsight.vessel.spec import load_vessel_spec
 
     server = None
     try:
@@ -227,7 +226,7 @@ def live_command(
             raise InputError(None, "--metadata", "a stream's poses come live: give --mavlink "
                              "and --nmea instead")
         engine = LiveEngine(load_segmenter(model),
-                            VesselCache(load_vessel_spec(vessel) if vessel else None),
+                            vessel_cache(vessel),
                             clearance_settings(Method.ground_plane, None, None, POSE_MARGIN_PX, OWN_RIM_PX,
                                                refine_pose, sigma),
                             alarms)

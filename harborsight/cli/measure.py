@@ -25,6 +25,7 @@ from harborsight.cli.app import (
     fmt_number,
     load_segmenter,
     print_pose_refinement_summary,
+    vessel_cache,
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
@@ -75,8 +76,8 @@ def print_report_table(outcome: FrameOutcome) -> None:
         from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 
         reason = (report.pose_refinement or {}).get("reason")
-        console.print(f"[bold red]the image contradicts the sensors' pose ({reason}): these "
-                      f"distances were read with a wrong pose; {CONTRADICTION_ADVICE}[/bold red]")
+        console.print(f"[bold red]the image contradicts the sensors' pose ({reason}): no "
+                      f"distance of this frame is trusted; {CONTRADICTION_ADVICE}[/bold red]")
     else:
         console.print(f"closest: section {report.closest_section} at {fmt_number(md, 2)} m"
                       if md is not None else "no obstacle in view")
@@ -182,8 +183,7 @@ def measure(
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
     from harborsight.geometry.camera import load_camera_calibration
-    from harborsight.pipeline import FrameJob, VesselCache, measure_job
-    from harborsight.vessel.spec import load_vessel_spec
+    from harborsight.pipeline import FrameJob, measure_job
 
     try:
         if model is not None and (mask is not None or masks is not None):
@@ -192,7 +192,7 @@ def measure(
                                       refine_pose, sigma)
         prepare_output_folder(out, "--out", inputs=input_folders(input_path, meta, mask, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
-        vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
+        vessels = vessel_cache(vessel)
         if input_path.is_dir():
             for name, given in (("--meta", meta), ("--mask", mask)):
                 if given is not None:

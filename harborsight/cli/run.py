@@ -27,6 +27,7 @@ from harborsight.cli.app import (
     err_console,
     load_segmenter,
     print_pose_refinement_summary,
+    vessel_cache,
 )
 from harborsight.cli.measure import input_folders
 from harborsight.cli.progress import progress_report
@@ -149,8 +150,6 @@ def run_command(
     closing speeds per section over time. A bad frame is reported and skipped."""
     from harborsight.flight import FolderSource, RunOptions, VideoSource
     from harborsight.geometry.camera import load_camera_calibration
-    from harborsight.pipeline import VesselCache
-    from harborsight.vessel.spec import load_vessel_spec
 
     running = False         # whether run_flight has started (and owns run.json)
     try:
@@ -180,7 +179,7 @@ def run_command(
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
                                                 pose_margin_px, own_rim_px, refine_pose, sigma),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)
-        vessels = VesselCache(load_vessel_spec(vessel) if vessel else None)
+        vessels = vessel_cache(vessel)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,
                   "masks": str(masks) if masks else None}
         running = True

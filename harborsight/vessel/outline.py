@@ -134,3 +134,38 @@ def outline_from_dimensions(
         (shoulder_x, to_starboard),
     ])
     return convex_outline(points)
+
+
+#: where along the hull, as a share of its length from each end, the ends' widths are read
+END_SHARE = 0.1
+#: the bow end (+x) this much wider than the stern end at END_SHARE reads as a stern
+BLUNT_BOW_RATIO = 1.25
+
+
+def end_widths(outline: np.ndarray) -> tuple[float, float]:
+    """The outline's width (m, across x) at :data:`END_SHARE` of its length in from the bow
+    (+x) end and from the stern (-x) end."""
+    polygon = Polygon(outline)
+    x_min, y_min, x_max, y_max = polygon.bounds
+    step = END_SHARE * (x_max - x_min)
+
+    def width(x: float) -> float:
+        return float(polygon.intersection(shapely.LineString([(x, y_min - 1.0), (x, y_max + 1.0)])).length)
+
+    return width(x_max - step), width(x_min + step)
+
+
+def bow_looks_aft(outline: np.ndarray) -> str | None:
+    """A note when the mesh's bow end (+x in V, as ``mesh_axes`` put it) is clearly blunter
+    than its stern end: most hulls narrow toward the bow and end square or round at the
+    stern, so a mesh whose x axis runs aft (a CAD model's convention) given as
+    ``[bow, ...]`` shows a full end at +x. Then every section is mislabelled (section 0
+    reads the stern's water) and, on a hull nearly alike at both ends, nothing in the image
+    tells. None for a hull whose ends are alike (a barge, a double-ended ferry) or whose bow
+    is the narrower."""
+    bow_m, stern_m = end_widths(outline)
+    if bow_m > BLUNT_BOW_RATIO * stern_m:
+        return (f"the hull is {bow_m:.1f} m wide {100 * END_SHARE:.0f} % in from its bow end (+x) "
+                f"and {stern_m:.1f} m from its stern end: is the bow at -x? A mesh whose x "
+                "axis runs aft is given as [stern, ...]")
+    return None

@@ -15,6 +15,7 @@ from harborsight.errors import InputError, brief
 from harborsight.geometry.camera import load_yaml_text
 from harborsight.vessel.outline import (
     BOW_SHAPES,
+    bow_looks_aft,
     mesh_in_vessel_frame,
     outline_from_dimensions,
     outline_from_mesh,
@@ -41,6 +42,8 @@ class VesselSpec:
     source: str | None = None
     #: the whole vessel as a mesh in V (metres), when the spec gives one
     mesh: trimesh.Trimesh | None = field(default=None, repr=False, compare=False)
+    #: what a user should check in the spec (said once by the commands that load it)
+    notes: tuple[str, ...] = field(default=(), compare=False)
     _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
@@ -165,6 +168,7 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
                        limit=MAX_VESSEL_SIZE_M)
 
     mesh_v = None
+    notes: list[str] = []
     if doc.get("hull_mesh"):
         if not isinstance(doc["hull_mesh"], str):
             raise InputError(path, "hull_mesh", f"expected a mesh file name, got "
@@ -190,6 +194,9 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
             hull_points = above_water_hull_points(mesh_v)
         except ValueError as exc:
             raise InputError(path, "outline", str(exc)) from exc
+        aft = bow_looks_aft(outline)
+        if aft is not None:
+            notes.append(f"mesh_axes: {aft}")
     elif doc.get("dimensions"):
         dims = doc["dimensions"]
         if not isinstance(dims, dict):
@@ -230,7 +237,8 @@ def parse_vessel_spec(doc: Any, path: Path) -> VesselSpec:
         if isinstance(n, bool) or not isinstance(n, int) or n < 1:
             raise InputError(path, "sections", f"expected a positive whole number, got {brief(n)}")
         n_sections = n
-    spec = VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v)
+    spec = VesselSpec(name, outline, hull_points, n_sections, section_length, str(path), mesh_v,
+                      tuple(notes))
     try:
         spec.sections()
     except (ValueError, OverflowError) as exc:
