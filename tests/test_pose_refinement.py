@@ -469,9 +469,9 @@ def test_a_batch_summary_counts_the_frames_and_the_reasons():
     contradicted = refinement_summary([
         {"applied": True, "reason": None},
         {"applied": False, "reason": "height change -5.0 m beyond 4 m", "sensors_contradicted": True}])
-    assert contradicted.startswith("the image contradicts the sensors' pose beyond the refinement's "
-                                   "limits on 1 frame(s): their distances' lower bounds and clear "
-                                   "reaches are 0; pose refined on 1 of 2")
+    assert contradicted.startswith("the image contradicts the sensors' pose on 1 frame(s): their "
+                                   "distances' lower bounds and clear reaches are 0; pose refined "
+                                   "on 1 of 2")
     # one kind of reason, whatever the signs of its numbers
     signs = refinement_summary([
         {"applied": False, "reason": "height change +5.0 m beyond 4 m"},

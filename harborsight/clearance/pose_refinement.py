@@ -683,8 +683,8 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
     line = f"pose refined on {counts['applied']} of {ran} frame(s)"
     contradicted = sum(bool(r and r.get("sensors_contradicted")) for r in refinements)
     if contradicted:
-        line = (f"the image contradicts the sensors' pose beyond the refinement's limits on "
-                f"{contradicted} frame(s): their distances' lower bounds and clear reaches are 0; ") + line
+        line = (f"the image contradicts the sensors' pose on {contradicted} frame(s): their "
+                "distances' lower bounds and clear reaches are 0; ") + line
     if counts["sensors_pose_fitted"]:
         line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
     kept = [str(r.get("reason") or "") for r in refinements

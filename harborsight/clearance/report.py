@@ -87,8 +87,9 @@ class ClearanceReport:
     def sensors_contradicted(self) -> bool:
         """The image showed the sensors' pose wrong by more than the refinement may correct
         (:func:`harborsight.clearance.pose_refinement.contradicts_sensors`, or the
-        whole-image search for the hull): the distances
-        were read with a pose known to be off, so trackers and alarms leave them out."""
+        whole-image search for the hull), or showed no vessel where the sensors put it and
+        nowhere else: the distances were read with a pose the image does not bear out, so
+        trackers and alarms leave them out."""
         return bool(self.pose_refinement and self.pose_refinement.get("sensors_contradicted"))
 
     @property
