@@ -1037,3 +1037,16 @@ def test_cli_show_lists_the_accuracy_figures(tmp_path):
     px4, ardupilot, dji = json.loads((tmp_path / "s.json").read_text())
     assert px4["position_sigma_m"] == pytest.approx([1.7727, 2.3052], abs=1e-4)
     assert ardupilot["alt_sigma_m"] is None and dji["position_sigma_m"] is None
+
+
+def test_a_log_that_times_its_fixes_by_arrival_says_the_attitude_runs_late():
+    """The sample PX4 log's vehicle_gps_position has no timestamp_sample, and ArduPilot
+    stamps GPS by when it was logged: both carry the receiver's delay into the clock the
+    attitude is matched on, and say so once."""
+    from harborsight.telemetry.autopilot import read_ardupilot_bin, read_px4_ulog
+
+    for track, stamp in ((read_px4_ulog(TELEMETRY / "px4" / "sample_log_small.ulg"),
+                          "vehicle_gps_position.timestamp"),
+                         (read_ardupilot_bin(TELEMETRY / "ardupilot" / "test.BIN"), "GPS.TimeUS")):
+        said = [note for note in track.notes if "after the receiver's delay" in note]
+        assert len(said) == 1 and said[0].startswith(f"GPS fixes are timed by {stamp}")

@@ -47,7 +47,9 @@ the receiver's (``z_global`` is never set), epv 5.22-6.98 m; ArduPilot SITL HAcc
 
 GPS samples are timed by when the receiver measured them (PX4's ``timestamp_sample``, where the
 message has it) rather than when the driver published them, which is 0.1-0.2 s later on
-u-blox receivers. A log cut short (power lost in flight, or only the first part copied) ends in
+u-blox receivers. Where a log has only the arrival (older PX4 topics, ArduPilot's
+``GPS.TimeUS``) the track's notes say that the attitude is then read that much late
+(:data:`RECEIVER_DELAY_NOTE`). A log cut short (power lost in flight, or only the first part copied) ends in
 a partial record: it is read up to there, and the track's notes say so.
 """
 
@@ -82,6 +84,16 @@ GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
 #: GPS time minus UTC, from each UTC date on (IERS Bulletin C; none added since 2017-01-01).
 GPS_MINUS_UTC_S = ((datetime(2009, 1, 1, tzinfo=UTC), 15), (datetime(2012, 7, 1, tzinfo=UTC), 16),
                    (datetime(2015, 7, 1, tzinfo=UTC), 17), (datetime(2017, 1, 1, tzinfo=UTC), 18))
+
+
+#: said where a log times its GPS fixes by their arrival: the positions still meet the video
+#: on time (UTC is matched to the same stamps), but attitude, logged on time, is then read
+#: the receiver's delay later than it was (a helper's audit, twenty-sixth session: 0.2-0.4
+#: degrees of yaw at the PX4 sample's turn rate, 0.2 m for a point 30 m off the centre)
+RECEIVER_DELAY_NOTE = ("GPS fixes are timed by {stamp}, after the receiver's delay (0.1-0.2 s "
+                       "on u-blox receivers; ArduPilot's GPS_DELAY_MS or EK3_GPS_DELAY says "
+                       "what the autopilot assumes): the attitude is read that much after the "
+                       "moment each frame was taken")
 
 
 def utc_from_gps_time(gps_seconds: float) -> datetime:
@@ -268,7 +280,8 @@ def read_px4_ulog(path: str | Path) -> Track:
         notes.append(f"the log ends in a partial message ({tail} bytes): it was cut short, "
                      "and is read up to there")
     t_s = gps["timestamp"].astype(float) / 1e6
-    if "timestamp_sample" in gps and (gps["timestamp_sample"] > 0).all():
+    measured = "timestamp_sample" in gps and bool((gps["timestamp_sample"] > 0).all())
+    if measured:
         t_s = gps["timestamp_sample"].astype(float) / 1e6     # the measurement, not the publish
     good = np.ones(len(t_s), bool)
     if "fix_type" in gps:
@@ -339,6 +352,9 @@ def read_px4_ulog(path: str | Path) -> Track:
     else:
         notes.append("no vehicle_attitude topic: no attitude")
     notes += accuracy_notes
+    if not measured and att is not None:
+        notes.append(RECEIVER_DELAY_NOTE.format(stamp=f"{gps_topic}.timestamp, when the driver "
+                                                "published them (no timestamp_sample)"))
     return Track(
         source=path, kind="px4-ulog", t_s=t_s[good], lat_deg=lat[good], lon_deg=lon[good],
         alt_m=alt[good], alt_reference=alt_reference,
@@ -468,6 +484,8 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     if att is None:
         notes.append("no ATT messages: no attitude")
     notes += accuracy_notes
+    if att is not None:
+        notes.append(RECEIVER_DELAY_NOTE.format(stamp="GPS.TimeUS, when they were logged"))
     return Track(
         source=path, kind="ardupilot-bin", t_s=t_s, lat_deg=gps[:, 1], lon_deg=gps[:, 2],
         alt_m=alt, alt_reference=alt_reference,
