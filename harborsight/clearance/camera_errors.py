@@ -16,9 +16,20 @@ from dataclasses import replace
 
 import numpy as np
 
-from harborsight.clearance.alignment import corrected_geometry
+from harborsight.clearance.alignment import (
+    SCHEDULES,
+    Alignment,
+    SignedDistance,
+    corrected_geometry,
+    gauss_newton,
+    homogeneous,
+    outline_fit,
+    outline_points,
+)
+from harborsight.clearance.pose_search import edge_share
 from harborsight.frame import FrameGeometry
 from harborsight.geometry.camera import Camera
+from harborsight.geometry.rotations import rot_x, rot_y
 
 #: a tilt (deg) this small is no gross error: the refinement's prior takes it as a shift
 MIN_TILT_DEG = 2.0
@@ -43,10 +54,8 @@ def camera_yaw_explains(params: np.ndarray, geometry: FrameGeometry, tolerance_m
 
 def _tilted(camera: Camera, east_rad: float, north_rad: float) -> Camera:
     """The camera turned about the world's east, then north axis through its centre."""
-    ce, se, cn, sn = math.cos(east_rad), math.sin(east_rad), math.cos(north_rad), math.sin(north_rad)
-    about_east = np.array([[1.0, 0.0, 0.0], [0.0, ce, -se], [0.0, se, ce]])
-    about_north = np.array([[cn, 0.0, sn], [0.0, 1.0, 0.0], [-sn, 0.0, cn]])
-    return Camera(camera.intrinsics, camera.position_enu, about_north @ about_east @ camera.world_from_camera)
+    return Camera(camera.intrinsics, camera.position_enu,
+                  rot_y(north_rad) @ rot_x(east_rad) @ camera.world_from_camera)
 
 
 def _tilt_start(params: np.ndarray, geometry: FrameGeometry, hull_points_v: np.ndarray,
@@ -108,17 +117,6 @@ def camera_tilt_explaining(params: np.ndarray, geometry: FrameGeometry, hull_poi
     ``max_residual_px``, at least ``min_edge_share`` of the outline's points in view on a
     ship edge) and the tilt is at least :data:`MIN_TILT_DEG`. ``hull_points_v`` are the
     hull's points in the vessel frame."""
-    from harborsight.clearance.alignment import (
-        SCHEDULES,
-        Alignment,
-        SignedDistance,
-        gauss_newton,
-        homogeneous,
-        outline_fit,
-        outline_points,
-    )
-    from harborsight.clearance.pose_search import edge_share
-
     start = _tilt_start(params, geometry, hull_points_v, prior_sigma)
     if start is None:
         return None

@@ -194,8 +194,8 @@ def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     intr = geometry.camera.intrinsics
     height_m = max(float(geometry.camera.position_enu[2]), 1e-3)
     # 2.5 sigma of the prior: a correction beyond it needs edges the window still holds
-    reach_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m) + 0.5 * vessel.length_m * (
-        math.radians(min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg)))
+    shift_m, rotation_deg, _ = _reach(settings)
+    reach_m = shift_m + 0.5 * vessel.length_m * math.radians(rotation_deg)
     reach_px = min(reach_m * max(intr.fx, intr.fy) / height_m, max(shape)) + 4
     lo = np.floor(finite.min(axis=0) - reach_px).astype(int)
     hi = np.ceil(finite.max(axis=0) + reach_px).astype(int)
@@ -231,7 +231,7 @@ def _translation_search(align: Alignment, outline: np.ndarray, settings: PoseRef
     cheaper than the sensors' pose and more than 1.5 steps from the other starts (``taken``,
     the sensors' pose among them) and from each other; none when no cell beats the sensors'
     pose."""
-    reach_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
+    reach_m = _reach(settings)[0]
     step_m = SEARCH_STEP_SIGMA * settings.prior_shift_m
     n = int(reach_m // step_m)
     if n < 1 or outline.shape[1] == 0:
@@ -349,10 +349,8 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
         again = _refine_within_prior(labels, geometry, vessel, settings, extra_start=params)
         return again if again[1].applied else (refined, found)
     gross = _gross(placement.params, geometry, settings)
-    reach_shift_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
-    reach = _beyond(placement.params, reach_shift_m,
-                    min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
-                    settings.max_height_change_m)
+    reach_shift_m, reach_rotation_deg, reach_height_m = _reach(settings)
+    reach = _beyond(placement.params, reach_shift_m, reach_rotation_deg, reach_height_m)
     camera_yaw = (gross[0] or gross[1]) and camera_yaw_explains(placement.params, geometry, reach_shift_m)
     # the reason names the camera's yaw where the shift alone is beyond the reach (a turn with
     # a small shift is as well a heading's error)
@@ -366,9 +364,7 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
             placement.params, geometry, vessel.hull_points, labels == SHIP,
             np.array([settings.prior_shift_m, settings.prior_shift_m,
                       math.radians(settings.prior_heading_deg), settings.prior_height_m]),
-            np.array([reach_shift_m, math.radians(min(settings.max_rotation_deg,
-                                                      2.5 * settings.prior_heading_deg)),
-                      settings.max_height_change_m]),
+            np.array([reach_shift_m, math.radians(reach_rotation_deg), reach_height_m]),
             settings.edge_sigma_px ** -2.0, settings.max_residual_px, SEARCH_BELOW_SHARE)
         if tilt_deg is not None:
             gross, reach = [True, False, False], [True, False, False]
@@ -399,6 +395,19 @@ def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarr
         return None
     corners = cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2)
     return [[round(float(u), 1), round(float(v), 1)] for u, v in corners]
+
+
+def _reach(settings: PoseRefinementSettings) -> tuple[float, float, float]:
+    """The refinement's reach: 2.5 sigma of its prior for the shift (m) and the rotation (deg),
+    within the limits, and the height's limit (m)."""
+    return (min(settings.max_shift_m, 2.5 * settings.prior_shift_m),
+            min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
+            settings.max_height_change_m)
+
+
+def _as_params(found: PoseRefinement) -> np.ndarray:
+    """A refinement's correction as ``(de, dn, dpsi rad, dh)``."""
+    return np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m])
 
 
 def _gross(params: np.ndarray, geometry: FrameGeometry, settings: PoseRefinementSettings) -> list[bool]:
@@ -470,13 +479,11 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
         return None
     align = whole_image_alignment(ship, geometry)
     hull_h = homogeneous(vessel.hull_points)
-    chosen = (np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m])
-              if found.applied else np.zeros(4))
+    chosen = _as_params(found) if found.applied else np.zeros(4)
     known = labels != IGNORE
     # the refinement's own correction, refused for its size, is a start too: the search's
     # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)
-    refused = (np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m]),
-               ) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
+    refused = (_as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
     chosen_uv = align.pixels(hull_h, chosen)
     whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
     on_a_ship = ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill
@@ -485,7 +492,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
         """The pose sits on a ship, and ``params`` lay the hull on another one."""
         return on_a_ship and silhouette_overlap(chosen_uv, align.pixels(hull_h, params)) < SAME_SHIP_OVERLAP
 
-    reach_shift_m = min(settings.max_shift_m, 2.5 * settings.prior_shift_m)
+    reach_shift_m = _reach(settings)[0]
 
     def gross_errors(params: np.ndarray) -> int:
         gross = _gross(params, geometry, settings)

@@ -151,23 +151,34 @@ def _wrap_axis(angle: float) -> float:
     return (angle + math.pi / 2) % math.pi - math.pi / 2
 
 
+def _centroid_jacobian(align: Alignment, hull_h: np.ndarray
+                       ) -> tuple[tuple[float, np.ndarray, float, float], np.ndarray] | None:
+    """The predicted silhouette's region (:func:`_region`) at the sensors' pose and its
+    centroid's Jacobian in the shift (pixels per metre, columns east and north), from
+    projections 1 m east and 1 m north; None when either fails or it is singular."""
+    predicted = _silhouette(align, hull_h, np.zeros(4))
+    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
+    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
+    if predicted is None or east is None or north is None:
+        return None
+    jacobian = np.column_stack((east[1] - predicted[1], north[1] - predicted[1]))
+    if abs(np.linalg.det(jacobian)) < 1e-9:
+        return None
+    return predicted, jacobian
+
+
 def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.ndarray]:
     """Poses ``(de, dn, dpsi, dh)`` that lay the silhouette on the largest ship blobs. The
     shift puts the silhouette's centroid on the blob's in one Newton step, with the
     centroid's Jacobian in the shift taken at the sensors' pose from projections 1 m east
     and 1 m north and scaled by ``H / (H + dh)`` (pixels per metre go as one over the
     range); the silhouette moves as a whole, so the Jacobian holds for any heading."""
-    predicted = _silhouette(align, hull_h, np.zeros(4))
-    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
-    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
-    turned = _silhouette(align, hull_h, np.array([0.0, 0.0, 0.2, 0.0]))
+    found = _centroid_jacobian(align, hull_h)
     height_m = float(align.camera.position_enu[2])
-    if predicted is None or east is None or north is None or height_m <= 0:
+    if found is None or height_m <= 0:
         return []
-    area_pred, centroid_pred, angle_pred, length_pred = predicted
-    jacobian = np.column_stack((east[1] - centroid_pred, north[1] - centroid_pred))
-    if abs(np.linalg.det(jacobian)) < 1e-9:
-        return []
+    (area_pred, _, angle_pred, length_pred), jacobian = found
+    turned = _silhouette(align, hull_h, np.array([0.0, 0.0, 0.2, 0.0]))
     # +1 when the image axis turns with the heading, -1 when against it (a mirrored view)
     sense = 1.0 if turned is None or _wrap_axis(turned[2] - angle_pred) >= 0 else -1.0
     # the blobs' outer contours (8-connected; holes filled): their polygons' moments are a
@@ -223,14 +234,10 @@ def _sliding_starts(align: Alignment, hull_h: np.ndarray, beyond_m: float = 0.0)
     give a shift through the centroid's Jacobian (pixels per metre at the sensors' pose);
     shifts under ``beyond_m`` are left to the refinement, whose reach they are within (at
     150 m a poor mask's blob near the pose took a shrunk hull there for a height error)."""
-    predicted = _silhouette(align, hull_h, np.zeros(4))
-    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
-    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
-    if predicted is None or east is None or north is None:
+    predicted = _centroid_jacobian(align, hull_h)
+    if predicted is None:
         return []
-    jacobian = np.column_stack((east[1] - predicted[1], north[1] - predicted[1]))
-    if abs(np.linalg.det(jacobian)) < 1e-9:
-        return []
+    jacobian = predicted[1]
     field = np.minimum(np.abs(align.sdf.field), np.float32(SLIDE_TRUNCATE_PX))
     small = cv2.resize(field, None, fx=SLIDE_SCALE, fy=SLIDE_SCALE, interpolation=cv2.INTER_AREA)
     origin = np.array([align.sdf.u0, align.sdf.v0], float)

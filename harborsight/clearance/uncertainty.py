@@ -92,6 +92,7 @@ from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
 from harborsight.clearance.report import STATUS_OK, SectionClearance
 from harborsight.frame import FrameGeometry
 from harborsight.geometry.camera import Camera
+from harborsight.geometry.rotations import rot_x, rot_y, rot_z
 from harborsight.geometry.sensor_sigmas import SensorSigmas
 from harborsight.perception.classes import IGNORE, SHIP, WATER
 
@@ -132,16 +133,6 @@ class FrameVelocities:
     vessel_en_mps: tuple[float, float] | None = None
 
 
-def _world_rotation(axis: int, angle_rad: float) -> np.ndarray:
-    """Rotation by ``angle_rad`` about world axis 0 (east), 1 (north) or 2 (up)."""
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    rotation = np.eye(3)
-    rotation[i, i] = rotation[j, j] = c
-    rotation[i, j], rotation[j, i] = -s, s
-    return rotation
-
-
 def _camera_errors(sigmas: SensorSigmas) -> list[str]:
     """The names of the camera errors :func:`_perturbed_cameras` moves the camera by, in its
     order: ``height``, ``yaw``, ``tilt_east``, ``tilt_north`` (those with a sigma above 0)."""
@@ -159,10 +150,10 @@ def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
     if height_m > 0:
         cameras.append(Camera(camera.intrinsics, camera.position_enu + np.array([0.0, 0.0, height_m]),
                               camera.world_from_camera))
-    for axis, sigma_deg in ((2, sigmas.camera_yaw_deg), (0, sigmas.camera_tilt_deg),
-                            (1, sigmas.camera_tilt_deg)):
+    for about, sigma_deg in ((rot_z, sigmas.camera_yaw_deg), (rot_x, sigmas.camera_tilt_deg),
+                             (rot_y, sigmas.camera_tilt_deg)):
         if sigma_deg > 0:
-            turn = _world_rotation(axis, math.radians(sigma_deg))
+            turn = about(math.radians(sigma_deg))   # about the world's up, east or north
             cameras.append(Camera(camera.intrinsics, camera.position_enu,
                                   turn @ camera.world_from_camera))
     return cameras

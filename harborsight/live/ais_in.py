@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 
-from harborsight.live.telemetry import LiveTrack
+from harborsight.live.telemetry import LiveTrack, worth_saying
 from harborsight.telemetry.ais import (
     POSITION_TYPES,
     fix_time,
@@ -54,7 +54,7 @@ class AisVessel:
             fields = message.decode().asdict()
         except Exception:                    # pyais's errors are many types
             self.unreadable += 1
-            if self.unreadable in (1, 10, 100) or self.unreadable % 1000 == 0:
+            if worth_saying(self.unreadable):
                 self.track.warn(f"AIS: {self.unreadable} unreadable sentence(s) skipped")
             return
         own = line[start + 3:start + 6] == "VDO"
@@ -74,14 +74,14 @@ class AisVessel:
         unmeasured = unmeasured_position(fields)
         if unmeasured is not None:      # a frozen position must not keep the source fresh
             self.unmeasured += 1
-            if self.unmeasured in (1, 10, 100) or self.unmeasured % 1000 == 0:
+            if worth_saying(self.unmeasured):
                 self.track.warn(f"AIS: {self.unmeasured} position report(s) not from a working "
                                 f"position fix skipped (the last: {unmeasured})")
             return
         heading, _ = report_heading(fields, self.allow_cog_heading)
         if heading is None:
             self.no_heading += 1
-            if self.no_heading in (1, 10, 100):
+            if worth_saying(self.no_heading, every=None):
                 self.track.warn(f"AIS: {self.no_heading} report(s) without a true heading "
                                 "(511) skipped (--allow-cog-heading takes the course)")
             return

@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import ClockMap, LiveTrack
+from harborsight.live.telemetry import ClockMap, LiveTrack, worth_saying
 from harborsight.telemetry.accuracy import per_axis_from_radial_m
 
 ALTITUDES = ("relative", "amsl")
@@ -106,7 +106,7 @@ class MavlinkDrone:
         kind = message.get_type()
         if kind == "BAD_DATA":
             self.bad_frames += 1
-            if self.bad_frames in (1, 10, 100) or self.bad_frames % 1000 == 0:
+            if worth_saying(self.bad_frames):
                 self._warn(f"{self.bad_frames} unreadable MAVLink frame(s) skipped (bad CRC or "
                            "garbage)")
             return
@@ -117,7 +117,7 @@ class MavlinkDrone:
                 self.system_id = system
             if self.system_id is not None and system != self.system_id:
                 self.other_systems += 1
-                if self.other_systems in (1, 10, 100) or self.other_systems % 1000 == 0:
+                if worth_saying(self.other_systems):
                     self._warn(f"{self.other_systems} MAVLink message(s) of system {system} left "
                                f"out (the drone is system {self.system_id})")
                 return

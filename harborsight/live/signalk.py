@@ -34,7 +34,7 @@ from datetime import datetime
 from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import LiveTrack
+from harborsight.live.telemetry import LiveTrack, worth_saying
 
 STREAM_PATH = "/signalk/v1/stream"
 #: a section's status as a Signal K notification state
@@ -95,7 +95,7 @@ class SignalKVessel:
         if context not in (None, "vessels.self") and self.self_context is not None \
                 and context != self.self_context:
             self.other_vessels += 1
-            if self.other_vessels in (1, 10, 100):
+            if worth_saying(self.other_vessels, every=None):
                 self.track.warn(f"Signal K: {self.other_vessels} delta(s) of other vessels "
                                 f"({str(context)[:60]}) left out")
             return
@@ -104,7 +104,7 @@ class SignalKVessel:
                 stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
                 jumps = self.track.clock.jumps
                 t_s = self.track.clock.observe(stamp.timestamp(), now_s)
-                if self.track.clock.jumps != jumps and self.track.clock.jumps in (1, 10, 100):
+                if self.track.clock.jumps != jumps and worth_saying(self.track.clock.jumps, every=None):
                     self.track.warn(f"Signal K: the vessel's clock jumped ({self.track.clock.jumps} "
                                     "time(s)): its time alignment starts again (two clocks on "
                                     "the bus, or a server without time sync?)")
@@ -113,7 +113,7 @@ class SignalKVessel:
                     path = item.get("path")
                     if self.sources.setdefault(path, source) != source:
                         self.other_sources += 1
-                        if self.other_sources in (1, 10, 100):
+                        if worth_saying(self.other_sources, every=None):
                             self.track.warn(f"Signal K: {path} also comes from {source!r}; "
                                             f"{self.sources[path]!r}, heard first, is kept "
                                             f"({self.other_sources} value(s) left out)")
@@ -121,7 +121,7 @@ class SignalKVessel:
                     self._value(path, item.get("value"), t_s, now_s)
             except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 self.unreadable += 1
-                if self.unreadable in (1, 10, 100):
+                if worth_saying(self.unreadable, every=None):
                     self.track.warn(f"Signal K: {self.unreadable} unreadable update(s) skipped ({exc})")
 
     def _value(self, path, value, t_s: float, now_s: float) -> None:

@@ -72,6 +72,12 @@ class ClockMap:
         return None if self._best is None else local_s - self._best - self.offset_s
 
 
+def worth_saying(count: int, every: int | None = 1000) -> bool:
+    """Whether the ``count``-th of a repeated warning is said: the 1st, 10th and 100th, and
+    then every ``every``-th (None: no more), so a flood is heard without drowning the log."""
+    return count in (1, 10, 100) or (every is not None and count % every == 0)
+
+
 class LiveTrack:
     """A feed's samples of the last ``HORIZON_S`` seconds on the monotonic clock, written by
     the feed's reader thread and read as a :class:`Track` by the measuring loop."""
