@@ -271,3 +271,62 @@ def test_a_tree_crown_is_a_lumpy_mass_of_convex_lobes():
         footprint = unary_union([MultiPoint(np.asarray(m.vertices)[:, :2]).convex_hull for m in lobes])
         assert footprint.area < 0.99 * footprint.convex_hull.area     # one ellipsoid: 1.0
 
+
+
+def test_wooded_shores_fill_the_land_with_canopy_and_keep_houses_and_road_clear():
+    """Most lake-shore photos show canopy over most of the land, houses in clearings
+    (docs/simulator.md). Over 6 shores the crowns cover at least four times as much of the
+    land within 70 m of the waterline (|x| < 100 m along it) as the clumps along the edge
+    alone; no trunk of the woods (the trees placed after the houses) stands in a house or
+    on the road."""
+    from shapely.geometry import Point, box
+    from shapely.ops import unary_union
+
+    from harborsight.sim.families import add_shore
+    from harborsight.sim.layout import _Builder
+
+    covers = {0.0: [], 1.0: []}
+    for share in covers:
+        for seed in range(6):
+            b = _Builder(np.random.default_rng(seed), 0.0)   # the shore along north, land east
+            add_shore(b, (0.0, 0.0), 0.0, "shore", wooded_share=share)
+            land = next(o for o in b.objects if o.kind == "land").footprint()
+            band = land.intersection(box(-10, -100, 70, 100))
+            trees = [o for o in b.objects if o.kind == "tree"]
+            crowns = unary_union([t.footprint() for t in trees]).intersection(band)
+            covers[share].append(crowns.area / band.area)
+            last_house = max(i for i, o in enumerate(b.objects) if o.kind in ("house", "car"))
+            solid = [o.footprint() for o in b.objects if o.kind in ("house", "road")]
+            for tree in b.objects[last_house + 1:]:
+                assert tree.kind == "tree"
+                trunk = Point(np.asarray(tree.parts[0].mesh.vertices)[:, :2].mean(axis=0))
+                assert all(trunk.distance(fp) > 0.3 for fp in solid)
+    assert np.mean(covers[1.0]) > 4 * np.mean(covers[0.0]), covers
+    assert np.mean(covers[1.0]) > 0.35, covers
+
+
+def test_woods_stop_where_no_camera_of_the_frame_can_see(vessels):
+    """view_reach bounds where a frame's image corners meet the water (so filler beyond it is
+    never seen), and a wooded lake shore at 30 m holds fewer trees than the same scene at
+    150 m: the same draws, the trees out of reach left out."""
+    from harborsight.sim.families import WOODED_SHARE
+    from harborsight.sim.layout import VIEW_REACH_MARGIN_M, view_reach
+
+    config = SimulationConfig(seed=21, preset="tiny", vessel_pool=2, scenario="lakeshore",
+                              altitudes_m=(30.0,))
+    for index in range(6):
+        scene = plan_frame(config, index, vessels)
+        camera = scene.geometry().camera
+        w, h = scene.intrinsics.width, scene.intrinsics.height
+        corners = np.array([(-0.5, -0.5), (w - 0.5, -0.5), (-0.5, h - 0.5), (w - 0.5, h - 0.5)])
+        ground, valid = camera.back_project_to_plane(corners)
+        assert valid.all()
+        vessel_xy = scene.geometry().vessel_position_enu[:2]
+        reach = view_reach(30.0, scene.intrinsics, 15.0) - VIEW_REACH_MARGIN_M
+        assert np.hypot(*(ground[:, :2] - vessel_xy).T).max() <= reach
+    assert WOODED_SHARE > 0.5
+    high = replace(config, altitudes_m=(150.0,))
+    counts = [(sum(o.kind == "tree" for o in plan_frame(config, i, vessels).objects),
+               sum(o.kind == "tree" for o in plan_frame(high, i, vessels).objects)) for i in range(6)]
+    assert all(low <= far for low, far in counts)
+    assert sum(low for low, _ in counts) < 0.8 * sum(far for _, far in counts), counts

@@ -324,11 +324,13 @@ def _local_to_vessel(origin_v: tuple[float, float], along_deg: float, x: float, 
 
 
 def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag: str,
-              length_m: float = 360.0, depth_m: float = 140.0):
+              length_m: float = 360.0, depth_m: float = 140.0, wooded_share: float = 0.0):
     """Land whose waterline runs through ``origin_v`` along ``along_deg`` (water on the left
     of that direction, land on the right), with a wavy edge, a lawn, a rip-rap or sand band,
-    trees (some over the water), houses, a road and cars. Returns the waterline as a function
-    of the local x (along the shore; local y toward the water), for docks to start from."""
+    trees (some over the water), houses, a road and cars; with probability ``wooded_share``
+    woods over the land behind the waterline (:func:`_add_woods`; no draw at 0). Returns the
+    waterline as a function of the local x (along the shore; local y toward the water), for
+    docks to start from."""
     rng = b.rng
     height = rng.uniform(0.4, 1.6)
     lawn = b.material(f"{tag}-lawn", Material(
@@ -371,20 +373,8 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
     for _ in range(int(rng.integers(20, 70))):      # in clumps along the shore, as in the photos
         x = float(np.clip(rng.choice(clumps) + rng.normal(0, 10), -length_m / 2 + 5, length_m / 2 - 5))
         back = float(rng.exponential(12.0)) + 0.5
-        y = edge_at(x) - back
-        r = float(rng.uniform(2.0, 7.0))
-        # greens of sunlit deciduous canopy in the lake-shore photos (linear RGB), and darker
-        # conifers; leaf clusters a metre or less across in the texture
-        crown_rgb = _pick([(0.04, 0.1, 0.02), (0.07, 0.14, 0.03), (0.1, 0.16, 0.04), (0.05, 0.08, 0.03),
-                           (0.12, 0.13, 0.05), (0.1, 0.22, 0.04), (0.14, 0.25, 0.06)], rng)
-        crown = b.material(f"{tag}-crown{b.next_instance}", Material(_jitter(crown_rgb, rng), 0.95,
-                                                                     0.0, 0.5, 2.5))
-        tall = float(rng.uniform(1.5, 3.0)) * r
-        xv, yv = place(x, y)
-        b.add(f"{tag}-tree{b.next_instance}", "tree", OBSTACLE,
-              [(_cylinder(0.25 + 0.03 * r, tall - r, 0, 0, height, 6), bark)]
-              + [(lobe, crown) for lobe in _crown_lobes(r, height + tall - 0.5 * r, rng)],
-              xv, yv, along_deg)
+        _add_tree(b, tag, place(x, edge_at(x) - back), along_deg, float(rng.uniform(2.0, 7.0)),
+                  height, bark)
     # a road behind the houses, houses with gabled roofs, cars on drives
     road_y = -rng.uniform(40.0, 80.0)
     asphalt = b.material(f"{tag}-asphalt", Material(_grey((0.06, 0.06, 0.065), rng, 0.3), 0.8, 0.0, 0.2, 1.0))
@@ -393,6 +383,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
           xv, yv, along_deg)
     wall = b.material(f"{tag}-wall", Material(_jitter(_pick([(0.6, 0.55, 0.45), (0.7, 0.7, 0.68),
                                                              (0.35, 0.2, 0.12)], rng), rng), 0.7))
+    clearings: list[tuple[float, float, float, float]] = []     # house centres, half sizes
     x = -length_m / 2 + rng.uniform(5, 25)
     while x < length_m / 2 - 15:
         lx, ly = rng.uniform(9, 18), rng.uniform(8, 14)
@@ -402,6 +393,7 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
                                                                    0.0, 0.25, 1.5))
         wall_h = rng.uniform(3, 6)
         xv, yv = place(x, y)
+        clearings.append((x, y, lx / 2 + WOOD_CLEARING_M, ly / 2 + WOOD_CLEARING_M))
         b.add(f"{tag}-house{b.next_instance}", "house", OBSTACLE,
               [(_box(lx, ly, wall_h, 0, 0, height), wall), (_gable(lx + 0.6, ly + 0.6, rng.uniform(2, 4),
                                                                 height + wall_h), roof)],
@@ -414,7 +406,70 @@ def add_shore(b: _Builder, origin_v: tuple[float, float], along_deg: float, tag:
                   [(_box(4.5, 1.8, 0.8, 0, 0, height + 0.2), car_mat),
                    (_box(2.4, 1.6, 0.6, -0.2, 0, height + 1.0), car_mat)], xv, yv, along_deg + 90.0)
         x += lx + rng.uniform(8, 30)
+    if wooded_share > 0 and rng.random() < wooded_share:
+        _add_woods(b, tag, place, edge_at, along_deg, length_m, height, bark, road_y, clearings)
     return edge_at
+
+
+#: share of shores whose land is wooded behind the waterline, not a lawn with a few clumps:
+#: most of the lake-shore photos show canopy over most of the land, houses in clearings
+WOODED_SHARE = 0.65
+#: metres of open ground kept round a house and either side of the road's centre in a wood
+WOOD_CLEARING_M = 2.0
+WOOD_ROAD_CLEARING_M = 5.0
+#: woods reach this far either way along the shore from the point nearest the vessel: a
+#: camera at 150 m, offset by 10 %, sees about 120 m either way
+WOOD_HALF_LENGTH_M = 130.0
+#: a crown's footprint is about 2.24 r^2 (mean of 200 crowns of :func:`_crown_lobes`, 10-90 %:
+#: 1.96-2.52), not pi (1.15 r)^2: its lobes reach 1.15 r only here and there
+CROWN_AREA_PER_R2 = 2.24
+
+
+def _add_tree(b: _Builder, tag: str, at_v: tuple[float, float], along_deg: float, radius_m: float,
+              ground_z: float, bark: str) -> None:
+    """A tree at ``at_v`` (vessel frame): a trunk and a lumpy crown of radius ``radius_m``,
+    1.5-3 radii tall, in one of the greens of sunlit deciduous canopy in the lake-shore
+    photos (linear RGB) or a darker conifer's, leaf clusters a metre or less across."""
+    rng = b.rng
+    crown_rgb = _pick([(0.04, 0.1, 0.02), (0.07, 0.14, 0.03), (0.1, 0.16, 0.04), (0.05, 0.08, 0.03),
+                       (0.12, 0.13, 0.05), (0.1, 0.22, 0.04), (0.14, 0.25, 0.06)], rng)
+    crown = b.material(f"{tag}-crown{b.next_instance}", Material(_jitter(crown_rgb, rng), 0.95,
+                                                                 0.0, 0.5, 2.5))
+    tall = float(rng.uniform(1.5, 3.0)) * radius_m
+    b.add(f"{tag}-tree{b.next_instance}", "tree", OBSTACLE,
+          [(_cylinder(0.25 + 0.03 * radius_m, tall - radius_m, 0, 0, ground_z, 6), bark)]
+          + [(lobe, crown) for lobe in _crown_lobes(radius_m, ground_z + tall - 0.5 * radius_m, rng)],
+          at_v[0], at_v[1], along_deg)
+
+
+def _add_woods(b: _Builder, tag: str, place, edge_at, along_deg: float, length_m: float,
+               ground_z: float, bark: str, road_y: float,
+               clearings: list[tuple[float, float, float, float]]) -> None:
+    """Canopy over the land from 3 m behind the waterline to 35-75 m back, within
+    :data:`WOOD_HALF_LENGTH_M` of the shore's middle (no camera of the family sees farther
+    along it): trees of 3.5-8 m crown radius at uniform random places, their crowns' areas
+    adding up to 0.6-1.4 times the band's (they overlap, so 45-75 % of it is covered, less
+    the clearings), none with its trunk within a house's clearing or on the road, and none
+    beyond the builder's ``view_reach_m`` (the view, not the scene, is what the woods fill).
+    Local coordinates of the shore (x along it, y toward the water)."""
+    rng = b.rng
+    depth_m = float(rng.uniform(35.0, 75.0))
+    cover = float(rng.uniform(0.6, 1.4))
+    half_m = min(WOOD_HALF_LENGTH_M, length_m / 2 - 5)
+    r_low, r_high = 3.5, 8.0
+    # E[r^2] of r ~ U(r_low, r_high), times a crown's footprint per r^2
+    mean_crown_m2 = CROWN_AREA_PER_R2 * (r_high ** 3 - r_low ** 3) / (3 * (r_high - r_low))
+    for _ in range(int(cover * 2 * half_m * depth_m / mean_crown_m2)):
+        x = float(rng.uniform(-half_m, half_m))
+        y = edge_at(x) - float(rng.uniform(3.0, depth_m))
+        radius = float(rng.uniform(r_low, r_high))
+        at_v = place(x, y)
+        if abs(y - road_y) < WOOD_ROAD_CLEARING_M or any(
+                abs(x - cx) < hx and abs(y - cy) < hy for cx, cy, hx, hy in clearings):
+            continue
+        if b.view_reach_m is not None and math.hypot(*at_v) > b.view_reach_m + radius:
+            continue        # never in view: its draws are made all the same
+        _add_tree(b, tag, at_v, along_deg, radius, ground_z, bark)
 
 
 #: dock and pontoon decking: weathered and stained wood
@@ -544,7 +599,7 @@ def build_lakeshore(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, 
     half_beam = float(hull_xy[:, 1].max() if side > 0 else -hull_xy[:, 1].min())
     shore_y = side * (half_beam + gap_m + reach)
     along = skew if side > 0 else 180.0 + skew    # water on the left of the shore's direction
-    edge_at = add_shore(b, (0.0, shore_y), along, "shore")
+    edge_at = add_shore(b, (0.0, shore_y), along, "shore", wooded_share=WOODED_SHARE)
     limit = gap_m + 0.05
     vessel_fp = b.objects[0].footprint()          # W, as every footprint
     out_deg = along - 90.0                        # from the shore toward the water

@@ -237,9 +237,13 @@ def _cylinder(radius: float, height: float, x: float = 0.0, y: float = 0.0,
 class _Builder:
     """Collects objects and materials; places local meshes in the world."""
 
-    def __init__(self, rng: np.random.Generator, heading_deg: float) -> None:
+    def __init__(self, rng: np.random.Generator, heading_deg: float,
+                 view_reach_m: float | None = None) -> None:
         self.rng = rng
         self.heading_deg = heading_deg
+        #: no camera of the scene sees (or is shaded from) farther than this from the
+        #: vessel's origin; None: unknown. Filler that only fills the view (woods) stops there
+        self.view_reach_m = view_reach_m
         self.r_enu_v = enu_from_vessel_rotation(math.radians(heading_deg))
         self.objects: list[SceneObject] = []
         self.materials: dict[str, Material] = {}
@@ -606,6 +610,24 @@ def _try_add(b: _Builder, make, margin_m: float = 0.5) -> SceneObject | None:
     return obj
 
 
+def view_reach(altitude_m: float, intrinsics: CameraIntrinsics, max_tilt_deg: float) -> float:
+    """How far from the vessel's origin a frame's camera can see on the water, with margin.
+    The camera aims at a point up to ``0.1 h`` off the vessel per axis (:func:`_with_camera`),
+    and a ray ``t + θ`` off the vertical (``θ = atan(r_corner / f)``, the image corner; ``t``
+    the tilt, plus 3 degrees of roll) meets the water ``h (tan(t + θ) - tan t)`` from that
+    point, at most ``h tan(t + θ)``. Plus :data:`VIEW_REACH_MARGIN_M` for what casts a
+    shadow into the view or reaches in from beyond (a tree's crown)."""
+    corner_px = math.hypot(intrinsics.width / 2, intrinsics.height / 2)
+    off_axis = math.atan(corner_px / min(intrinsics.fx, intrinsics.fy)) + math.radians(max_tilt_deg + 3.0)
+    if off_axis >= math.radians(80.0):
+        return math.inf
+    return altitude_m * (math.tan(off_axis) + 0.1 * math.sqrt(2.0)) + VIEW_REACH_MARGIN_M
+
+
+#: metres added to :func:`view_reach`: a 24 m tree's shadow with the sun 31 degrees up
+VIEW_REACH_MARGIN_M = 40.0
+
+
 def sample_harbour_scene(
     vessel: VesselSpec, vessel_dir_name: str, rng: np.random.Generator, *, altitude_m: float,
     intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
@@ -624,7 +646,7 @@ def sample_harbour_scene(
         raise ValueError(f"unknown scenario {scenario!r}; choose from "
                          f"{sorted(SCENARIOS) + list(FAMILIES)}")
     heading = float(rng.uniform(0.0, 360.0))
-    b = _Builder(rng, heading)
+    b = _Builder(rng, heading, view_reach_m=view_reach(altitude_m, intrinsics, max_tilt_deg))
     _vessel_object(b, vessel)
     hull_xy = vessel.hull_points[:, :2]
     x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
