@@ -170,6 +170,53 @@ def test_a_clear_section_says_how_far_its_band_was_seen():
     assert all(s.clear_to_m is None for s in report.sections if s.status != "clear")
 
 
+def test_an_obstacle_beyond_where_its_band_leaves_the_picture_bounds_the_section_by_that():
+    """A quay face 15 m off, turned 35 degrees from the hull: a section near the stern sees
+    it 12 m out through the part of its band still in the picture, while the rest of the
+    band leaves the picture 8 m out, where a nearer obstacle could lie unseen. That
+    section is ``truncated``, carries how far its band was seen (``clear_to_m``, checked
+    with shapely as for a clear section) and its lower bound is at most that; the sections
+    whose bands are seen out to the quay carry neither."""
+    from shapely.geometry import LineString, Polygon
+
+    from harborsight.sim.schematic import Footprint
+
+    vessel = flat_box_vessel()
+    scene = sample_scene(vessel, np.random.default_rng(4), altitude_m=40, scenario="open")
+    geometry = scene.geometry()
+    heading = geometry.vessel_heading_rad
+    face = heading - np.radians(35.0)
+    along = np.array([np.sin(face), np.cos(face)])
+    out = np.array([np.cos(face), -np.sin(face)])
+    starboard = np.array([np.cos(heading), -np.sin(heading)])
+    centre = np.asarray(geometry.vessel_position_enu[:2]) + 15.0 * starboard
+    quay = Polygon([centre - 300 * along, centre + 300 * along, centre + 300 * along + 50 * out,
+                    centre - 300 * along + 50 * out])
+    scene.footprints = [Footprint(quay, 2, 5, "quay", (120, 120, 120))]
+    _, labels, _ = render(scene)
+    report = measure_clearance(labels, geometry, vessel)
+    h, w = labels.shape
+    corners, _ = geometry.pixels_to_vessel_xy(np.array([[0.0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]]))
+    footprint = Polygon(corners)
+    outline = vessel.sections(16)
+    ok = [s for s in report.sections if s.status == "ok"]
+    short = [s for s in ok if s.clear_to_m is not None]
+    assert len(short) == 1 and len(ok) >= 5
+    s = short[0]
+    assert s.truncated and s.clear_to_m < s.distance_m - 3.0
+    assert s.distance_lower_m <= s.clear_to_m
+    k = s.index
+    start, end = outline.break_points[k], outline.break_points[(k + 1) % len(outline.break_points)]
+    normal = outline.edge_normal[outline.break_edge[k]]
+    assert outline.break_edge[(k + 1) % len(outline.break_edge)] == outline.break_edge[k]
+    strip = Polygon([start, end, end + 500 * normal, start + 500 * normal])
+    expected = LineString([start, end]).distance(strip.difference(footprint))
+    assert expected - 1e-6 <= s.clear_to_m <= expected + 1.5 * report.gsd_m_per_px
+    for other in ok:
+        if other is not s:
+            assert not other.truncated and other.distance_lower_m > other.distance_m - 2 * other.sigma_m
+
+
 def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():
     """A wedge whose tip enters section k's band by 0.3 px leaves no pixel centre there; the
     pixel squares that reach across the break still give section k its (true) distance."""
@@ -463,9 +510,14 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     add_section_uncertainty(again, refined, refined.vessel_to_enu(sections_v.vertices), refinement,
                             settings.sensor_sigmas(), labels=labels,
                             vessel_points_enu=refined.vessel_to_enu(vessel.hull_points))
-    for field in ("sigma_m", "sigma_random_m", "distance_lower_m"):
+    for field in ("sigma_m", "sigma_random_m"):
         np.testing.assert_allclose([getattr(s, field) for s in ok],
                                    [getattr(s, field) for s in again], rtol=1e-12)
+    # a section whose band leaves the picture nearer than its obstacle is bounded by that
+    assert any(s.clear_to_m is not None for s in ok)
+    np.testing.assert_allclose([s.distance_lower_m for s in ok],
+                               [min(a.distance_lower_m, s.clear_to_m if s.clear_to_m is not None else np.inf)
+                                for s, a in zip(ok, again, strict=True)], rtol=1e-12)
     # the gsd method's outline in pixels is the refined pose's too: each hull point lies on
     # its section of it
     gsd = measure_clearance(labels, off, vessel, ClearanceSettings(method="gsd"))

@@ -189,6 +189,33 @@ def test_a_pose_the_image_contradicts_shows_no_distance_and_raises_its_own_alarm
     assert any(s["distance_m"] is not None for s in again["sections"])
 
 
+def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
+    """A section whose band leaves the picture nearer than its obstacle has its lower bound
+    at most where it left (``clear_to_m``): short of the caution distance that says nothing
+    of what lies there, and the alarm holds its level, as for a clear band seen short. An
+    obstacle seen nearer than that still counts, and a band seen past the caution distance
+    lets the alarm fall."""
+    from harborsight.clearance.report import ClearanceReport, SectionClearance
+
+    engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)),
+                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0))
+
+    def level_after(distance_m: float, lower_m: float, clear_to_m: float | None, time_s: float) -> str:
+        section = SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=distance_m, sigma_m=0.3,
+                                   sigma_random_m=0.1, distance_lower_m=lower_m,
+                                   clear_to_m=clear_to_m, truncated=clear_to_m is not None)
+        engine._update_sections(ClearanceReport("frame", None, 40.0, 0.01, "ground_plane", [section],
+                                                pose_refinement={"sensors_contradicted": False}), time_s)
+        return engine.refresh()["sections"][0]["status"]
+
+    assert level_after(9.0, 8.5, None, 0.0) == "ok"
+    assert level_after(9.0, 1.0, 1.0, 0.5) == "ok"            # seen to 1 m only: held
+    assert level_after(2.0, 1.5, None, 1.0) == "danger"
+    assert level_after(9.0, 1.0, 1.0, 1.5) == "danger"        # held
+    assert level_after(1.3, 0.8, 1.2, 2.0) == "danger"        # an obstacle seen nearer counts
+    assert level_after(9.0, 6.0, 6.0, 2.5) == "ok"            # seen past the caution distance
+
+
 def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     """Realtime replay at 10 fps through the whole loop, the state read over HTTP while it
     runs and pushed over a WebSocket; the distances of the frame the state names against

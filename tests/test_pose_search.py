@@ -253,6 +253,44 @@ def test_a_hull_on_another_ship_does_not_contradict_a_pose_on_its_own(monkeypatc
     assert refinement.sensors_contradicted
 
 
+def test_a_fix_on_a_larger_neighbour_does_not_hold_the_hull_there(monkeypatch):
+    """The sensors' fix 17 m abeam (a camera tilt given wrong, a gross fix) lays the hull over
+    a larger neighbour: the hull fills ship pixels but most of its outline lies inside the
+    blob, off its edges, and the refinement's scale to the neighbour is refused. The own
+    vessel, on open water, takes the hull cleanly: the frame is flagged, naming where the
+    image puts the hull. While a pose that merely fills a ship held the hull to it (the rule
+    above), the frame was measured from inside the neighbour with nothing said (on the bench,
+    three frames with the pitch given as -90 read sections 8-25 m long)."""
+    scene, labels = scene_and_labels(3, "open", 100)
+    true = scene.geometry()
+    heading = true.vessel_heading_rad
+    abeam = np.array([math.cos(heading), -math.sin(heading)])     # to starboard, east-north
+    ahead = np.array([math.sin(heading), math.cos(heading)])
+
+    def silhouette(offset_en: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        moved = corrected_geometry(true, np.array([*offset_en, 0.0, 0.0]))
+        uv = cv2.convexHull(moved.camera.project(moved.vessel_to_enu(TUG.hull_points))[0]
+                            .astype(np.float32)).reshape(-1, 2)
+        centre = uv.mean(axis=0)
+        return np.round(centre + scale * (uv - centre)).astype(np.int32)
+
+    with_neighbour = labels.copy()
+    for along_m in (0.0, 8.0):      # a neighbour 16 m abeam, 1.15 times the hull and longer
+        drawn = np.zeros_like(labels)
+        cv2.fillConvexPoly(drawn, silhouette(16.0 * abeam + along_m * ahead, 1.15), 1)
+        with_neighbour[drawn > 0] = 1                            # ship
+    told = corrected_geometry(true, np.array([*(17.0 * abeam), 0.0, 0.0]))
+    report = measure_clearance(with_neighbour, told, TUG)
+    _flagged_with_nothing_standing(report)
+    assert report.pose_refinement["reason"].startswith("the image puts the hull 17")
+    drawn_px = np.asarray(report.pose_refinement["image_hull_px"], np.float32)
+    own_px = silhouette(np.zeros(2)).astype(np.float32)
+    assert cv2.contourArea(drawn_px) == pytest.approx(cv2.contourArea(own_px), rel=0.03)
+    monkeypatch.setattr(pose_refinement, "HELD_FROM_SHARE", 0.0)     # any filled pose holds
+    held = measure_clearance(with_neighbour, told, TUG)
+    assert not held.sensors_contradicted and held.min_distance_m is not None
+
+
 def test_the_overlap_of_two_silhouettes_matches_shapely():
     a = np.array([[0, 0], [40, 0], [40, 10], [0, 10], [np.nan, np.nan]], float)
     b = np.array([[30, -5], [70, 2], [65, 20], [28, 12]], float)

@@ -397,6 +397,18 @@ def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
     return reach
 
 
+def _bound_by_what_was_seen(results: list[SectionClearance]) -> None:
+    """An ``ok`` section whose band leaves the picture nearer than its obstacle (it carries
+    that distance as ``clear_to_m``, and ``truncated``) may have a nearer obstacle out of
+    view: nothing solid lies nearer than ``clear_to_m`` in what was seen, and nothing is
+    known beyond it, so its lower bound is at most ``clear_to_m`` (8 % of the seed-7 bench's
+    ``ok`` sections)."""
+    for result in results:
+        if (result.status == STATUS_OK and result.clear_to_m is not None
+                and result.distance_lower_m is not None):
+            result.distance_lower_m = min(result.distance_lower_m, result.clear_to_m)
+
+
 def _distrust(results: list[SectionClearance]) -> None:
     """The sections of a frame whose pose the image contradicts: each reading keeps its
     value, but its sigma becomes at least the reading itself and its lower bound 0 (the
@@ -581,12 +593,18 @@ def measure_clearance(
     for result in results:
         if result.status == STATUS_CLEAR and np.isfinite(reach[result.index]):
             result.clear_to_m = float(reach[result.index]) * metres_per_unit
+        elif (result.status == STATUS_OK and np.isfinite(reach[result.index])
+              and float(reach[result.index]) * metres_per_unit < result.distance_m):
+            # the band leaves the picture nearer than its obstacle: one nearer may be out of view
+            result.clear_to_m = float(reach[result.index]) * metres_per_unit
+            result.truncated = True
     unexplained = add_section_uncertainty(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
         vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
     if settings.method == "gsd":
         add_nadir_approximation(results)
+    _bound_by_what_was_seen(results)
     if refinement.sensors_contradicted:
         _distrust(results)
     return ClearanceReport(

@@ -460,6 +460,13 @@ SEARCH_GAIN = 0.15
 #: another, smaller boat fits it as well (a bench frame "found" its hull 26 m away, turned
 #: 177 degrees and 72 m higher, on a neighbour)
 SAME_SHIP_OVERLAP = 0.5
+#: ... but only a pose with at least this share of its outline's points in view on ship edges
+#: sits on a ship: one that fills ship pixels with most of its outline inside the blob (the
+#: hull laid over part of a larger neighbour, 17-25 m from the own vessel, by a camera
+#: tilt given wrong) does not hold the hull there (on the bench, with the pitch given as -90,
+#: three frames so held read sections 8-25 m long; their poses put 45-49 % of the outline on
+#: edges, the own vessel's placement 99-100 %)
+HELD_FROM_SHARE = 0.5
 
 
 def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
@@ -469,8 +476,8 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     :data:`SEARCH_BELOW_SHARE` of its outline's points in view on a ship edge, and the
     placement puts :data:`SEARCH_GAIN` more there (and at least that share), passes
     every test of fit, has at least :data:`CONTRADICTION_MIN_IN_VIEW` of its outline in view
-    and, when the pose sits on ship pixels, overlaps it (:data:`SAME_SHIP_OVERLAP`). None
-    otherwise."""
+    and, when the pose sits on a ship (fills ship pixels and has :data:`HELD_FROM_SHARE` of
+    its outline on edges), overlaps it (:data:`SAME_SHIP_OVERLAP`). None otherwise."""
     share = found.edge_share or 0.0
     if share >= SEARCH_BELOW_SHARE:
         return None
@@ -486,7 +493,8 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     refused = (_as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
     chosen_uv = align.pixels(hull_h, chosen)
     whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
-    on_a_ship = ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill
+    on_a_ship = (share >= HELD_FROM_SHARE
+                 and ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill)
 
     def elsewhere(params: np.ndarray) -> bool:
         """The pose sits on a ship, and ``params`` lay the hull on another one."""

@@ -36,6 +36,8 @@ class SectionClearance:
     hull_point_enu: list[float] | None = None
     obstacle_point_enu: list[float] | None = None
     contact: bool = False
+    #: an ``ok`` section that may reach closer out of view: its obstacle point lies on the
+    #: image's border, or its band leaves the image nearer than the obstacle (``clear_to_m``)
     truncated: bool = False
     #: one standard deviation of distance_m, its frame-to-frame part, and the one-sided 95 %
     #: lower bound (clearance.uncertainty)
@@ -43,7 +45,9 @@ class SectionClearance:
     sigma_random_m: float | None = None
     distance_lower_m: float | None = None
     #: a ``clear`` section: how far out its band was seen, metres from the hull to where the
-    #: band first leaves the image (None: to the horizon); nothing solid lies nearer
+    #: band first leaves the image (None: to the horizon); nothing solid lies nearer. An
+    #: ``ok`` section has it when its band leaves the image nearer than its obstacle, and its
+    #: lower bound is then at most this (an obstacle out of view may be nearer)
     clear_to_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:

@@ -200,7 +200,14 @@ class LiveEngine:
                 continue
             if section.status == STATUS_OK:
                 lower = section.distance_lower_m
-                alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
+                # a bound set by where the band leaves the picture, short of the caution
+                # distance, says nothing of what lies there: the alarm holds its level, as for
+                # a clear band seen short (an obstacle seen nearer still counts)
+                seen_short = (section.clear_to_m is not None and lower is not None
+                              and lower >= section.clear_to_m
+                              and section.clear_to_m < alarm.settings.caution_m)
+                if not seen_short:
+                    alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
             elif section.status == STATUS_CLEAR and (
                     section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m):
                 # measured: nothing solid in its band, seen past the caution distance (a band
