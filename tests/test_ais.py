@@ -17,7 +17,7 @@ from harborsight.cli import app
 from harborsight.errors import InputError
 from harborsight.telemetry.ais import read_ais_dimensions, read_ais_file, read_ais_track
 from harborsight.telemetry.vessel_track import read_vessel_track
-from harborsight.vessel.spec import load_vessel_spec
+from harborsight.vessel.spec import AIS_OUTLINE_SIGMA_M, load_vessel_spec
 from tests.helpers import ais_tag_block, nmea_checksum, torn_copies
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
@@ -126,6 +126,7 @@ def test_vessel_from_ais_writes_a_spec_of_the_hull(tmp_path, bow):
     # by hand: a box is 32 x 10; the pointed bow cuts two triangles of 10 x 5 m (one beam long)
     assert hull.area == pytest.approx(320.0 if bow == "box" else 320.0 - 50.0)
     assert spec.sections().n_sections == 12 and spec.name == "harbour-tug"
+    assert spec.outline_sigma_m == AIS_OUTLINE_SIGMA_M and not spec.notes
 
 
 def _flight_ais(tmp_path: Path) -> Path:

@@ -174,7 +174,7 @@ def test_an_obstacle_beyond_where_its_band_leaves_the_picture_bounds_the_section
     """A quay face 15 m off, turned 35 degrees from the hull: a section near the stern sees
     it 12 m out through the part of its band still in the picture, while the rest of the
     band leaves the picture 8 m out, where a nearer obstacle could lie unseen. That
-    section is ``truncated``, carries how far its band was seen (``clear_to_m``, checked
+    section carries how far its band was seen (``clear_to_m``, checked
     with shapely as for a clear section) and its lower bound is at most that; the sections
     whose bands are seen out to the quay carry neither."""
     from shapely.geometry import LineString, Polygon
@@ -203,8 +203,13 @@ def test_an_obstacle_beyond_where_its_band_leaves_the_picture_bounds_the_section
     short = [s for s in ok if s.clear_to_m is not None]
     assert len(short) == 1 and len(ok) >= 5
     s = short[0]
-    assert s.truncated and s.clear_to_m < s.distance_m - 3.0
+    assert s.clear_to_m < s.distance_m - 3.0
     assert s.distance_lower_m <= s.clear_to_m
+    # the overlay's colour goes by the obstacle seen (as the live alarm), not the unseen part
+    from harborsight.viz.overlay import alarm_distance_m
+
+    assert alarm_distance_m(s) == pytest.approx(s.distance_m - 1.645 * s.sigma_m)
+    assert alarm_distance_m(s) > s.clear_to_m
     k = s.index
     start, end = outline.break_points[k], outline.break_points[(k + 1) % len(outline.break_points)]
     normal = outline.edge_normal[outline.break_edge[k]]
@@ -214,7 +219,7 @@ def test_an_obstacle_beyond_where_its_band_leaves_the_picture_bounds_the_section
     assert expected - 1e-6 <= s.clear_to_m <= expected + 1.5 * report.gsd_m_per_px
     for other in ok:
         if other is not s:
-            assert not other.truncated and other.distance_lower_m > other.distance_m - 2 * other.sigma_m
+            assert other.distance_lower_m > other.distance_m - 2 * other.sigma_m
 
 
 def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():

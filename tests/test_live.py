@@ -192,9 +192,9 @@ def test_a_pose_the_image_contradicts_shows_no_distance_and_raises_its_own_alarm
 def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
     """A section whose band leaves the picture nearer than its obstacle has its lower bound
     at most where it left (``clear_to_m``): short of the caution distance that says nothing
-    of what lies there, and the alarm holds its level, as for a clear band seen short. An
-    obstacle seen nearer than that still counts, and a band seen past the caution distance
-    lets the alarm fall."""
+    of what lies there, and the alarm holds its level, as for a clear band seen short. The
+    obstacle seen still counts by its own bound (``distance - 1.645 sigma``), and a band
+    seen past the caution distance lets the alarm fall."""
     from harborsight.clearance.report import ClearanceReport, SectionClearance
 
     engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)),
@@ -202,8 +202,7 @@ def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
 
     def level_after(distance_m: float, lower_m: float, clear_to_m: float | None, time_s: float) -> str:
         section = SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=distance_m, sigma_m=0.3,
-                                   sigma_random_m=0.1, distance_lower_m=lower_m,
-                                   clear_to_m=clear_to_m, truncated=clear_to_m is not None)
+                                   sigma_random_m=0.1, distance_lower_m=lower_m, clear_to_m=clear_to_m)
         engine._update_sections(ClearanceReport("frame", None, 40.0, 0.01, "ground_plane", [section],
                                                 pose_refinement={"sensors_contradicted": False}), time_s)
         return engine.refresh()["sections"][0]["status"]
@@ -214,6 +213,9 @@ def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
     assert level_after(9.0, 1.0, 1.0, 1.5) == "danger"        # held
     assert level_after(1.3, 0.8, 1.2, 2.0) == "danger"        # an obstacle seen nearer counts
     assert level_after(9.0, 6.0, 6.0, 2.5) == "ok"            # seen past the caution distance
+    # an obstacle seen 1.6 m out (its own bound 1.1 m) with the band left 0.4 m out: the
+    # obstacle itself raises the alarm, held or not
+    assert level_after(1.6, 0.4, 0.4, 3.0) == "danger"
 
 
 def test_a_replayed_flight_is_served_and_matches_its_truth(replay):

@@ -168,6 +168,38 @@ def test_mavlink_messages_become_the_drone_track_with_the_gimbal_yaw_on_the_airf
     assert track.utc_clock.to_local(5.0) == pytest.approx(1_777_636_800.0)
 
 
+def test_a_gimbal_on_its_own_boot_clock_keeps_its_own_clock_map():
+    """A gimbal that speaks MAVLink itself (component 154) stamps its attitude with its own
+    boot time, here 1.2 s behind the autopilot's (booted later; under the 2 s a jump needs).
+    Position and camera attitude of the same instant arrive together. One clock map for
+    both put the attitude 1.2 s off the position; each component's own puts them together,
+    and the autopilot's stays the track's (SYSTEM_TIME ties it to UTC)."""
+    from pymavlink.dialects.v20 import ardupilotmega as dialect
+
+    class Sink:
+        data = b""
+
+        def write(self, chunk):
+            Sink.data += chunk
+
+    autopilot = dialect.MAVLink(Sink(), srcSystem=1, srcComponent=1)
+    gimbal = dialect.MAVLink(Sink(), srcSystem=1, srcComponent=154)
+    track = LiveTrack("drone", "mavlink")
+    reader = MavlinkDrone(None, track, altitude="relative")
+    for k in range(6):
+        Sink.data = b""
+        boot_ms = 5000 + 200 * k
+        autopilot.global_position_int_send(boot_ms, 561516256, 102282340, 75000, 60000, 0, 0, 0, 65535)
+        gimbal.gimbal_device_attitude_status_send(0, 0, boot_ms - 1200, 16, [0.0, 0.0, -0.5, 0.8660254],
+                                                  0, 0, 0, 0)           # earth-frame yaw (YAW_LOCK)
+        for message in _decoded(Sink.data):
+            reader.handle(message, 100.0 + 0.2 * k + 0.01 * (k % 2))   # arrival, with jitter
+    drone = track.track()
+    assert len(drone) == 6 and len(drone.attitude_t_s) == 6
+    np.testing.assert_allclose(drone.attitude_t_s, drone.t_s, atol=1e-6)
+    assert reader.clocks[(1, 1)] is track.clock and reader.clocks[(1, 154)] is not track.clock
+
+
 def test_a_second_vehicle_on_the_mavlink_link_is_left_out():
     """The drone is the first system to send its position; another vehicle's position and
     attitude on the same link are counted and said, never mixed in."""

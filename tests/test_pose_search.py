@@ -291,6 +291,33 @@ def test_a_fix_on_a_larger_neighbour_does_not_hold_the_hull_there(monkeypatch):
     assert not held.sensors_contradicted and held.min_distance_m is not None
 
 
+def test_a_vessel_rafted_between_two_others_is_held_there_by_its_ends():
+    """Moored between two sister ships, the right pose puts only 40 % of its outline on ship
+    edges (its sides lie against theirs), and a third sister on open water fits cleanly 30 m
+    away. The pose's bow and stern are on edges, so the hull stays held to its ship: nothing
+    is flagged. By the share alone it was (a reviewer's case)."""
+    scene, labels = scene_and_labels(3, "open", 60)
+    true = scene.geometry()
+    heading = true.vessel_heading_rad
+    abeam = np.array([math.cos(heading), -math.sin(heading)])
+    beam_m = float(np.ptp(TUG.outline[:, 1]))
+    rafted = labels.copy()
+    for side in (-1, 1):
+        moved = corrected_geometry(true, np.array([*(side * 0.98 * beam_m * abeam), 0.0, 0.0]))
+        uv = moved.camera.project(moved.vessel_to_enu(TUG.hull_points))[0]
+        drawn = np.zeros_like(labels)
+        cv2.fillConvexPoly(drawn, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
+        rafted[(drawn > 0) & (labels == 0)] = 1                          # ship, on the water
+    rafted = _with_a_twin(rafted, true)
+    _, refinement = refine_vessel_pose(rafted, true, TUG)
+    assert refinement.edge_share < pose_refinement.HELD_FROM_SHARE
+    assert not refinement.sensors_contradicted, refinement.reason
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "ENDS_ON_EDGES_SHARE", 1.01)        # by the share alone
+        _, by_share = refine_vessel_pose(rafted, true, TUG)
+    assert by_share.sensors_contradicted
+
+
 def test_the_overlap_of_two_silhouettes_matches_shapely():
     a = np.array([[0, 0], [40, 0], [40, 10], [0, 10], [np.nan, np.nan]], float)
     b = np.array([[30, -5], [70, 2], [65, 20], [28, 12]], float)

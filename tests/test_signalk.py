@@ -124,8 +124,35 @@ def test_a_clock_jump_on_the_bus_is_said():
         stamp = datetime.fromtimestamp(START_S + k + skew_s, UTC).isoformat().replace("+00:00", "Z")
         reader.handle(json.dumps({"updates": [{"$source": "gps", "timestamp": stamp, "values": [
             {"path": "navigation.headingTrue", "value": 2.0}]}]}), 10.0 + k)
-    assert track.clock.jumps == 2
-    assert any("clock jumped (1 time(s))" in w for w in warnings)
+    assert reader.clocks["gps"].jumps == 2
+    assert any("clock of source 'gps' jumped (1 time(s))" in w for w in warnings)
+
+
+def test_each_source_on_the_bus_keeps_its_own_clock():
+    """A server stamps an NMEA 0183 position with its RMC's time and an NMEA 2000 heading
+    with its own clock, here 1.5 s ahead (within the 2 s a jump needs): both arrive together.
+    One clock map for both put the heading 1.5 s after the position it came with (at 3
+    degrees a second of turn, 4.5 degrees); each source's own map puts them together, and
+    the position's source keeps the track's clock (the frames' UTC) though heard second."""
+    track = LiveTrack("vessel", "signalk")
+    reader = SignalKVessel("ws://127.0.0.1:1/signalk/v1/stream", track)
+
+    def update(source, t_s, path, value):
+        stamp = datetime.fromtimestamp(START_S + t_s, UTC).isoformat().replace("+00:00", "Z")
+        return json.dumps({"updates": [{"$source": source, "timestamp": stamp,
+                                        "values": [{"path": path, "value": value}]}]})
+
+    for k in range(6):
+        arrival_s = 10.1 + k + 0.02 * (k % 3)                  # a little network jitter
+        reader.handle(update("n2k.compass", k + 1.5, "navigation.headingTrue",
+                             math.radians(100.0 + 3.0 * k)), arrival_s)
+        reader.handle(update("nmea0183.GP", k, "navigation.position",
+                             {"latitude": 56.1517, "longitude": 10.2283}), arrival_s)
+    vessel = track.track()
+    assert len(vessel) == 6 and len(vessel.attitude_t_s) == 6
+    np.testing.assert_allclose(vessel.attitude_t_s, vessel.t_s, atol=1e-6)
+    assert set(reader.clocks) == {"nmea0183.GP", "n2k.compass"}
+    assert reader.clocks["nmea0183.GP"] is track.clock         # the position's, heard second
 
 
 def test_the_vessel_pose_comes_from_the_server(signalk):

@@ -233,9 +233,8 @@ def test_run_writes_sigmas_and_filtered_values_and_takes_sigma_options(tmp_path)
     clear = [r for r in rows if r["status"] == "clear"]
     assert clear and any(r["clear_to_m"] for r in clear)
     # an ok section carries it only when its band leaves the picture nearer than its
-    # obstacle: then it is truncated, and its lower bound no farther (the CSV rounds
-    # clear_to_m to 0.01 m)
-    assert all(r["truncated"] == "1" and float(r["distance_lower_m"]) <= float(r["clear_to_m"]) + 0.005
+    # obstacle: then its lower bound is no farther (the CSV rounds clear_to_m to 0.01 m)
+    assert all(float(r["distance_lower_m"]) <= float(r["clear_to_m"]) + 0.005
                for r in ok if r["clear_to_m"])
     assert all(float(r["clear_to_m"]) >= 0 for r in clear if r["clear_to_m"])
     assert {r["pose_contradicted"] for r in rows} == {"0"}
@@ -528,3 +527,34 @@ def test_a_shift_the_receivers_explain_leaves_the_bars_alone():
     assert report.pose_refinement["applied"]
     assert report.pose_refinement["shift_m"] == pytest.approx([-east_m, -north_m], abs=0.1)
     assert report.uncertainty["unexplained_shift"] is None
+
+
+def test_a_hull_drawn_from_dimensions_widens_every_bar_by_its_outline_sigma(tmp_path):
+    """The sample tug as `vessel from-ais` would draw it (its outline's extents from the
+    antenna in whole metres, a pointed bow): with ``outline_sigma_m`` every ``ok`` section's
+    sigma grows by exactly that in quadrature (a systematic term: ``sigma_random_m`` keeps),
+    the distances stay, and the report says the sigma it used."""
+    import yaml
+
+    mesh = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
+    o = mesh.outline
+    dims = {"to_bow": round(float(o[:, 0].max())), "to_stern": round(float(-o[:, 0].min())),
+            "to_port": round(float(-o[:, 1].min())), "to_starboard": round(float(o[:, 1].max()))}
+    stem = "000001"
+    frame = json.loads((SAMPLES / "frames" / f"{stem}.json").read_text())
+    meta = parse_frame_metadata(frame, SAMPLES / "frames" / f"{stem}.json")
+    labels = cv2.imread(str(SAMPLES / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+    reports = []
+    for sigma_m in (0.0, 0.6):
+        path = tmp_path / f"vessel-{sigma_m}.yaml"
+        path.write_text(yaml.safe_dump({"dimensions": dims, "outline_sigma_m": sigma_m}))
+        reports.append(measure_frame(labels, meta, load_vessel_spec(path), ClearanceSettings(),
+                                     mask_from_file=True))
+    exact, widened = reports
+    assert widened.uncertainty["outline_sigma_m"] == 0.6 and exact.uncertainty["outline_sigma_m"] == 0.0
+    pairs = [(a, b) for a, b in zip(exact.sections, widened.sections, strict=True) if a.status == "ok"]
+    assert len(pairs) >= 4
+    for a, b in pairs:
+        assert b.distance_m == a.distance_m and b.sigma_random_m == pytest.approx(a.sigma_random_m)
+        assert b.sigma_m ** 2 - a.sigma_m ** 2 == pytest.approx(0.36, abs=1e-9)
+        assert b.distance_lower_m <= a.distance_lower_m

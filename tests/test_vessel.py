@@ -86,6 +86,12 @@ def test_blunt_bow_starts_on_the_centreline(tmp_path):
     ("dimensions: {to_bow: 10, to_stern: 5, to_port: -2, to_starboard: 3}\n", "dimensions.to_port"),
     ("dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\nsections: 0\n", "sections"),
     ("dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\noutline: keel\n", "outline"),
+    ("dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\noutline_sigma_m: -0.1\n",
+     "outline_sigma_m"),
+    ("dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\noutline_sigma_m: .nan\n",
+     "outline_sigma_m"),
+    ("dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\noutline_sigma_m: 1e6\n",
+     "outline_sigma_m"),
 ])
 def test_bad_specs_name_the_field(tmp_path, text, field):
     with pytest.raises(InputError, match=rf"vessel.yaml: {field}"):
@@ -255,3 +261,14 @@ def test_the_commands_say_a_spec_s_notes_once(tmp_path):
     assert f"note: {spec}: mesh_axes: " in result.stderr
     for stem in ("000000", "000001"):
         assert json.loads((tmp_path / "out" / f"{stem}.json").read_text())["sections"]
+
+
+def test_a_hull_from_dimensions_says_how_far_it_may_be_off(tmp_path):
+    """``outline_sigma_m`` is read where given (a mesh is taken as exact by default); a hull
+    drawn from dimensions without it gets a note saying it is taken as exact."""
+    dims = "dimensions: {to_bow: 10, to_stern: 5, to_port: 2, to_starboard: 3}\n"
+    given = load_vessel_spec(write_spec(tmp_path, dims + "outline_sigma_m: 0.6\n"))
+    assert given.outline_sigma_m == 0.6 and not given.notes
+    bare = load_vessel_spec(write_spec(tmp_path, dims))
+    assert bare.outline_sigma_m == 0.0
+    assert len(bare.notes) == 1 and bare.notes[0].startswith("outline_sigma_m: not given")

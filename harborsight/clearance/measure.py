@@ -399,10 +399,9 @@ def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
 
 def _bound_by_what_was_seen(results: list[SectionClearance]) -> None:
     """An ``ok`` section whose band leaves the picture nearer than its obstacle (it carries
-    that distance as ``clear_to_m``, and ``truncated``) may have a nearer obstacle out of
-    view: nothing solid lies nearer than ``clear_to_m`` in what was seen, and nothing is
-    known beyond it, so its lower bound is at most ``clear_to_m`` (8 % of the seed-7 bench's
-    ``ok`` sections)."""
+    that distance as ``clear_to_m``) may have a nearer obstacle out of view: nothing solid
+    lies nearer than ``clear_to_m`` in what was seen, and nothing is known beyond it, so its
+    lower bound is at most ``clear_to_m`` (8 % of the seed-7 bench's ``ok`` sections)."""
     for result in results:
         if (result.status == STATUS_OK and result.clear_to_m is not None
                 and result.distance_lower_m is not None):
@@ -421,7 +420,7 @@ def _distrust(results: list[SectionClearance]) -> None:
             result.sigma_m = max(result.sigma_m or 0.0, result.distance_m)
             result.sigma_random_m = max(result.sigma_random_m or 0.0, result.distance_m)
             result.distance_lower_m = 0.0
-        elif result.clear_to_m is not None:
+        if result.clear_to_m is not None:
             result.clear_to_m = 0.0
 
 
@@ -597,11 +596,11 @@ def measure_clearance(
               and float(reach[result.index]) * metres_per_unit < result.distance_m):
             # the band leaves the picture nearer than its obstacle: one nearer may be out of view
             result.clear_to_m = float(reach[result.index]) * metres_per_unit
-            result.truncated = True
     unexplained = add_section_uncertainty(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
-        vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points))
+        vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points),
+        outline_sigma_m=vessel.outline_sigma_m)
     if settings.method == "gsd":
         add_nadir_approximation(results)
     _bound_by_what_was_seen(results)
@@ -611,7 +610,8 @@ def measure_clearance(
         image="", timestamp=None, altitude_m=height_m, gsd_m_per_px=gsd,
         method=settings.method, sections=results, vessel=vessel.name,
         enu_origin=geometry.origin.to_dict(), pose_refinement=refinement.to_dict(),
-        uncertainty={"sigmas": sigmas.to_dict(), "lower_bound_quantile": LOWER_BOUND_QUANTILE,
+        uncertainty={"sigmas": sigmas.to_dict(), "outline_sigma_m": vessel.outline_sigma_m,
+                     "lower_bound_quantile": LOWER_BOUND_QUANTILE,
                      "confident_solid_p": CONFIDENT_SOLID_P if confidence is not None else None,
                      "unexplained_shift": unexplained},
     )

@@ -461,12 +461,37 @@ SEARCH_GAIN = 0.15
 #: 177 degrees and 72 m higher, on a neighbour)
 SAME_SHIP_OVERLAP = 0.5
 #: ... but only a pose with at least this share of its outline's points in view on ship edges
-#: sits on a ship: one that fills ship pixels with most of its outline inside the blob (the
-#: hull laid over part of a larger neighbour, 17-25 m from the own vessel, by a camera
-#: tilt given wrong) does not hold the hull there (on the bench, with the pitch given as -90,
-#: three frames so held read sections 8-25 m long; their poses put 45-49 % of the outline on
-#: edges, the own vessel's placement 99-100 %)
+#: (or both its ends) sits on a ship: one that fills ship pixels with most of its outline
+#: inside the blob (the hull laid over part of a larger neighbour, 17-25 m from the own
+#: vessel, by a camera tilt given wrong) does not hold the hull there (on the bench, with
+#: the pitch given as -90, three frames so held read sections 8-25 m long; their poses put
+#: 45-49 % of the outline on edges, the own vessel's placement 99-100 %)
 HELD_FROM_SHARE = 0.5
+#: ... or with both its ends on edges: the outline's points within this share of the hull's
+#: length from the bow, and from the stern, at least :data:`ENDS_ON_EDGES_SHARE` of each end's
+#: points in view on an edge (and :data:`ENDS_MIN_POINTS` of them): a vessel rafted between
+#: two others shows its bow and stern though its sides lie against theirs (40-43 % of its
+#: outline on edges; its ends 56-100 %), while a hull laid over part of a longer neighbour
+#: has an end inside it (on the bench, one end at 0-35 %)
+HULL_END_SHARE = 0.15
+ENDS_ON_EDGES_SHARE = 0.5
+ENDS_MIN_POINTS = 3
+
+
+def _ends_on_edges(align: Alignment, hull_h: np.ndarray, params: np.ndarray) -> bool:
+    """Whether the outline under the correction ``params`` has both its ends on ship edges
+    (:data:`HULL_END_SHARE`, :data:`ENDS_ON_EDGES_SHARE`; an end with fewer than
+    :data:`ENDS_MIN_POINTS` points in view is not on edges)."""
+    outline = outline_points(hull_h, align.pixels(hull_h, params))
+    if outline.shape[1] == 0:
+        return False
+    x = hull_h[0]
+    reach = HULL_END_SHARE * float(x.max() - x.min())
+    for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
+        values = align.residuals(end, params)
+        if len(values) < ENDS_MIN_POINTS or edge_share(values) < ENDS_ON_EDGES_SHARE:
+            return False
+    return True
 
 
 def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
@@ -477,7 +502,8 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     placement puts :data:`SEARCH_GAIN` more there (and at least that share), passes
     every test of fit, has at least :data:`CONTRADICTION_MIN_IN_VIEW` of its outline in view
     and, when the pose sits on a ship (fills ship pixels and has :data:`HELD_FROM_SHARE` of
-    its outline on edges), overlaps it (:data:`SAME_SHIP_OVERLAP`). None otherwise."""
+    its outline on edges, or both its ends: :func:`_ends_on_edges`), overlaps it
+    (:data:`SAME_SHIP_OVERLAP`). None otherwise."""
     share = found.edge_share or 0.0
     if share >= SEARCH_BELOW_SHARE:
         return None
@@ -493,7 +519,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     refused = (_as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
     chosen_uv = align.pixels(hull_h, chosen)
     whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
-    on_a_ship = (share >= HELD_FROM_SHARE
+    on_a_ship = ((share >= HELD_FROM_SHARE or _ends_on_edges(align, hull_h, chosen))
                  and ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill)
 
     def elsewhere(params: np.ndarray) -> bool:

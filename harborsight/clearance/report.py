@@ -36,8 +36,8 @@ class SectionClearance:
     hull_point_enu: list[float] | None = None
     obstacle_point_enu: list[float] | None = None
     contact: bool = False
-    #: an ``ok`` section that may reach closer out of view: its obstacle point lies on the
-    #: image's border, or its band leaves the image nearer than the obstacle (``clear_to_m``)
+    #: an ``ok`` section whose obstacle point lies on the image's border: it may reach closer
+    #: out of view
     truncated: bool = False
     #: one standard deviation of distance_m, its frame-to-frame part, and the one-sided 95 %
     #: lower bound (clearance.uncertainty)

@@ -18,6 +18,9 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
   included), minus where it lands now;
 * vessel position (per axis) and heading: ``δH`` is the shift, or the turn ``δψ · (r_n, -r_e)``
   of ``r = H - V`` about the antenna ``V`` (heading is clockwise);
+* the hull outline itself (``outline_sigma_m`` of the vessel spec; a hull drawn from AIS
+  dimensions, whole metres and a guessed bow, is off the real one by about 0.6 m): ``δH``
+  along the section's normal, that sigma in full;
 * the clock between video and telemetry, when the frame gives both ground velocities:
   ``δO - δH = σ_t · (v_uav - v_vessel)``;
 * the pixel grid: the edge lies anywhere in its pixel, whose extent along ``u`` on the
@@ -483,7 +486,7 @@ def add_section_uncertainty(
     refinement: PoseRefinement, sigmas: SensorSigmas,
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
     confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
-    vessel_points_enu: np.ndarray | None = None,
+    vessel_points_enu: np.ndarray | None = None, outline_sigma_m: float = 0.0,
 ) -> dict | None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
@@ -492,7 +495,9 @@ def add_section_uncertainty(
     when the caller has them already (else they are projected here); ``confidence`` the
     model's probabilities, when the mask came from a model; ``vessel_points_enu`` the
     vessel's hull points (above the waterline), for the silhouette the alignment fits and
-    for its shadow when the sun is known. Returns what :func:`_unexplained_shift` found
+    for its shadow when the sun is known; ``outline_sigma_m`` the hull outline's own one
+    sigma against the real hull (a hull drawn from AIS dimensions). Returns what
+    :func:`_unexplained_shift` found
     (``shift_sigmas``, ``tilt_deg``, ``height_m``) when it widened the bars, else None."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
           and math.isfinite(s.distance_m) and s.obstacle_point_enu is not None]
@@ -567,6 +572,8 @@ def add_section_uncertainty(
                                          along_u, float(camera.position_enu[2]))
         if unexplained is not None:
             systematic += unexplained.pop("change_m") ** 2
+    # the outline itself off the real hull moves the hull point along the section's normal
+    systematic += outline_sigma_m ** 2
     if not refined:
         # drone shift moves O, vessel shift moves H: both along u in full (|u| = 1)
         systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
@@ -621,6 +628,21 @@ def add_section_uncertainty(
         section.sigma_random_m = float(sigma_random)
         section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * float(sigma))
     return unexplained
+
+
+def bounded_where_band_left(section: SectionClearance) -> bool:
+    """Whether an ``ok`` section's lower bound is where its band leaves the picture
+    (``clear_to_m``, nearer than its obstacle: something nearer may lie out of view), not
+    the propagated bound of the obstacle seen."""
+    return (section.status == STATUS_OK and section.clear_to_m is not None
+            and section.distance_lower_m is not None and section.sigma_m is not None
+            and section.distance_m is not None and section.distance_lower_m >= section.clear_to_m)
+
+
+def seen_lower_bound_m(section: SectionClearance) -> float:
+    """The propagated lower bound of the obstacle a section saw, ``max(0, d - z sigma)``,
+    whatever may lie out of view."""
+    return max(0.0, section.distance_m - LOWER_BOUND_Z * section.sigma_m)
 
 
 def add_nadir_approximation(sections: list[SectionClearance]) -> None:

@@ -33,10 +33,12 @@ def vessel_from_ais(
     """Write a vessel.yaml from the hull's AIS dimensions (type 5, 19 or 24 B: A to the bow,
     B to the stern, C to port, D to starboard, from the GPS reference point, which is the
     vessel frame's origin). Dimensions at AIS's largest codes (511, 63 m) mean that or more:
-    said, and kept as they are."""
+    said, and kept as they are. The hull is drawn from whole metres and a guessed bow, so
+    the spec says how far it may lie from the real one (outline_sigma_m, 0.6 m, measured on
+    the synthetic bench's hulls), which widens every distance's error bar."""
     from harborsight.telemetry.ais import read_ais_dimensions
     from harborsight.vessel.outline import BOW_SHAPES
-    from harborsight.vessel.spec import load_vessel_spec
+    from harborsight.vessel.spec import AIS_OUTLINE_SIGMA_M, load_vessel_spec
 
     try:
         if bow not in BOW_SHAPES:
@@ -49,10 +51,13 @@ def vessel_from_ais(
         doc = {"name": name, "mmsi": dims.mmsi,
                "dimensions": {"to_bow": dims.to_bow, "to_stern": dims.to_stern,
                               "to_port": dims.to_port, "to_starboard": dims.to_starboard, "bow": bow},
-               "outline": "waterline", "sections": sections}
+               "outline": "waterline", "outline_sigma_m": AIS_OUTLINE_SIGMA_M, "sections": sections}
         header = (f"# From AIS: MMSI {dims.mmsi}" + (f", {dims.name}" if dims.name else "")
                   + f", read from {ais_log.name} by `harborsight vessel from-ais`.\n"
-                  "# Dimensions in metres from the GPS reference point (the vessel frame's origin).\n")
+                  "# Dimensions in metres from the GPS reference point (the vessel frame's origin).\n"
+                  "# outline_sigma_m: how far (one sigma) a hull drawn from whole-metre dimensions and a\n"
+                  "# guessed bow lies from the real one; it widens every distance's error bar. Lower it\n"
+                  "# only for a hull measured better (or give a hull_mesh).\n")
         out.write_text(header + yaml.safe_dump(doc, sort_keys=False))
         spec = load_vessel_spec(out)            # what was written reads back as a spec
     except HarborsightError as exc:

@@ -13,7 +13,11 @@ distance hovering at a threshold does not make the display and the sound flicker
 ``d`` is the section's conservative distance: the 95 % lower bound ``distance_lower_m`` when
 the measurement has one, else the distance. A section measured clear (nothing solid in its
 band) is a reading with no distance and falls like any other; a section with no measurement
-(out of view, not measured) keeps its level: a vanished reading never clears an alarm.
+(out of view, not measured) keeps its level: a vanished reading never clears an alarm. The
+live engine also keeps the level of a clear section whose band left the picture short of
+the caution distance, and of an ``ok`` one whose bound is where its band left the picture,
+short of it, unless the obstacle it saw calls for a level itself
+(``harborsight.live.engine``).
 """
 
 from __future__ import annotations

@@ -40,6 +40,7 @@ import numpy as np
 from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
+from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
 from harborsight.frame import FrameMetadata
@@ -199,15 +200,15 @@ class LiveEngine:
                                  "closing_speed_mps": None, "time_to_contact_s": None})
                 continue
             if section.status == STATUS_OK:
-                lower = section.distance_lower_m
-                # a bound set by where the band leaves the picture, short of the caution
-                # distance, says nothing of what lies there: the alarm holds its level, as for
-                # a clear band seen short (an obstacle seen nearer still counts)
-                seen_short = (section.clear_to_m is not None and lower is not None
-                              and lower >= section.clear_to_m
-                              and section.clear_to_m < alarm.settings.caution_m)
-                if not seen_short:
-                    alarm.update(time.monotonic(), section.distance_m if lower is None else lower, ttc)
+                value = section.distance_m if section.distance_lower_m is None else section.distance_lower_m
+                if bounded_where_band_left(section) and section.clear_to_m < alarm.settings.caution_m:
+                    # the bound is where its band left the picture, short of the caution distance:
+                    # that says nothing of what lies there, and the alarm holds its level, as for
+                    # a clear band seen short, unless the obstacle seen calls for more itself
+                    value = seen_lower_bound_m(section)
+                    value = value if value < alarm.settings.caution_m else None
+                if value is not None:
+                    alarm.update(time.monotonic(), value, ttc)
             elif section.status == STATUS_CLEAR and (
                     section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m):
                 # measured: nothing solid in its band, seen past the caution distance (a band

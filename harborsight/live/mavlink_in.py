@@ -18,8 +18,12 @@ Messages read (MAVLink common and ArduPilot dialects, v1 and v2 frames):
   likewise.
 * ``SYSTEM_TIME``: UTC of the boot clock (the frames' timestamps).
 
-Every message's boot time goes through :class:`harborsight.live.telemetry.ClockMap`; a
-message without one (``MOUNT_STATUS``) takes its arrival time. Frames that fail their CRC are
+Every message's boot time goes through :class:`harborsight.live.telemetry.ClockMap`, one
+map per component: a gimbal that speaks MAVLink itself (its own component id) stamps
+``GIMBAL_DEVICE_ATTITUDE_STATUS`` with its own boot time, and one map shared with the
+autopilot's restarted at every message (clocks booted seconds apart) or, under 2 s apart,
+put the camera's attitude that much off its position. A message without a boot time
+(``MOUNT_STATUS``) takes its arrival time. Frames that fail their CRC are
 counted and warned about, never read. The drone is the first system (MAVLink system id) that
 sends its position; these messages from any other system (a second vehicle on the link) are
 counted, said and left out: mixed in, its position would be the drone's.
@@ -39,6 +43,8 @@ from harborsight.live.telemetry import ClockMap, LiveTrack, worth_saying
 from harborsight.telemetry.accuracy import per_axis_from_radial_m
 
 ALTITUDES = ("relative", "amsl")
+#: the messages read at their sender's boot time (``time_boot_ms``)
+_BOOT_STAMPED = frozenset({"GLOBAL_POSITION_INT", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS"})
 #: GIMBAL_DEVICE_FLAGS bits
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 
@@ -97,6 +103,9 @@ class MavlinkDrone:
         self.messages = 0
         #: the drone's MAVLink system id: the first to send its position
         self.system_id: int | None = None
+        #: each (system, component)'s boot clock; the autopilot's (the sender of the drone's
+        #: first position) maps with the track's own, which its SYSTEM_TIME ties to UTC
+        self.clocks: dict[tuple[int, int], ClockMap] = {}
         self.other_systems = 0
 
     def _warn(self, message: str) -> None:
@@ -121,8 +130,11 @@ class MavlinkDrone:
                     self._warn(f"{self.other_systems} MAVLink message(s) of system {system} left "
                                f"out (the drone is system {self.system_id})")
                 return
-        track, clock = self.track, self.track.clock
-        jumps = clock.jumps
+        track = self.track
+        sender = (message.get_srcSystem(), message.get_srcComponent())
+        if kind in _BOOT_STAMPED:
+            clock = self._clock_of(sender, kind)
+            jumps = clock.jumps
         if kind == "GLOBAL_POSITION_INT":
             if message.lat == 0 and message.lon == 0:
                 return                                   # no position yet
@@ -155,13 +167,31 @@ class MavlinkDrone:
                 return
             track.add_attitude(now_s, (self._vehicle_yaw_deg + message.pointing_c / 100.0) % 360.0,
                                message.pointing_a / 100.0, message.pointing_b / 100.0, "gimbal")
-        elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0:
+        elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0 and self._autopilot_or_unknown(sender):
             if track.utc_clock is None:
                 track.utc_clock = ClockMap(jump_s=1.0)
             track.utc_clock.observe(message.time_boot_ms / 1000.0, message.time_unix_usec / 1e6)
-        if clock.jumps != jumps:
-            self._warn("the drone's clock jumped (autopilot reboot or time reset): its time "
-                       "alignment starts again")
+        if kind in _BOOT_STAMPED and clock.jumps != jumps:
+            what = "the drone's clock" if clock is track.clock else "a gimbal's clock"
+            self._warn(f"{what} jumped (a reboot or a time reset): its time alignment starts again")
+
+    def _clock_of(self, sender: tuple[int, int], kind: str) -> ClockMap:
+        """The clock map of a sender's boot time: the track's own for the autopilot (the
+        sender of the drone's first position), a map of its own for any other (a gimbal with
+        its own component, or a sender heard before the first position)."""
+        clock = self.clocks.get(sender)
+        if (kind == "GLOBAL_POSITION_INT" and clock is not self.track.clock
+                and not any(c is self.track.clock for c in self.clocks.values())):
+            clock = self.clocks[sender] = self.track.clock          # the autopilot's
+        elif clock is None:
+            clock = self.clocks[sender] = ClockMap()
+        return clock
+
+    def _autopilot_or_unknown(self, sender: tuple[int, int]) -> bool:
+        """Whether ``sender`` is the autopilot, or none is known yet (a gimbal's SYSTEM_TIME
+        counts its own boot time, which the track's clock does not)."""
+        return self.clocks.get(sender) is self.track.clock or not any(
+            c is self.track.clock for c in self.clocks.values())
 
     def run(self, stop: threading.Event) -> None:
         """Read until ``stop`` is set (the reader thread's body)."""

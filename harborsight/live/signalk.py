@@ -6,7 +6,10 @@ security on). Both reconnect when the server goes away and warn about it.
 
 In: the self vessel's ``navigation.position`` (``latitude``, ``longitude`` in degrees) and
 ``navigation.headingTrue`` (radians), each at its update's ``timestamp`` (UTC, mapped to the
-monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`). Only the
+monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`), one map per
+source: a server stamps an NMEA 0183 position with its RMC's time and an NMEA 2000 heading
+with its own clock, and one map shared by both read the heading as old as the clocks are apart
+(1.5 s, at 3 degrees a second of turn, is 4.5 degrees). Only the
 self vessel's deltas count (the server's hello names it), and each path keeps the first source
 it is heard from (``$source``, else ``source.label``): a chart plotter's GPS and the AIS
 transponder's 12 m apart, mixed, made the vessel jump between them. Other vessels' deltas
@@ -34,7 +37,7 @@ from datetime import datetime
 from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import LiveTrack, worth_saying
+from harborsight.live.telemetry import ClockMap, LiveTrack, worth_saying
 
 STREAM_PATH = "/signalk/v1/stream"
 #: a section's status as a Signal K notification state
@@ -78,6 +81,9 @@ class SignalKVessel:
         self.self_context: str | None = None
         #: the source each path is read from: the first heard
         self.sources: dict[str, str] = {}
+        #: each source's clock map; the position's source maps with the track's own (the
+        #: frames' UTC times are read through it)
+        self.clocks: dict[str, ClockMap] = {}
         self.other_vessels = 0
         self.other_sources = 0
 
@@ -102,13 +108,14 @@ class SignalKVessel:
         for update in delta["updates"]:
             try:
                 stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
-                jumps = self.track.clock.jumps
-                t_s = self.track.clock.observe(stamp.timestamp(), now_s)
-                if self.track.clock.jumps != jumps and worth_saying(self.track.clock.jumps, every=None):
-                    self.track.warn(f"Signal K: the vessel's clock jumped ({self.track.clock.jumps} "
-                                    "time(s)): its time alignment starts again (two clocks on "
-                                    "the bus, or a server without time sync?)")
                 source = update.get("$source") or (update.get("source") or {}).get("label") or ""
+                clock = self._clock_of(source, update.get("values", []))
+                jumps = clock.jumps
+                t_s = clock.observe(stamp.timestamp(), now_s)
+                if clock.jumps != jumps and worth_saying(clock.jumps, every=None):
+                    self.track.warn(f"Signal K: the clock of source {source!r} jumped ({clock.jumps} "
+                                    "time(s)): its time alignment starts again (a source that "
+                                    "stamps with two clocks, or a server without time sync?)")
                 for item in update.get("values", []):
                     path = item.get("path")
                     if self.sources.setdefault(path, source) != source:
@@ -123,6 +130,19 @@ class SignalKVessel:
                 self.unreadable += 1
                 if worth_saying(self.unreadable, every=None):
                     self.track.warn(f"Signal K: {self.unreadable} unreadable update(s) skipped ({exc})")
+
+    def _clock_of(self, source: str, values: list) -> ClockMap:
+        """The clock map of a source: the track's own for the first source of
+        ``navigation.position``, a map of its own for any other."""
+        clock = self.clocks.get(source)
+        position = any(isinstance(item, dict) and item.get("path") == "navigation.position"
+                       for item in values)
+        if (position and clock is not self.track.clock
+                and not any(c is self.track.clock for c in self.clocks.values())):
+            clock = self.clocks[source] = self.track.clock
+        elif clock is None:
+            clock = self.clocks[source] = ClockMap()
+        return clock
 
     def _value(self, path, value, t_s: float, now_s: float) -> None:
         if path == "navigation.position":

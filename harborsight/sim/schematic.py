@@ -288,4 +288,4 @@ def flat_vessel(vessel: VesselSpec) -> VesselSpec:
     pts = MultiPoint(vessel.outline).convex_hull.exterior.coords
     hull_points = np.column_stack((np.asarray(pts)[:-1], np.zeros(len(pts) - 1)))
     return VesselSpec(vessel.name, vessel.outline, hull_points, vessel.n_sections,
-                      vessel.section_length_m, vessel.source)
+                      vessel.section_length_m, vessel.source, outline_sigma_m=vessel.outline_sigma_m)

@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
+from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 
 YELLOW = (0, 230, 255)
 GREEN = (80, 200, 60)
@@ -102,7 +103,11 @@ def section_colour(distance_m: float | None, warn_m: float, alarm_m: float):
 
 def alarm_distance_m(section) -> float | None:
     """The distance the colours go by: the 95 % lower bound where the section has one (a
-    section whose gap may be under the alarm distance shows red), else the distance."""
+    section whose gap may be under the alarm distance shows red), else the distance; for a
+    bound set where the section's band leaves the picture, the bound of the obstacle seen
+    (as the live alarm does: what lies out of view is not a reason to show red)."""
+    if bounded_where_band_left(section):
+        return seen_lower_bound_m(section)
     return section.distance_m if section.distance_lower_m is None else section.distance_lower_m
 
 
