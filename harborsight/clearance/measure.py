@@ -590,12 +590,13 @@ def measure_clearance(
 
     metres_per_unit = 1.0 if outline is sections_v else gsd
     for result in results:
-        if result.status == STATUS_CLEAR and np.isfinite(reach[result.index]):
-            result.clear_to_m = float(reach[result.index]) * metres_per_unit
-        elif (result.status == STATUS_OK and np.isfinite(reach[result.index])
-              and float(reach[result.index]) * metres_per_unit < result.distance_m):
-            # the band leaves the picture nearer than its obstacle: one nearer may be out of view
-            result.clear_to_m = float(reach[result.index]) * metres_per_unit
+        seen_m = float(reach[result.index]) * metres_per_unit
+        if not np.isfinite(seen_m):
+            continue
+        # a clear band's reach; an ok one's when it leaves the picture nearer than its obstacle
+        # (one nearer may be out of view)
+        if result.status == STATUS_CLEAR or (result.status == STATUS_OK and seen_m < result.distance_m):
+            result.clear_to_m = seen_m
     unexplained = add_section_uncertainty(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,

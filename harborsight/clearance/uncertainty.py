@@ -626,7 +626,7 @@ def add_section_uncertainty(
             continue
         section.sigma_m = float(sigma)
         section.sigma_random_m = float(sigma_random)
-        section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * float(sigma))
+        section.distance_lower_m = lower_bound_m(section.distance_m, float(sigma))
     return unexplained
 
 
@@ -642,7 +642,12 @@ def bounded_where_band_left(section: SectionClearance) -> bool:
 def seen_lower_bound_m(section: SectionClearance) -> float:
     """The propagated lower bound of the obstacle a section saw, ``max(0, d - z sigma)``,
     whatever may lie out of view."""
-    return max(0.0, section.distance_m - LOWER_BOUND_Z * section.sigma_m)
+    return lower_bound_m(section.distance_m, section.sigma_m)
+
+
+def lower_bound_m(distance_m: float, sigma_m: float) -> float:
+    """The one-sided 95 % lower bound of a normal reading, ``max(0, d - z sigma)``."""
+    return max(0.0, distance_m - LOWER_BOUND_Z * sigma_m)
 
 
 def add_nadir_approximation(sections: list[SectionClearance]) -> None:
@@ -662,5 +667,5 @@ def add_nadir_approximation(sections: list[SectionClearance]) -> None:
         if not math.isfinite(bias_m):
             continue
         section.sigma_m = math.hypot(section.sigma_m, bias_m)
-        section.distance_lower_m = max(0.0, section.distance_m - LOWER_BOUND_Z * section.sigma_m)
+        section.distance_lower_m = lower_bound_m(section.distance_m, section.sigma_m)
 

@@ -39,7 +39,7 @@ import time
 from collections.abc import Callable
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import ClockMap, LiveTrack, worth_saying
+from harborsight.live.telemetry import ClockMap, LiveTrack, SenderClocks, worth_saying
 from harborsight.telemetry.accuracy import per_axis_from_radial_m
 
 ALTITUDES = ("relative", "amsl")
@@ -105,7 +105,7 @@ class MavlinkDrone:
         self.system_id: int | None = None
         #: each (system, component)'s boot clock; the autopilot's (the sender of the drone's
         #: first position) maps with the track's own, which its SYSTEM_TIME ties to UTC
-        self.clocks: dict[tuple[int, int], ClockMap] = {}
+        self.clocks = SenderClocks(track)
         self.other_systems = 0
 
     def _warn(self, message: str) -> None:
@@ -133,7 +133,7 @@ class MavlinkDrone:
         track = self.track
         sender = (message.get_srcSystem(), message.get_srcComponent())
         if kind in _BOOT_STAMPED:
-            clock = self._clock_of(sender, kind)
+            clock = self.clocks.of(sender, primary=kind == "GLOBAL_POSITION_INT")
             jumps = clock.jumps
         if kind == "GLOBAL_POSITION_INT":
             if message.lat == 0 and message.lon == 0:
@@ -167,31 +167,13 @@ class MavlinkDrone:
                 return
             track.add_attitude(now_s, (self._vehicle_yaw_deg + message.pointing_c / 100.0) % 360.0,
                                message.pointing_a / 100.0, message.pointing_b / 100.0, "gimbal")
-        elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0 and self._autopilot_or_unknown(sender):
+        elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0 and self.clocks.primary_or_unknown(sender):
             if track.utc_clock is None:
                 track.utc_clock = ClockMap(jump_s=1.0)
             track.utc_clock.observe(message.time_boot_ms / 1000.0, message.time_unix_usec / 1e6)
         if kind in _BOOT_STAMPED and clock.jumps != jumps:
             what = "the drone's clock" if clock is track.clock else "a gimbal's clock"
             self._warn(f"{what} jumped (a reboot or a time reset): its time alignment starts again")
-
-    def _clock_of(self, sender: tuple[int, int], kind: str) -> ClockMap:
-        """The clock map of a sender's boot time: the track's own for the autopilot (the
-        sender of the drone's first position), a map of its own for any other (a gimbal with
-        its own component, or a sender heard before the first position)."""
-        clock = self.clocks.get(sender)
-        if (kind == "GLOBAL_POSITION_INT" and clock is not self.track.clock
-                and not any(c is self.track.clock for c in self.clocks.values())):
-            clock = self.clocks[sender] = self.track.clock          # the autopilot's
-        elif clock is None:
-            clock = self.clocks[sender] = ClockMap()
-        return clock
-
-    def _autopilot_or_unknown(self, sender: tuple[int, int]) -> bool:
-        """Whether ``sender`` is the autopilot, or none is known yet (a gimbal's SYSTEM_TIME
-        counts its own boot time, which the track's clock does not)."""
-        return self.clocks.get(sender) is self.track.clock or not any(
-            c is self.track.clock for c in self.clocks.values())
 
     def run(self, stop: threading.Event) -> None:
         """Read until ``stop`` is set (the reader thread's body)."""

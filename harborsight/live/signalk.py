@@ -37,7 +37,7 @@ from datetime import datetime
 from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
-from harborsight.live.telemetry import ClockMap, LiveTrack, worth_saying
+from harborsight.live.telemetry import LiveTrack, SenderClocks, worth_saying
 
 STREAM_PATH = "/signalk/v1/stream"
 #: a section's status as a Signal K notification state
@@ -83,7 +83,7 @@ class SignalKVessel:
         self.sources: dict[str, str] = {}
         #: each source's clock map; the position's source maps with the track's own (the
         #: frames' UTC times are read through it)
-        self.clocks: dict[str, ClockMap] = {}
+        self.clocks = SenderClocks(track)
         self.other_vessels = 0
         self.other_sources = 0
 
@@ -109,7 +109,9 @@ class SignalKVessel:
             try:
                 stamp = datetime.fromisoformat(str(update["timestamp"]).replace("Z", "+00:00"))
                 source = update.get("$source") or (update.get("source") or {}).get("label") or ""
-                clock = self._clock_of(source, update.get("values", []))
+                clock = self.clocks.of(source, primary=any(
+                    isinstance(item, dict) and item.get("path") == "navigation.position"
+                    for item in update.get("values", [])))
                 jumps = clock.jumps
                 t_s = clock.observe(stamp.timestamp(), now_s)
                 if clock.jumps != jumps and worth_saying(clock.jumps, every=None):
@@ -130,19 +132,6 @@ class SignalKVessel:
                 self.unreadable += 1
                 if worth_saying(self.unreadable, every=None):
                     self.track.warn(f"Signal K: {self.unreadable} unreadable update(s) skipped ({exc})")
-
-    def _clock_of(self, source: str, values: list) -> ClockMap:
-        """The clock map of a source: the track's own for the first source of
-        ``navigation.position``, a map of its own for any other."""
-        clock = self.clocks.get(source)
-        position = any(isinstance(item, dict) and item.get("path") == "navigation.position"
-                       for item in values)
-        if (position and clock is not self.track.clock
-                and not any(c is self.track.clock for c in self.clocks.values())):
-            clock = self.clocks[source] = self.track.clock
-        elif clock is None:
-            clock = self.clocks[source] = ClockMap()
-        return clock
 
     def _value(self, path, value, t_s: float, now_s: float) -> None:
         if path == "navigation.position":

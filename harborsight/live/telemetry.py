@@ -72,6 +72,33 @@ class ClockMap:
         return None if self._best is None else local_s - self._best - self.offset_s
 
 
+class SenderClocks(dict):
+    """One :class:`ClockMap` per sender on a feed (a Signal K source, a MAVLink system and
+    component), each sender stamping by its own clock; the primary sender's (the one whose
+    positions the track holds) is the track's own map, through which frames get their UTC."""
+
+    def __init__(self, track: LiveTrack) -> None:
+        super().__init__()
+        self.track = track
+
+    @property
+    def has_primary(self) -> bool:
+        return any(clock is self.track.clock for clock in self.values())
+
+    def of(self, sender, primary: bool) -> ClockMap:
+        """``sender``'s map; the track's own when ``primary`` and no sender has it yet."""
+        clock = self.get(sender)
+        if primary and clock is not self.track.clock and not self.has_primary:
+            clock = self[sender] = self.track.clock
+        elif clock is None:
+            clock = self[sender] = ClockMap()
+        return clock
+
+    def primary_or_unknown(self, sender) -> bool:
+        """Whether ``sender`` is the primary one, or none is known yet."""
+        return self.get(sender) is self.track.clock or not self.has_primary
+
+
 def worth_saying(count: int, every: int | None = 1000) -> bool:
     """Whether the ``count``-th of a repeated warning is said: the 1st, 10th and 100th, and
     then every ``every``-th (None: no more), so a flood is heard without drowning the log."""
