@@ -491,7 +491,8 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
     report = measure_clearance(labels, off, vessel, settings)
     assert report.pose_refinement["applied"]
     refined, refinement = refine_vessel_pose(labels, off, vessel,
-                                             alignment_settings(settings, settings.sensor_sigmas()))
+                                             alignment_settings(settings, settings.sensor_sigmas(),
+                                                                float(off.camera.position_enu[2])))
     sections_v = vessel.sections()
     n = sections_v.n_sections
     points, section = sections_v.samples(16 * n)

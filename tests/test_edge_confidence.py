@@ -28,8 +28,8 @@ from harborsight.vessel.spec import load_vessel_spec
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 HEIGHT_M, FOCAL_PX, SIZE_PX = 50.0, 500.0, 1000
 ZERO = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
-                    camera_tilt_deg=0, height_m=0, water_level_m=0, clock_s=0, edge_px=0,
-                    edge_m=0)
+                    camera_tilt_deg=0, height_m=0, water_level_m=0, focal_rel=0, clock_s=0,
+                    edge_px=0, edge_m=0)
 #: Φ⁻¹(0.9), computed by hand from a normal table
 Z_90 = 1.2816
 

@@ -207,6 +207,37 @@ def test_a_pose_the_image_contradicts_beyond_the_limits_leaves_no_lower_bound_st
     assert within.pose_refinement["applied"] and not within.sensors_contradicted
 
 
+def test_a_focal_length_off_is_measured_by_the_hull_s_size_or_flagged():
+    """A focal length off by k scales the scene as a height off by -k would (a video mode or
+    stabilisation that crops the sensor: 5-15 %). With an RTK altitude (height sigma 0) the
+    height's prior is the focal length's 0.5 % alone, and before the scale test the
+    correction stopped part way (5 % at 100 m: 1.7 of 4.8 m, readings 0.3 m long; on the
+    bench 31 % of sections under their bound). Now the image's scale re-solves the height
+    where it disagrees with the frame's: at 50 m it is corrected, at 100 m it is beyond the
+    height's limit and the frame is flagged, naming the focal length."""
+    scene50, labels50 = scene_and_labels(21, "alongside", 50)
+    scene100, labels100 = scene_and_labels(21, "alongside", 100)
+    for scene, labels, k in ((scene50, labels50, 0.95), (scene50, labels50, 1.05),
+                             (scene100, labels100, 0.95), (scene100, labels100, 1.0)):
+        truth = [s["distance_m"] for s in ground_truth(scene)["sections"]]
+        meta = replace(scene.metadata("frame.png"), sensor_sigmas={"height_m": 0.0})
+        meta = replace(meta, camera=replace(meta.camera, fx=meta.camera.fx * k, fy=meta.camera.fy * k))
+        report = measure_frame(labels, meta, TUG, mask_from_file=True)    # exact labels
+        found = report.pose_refinement
+        ok = [(s, t) for s, t in zip(report.sections, truth, strict=True) if s.status == "ok"]
+        assert len(ok) >= 4
+        if k == 1.0:
+            assert found["scale_prior_m"] is None and not report.sensors_contradicted
+        elif scene is scene50:
+            # the 2.5 m the image calls for, found, and the distances right to 0.1 m
+            assert found["applied"] and found["scale_prior_m"] > 2.0
+            assert found["height_change_m"] == pytest.approx((k - 1) * 50.0, abs=0.3)
+            assert max(abs(s.distance_m - t) for s, t in ok) < 0.15
+        else:
+            assert report.sensors_contradicted and "focal length" in found["reason"]
+            assert all(s.distance_lower_m == 0.0 for s, _ in ok)
+
+
 def test_only_a_hull_mostly_in_view_can_contradict_the_sensors():
     """Of a bow alone a wrong height and shift fit as well as the truth: a 30 m bench frame
     with 36 % of its hull in view "found" its height 10.7 m off, with every outline point

@@ -85,12 +85,16 @@ def test_an_ellipsoidal_height_is_no_longer_corrected_into_a_wrong_pose():
     """A height 40 m too high (an ellipsoidal height read as height above the water): the
     hull projects at half its size, and the refinement nestled that small outline into a
     corner of the ship's pixels and applied it (points deep inside the ship cannot tell).
-    The search lays the hull at its true size, 40 m lower, and flags the frame."""
+    The search lays the hull at its true size, 40 m lower, and flags the frame; since the
+    twenty-ninth session the refinement's own scale test (the hull's size against the
+    frame's height and focal length) finds the 40 m and flags it even without the search."""
     scene, labels = scene_and_labels(21, "alongside", 100)
     true = scene.geometry()
     told = corrected_geometry(true, np.array([0.0, 0.0, 0.0, 40.0]))
-    before = measure_clearance(labels, told, TUG, NO_SEARCH)
-    assert before.pose_refinement["applied"] and not before.sensors_contradicted
+    alone = measure_clearance(labels, told, TUG, NO_SEARCH)
+    _flagged_with_nothing_standing(alone)
+    assert "the altitude or the focal length is off" in alone.pose_refinement["reason"]
+    assert alone.pose_refinement["height_change_m"] == pytest.approx(-40.0, abs=1.0)
     report = measure_clearance(labels, told, TUG)
     _flagged_with_nothing_standing(report)
     assert report.pose_refinement["height_change_m"] == pytest.approx(-40.0, abs=1.0)

@@ -27,8 +27,8 @@ HEIGHT_M, FOCAL_PX = 50.0, 500.0
 GSD_M = HEIGHT_M / FOCAL_PX
 QUANTISATION_M = GSD_M / math.sqrt(12.0)
 ZERO = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
-                    camera_tilt_deg=0, height_m=0, water_level_m=0, clock_s=0, edge_px=0,
-                    edge_m=0)
+                    camera_tilt_deg=0, height_m=0, water_level_m=0, focal_rel=0, clock_s=0,
+                    edge_px=0, edge_m=0)
 BOX = np.array([[10.0, 3.0], [10.0, -3.0], [-10.0, -3.0], [-10.0, 3.0]])   # centred on (0, 0)
 
 
@@ -73,6 +73,20 @@ def test_height_scales_the_obstacle_about_the_nadir():
     section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0],
                      SensorSigmas(**{**ZERO.to_dict(), "height_m": 0.6, "water_level_m": 0.8}))
     assert section.sigma_m == pytest.approx(math.hypot(12.0 / HEIGHT_M, QUANTISATION_M), rel=1e-3)
+
+
+def test_a_focal_length_error_scales_the_scene_as_a_height_error():
+    # 2 % of the focal length at 50 m is a metre of height: the obstacle 12 m from the
+    # nadir moves by 12/50 m (by hand: X = u·h/f, so dX/X = -df/f = dh/h)
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 0.0],
+                     SensorSigmas(**{**ZERO.to_dict(), "focal_rel": 0.02}))
+    assert section.sigma_m == pytest.approx(math.hypot(12.0 / HEIGHT_M, QUANTISATION_M), rel=1e-3)
+    # with a height error, in quadrature
+    assert SensorSigmas(height_m=0.6, water_level_m=0.0, focal_rel=0.016).scale_height_m(50.0) == \
+        pytest.approx(1.0)
+    # refused as every sigma is when negative
+    with pytest.raises(ValueError, match="focal_rel"):
+        SensorSigmas(focal_rel=-0.01)
 
 
 def test_vessel_heading_turns_the_hull_point_about_the_antenna():
@@ -179,13 +193,18 @@ def test_monte_carlo_spread_matches_the_propagated_sigma():
     labels = cv2.imread(str(SAMPLES / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
     vessel = load_vessel_spec(SAMPLES / frame["vessel_spec"])
     noise = PoseNoise(gps_m=0.2, heading_deg=0.3, height_m=0.5)
+    focal_rel = 0.02        # the focal length drawn too (a datasheet's), the larger error here
     settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False),
-                                 sigma_options=(("camera_tilt_deg", 0.0),))
+                                 sigma_options=(("camera_tilt_deg", 0.0), ("focal_rel", focal_rel)))
     rng = np.random.default_rng(1)
     predicted = None
     draws = []
     for _ in range(150):
-        meta = parse_frame_metadata(add_pose_noise(frame, noise, rng), "noisy.json")
+        noisy = add_pose_noise(frame, noise, rng)
+        scale = 1.0 + rng.normal(0.0, focal_rel)
+        noisy["camera"] = {**noisy["camera"], "fx": noisy["camera"]["fx"] * scale,
+                           "fy": noisy["camera"]["fy"] * scale}
+        meta = parse_frame_metadata(noisy, "noisy.json")
         report = measure_frame(labels, meta, vessel, settings, mask_from_file=True)
         if predicted is None:        # the frame carries the sigmas it was drawn with
             # sections well clear of the hull: within a few pixels of it, the vessel's own

@@ -357,14 +357,32 @@ def _band_edge_pixels(
 MIN_HULL_SPAN_PX = 8.0
 
 
-def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas) -> PoseRefinementSettings:
-    """The pose refinement's settings for a frame: the height's prior is the frame's own
-    height sigma (an RTK altitude holds the height, a barometer lets the hull's size in
-    pixels correct it)."""
+#: how far the mask's ship edge may lie off the hull all round, for the refinement's scale
+#: test: this share of the frame's edge sigma (a model's 4 px: 2.4 px), at least
+#: ``PoseRefinementSettings.scale_edge_px`` (1 px, a mask file's). At 1 px for the model's
+#: masks, five of the bench's 260 frames with right sensors were flagged for a hull the model
+#: drew 5-10 % too large or small
+SCALE_EDGE_SHARE = 0.6
+#: a height change within this many sigma of the frame's scale prior is never refused for
+#: its size (the default limit, 4 m, is 4 sigma of a barometer's metre)
+HEIGHT_LIMIT_SIGMAS = 4.0
+
+
+def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas,
+                       height_m: float) -> PoseRefinementSettings:
+    """The pose refinement's settings for a frame at ``height_m`` above the water: the
+    height's prior is the frame's own scale sigma, its height's and its focal length's
+    (an RTK altitude and a calibrated camera hold the scale, a barometer or a datasheet's
+    focal length let the hull's size in pixels correct it), and the height's limit at least
+    :data:`HEIGHT_LIMIT_SIGMAS` of it; the scale test's mask edge :data:`SCALE_EDGE_SHARE`
+    of the frame's edge sigma."""
     alignment = settings.pose_refinement
     if not alignment.refine_height:
         return alignment
-    return replace(alignment, prior_height_m=max(sigmas.height_above_water_m, 1e-3))
+    prior_m = max(sigmas.scale_height_m(height_m), 1e-3)
+    return replace(alignment, prior_height_m=prior_m,
+                   max_height_change_m=max(alignment.max_height_change_m, HEIGHT_LIMIT_SIGMAS * prior_m),
+                   scale_edge_px=max(alignment.scale_edge_px, SCALE_EDGE_SHARE * sigmas.edge_px))
 
 
 #: spacing of the image-border points a clear section's reach is measured on, pixels
@@ -457,7 +475,7 @@ def measure_clearance(
     # align the vessel to its own pixels; the sensors' pose stays when that is not trustworthy
     sigmas = sigmas or settings.sensor_sigmas()
     geometry, refinement = refine_vessel_pose(labels, geometry, vessel,
-                                              alignment_settings(settings, sigmas))
+                                              alignment_settings(settings, sigmas, height_m))
     if refinement.applied:      # the hull moved (and the camera's height): all once more
         in_image = _sections_in_image(sections_v, geometry)
         camera = geometry.camera

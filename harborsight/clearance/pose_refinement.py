@@ -121,11 +121,15 @@ class PoseRefinementSettings:
     max_residual_px: float = 1.5
     #: search the whole image for the hull when the outline fits badly (a gross sensor error)
     search_whole_image: bool = True
+    #: how far a mask's ship edge may lie off the hull all round (pixels, one sigma), which
+    #: scales the hull in the image whatever the sensors (:func:`_image_scale`): a pixel for
+    #: a mask read from a file; a model's masks miss or add whole pieces of a hull
+    scale_edge_px: float = 1.0
 
     def __post_init__(self) -> None:
         require_positive(self, ("prior_shift_m", "prior_heading_deg", "prior_height_m", "edge_sigma_px",
                                 "max_shift_m", "max_rotation_deg", "max_height_change_m",
-                                "max_residual_px"))
+                                "max_residual_px", "scale_edge_px"))
         for name in ("min_inlier_fraction", "min_ship_fill"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -159,6 +163,9 @@ class PoseRefinement:
     #: where the image puts the hull when it contradicts the sensors: the silhouette's
     #: corners ``[[u, v], ...]`` (px) under the correction found, for the overlay
     image_hull_px: list[list[float]] | None = field(default=None, compare=False)
+    #: the height prior (m) the alignment was re-solved with when the hull's size in the
+    #: image disagreed with the frame's height and focal length; None when it agreed
+    scale_prior_m: float | None = None
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -178,6 +185,7 @@ class PoseRefinement:
             "reason": self.reason,
             "sensors_contradicted": self.sensors_contradicted,
             "image_hull_px": self.image_hull_px,
+            "scale_prior_m": rounded(self.scale_prior_m, 3),
         }
 
 
@@ -358,7 +366,10 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
     if camera_yaw:      # shift and turn together are one error: the camera's yaw
         gross, reach = [True, False, gross[2]], [True, False, reach[2]]
     tilt_deg = None
-    if gross[0] and (sum(gross) != 1 or sum(reach) > 1):
+    # a gross shift with a height change the prior does not give (2.5 sigma) is looked at
+    # as a tilt too, though one gross error flags the frame anyway: for the reason's sake
+    scaled = abs(height_change_m) > 2.5 * settings.prior_height_m
+    if gross[0] and (sum(gross) != 1 or sum(reach) > 1 or scaled):
         # shift and height (and the turn a tilt gives) may be one error: the camera's tilt
         tilt_deg = camera_tilt_explaining(
             placement.params, geometry, vessel.hull_points, labels == SHIP,
@@ -550,6 +561,69 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     return placement
 
 
+#: the hull's size in the image disagrees with the frame's scale (its height and focal
+#: length, :meth:`SensorSigmas.scale_height_m`) when the image's own estimate of the height
+#: lies beyond this many sigma of the prior's (:func:`_image_scale`); a linear look at the
+#: fit held by the prior screens for it first, from :data:`SCALE_SCREEN_Z`
+SCALE_CONFLICT_Z = 3.0
+SCALE_SCREEN_Z = 1.5
+
+def _image_scale(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, params: np.ndarray,
+                 information: np.ndarray, value: np.ndarray, prior_diagonal: np.ndarray,
+                 edge_weight: float, geometry: FrameGeometry, edge_px: float
+                 ) -> tuple[tuple, float] | None:
+    """The alignment re-solved with the height's prior widened, and that prior (m), when the
+    hull's size in the image and the frame's scale disagree; else None.
+
+    Held by a prior ``N(0, σp²)``, the MAP height change ``μ`` (posterior variance ``C``)
+    stops short of what the image alone says, ``μ_d = μ σp² / (σp² - C)`` with variance
+    ``C σp² / (σp² - C)`` to first order. When that lies :data:`SCALE_SCREEN_Z` sigma out
+    (with ``σp²`` and ``b²``, ``b = 2 · edge_px · h / span`` the height a mask's edge
+    ``edge_px`` off all round would fake, ``h`` the camera's height, ``span`` the hull's
+    extent in pixels; ``PoseRefinementSettings.scale_edge_px``), the fit is re-solved from
+    ``μ`` with the prior ``hypot(σp, 3 μ_d)``. The scales disagree when the new height change
+    ``μ'`` (variance ``C'``) lies beyond :data:`SCALE_CONFLICT_Z` · ``sqrt(C' + b² + σp²)``
+    and the outline fits at least as well (as many inliers, within :data:`SAME_FIT_RMS_PX`
+    of the RMS; ``value``: the first fit's signed distances): freed, a height can also slide
+    to a worse minimum (a bench frame's went 10 m down, 65 % of its outline on edges against
+    98 %). A focal length 5-10 % off (a video mode or stabilisation that crops the sensor)
+    or an altitude off by more than its sigma is such a case: held by the prior, the
+    correction stopped part way and the rest of the scale error was in every distance,
+    beyond its bar (docs/results.md, "A focal length given wrong")."""
+    sigma_p2 = 1.0 / float(prior_diagonal[3])
+    try:
+        posterior = float(np.linalg.inv(information)[3, 3])
+    except np.linalg.LinAlgError:
+        return None
+    uv = align.pixels(hull_h, params)
+    finite = uv[np.isfinite(uv).all(axis=1)]
+    gap = sigma_p2 - posterior
+    if gap <= 0.01 * sigma_p2 or len(finite) < 2:
+        return None                       # the image hardly measures the scale
+    span_px = max(float(np.ptp(finite, axis=0).max()), 1.0)
+    bias2 = (2.0 * edge_px * float(geometry.camera.position_enu[2]) / span_px) ** 2
+    mean_d = float(params[3]) * sigma_p2 / gap
+    if abs(mean_d) <= SCALE_SCREEN_Z * math.sqrt(posterior * sigma_p2 / gap + bias2 + sigma_p2):
+        return None
+    prior_m = math.hypot(math.sqrt(sigma_p2), 3.0 * mean_d)
+    widened = prior_diagonal.copy()
+    widened[3] = prior_m ** -2.0
+    again = gauss_newton(align, hull_h, outline, SCHEDULES[0], params, widened, edge_weight)
+    if not (np.isfinite(again[2]) and np.isfinite(again[0]).all()):
+        return None
+    try:
+        variance = float(np.linalg.inv(again[1])[3, 3])
+    except np.linalg.LinAlgError:
+        return None
+    if abs(float(again[0][3])) <= SCALE_CONFLICT_Z * math.sqrt(variance + bias2 + sigma_p2):
+        return None
+    (fraction, rms_px, _), (fraction_again, rms_again_px, _) = outline_fit(value), outline_fit(again[3])
+    if fraction_again < fraction or rms_again_px is None or (
+            rms_px is not None and rms_again_px > rms_px + SAME_FIT_RMS_PX):
+        return None
+    return again, prior_m
+
+
 def _refine_within_prior(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec, settings: PoseRefinementSettings,
     extra_start: np.ndarray | None = None,
@@ -611,6 +685,15 @@ def _refine_within_prior(
         candidates.append((*found, fill(found[0])))
     full = [c for c in candidates if c[4] >= settings.min_ship_fill]
     params, information, _, value, fill_share = best = min(full or candidates, key=lambda c: c[2])
+    scale_prior_m = None
+    rescaled = (_image_scale(align, hull_h, outline, params, information, value, prior_diagonal,
+                             edge_weight, geometry, settings.scale_edge_px)
+                if settings.refine_height and np.isfinite(params).all() else None)
+    if rescaled is not None:
+        # the hull's size in the image and the frame's scale disagree: the image's scale,
+        # re-solved with the height's prior widened, replaces the compromise
+        again, scale_prior_m = rescaled
+        params, information, _, value, fill_share = best = (*again, fill(again[0]))
 
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
     shift = (float(params[0]), float(params[1]))
@@ -632,7 +715,8 @@ def _refine_within_prior(
     except np.linalg.LinAlgError:
         covariance = None
     found = PoseRefinement(False, shift, rotation_deg, height_change_m, residual_px, fraction, before,
-                           n_edge, ship_fill=fill_share, covariance=covariance)
+                           n_edge, ship_fill=fill_share, covariance=covariance,
+                           scale_prior_m=scale_prior_m)
     reason = None
     if not np.isfinite(params).all():
         reason = "the alignment diverged"
@@ -641,7 +725,7 @@ def _refine_within_prior(
     elif abs(rotation_deg) > settings.max_rotation_deg:
         reason = f"rotation {rotation_deg:.1f} deg beyond {settings.max_rotation_deg:g} deg"
     elif abs(height_change_m) > settings.max_height_change_m:
-        reason = f"height change {height_change_m:+.1f} m beyond {settings.max_height_change_m:g} m"
+        reason = f"height change {height_change_m:+.1f} m beyond {settings.max_height_change_m:.3g} m"
     elif fraction < settings.min_inlier_fraction:
         reason = (f"{100 * fraction:.0f} % of the outline fits a ship edge "
                   f"(at least {100 * settings.min_inlier_fraction:.0f} % needed)")
@@ -657,8 +741,13 @@ def _refine_within_prior(
     if reason is not None:
         beyond = reason.startswith(BEYOND_LIMITS)
         in_view = len(value) / max(outline.shape[1], 1)
+        # the hull's size in the image put the scale off, beyond the height's limit: the
+        # sensors' pose leaves that scale error in every distance, however well it fits
+        scale_beyond = scale_prior_m is not None and reason.startswith("height change ")
         contradicted = beyond and contradicts_sensors(before, fraction, fill_share, residual_px,
-                                                      settings, in_view)
+                                                      settings, in_view, scale_beyond)
+        if contradicted and scale_beyond:
+            reason += " (the hull's size in the image: the altitude or the focal length is off)"
         image_hull_px = _silhouette_px(geometry, vessel, params) if contradicted else None
         return geometry, replace(found, reason=reason, edge_share=edge_share(at_sensors),
                                  sensors_contradicted=contradicted, image_hull_px=image_hull_px)
@@ -675,18 +764,22 @@ CONTRADICTION_ADVICE = ("check the GPS positions, the altitude (ellipsoidal or a
                         "the water level, the heading source (a course over ground while going "
                         "astern), the camera's yaw (from true north, not from the drone's nose) "
                         "and its pitch (a gimbal given as straight down, --mount stabilised, "
-                        "that is not)")
+                        "that is not) and the camera's focal length (a video mode or "
+                        "stabilisation that crops the sensor)")
 #: the reasons that refuse a correction for its size alone
 BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
 
 
 def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: float,
                         residual_px: float | None, settings: PoseRefinementSettings,
-                        in_view: float = 1.0) -> bool:
+                        in_view: float = 1.0, scale_beyond: bool = False) -> bool:
     """Whether a correction refused for its size alone shows the sensors' pose wrong: it
     passes every test of fit (inliers, ship fill, residual), and the sensors' pose leaves
     fewer than ``min_inlier_fraction`` of the outline on a ship edge or
-    :data:`CONTRADICTION_GAIN` fewer than the correction. An altitude 5 m off (a water level
+    :data:`CONTRADICTION_GAIN` fewer than the correction, or the correction is a height
+    the image's scale calls for beyond the frame's (``scale_beyond``,
+    :func:`_image_scale`: a scale error a few per cent off leaves most of the
+    outline on edges at the sensors' pose). An altitude 5 m off (a water level
     left at 0 on a tide) or a magnetic heading taken for true 15 degrees off is such a case:
     the pose the distances are read with is then known to be wrong, by more than any sigma
     says (on the sample frames a quay 5.05 m away read 21.6 ± 2.3 m). Only a hull mostly in
@@ -696,7 +789,7 @@ def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: floa
     height 10.7 m off)."""
     return (in_view >= CONTRADICTION_MIN_IN_VIEW
             and (fraction_before < settings.min_inlier_fraction
-                 or fraction - fraction_before >= CONTRADICTION_GAIN)
+                 or fraction - fraction_before >= CONTRADICTION_GAIN or scale_beyond)
             and fraction >= settings.min_inlier_fraction
             and ship_fill >= settings.min_ship_fill
             and residual_px is not None and residual_px <= settings.max_residual_px)

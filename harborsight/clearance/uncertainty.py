@@ -136,20 +136,21 @@ class FrameVelocities:
     vessel_en_mps: tuple[float, float] | None = None
 
 
-def _camera_errors(sigmas: SensorSigmas) -> list[str]:
+def _camera_errors(sigmas: SensorSigmas, height_m: float) -> list[str]:
     """The names of the camera errors :func:`_perturbed_cameras` moves the camera by, in its
-    order: ``height``, ``yaw``, ``tilt_east``, ``tilt_north`` (those with a sigma above 0)."""
-    named = (("height", sigmas.height_above_water_m), ("yaw", sigmas.camera_yaw_deg),
+    order: ``height`` (with the focal length's scale, at ``height_m``), ``yaw``,
+    ``tilt_east``, ``tilt_north`` (those with a sigma above 0)."""
+    named = (("height", sigmas.scale_height_m(height_m)), ("yaw", sigmas.camera_yaw_deg),
              ("tilt_east", sigmas.camera_tilt_deg), ("tilt_north", sigmas.camera_tilt_deg))
     return [name for name, sigma in named if sigma > 0]
 
 
 def _perturbed_cameras(camera: Camera, sigmas: SensorSigmas) -> list[Camera]:
     """The camera moved by one sigma of each camera error (:func:`_camera_errors`): up by
-    the height's sigma, turned about the vertical by the yaw's, about east and north by the
-    tilt's."""
+    the scale's sigma (the height's and the focal length's), turned about the vertical by
+    the yaw's, about east and north by the tilt's."""
     cameras = []
-    height_m = sigmas.height_above_water_m
+    height_m = sigmas.scale_height_m(float(camera.position_enu[2]))
     if height_m > 0:
         cameras.append(Camera(camera.intrinsics, camera.position_enu + np.array([0.0, 0.0, height_m]),
                               camera.world_from_camera))
@@ -568,8 +569,9 @@ def add_section_uncertainty(
         systematic += along ** 2
     unexplained = None
     if refinement.applied:
-        unexplained = _unexplained_shift(refinement, sigmas, _camera_errors(sigmas), at_antenna,
-                                         along_u, float(camera.position_enu[2]))
+        height_m = float(camera.position_enu[2])
+        unexplained = _unexplained_shift(refinement, sigmas, _camera_errors(sigmas, height_m),
+                                         at_antenna, along_u, height_m)
         if unexplained is not None:
             systematic += unexplained.pop("change_m") ** 2
     # the outline itself off the real hull moves the hull point along the section's normal

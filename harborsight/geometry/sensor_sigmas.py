@@ -20,6 +20,13 @@ name                   default    source
 ``height_m``           1.0 m      the drone's altitude (barometric; a frame's ``uav.alt_sigma_m``)
 ``water_level_m``      0.3 m      the water level under it (tide, chart datum); adds to
                                   ``height_m`` in quadrature
+``focal_rel``          0.005      the camera's focal length, relative: a calibration (a
+                                  careful one 0.002; a datasheet's focal length 0.01-0.02,
+                                  a video mode that crops the sensor more). Off by ``ε`` it
+                                  scales every back-projected point
+                                  about the nadir as a height off by ``-ε·h`` would (exactly
+                                  for a camera looking straight down), so it enters as that
+                                  height, in quadrature (:meth:`SensorSigmas.scale_height_m`)
 ``clock_s``            0.05 s     video vs telemetry clocks (needs the frames' velocities)
 ``edge_px``            4.0 px     where the mask puts the obstacle's edge, and a model's other
                                   small errors near the hull: calibrated for the shipped model
@@ -79,6 +86,7 @@ class SensorSigmas:
     camera_tilt_deg: float = 0.5
     height_m: float = 1.0
     water_level_m: float = 0.3
+    focal_rel: float = 0.005
     clock_s: float = 0.05
     edge_px: float = 4.0
     edge_m: float = 0.5
@@ -98,6 +106,11 @@ class SensorSigmas:
     def height_above_water_m(self) -> float:
         """One sigma of the height above the water: altitude and water level together."""
         return math.hypot(self.height_m, self.water_level_m)
+
+    def scale_height_m(self, height_m: float) -> float:
+        """One sigma of the scene's scale, as a height at ``height_m`` above the water: the
+        height's own and the focal length's (``focal_rel · height_m``) in quadrature."""
+        return math.hypot(self.height_above_water_m, self.focal_rel * max(height_m, 0.0))
 
     @property
     def uav_axis_m(self) -> float:
