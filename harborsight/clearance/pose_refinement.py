@@ -595,7 +595,7 @@ def _image_scale(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, para
         posterior = float(np.linalg.inv(information)[3, 3])
     except np.linalg.LinAlgError:
         return None
-    uv = align.pixels(hull_h, params)
+    uv = align.pixels(outline, params)          # the outline's samples span the hull
     finite = uv[np.isfinite(uv).all(axis=1)]
     gap = sigma_p2 - posterior
     if gap <= 0.01 * sigma_p2 or len(finite) < 2:
