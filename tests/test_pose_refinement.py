@@ -508,6 +508,15 @@ def test_a_batch_summary_counts_the_frames_and_the_reasons():
         {"applied": False, "reason": "height change +5.0 m beyond 4 m"},
         {"applied": False, "reason": "height change -5.0 m beyond 4 m"}])
     assert "2x height change m beyond m" in signs
+    # a flight whose hulls are 4 % smaller than its altitude and focal length say, frame after
+    # frame (a focal length given for the stills, the video cropped): the note names the cause
+    small = [{"applied": True, "reason": None, "scale_change": -0.04 + 0.005 * (k % 3)}
+             for k in range(6)]
+    note = refinement_summary(small)
+    assert "a median 3.5 % lower than its altitude on 6 frame(s)" in note and "focal length" in note
+    assert "focal length" not in refinement_summary(small[:4])           # too few to tell
+    assert "focal length" not in refinement_summary(
+        [{**r, "scale_change": 0.004} for r in small])                    # right sensors
 
 
 def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):

@@ -166,6 +166,9 @@ class PoseRefinement:
     #: the height prior (m) the alignment was re-solved with when the hull's size in the
     #: image disagreed with the frame's height and focal length; None when it agreed
     scale_prior_m: float | None = None
+    #: the camera's height above the water at the sensors' pose (m), where the alignment ran:
+    #: ``height_change_m`` over it is the scale the hull's size in the image puts on the frame
+    height_m: float | None = field(default=None, compare=False)
     covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -186,6 +189,8 @@ class PoseRefinement:
             "sensors_contradicted": self.sensors_contradicted,
             "image_hull_px": self.image_hull_px,
             "scale_prior_m": rounded(self.scale_prior_m, 3),
+            "scale_change": (rounded(self.height_change_m / self.height_m, 4)
+                             if self.height_m else None),
         }
 
 
@@ -716,7 +721,9 @@ def _refine_within_prior(
         covariance = None
     found = PoseRefinement(False, shift, rotation_deg, height_change_m, residual_px, fraction, before,
                            n_edge, ship_fill=fill_share, covariance=covariance,
-                           scale_prior_m=scale_prior_m)
+                           scale_prior_m=scale_prior_m,
+                           height_m=(float(geometry.camera.position_enu[2])
+                                     if settings.refine_height else None))
     reason = None
     if not np.isfinite(params).all():
         reason = "the alignment diverged"
@@ -831,4 +838,32 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
         top = sorted(kinds.items(), key=lambda kv: -kv[1])[:3]
         line += f"; the sensors' pose kept on {len(kept)} (" + "; ".join(
             f"{n}x {kind}" for kind, n in top) + ")"
-    return line
+    return line + _scale_note(refinements)
+
+
+#: a batch whose frames' hulls put the scale off by this share (median) gets a note, from
+#: :data:`SCALE_NOTE_MIN_FRAMES` frames whose correction was applied or the scale test fired
+SCALE_NOTE_SHARE = 0.02
+SCALE_NOTE_MIN_FRAMES = 5
+
+
+def _scale_note(refinements: list[dict[str, Any] | None]) -> str:
+    """A clause for a batch whose hulls, frame after frame, are larger or smaller in the
+    image than the altitude and focal length say (``scale_change``, median over the frames
+    that applied a correction or re-solved the scale): one frame's scale may be a mask's
+    error, a flight's median is the camera's or the altimeter's. Held by its prior, a frame
+    corrects only part of a focal length 5 % off (a median 2 % on the bench), so the note
+    starts at :data:`SCALE_NOTE_SHARE`; with right sensors the bench's median was under
+    0.5 %. "" when there is nothing to say."""
+    changes = [float(r["scale_change"]) for r in refinements
+               if r and r.get("scale_change") is not None
+               and (r.get("applied") or r.get("scale_prior_m") is not None)]
+    if len(changes) < SCALE_NOTE_MIN_FRAMES:
+        return ""
+    median = float(np.median(changes))
+    if abs(median) < SCALE_NOTE_SHARE:
+        return ""
+    side = "lower" if median < 0 else "higher"
+    return (f"; the hull's size in the image puts the drone a median {100 * abs(median):.1f} % "
+            f"{side} than its altitude on {len(changes)} frame(s): check the camera's focal "
+            "length (a video mode or stabilisation that crops the sensor) and the altitude")
