@@ -25,6 +25,7 @@ from harborsight.sim.dataset import (
     simulate,
 )
 from harborsight.sim.layout import OBSTACLE, SHIP, Environment
+from harborsight.sim.metering import auto_expose, mean_lightness, metered_ev, srgb_to_linear
 from harborsight.vessel.spec import load_vessel_spec
 
 
@@ -149,6 +150,30 @@ def test_consumer_camera_effects():
     assert np.array_equal(compressed, cv2.imdecode(buf, cv2.IMREAD_COLOR))
 
 
+def test_metering_brings_a_frame_to_its_target_lightness_and_clips_highlights():
+    rng = np.random.default_rng(3)
+    dark = rng.integers(10, 90, (90, 160, 3)).astype(np.uint8)
+    dark[:20, :20] = 200                                    # a bright roof
+    for target in (45.0, 50.0, 55.0):
+        out, ev = auto_expose(dark, target)
+        # metered on a copy 160 px wide: within half a unit of L* on the whole frame
+        assert mean_lightness(srgb_to_linear(out)) == pytest.approx(target, abs=0.5)
+        assert ev > 0
+    out, ev = auto_expose(dark, 50.0)
+    assert out.max() == pytest.approx(255.0) and out.dtype == np.float32   # the roof clipped
+    # a gain of ev in linear light, checked by hand on one mid-grey pixel (sRGB 118 -> 0.181)
+    grey = np.full((8, 8, 3), 118, np.uint8)
+    ev = metered_ev(grey, 70.0)
+    linear = ((118 / 255 + 0.055) / 1.055) ** 2.4 * 2 ** ev
+    assert 116 * linear ** (1 / 3) - 16 == pytest.approx(70.0, abs=0.05)     # CIE L*, Y = linear
+    bright = np.full((8, 8, 3), 240, np.uint8)
+    assert metered_ev(bright, 50.0) < 0                                      # stops down
+    assert metered_ev(np.zeros((8, 8, 3), np.uint8), 50.0) == pytest.approx(3.0, abs=1e-3)
+    # a dataset.json from before the option resumes as it was rendered: unmetered
+    assert SimulationConfig.from_dict({"seed": 2, "preset": "tiny"}).auto_exposure is False
+    assert SimulationConfig(seed=2).auto_exposure is True
+
+
 def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path):
     out = tmp_path / "ds"
     config = SimulationConfig(seed=4, preset="tiny", vessel_pool=1, altitudes_m=(30.0,),
@@ -160,6 +185,11 @@ def test_family_frames_render_with_labels_that_agree_with_the_ray_cast(tmp_path)
         assert frame["ground_truth"]["scenario"] == family
         assert frame["simulation"]["label_agreement"] >= 0.995
         assert frame["simulation"]["environment"]["jpeg_quality"] is not None
+        # metered as a drone camera: the image's mean L* is the frame's target (to its
+        # sensor noise and JPEG; a quarter-size metering of these 64x36 frames missed by 2.7)
+        image = cv2.imread(str(out / "images" / f"{index:06d}.png"))
+        assert mean_lightness(srgb_to_linear(image)) == pytest.approx(
+            frame["simulation"]["metered_lightness"], abs=1.0)
         labels = cv2.imread(str(out / "labels" / f"{index:06d}.png"), cv2.IMREAD_UNCHANGED)
         assert set(np.unique(labels)) <= {0, 1, 2, 255}
         assert (labels == 1).any()

@@ -78,6 +78,11 @@ def simulate(
         help="Paint the white water of boats under way (turbulent wake, Kelvin arms, bow "
         "wave) on the rendered water; labels unchanged. A dataset rendered before this "
         "option resumes only with --no-wakes.")] = True,
+    auto_exposure: Annotated[bool, typer.Option(
+        help="Meter the realistic families' frames as a drone camera does: a gain in linear "
+        "light to a mean L* drawn from real drone photos' (50 ± 2.5); classic scenes keep "
+        "the render's exposure. A dataset rendered before this option resumes only with "
+        "--no-auto-exposure.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -92,7 +97,8 @@ def simulate(
             sequence_frames=sequence_frames, frame_interval_s=frame_interval_s,
             approach_speed_mps=approach_speed_mps,
             pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
-            cull_out_of_view=cull_out_of_view, wakes=wakes)
+            cull_out_of_view=cull_out_of_view, wakes=wakes,
+            auto_exposure=auto_exposure)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

@@ -39,6 +39,7 @@ from harborsight.sim.layout import (
     generate_vessel,
     sample_harbour_scene,
 )
+from harborsight.sim.metering import auto_expose, draw_target_lightness
 from harborsight.sim.wakes import paint_wakes
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 
@@ -48,6 +49,8 @@ SUBDIRS = ("images", "labels", "instances", "frames")
 VESSEL_STREAM = 2**31 - 1
 #: a frame's wakes are drawn from this stream of (seed, index)
 WAKE_STREAM = 6
+#: a family frame's metering target is drawn from this stream of (seed, index)
+METERING_STREAM = 7
 
 
 @dataclass(frozen=True)
@@ -78,10 +81,13 @@ class SimulationConfig:
     cull_out_of_view: bool = True
     # paint the wakes of boats under way on the rendered water (sim.wakes; labels unchanged)
     wakes: bool = True
+    # meter the families' frames as a drone camera does (sim.metering); classic scenes as before
+    auto_exposure: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
-    LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False}
+    LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False,
+                                         "auto_exposure": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -268,8 +274,11 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
 
 
 def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: HarbourScene,
-                         rng: np.random.Generator) -> np.ndarray:
-    """Airlight haze by range and sensor noise.
+                         rng: np.random.Generator, target_lightness: float | None = None
+                         ) -> np.ndarray:
+    """Airlight haze by range, the consumer camera's optics and processing, its metering
+    (``target_lightness``: mean L* to meter to, :mod:`harborsight.sim.metering`; None: the
+    render's own exposure) and sensor noise.
 
     Haze: ``I' = I·t + A·(1 − t)`` with transmission ``t = (1 − haze)^(range / 100 m)``
     (Koschmieder), ``A`` the haze colour; noise: Gaussian, ``noise_sigma`` grey levels.
@@ -279,6 +288,8 @@ def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: Harb
     airlight = 255.0 * np.array(env.haze_rgb[::-1])
     out = image_bgr.astype(np.float32) * t + airlight * (1.0 - t)
     out = _consumer_camera(out, env)
+    if target_lightness is not None:
+        out, _ = auto_expose(np.clip(out, 0.0, 255.0), target_lightness)
     out += rng.normal(0.0, env.noise_sigma, out.shape)
     out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
     if env.jpeg_quality is not None:
@@ -367,7 +378,11 @@ class FrameRenderer:
             image = paint_wakes(image, rendered.instances, scene,
                                 np.random.default_rng([self.config.seed, index, WAKE_STREAM]))
         rng = np.random.default_rng([self.config.seed, index, 1])
-        image = apply_camera_effects(image, cast.range_m, scene, rng)
+        target_lightness = None
+        if self.config.auto_exposure and scene.scenario in FAMILIES:
+            target_lightness = draw_target_lightness(
+                np.random.default_rng([self.config.seed, index, METERING_STREAM]))
+        image = apply_camera_effects(image, cast.range_m, scene, rng, target_lightness)
         labels = class_mask(rendered.instances, scene.class_of_instance)
         instances = rendered.instances.copy()
         instances[instances == 65535] = 0  # design.md: 0 = water/no object; sky is labels 255
@@ -380,6 +395,8 @@ class FrameRenderer:
             "label_agreement": round(agreement, 6), "environment": asdict(scene.environment),
             "split": split_of(self.config, index),
         }
+        if target_lightness is not None:
+            meta["simulation"]["metered_lightness"] = round(target_lightness, 3)
         meta = with_pose_noise(meta, self.config, stem)
         files = {
             f"images/{stem}.png": _encode_png(image),
