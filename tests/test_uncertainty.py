@@ -148,6 +148,7 @@ def test_sigma_options_and_frame_figures():
     assert parse_sigma_option("uav_gps=rtk") == ("uav_gps", 0.02)
     assert parse_sigma_option("vessel-heading-deg=gnss") == ("vessel_heading_deg", 0.3)
     assert parse_sigma_option("height_m=0.4") == ("height_m", 0.4)
+    assert parse_sigma_option("focal-rel=0.02") == ("focal_rel", 0.02)
     for bad, message in (("height_m", "NAME=VALUE"), ("speed=1", "unknown sigma"),
                          ("height_m=-1", "from 0 to 1000"), ("uav_gps=nan", "from 0 to 1000")):
         with pytest.raises(ValueError, match=message):

@@ -104,8 +104,10 @@ def parse_sigma_options(values: list[str] | None) -> tuple[tuple[str, float], ..
 SIGMA_HELP = ("One sigma of a sensor's error, for frames whose metadata does not carry its own "
               "(repeatable): uav_gps and vessel_gps (horizontal RMS, m, or rtk / dgps / "
               "standalone), vessel_heading_deg (or magnetic / gnss / gyro), camera_yaw_deg, "
-              "camera_tilt_deg, height_m, water_level_m, clock_s, edge_px, edge_m. Defaults: "
+              "camera_tilt_deg, height_m, water_level_m, focal_rel (the focal length, "
+              "relative), clock_s, edge_px, edge_m. Defaults: "
               "standalone GPS, 2 deg compasses, 0.5 deg tilt, 1 m height, 0.3 m water level, "
+              "0.005 focal length (a calibration; 0.01-0.02 for a datasheet's), "
               "0.05 s clock, a model's edge 4 px and 0.5 m in quadrature (1 px and 0 m for mask "
               "files). Each ok section then "
               "carries sigma_m and distance_lower_m.")
