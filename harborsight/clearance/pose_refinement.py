@@ -573,6 +573,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
 SCALE_CONFLICT_Z = 3.0
 SCALE_SCREEN_Z = 1.5
 
+
 def _image_scale(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, params: np.ndarray,
                  information: np.ndarray, value: np.ndarray, prior_diagonal: np.ndarray,
                  edge_weight: float, geometry: FrameGeometry, edge_px: float

@@ -23,10 +23,10 @@ name                   default    source
 ``focal_rel``          0.005      the camera's focal length, relative: a calibration (a
                                   careful one 0.002; a datasheet's focal length 0.01-0.02,
                                   a video mode that crops the sensor more). Off by ``ε`` it
-                                  scales every back-projected point
-                                  about the nadir as a height off by ``-ε·h`` would (exactly
-                                  for a camera looking straight down), so it enters as that
-                                  height, in quadrature (:meth:`SensorSigmas.scale_height_m`)
+                                  scales every back-projected point about the nadir as a
+                                  height off by ``-ε·h`` would (exactly for a camera looking
+                                  straight down), so it enters as that height, in
+                                  quadrature (:meth:`SensorSigmas.scale_height_m`)
 ``clock_s``            0.05 s     video vs telemetry clocks (needs the frames' velocities)
 ``edge_px``            4.0 px     where the mask puts the obstacle's edge, and a model's other
                                   small errors near the hull: calibrated for the shipped model
