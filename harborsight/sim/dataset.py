@@ -34,6 +34,9 @@ from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
 from harborsight.sim.layout import (
     FAMILIES,
+    LEISURE_FAMILIES,
+    LEISURE_LENGTH_M,
+    LEISURE_VESSEL_PREFIX,
     SCENARIOS,
     HarbourScene,
     generate_vessel,
@@ -47,6 +50,8 @@ CLASSES = {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"}
 SUBDIRS = ("images", "labels", "instances", "frames")
 #: vessels of the pool are drawn from this stream of the dataset seed
 VESSEL_STREAM = 2**31 - 1
+#: leisure vessels of the pool (the families' vessels of interest) from this stream of the seed
+LEISURE_VESSEL_STREAM = 2**31 - 2
 #: a frame's wakes are drawn from this stream of (seed, index)
 WAKE_STREAM = 6
 #: a family frame's metering target is drawn from this stream of (seed, index)
@@ -83,11 +88,14 @@ class SimulationConfig:
     wakes: bool = True
     # meter the families' frames as a drone camera does (sim.metering); classic scenes as before
     auto_exposure: bool = True
+    # a lake shore or a marina centres on a leisure craft of 6-16 m from a pool of its own
+    # (sim.layout.LEISURE_FAMILIES); classic scenes and the other families as before
+    leisure_vessels: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
     LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False,
-                                         "auto_exposure": False}
+                                         "auto_exposure": False, "leisure_vessels": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -201,7 +209,24 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
         if not (target / "vessel.yaml").is_file():
             generate_vessel(np.random.default_rng([config.seed, VESSEL_STREAM, k]), name, target)
         paths[name] = target / "vessel.yaml"
+    if config.leisure_vessels and _draws_leisure_family(config):
+        for k in range(config.vessel_pool):
+            name = f"{LEISURE_VESSEL_PREFIX}{k:02d}"
+            target = vessels_dir / name
+            if not (target / "vessel.yaml").is_file():
+                generate_vessel(np.random.default_rng([config.seed, LEISURE_VESSEL_STREAM, k]),
+                                name, target, LEISURE_LENGTH_M)
+            paths[name] = target / "vessel.yaml"
     return paths
+
+
+def _draws_leisure_family(config: SimulationConfig) -> bool:
+    """Whether any scene of the config can be a family that centres on a leisure craft."""
+    if not config.scenario:
+        return False
+    names, weights = parse_scenarios(config.scenario)
+    return any(n in LEISURE_FAMILIES and (weights is None or w > 0)
+               for n, w in zip(names, weights or [1.0] * len(names), strict=True))
 
 
 def parse_scenarios(text: str) -> tuple[list[str], list[float] | None]:
@@ -252,13 +277,16 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
     if config.sequence_frames:
         scene_index, step = divmod(index, config.sequence_frames)
     rng = np.random.default_rng([config.seed, scene_index])
-    names = sorted(vessels)
+    scenario = scenario_of(config, scene_index)
+    classic = sorted(n for n in vessels if not n.startswith(LEISURE_VESSEL_PREFIX))
+    leisure = sorted(n for n in vessels if n.startswith(LEISURE_VESSEL_PREFIX))
+    names = (leisure if leisure and config.leisure_vessels and scenario in LEISURE_FAMILIES
+             else classic or leisure)
     name = names[int(rng.integers(len(names)))]
     altitude = config.altitudes_m[scene_index % len(config.altitudes_m)]
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
-        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, scene_index),
-        name=stem_of(index))
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame

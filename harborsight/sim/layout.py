@@ -547,11 +547,22 @@ def add_breakwater(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) 
 # ------------------------------------------------------------------------ the vessel
 
 
-def generate_vessel(rng: np.random.Generator, name: str, out_dir) -> HullParameters:
-    """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) to ``out_dir``."""
+#: the length range of the classic scenes' vessels of interest (tugs to small ships), and of
+#: the leisure vessels a lake shore or a marina centres on (day boats to motor yachts)
+VESSEL_LENGTH_M = (18.0, 70.0)
+LEISURE_LENGTH_M = (6.0, 16.0)
+#: pool vessels named so are leisure craft: drawn for the families in LEISURE_FAMILIES
+LEISURE_VESSEL_PREFIX = "sim-leisure-"
+LEISURE_FAMILIES = ("lakeshore", "marina")
+
+
+def generate_vessel(rng: np.random.Generator, name: str, out_dir,
+                    length_m: tuple[float, float] = VESSEL_LENGTH_M) -> HullParameters:
+    """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) of a length drawn from
+    ``length_m`` to ``out_dir``."""
     import yaml  # local: only the dataset writer needs it
 
-    length = float(rng.uniform(18.0, 70.0))
+    length = float(rng.uniform(*length_m))
     params = random_hull_parameters(rng, length)
     out_dir.mkdir(parents=True, exist_ok=True)
     generate_hull_mesh(params).export(out_dir / "hull.stl")
@@ -666,6 +677,8 @@ def sample_harbour_scene(
         build = {"lakeshore": families.build_lakeshore, "marina": families.build_marina,
                  "commercial": families.build_commercial_quay,
                  "fishing": families.build_fishing_harbour}[scenario]
+        if scenario in LEISURE_FAMILIES and vessel_dir_name.startswith(LEISURE_VESSEL_PREFIX):
+            families.paint_leisure_vessel(b)
         build(b, hull, hull_xy, side, gap)
         families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
         families.keep_gap(b, gap)
