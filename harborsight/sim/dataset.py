@@ -303,10 +303,11 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
 
 def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: HarbourScene,
                          rng: np.random.Generator, target_lightness: float | None = None
-                         ) -> np.ndarray:
+                         ) -> tuple[np.ndarray, float | None]:
     """Airlight haze by range, the consumer camera's optics and processing, its metering
     (``target_lightness``: mean L* to meter to, :mod:`harborsight.sim.metering`; None: the
-    render's own exposure) and sensor noise.
+    render's own exposure) and sensor noise. Returns the image and the metering's gain (EV;
+    None when not metered).
 
     Haze: ``I' = I·t + A·(1 − t)`` with transmission ``t = (1 − haze)^(range / 100 m)``
     (Koschmieder), ``A`` the haze colour; noise: Gaussian, ``noise_sigma`` grey levels.
@@ -316,14 +317,15 @@ def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: Harb
     airlight = 255.0 * np.array(env.haze_rgb[::-1])
     out = image_bgr.astype(np.float32) * t + airlight * (1.0 - t)
     out = _consumer_camera(out, env)
+    gain_ev = None
     if target_lightness is not None:
-        out, _ = auto_expose(np.clip(out, 0.0, 255.0), target_lightness)
+        out, gain_ev = auto_expose(np.clip(out, 0.0, 255.0), target_lightness)
     out += rng.normal(0.0, env.noise_sigma, out.shape)
     out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
     if env.jpeg_quality is not None:
         _, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(env.jpeg_quality)])
         out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-    return out
+    return out, gain_ev
 
 
 def _consumer_camera(image: np.ndarray, env) -> np.ndarray:
@@ -410,7 +412,7 @@ class FrameRenderer:
         if self.config.auto_exposure and scene.scenario in FAMILIES:
             target_lightness = draw_target_lightness(
                 np.random.default_rng([self.config.seed, index, METERING_STREAM]))
-        image = apply_camera_effects(image, cast.range_m, scene, rng, target_lightness)
+        image, gain_ev = apply_camera_effects(image, cast.range_m, scene, rng, target_lightness)
         labels = class_mask(rendered.instances, scene.class_of_instance)
         instances = rendered.instances.copy()
         instances[instances == 65535] = 0  # design.md: 0 = water/no object; sky is labels 255
@@ -425,6 +427,7 @@ class FrameRenderer:
         }
         if target_lightness is not None:
             meta["simulation"]["metered_lightness"] = round(target_lightness, 3)
+            meta["simulation"]["metered_gain_ev"] = round(gain_ev, 3)
         meta = with_pose_noise(meta, self.config, stem)
         files = {
             f"images/{stem}.png": _encode_png(image),
