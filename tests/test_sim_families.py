@@ -37,7 +37,8 @@ from harborsight.vessel.spec import load_vessel_spec
 
 @pytest.fixture(scope="module")
 def vessels(tmp_path_factory):
-    config = SimulationConfig(seed=7, preset="tiny", vessel_pool=2)
+    # both pools: the lake shores and marinas centre on a leisure craft, the rest do not
+    config = SimulationConfig(seed=7, preset="tiny", vessel_pool=2, scenario="lakeshore,marina,open")
     out = tmp_path_factory.mktemp("vessels")
     return {name: load_vessel_spec(path) for name, path in prepare_vessels(out, config).items()}
 

@@ -86,8 +86,9 @@ def simulate(
     leisure_vessels: Annotated[bool, typer.Option(
         help="Centre lake-shore and marina scenes on a leisure craft of 6-16 m (white-heavy "
         "hull colours, from a pool of its own), as real ones are; classic scenes and the "
-        "other families keep the 18-70 m pool. A dataset rendered before this option "
-        "resumes only with --no-leisure-vessels.")] = True,
+        "other families keep the 18-70 m pool; with --vessel, that vessel is used "
+        "throughout. A dataset rendered before this option resumes only with "
+        "--no-leisure-vessels.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""

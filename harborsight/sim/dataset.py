@@ -32,6 +32,7 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import write_bytes_atomic
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
+from harborsight.sim.families import LEISURE_HULLS
 from harborsight.sim.layout import (
     FAMILIES,
     LEISURE_FAMILIES,
@@ -56,6 +57,8 @@ LEISURE_VESSEL_STREAM = 2**31 - 2
 WAKE_STREAM = 6
 #: a family frame's metering target is drawn from this stream of (seed, index)
 METERING_STREAM = 7
+#: a leisure craft's paint (the families' vessel of interest) from this stream of (seed, scene)
+LEISURE_PAINT_STREAM = 8
 
 
 @dataclass(frozen=True)
@@ -215,7 +218,7 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
             target = vessels_dir / name
             if not (target / "vessel.yaml").is_file():
                 generate_vessel(np.random.default_rng([config.seed, LEISURE_VESSEL_STREAM, k]),
-                                name, target, LEISURE_LENGTH_M)
+                                name, target, LEISURE_LENGTH_M, LEISURE_HULLS)
             paths[name] = target / "vessel.yaml"
     return paths
 
@@ -278,15 +281,19 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
         scene_index, step = divmod(index, config.sequence_frames)
     rng = np.random.default_rng([config.seed, scene_index])
     scenario = scenario_of(config, scene_index)
-    classic = sorted(n for n in vessels if not n.startswith(LEISURE_VESSEL_PREFIX))
-    leisure = sorted(n for n in vessels if n.startswith(LEISURE_VESSEL_PREFIX))
-    names = (leisure if leisure and config.leisure_vessels and scenario in LEISURE_FAMILIES
-             else classic or leisure)
+    # the pools apart (a user's vessel is the only one, whatever its name)
+    pooled = config.vessel_spec is None
+    leisure = sorted(n for n in vessels if pooled and n.startswith(LEISURE_VESSEL_PREFIX))
+    classic = sorted(n for n in vessels if n not in leisure)
+    use_leisure = bool(leisure) and config.leisure_vessels and scenario in LEISURE_FAMILIES
+    names = leisure if use_leisure else classic
     name = names[int(rng.integers(len(names)))]
     altitude = config.altitudes_m[scene_index % len(config.altitudes_m)]
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
-        max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index))
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index),
+        leisure_paint=(np.random.default_rng([config.seed, scene_index, LEISURE_PAINT_STREAM])
+                       if use_leisure else None))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame

@@ -256,11 +256,11 @@ def _yacht_parts(b: _Builder, tag: str, params: HullParameters, length_m: float
     return parts
 
 
-def paint_leisure_vessel(b: _Builder) -> None:
+def paint_leisure_vessel(b: _Builder, rng: np.random.Generator) -> None:
     """Repaint the vessel of interest (:func:`~harborsight.sim.layout._vessel_object`'s
-    materials) as a leisure craft: a hull from :data:`_LEISURE_HULL_RGB`, its deckhouse
-    white, cream or light grey, or now and then a canvas top (navy, grey, tan)."""
-    rng = b.rng
+    materials) as a leisure craft, with draws from ``rng``: a hull from
+    :data:`_LEISURE_HULL_RGB`, its deckhouse white, cream or light grey, or now and then a
+    canvas top (navy, grey, tan)."""
     b.material("vessel-hull", Material(_jitter(_pick(_LEISURE_HULL_RGB, rng, _LEISURE_HULL_P), rng, 0.08),
                                        rng.uniform(0.25, 0.6), 0.0, 0.08))
     if rng.random() < 0.8:

@@ -557,13 +557,14 @@ LEISURE_FAMILIES = ("lakeshore", "marina")
 
 
 def generate_vessel(rng: np.random.Generator, name: str, out_dir,
-                    length_m: tuple[float, float] = VESSEL_LENGTH_M) -> HullParameters:
+                    length_m: tuple[float, float] = VESSEL_LENGTH_M,
+                    ranges: HullRanges = SHIP_HULLS) -> HullParameters:
     """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) of a length drawn from
-    ``length_m`` to ``out_dir``."""
+    ``length_m`` and proportions from ``ranges`` to ``out_dir``."""
     import yaml  # local: only the dataset writer needs it
 
     length = float(rng.uniform(*length_m))
-    params = random_hull_parameters(rng, length)
+    params = random_hull_parameters(rng, length, ranges)
     out_dir.mkdir(parents=True, exist_ok=True)
     generate_hull_mesh(params).export(out_dir / "hull.stl")
     start, end, _, house_h = params.deckhouse
@@ -643,6 +644,7 @@ def sample_harbour_scene(
     vessel: VesselSpec, vessel_dir_name: str, rng: np.random.Generator, *, altitude_m: float,
     intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
     name: str = "scene", timestamp: str | None = None,
+    leisure_paint: np.random.Generator | None = None,
 ) -> HarbourScene:
     """A seeded harbour around ``vessel`` and a drone camera above it.
 
@@ -650,7 +652,9 @@ def sample_harbour_scene(
     close by, ``touching`` a moored neighbour, ``open`` water with buoys and a breakwater.
     Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn. The families (``lakeshore``,
     ``marina``, ``commercial``, ``fishing``: :mod:`harborsight.sim.families`) only when asked
-    for by name.
+    for by name. ``leisure_paint``: in a family of :data:`LEISURE_FAMILIES`, the vessel is a
+    leisure craft, painted with draws from this generator (not ``rng``: the scene's other
+    draws stay those of an unpainted one).
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
@@ -677,8 +681,8 @@ def sample_harbour_scene(
         build = {"lakeshore": families.build_lakeshore, "marina": families.build_marina,
                  "commercial": families.build_commercial_quay,
                  "fishing": families.build_fishing_harbour}[scenario]
-        if scenario in LEISURE_FAMILIES and vessel_dir_name.startswith(LEISURE_VESSEL_PREFIX):
-            families.paint_leisure_vessel(b)
+        if scenario in LEISURE_FAMILIES and leisure_paint is not None:
+            families.paint_leisure_vessel(b, leisure_paint)
         build(b, hull, hull_xy, side, gap)
         families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
         families.keep_gap(b, gap)
