@@ -87,7 +87,7 @@ def test_a_rendered_wake_changes_the_water_and_no_label(tmp_path):
     without wakes: the labels are the same, the water whiter. (Unmetered: the camera's
     metering would darken the whole frame a little for the white water, as a real one does.)"""
     config = SimulationConfig(seed=21, preset="tiny", vessel_pool=1, scenario="lakeshore",
-                              auto_exposure=False)
+                              auto_exposure=False, leisure_vessels=False)   # the scene as chosen
     vessels = {name: load_vessel_spec(path) for name, path in prepare_vessels(tmp_path, config).items()}
     index = _frame_with_a_boat_under_way_in_view(config, vessels)
     files = {}

@@ -83,6 +83,12 @@ def simulate(
         "light to a mean L* drawn from real drone photos' (50 ± 2.5); classic scenes keep "
         "the render's exposure. A dataset rendered before this option resumes only with "
         "--no-auto-exposure.")] = True,
+    leisure_vessels: Annotated[bool, typer.Option(
+        help="Centre lake-shore and marina scenes on a leisure craft of 6-16 m (white-heavy "
+        "hull colours, from a pool of its own), as real ones are; classic scenes and the "
+        "other families keep the 18-70 m pool; with --vessel, that vessel is used "
+        "throughout. A dataset rendered before this option resumes only with "
+        "--no-leisure-vessels.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -98,7 +104,7 @@ def simulate(
             approach_speed_mps=approach_speed_mps,
             pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
             cull_out_of_view=cull_out_of_view, wakes=wakes,
-            auto_exposure=auto_exposure)
+            auto_exposure=auto_exposure, leisure_vessels=leisure_vessels)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

@@ -32,8 +32,12 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import write_bytes_atomic
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.cameras import CAMERA_PRESETS
+from harborsight.sim.families import LEISURE_HULLS
 from harborsight.sim.layout import (
     FAMILIES,
+    LEISURE_FAMILIES,
+    LEISURE_LENGTH_M,
+    LEISURE_VESSEL_PREFIX,
     SCENARIOS,
     HarbourScene,
     generate_vessel,
@@ -47,10 +51,14 @@ CLASSES = {"0": "water", "1": "ship", "2": "obstacle", "255": "ignore"}
 SUBDIRS = ("images", "labels", "instances", "frames")
 #: vessels of the pool are drawn from this stream of the dataset seed
 VESSEL_STREAM = 2**31 - 1
+#: leisure vessels of the pool (the families' vessels of interest) from this stream of the seed
+LEISURE_VESSEL_STREAM = 2**31 - 2
 #: a frame's wakes are drawn from this stream of (seed, index)
 WAKE_STREAM = 6
 #: a family frame's metering target is drawn from this stream of (seed, index)
 METERING_STREAM = 7
+#: a leisure craft's paint (the families' vessel of interest) from this stream of (seed, scene)
+LEISURE_PAINT_STREAM = 8
 
 
 @dataclass(frozen=True)
@@ -83,11 +91,14 @@ class SimulationConfig:
     wakes: bool = True
     # meter the families' frames as a drone camera does (sim.metering); classic scenes as before
     auto_exposure: bool = True
+    # a lake shore or a marina centres on a leisure craft of 6-16 m from a pool of its own
+    # (sim.layout.LEISURE_FAMILIES); classic scenes and the other families as before
+    leisure_vessels: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
     LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False,
-                                         "auto_exposure": False}
+                                         "auto_exposure": False, "leisure_vessels": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -201,7 +212,24 @@ def prepare_vessels(out_dir: Path, config: SimulationConfig) -> dict[str, Path]:
         if not (target / "vessel.yaml").is_file():
             generate_vessel(np.random.default_rng([config.seed, VESSEL_STREAM, k]), name, target)
         paths[name] = target / "vessel.yaml"
+    if config.leisure_vessels and _draws_leisure_family(config):
+        for k in range(config.vessel_pool):
+            name = f"{LEISURE_VESSEL_PREFIX}{k:02d}"
+            target = vessels_dir / name
+            if not (target / "vessel.yaml").is_file():
+                generate_vessel(np.random.default_rng([config.seed, LEISURE_VESSEL_STREAM, k]),
+                                name, target, LEISURE_LENGTH_M, LEISURE_HULLS)
+            paths[name] = target / "vessel.yaml"
     return paths
+
+
+def _draws_leisure_family(config: SimulationConfig) -> bool:
+    """Whether any scene of the config can be a family that centres on a leisure craft."""
+    if not config.scenario:
+        return False
+    names, weights = parse_scenarios(config.scenario)
+    return any(n in LEISURE_FAMILIES and (weights is None or w > 0)
+               for n, w in zip(names, weights or [1.0] * len(names), strict=True))
 
 
 def parse_scenarios(text: str) -> tuple[list[str], list[float] | None]:
@@ -252,13 +280,20 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
     if config.sequence_frames:
         scene_index, step = divmod(index, config.sequence_frames)
     rng = np.random.default_rng([config.seed, scene_index])
-    names = sorted(vessels)
+    scenario = scenario_of(config, scene_index)
+    # the pools apart (a user's vessel is the only one, whatever its name)
+    pooled = config.vessel_spec is None
+    leisure = sorted(n for n in vessels if pooled and n.startswith(LEISURE_VESSEL_PREFIX))
+    classic = sorted(n for n in vessels if n not in leisure)
+    use_leisure = bool(leisure) and config.leisure_vessels and scenario in LEISURE_FAMILIES
+    names = leisure if use_leisure else classic
     name = names[int(rng.integers(len(names)))]
     altitude = config.altitudes_m[scene_index % len(config.altitudes_m)]
     scene = sample_harbour_scene(
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
-        max_tilt_deg=config.max_tilt_deg, scenario=scenario_of(config, scene_index),
-        name=stem_of(index))
+        max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index),
+        leisure_paint=(np.random.default_rng([config.seed, scene_index, LEISURE_PAINT_STREAM])
+                       if use_leisure else None))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame
@@ -275,10 +310,11 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
 
 def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: HarbourScene,
                          rng: np.random.Generator, target_lightness: float | None = None
-                         ) -> np.ndarray:
+                         ) -> tuple[np.ndarray, float | None]:
     """Airlight haze by range, the consumer camera's optics and processing, its metering
     (``target_lightness``: mean L* to meter to, :mod:`harborsight.sim.metering`; None: the
-    render's own exposure) and sensor noise.
+    render's own exposure) and sensor noise. Returns the image and the metering's gain (EV;
+    None when not metered).
 
     Haze: ``I' = I·t + A·(1 − t)`` with transmission ``t = (1 − haze)^(range / 100 m)``
     (Koschmieder), ``A`` the haze colour; noise: Gaussian, ``noise_sigma`` grey levels.
@@ -288,14 +324,15 @@ def apply_camera_effects(image_bgr: np.ndarray, range_m: np.ndarray, scene: Harb
     airlight = 255.0 * np.array(env.haze_rgb[::-1])
     out = image_bgr.astype(np.float32) * t + airlight * (1.0 - t)
     out = _consumer_camera(out, env)
+    gain_ev = None
     if target_lightness is not None:
-        out, _ = auto_expose(np.clip(out, 0.0, 255.0), target_lightness)
+        out, gain_ev = auto_expose(np.clip(out, 0.0, 255.0), target_lightness)
     out += rng.normal(0.0, env.noise_sigma, out.shape)
     out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
     if env.jpeg_quality is not None:
         _, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(env.jpeg_quality)])
         out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
-    return out
+    return out, gain_ev
 
 
 def _consumer_camera(image: np.ndarray, env) -> np.ndarray:
@@ -382,7 +419,7 @@ class FrameRenderer:
         if self.config.auto_exposure and scene.scenario in FAMILIES:
             target_lightness = draw_target_lightness(
                 np.random.default_rng([self.config.seed, index, METERING_STREAM]))
-        image = apply_camera_effects(image, cast.range_m, scene, rng, target_lightness)
+        image, gain_ev = apply_camera_effects(image, cast.range_m, scene, rng, target_lightness)
         labels = class_mask(rendered.instances, scene.class_of_instance)
         instances = rendered.instances.copy()
         instances[instances == 65535] = 0  # design.md: 0 = water/no object; sky is labels 255
@@ -397,6 +434,7 @@ class FrameRenderer:
         }
         if target_lightness is not None:
             meta["simulation"]["metered_lightness"] = round(target_lightness, 3)
+            meta["simulation"]["metered_gain_ev"] = round(gain_ev, 3)
         meta = with_pose_noise(meta, self.config, stem)
         files = {
             f"images/{stem}.png": _encode_png(image),

@@ -256,6 +256,20 @@ def _yacht_parts(b: _Builder, tag: str, params: HullParameters, length_m: float
     return parts
 
 
+def paint_leisure_vessel(b: _Builder, rng: np.random.Generator) -> None:
+    """Repaint the vessel of interest (:func:`~harborsight.sim.layout._vessel_object`'s
+    materials) as a leisure craft, with draws from ``rng``: a hull from
+    :data:`_LEISURE_HULL_RGB`, its deckhouse white, cream or light grey, or now and then a
+    canvas top (navy, grey, tan)."""
+    b.material("vessel-hull", Material(_jitter(_pick(_LEISURE_HULL_RGB, rng, _LEISURE_HULL_P), rng, 0.08),
+                                       rng.uniform(0.25, 0.6), 0.0, 0.08))
+    if rng.random() < 0.8:
+        house_rgb = _pick([(0.8, 0.8, 0.78), (0.75, 0.72, 0.64), (0.62, 0.63, 0.64)], rng)
+    else:
+        house_rgb = _pick(_COVER_RGB, rng)
+    b.material("vessel-house", Material(_jitter(house_rgb, rng, 0.06), 0.45, 0.0, 0.05))
+
+
 def add_leisure_boat(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float,
                      length_m: float, kind: str | None = None):
     """A moored or lifted small craft centred at (x_v, y_v): motor boat, sailing boat (mast),

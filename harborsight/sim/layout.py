@@ -547,12 +547,24 @@ def add_breakwater(b: _Builder, x_v: float, y_v: float, rel_heading_deg: float) 
 # ------------------------------------------------------------------------ the vessel
 
 
-def generate_vessel(rng: np.random.Generator, name: str, out_dir) -> HullParameters:
-    """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) to ``out_dir``."""
+#: the length range of the classic scenes' vessels of interest (tugs to small ships), and of
+#: the leisure vessels a lake shore or a marina centres on (day boats to motor yachts)
+VESSEL_LENGTH_M = (18.0, 70.0)
+LEISURE_LENGTH_M = (6.0, 16.0)
+#: pool vessels named so are leisure craft: drawn for the families in LEISURE_FAMILIES
+LEISURE_VESSEL_PREFIX = "sim-leisure-"
+LEISURE_FAMILIES = ("lakeshore", "marina")
+
+
+def generate_vessel(rng: np.random.Generator, name: str, out_dir,
+                    length_m: tuple[float, float] = VESSEL_LENGTH_M,
+                    ranges: HullRanges = SHIP_HULLS) -> HullParameters:
+    """Write a procedural vessel (``hull.stl`` + ``vessel.yaml``) of a length drawn from
+    ``length_m`` and proportions from ``ranges`` to ``out_dir``."""
     import yaml  # local: only the dataset writer needs it
 
-    length = float(rng.uniform(18.0, 70.0))
-    params = random_hull_parameters(rng, length)
+    length = float(rng.uniform(*length_m))
+    params = random_hull_parameters(rng, length, ranges)
     out_dir.mkdir(parents=True, exist_ok=True)
     generate_hull_mesh(params).export(out_dir / "hull.stl")
     start, end, _, house_h = params.deckhouse
@@ -632,6 +644,7 @@ def sample_harbour_scene(
     vessel: VesselSpec, vessel_dir_name: str, rng: np.random.Generator, *, altitude_m: float,
     intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
     name: str = "scene", timestamp: str | None = None,
+    leisure_paint: np.random.Generator | None = None,
 ) -> HarbourScene:
     """A seeded harbour around ``vessel`` and a drone camera above it.
 
@@ -639,7 +652,9 @@ def sample_harbour_scene(
     close by, ``touching`` a moored neighbour, ``open`` water with buoys and a breakwater.
     Close passes (gaps 0 to 5 m) are 40 % of the gaps drawn. The families (``lakeshore``,
     ``marina``, ``commercial``, ``fishing``: :mod:`harborsight.sim.families`) only when asked
-    for by name.
+    for by name. ``leisure_paint``: in a family of :data:`LEISURE_FAMILIES`, the vessel is a
+    leisure craft, painted with draws from this generator (not ``rng``: the scene's other
+    draws stay those of an unpainted one).
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
@@ -666,6 +681,8 @@ def sample_harbour_scene(
         build = {"lakeshore": families.build_lakeshore, "marina": families.build_marina,
                  "commercial": families.build_commercial_quay,
                  "fishing": families.build_fishing_harbour}[scenario]
+        if scenario in LEISURE_FAMILIES and leisure_paint is not None:
+            families.paint_leisure_vessel(b, leisure_paint)
         build(b, hull, hull_xy, side, gap)
         families.add_boats_under_way(b, hull, int(rng.integers(0, 3)), gap)
         families.keep_gap(b, gap)
