@@ -228,8 +228,8 @@ def _draws_leisure_family(config: SimulationConfig) -> bool:
     if not config.scenario:
         return False
     names, weights = parse_scenarios(config.scenario)
-    return any(n in LEISURE_FAMILIES and (weights is None or w > 0)
-               for n, w in zip(names, weights or [1.0] * len(names), strict=True))
+    weights = weights or [1.0] * len(names)
+    return any(n in LEISURE_FAMILIES and w > 0 for n, w in zip(names, weights, strict=True))
 
 
 def parse_scenarios(text: str) -> tuple[list[str], list[float] | None]:
