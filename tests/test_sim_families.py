@@ -410,3 +410,20 @@ def test_lake_shores_and_marinas_centre_on_a_leisure_craft(tmp_path):
     # no family of leisure boats drawn: no leisure pool written
     classic = SimulationConfig(seed=3, preset="tiny", vessel_pool=2, scenario="commercial,slip")
     assert sorted(prepare_vessels(tmp_path / "classic", classic)) == ["sim-vessel-00", "sim-vessel-01"]
+
+
+def test_marina_pontoons_are_mostly_pale_as_real_ones(vessels):
+    """Marina pontoons are obstacle and mostly pale (composite boards or concrete, as the
+    marina tiles' are, as bright as the boats), some weathered wood: a model must not learn
+    that a pale flat deck is a boat."""
+    config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario="marina")
+    brightness = []
+    for index in range(6):
+        scene = plan_frame(config, index, vessels)
+        for row in (o for o in scene.objects if o.kind == "pontoon"):
+            assert row.class_id == OBSTACLE
+            brightness.append(float(np.mean(scene.materials[row.parts[0].material].rgb)))
+    brightness = np.array(brightness)
+    assert len(brightness) >= 12
+    assert 0.5 <= (brightness > 0.45).mean() <= 0.9, brightness.round(2)
+    assert (brightness < 0.45).any()          # some wood remains

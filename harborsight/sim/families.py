@@ -490,6 +490,12 @@ def _add_woods(b: _Builder, tag: str, place, edge_at, along_deg: float, length_m
 _WOOD_RGB = [(0.28, 0.2, 0.12), (0.35, 0.3, 0.24), (0.2, 0.14, 0.08), (0.45, 0.42, 0.38)]
 #: white and grey composite boards, which many of the lake-shore photos' docks are
 _COMPOSITE_RGB = [(0.72, 0.72, 0.7), (0.58, 0.58, 0.56)]
+#: marina pontoon decking: two weathered woods beside white and grey composite boards. The
+#: marina tiles' pontoons are pale (median linear 0.54, p10-p90 0.29-0.81: as bright as the
+#: boats, 0.47), where an all-wood palette (0.08-0.45) had taught "pale and flat is a boat"
+_PONTOON_RGB = [(0.35, 0.3, 0.24), (0.45, 0.42, 0.38), (0.72, 0.72, 0.7), (0.6, 0.6, 0.57)]
+#: the other pontoons: poured or precast concrete, pale as the tiles' are
+_PONTOON_CONCRETE_RGB = (0.62, 0.61, 0.58)
 #: drive-on jet-ski ports: white, light grey, black and blue plastic floats
 _PORT_RGB = [(0.8, 0.8, 0.78), (0.55, 0.56, 0.58), (0.06, 0.06, 0.07), (0.08, 0.16, 0.4)]
 _PORT_P = np.array([0.5, 0.25, 0.15, 0.1])
@@ -498,11 +504,13 @@ PORT_DECK_Z_M = 0.18
 PORT_RAIL_HEIGHT_M = 0.12
 
 
-def _wood(b: _Builder, tag: str, composite: bool = False):
+def _wood(b: _Builder, tag: str, composite: bool = False, palette: list | None = None):
     """A planked deck material: wood, or with ``composite`` wood in 4 of 6 draws and white or
-    grey composite boards in 2 (a lake-shore dock; marina pontoons stay wood)."""
+    grey composite boards in 2 (a lake-shore dock); ``palette``: these colours instead."""
     rng = b.rng
-    rgb = _pick(_WOOD_RGB + _COMPOSITE_RGB if composite else _WOOD_RGB, rng)
+    if palette is None:
+        palette = _WOOD_RGB + _COMPOSITE_RGB if composite else _WOOD_RGB
+    rgb = _pick(palette, rng)
     return b.material(f"{tag}-wood", Material(_jitter(rgb, rng, 0.2), 0.85, 0.0, 0.35, 3.0, pattern="planks"))
 
 
@@ -679,8 +687,8 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     fairway side; and on its right with ``both_sides``): boats side by side, bow or stern to
     the pontoon, a finger pier between every pair of berths and most single ones."""
     rng = b.rng
-    deck = _wood(b, tag) if rng.random() < 0.6 else b.material(
-        f"{tag}-concrete", Material(_grey((0.45, 0.44, 0.42), rng, 0.25), 0.85, 0.0, 0.2, 1.0))
+    deck = _wood(b, tag, palette=_PONTOON_RGB) if rng.random() < 0.6 else b.material(
+        f"{tag}-concrete", Material(_grey(_PONTOON_CONCRETE_RGB, rng, 0.25), 0.85, 0.0, 0.2, 1.0))
     width = rng.uniform(2.0, 3.0)
     z = rng.uniform(0.3, 0.6)
     pieces = [(_box(length_m, width, z + 0.4, 0.0, 0.0, -0.4), deck)]
