@@ -504,12 +504,10 @@ PORT_DECK_Z_M = 0.18
 PORT_RAIL_HEIGHT_M = 0.12
 
 
-def _wood(b: _Builder, tag: str, composite: bool = False, palette: list | None = None):
-    """A planked deck material: wood, or with ``composite`` wood in 4 of 6 draws and white or
-    grey composite boards in 2 (a lake-shore dock); ``palette``: these colours instead."""
+def _planks(b: _Builder, tag: str, palette: list):
+    """A planked deck material in one of ``palette``'s colours (a lake-shore dock: wood in 4
+    of 6 draws, white or grey composite boards in 2; a marina pontoon: :data:`_PONTOON_RGB`)."""
     rng = b.rng
-    if palette is None:
-        palette = _WOOD_RGB + _COMPOSITE_RGB if composite else _WOOD_RGB
     rgb = _pick(palette, rng)
     return b.material(f"{tag}-wood", Material(_jitter(rgb, rng, 0.2), 0.85, 0.0, 0.35, 3.0, pattern="planks"))
 
@@ -550,7 +548,7 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
     one or two drive-on jet-ski ports (most with a jet ski on) or a boat or jet ski tied
     alongside."""
     rng = b.rng
-    wood = _wood(b, tag, composite=True)
+    wood = _planks(b, tag, _WOOD_RGB + _COMPOSITE_RGB)
     width = rng.uniform(1.2, 2.4)
     deck_z = rng.uniform(0.3, 0.9)
     parts = [(_box(length_m, width, 0.25, length_m / 2, 0.0, deck_z), wood)]
@@ -687,7 +685,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     fairway side; and on its right with ``both_sides``): boats side by side, bow or stern to
     the pontoon, a finger pier between every pair of berths and most single ones."""
     rng = b.rng
-    deck = _wood(b, tag, palette=_PONTOON_RGB) if rng.random() < 0.6 else b.material(
+    deck = _planks(b, tag, _PONTOON_RGB) if rng.random() < 0.6 else b.material(
         f"{tag}-concrete", Material(_grey(_PONTOON_CONCRETE_RGB, rng, 0.25), 0.85, 0.0, 0.2, 1.0))
     width = rng.uniform(2.0, 3.0)
     z = rng.uniform(0.3, 0.6)
