@@ -59,6 +59,8 @@ WAKE_STREAM = 6
 METERING_STREAM = 7
 #: a leisure craft's paint (the families' vessel of interest) from this stream of (seed, scene)
 LEISURE_PAINT_STREAM = 8
+#: whether a marina frame looks along the berths, and where, from this stream of (seed, scene)
+BERTH_VIEW_STREAM = 9
 
 
 @dataclass(frozen=True)
@@ -293,7 +295,9 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
         max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index),
         leisure_paint=(np.random.default_rng([config.seed, scene_index, LEISURE_PAINT_STREAM])
-                       if use_leisure else None))
+                       if use_leisure else None),
+        berth_view_rng=(np.random.default_rng([config.seed, scene_index, BERTH_VIEW_STREAM])
+                        if scenario == "marina" else None))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame

@@ -686,6 +686,20 @@ def _bounds(obj) -> tuple[float, float, float, float]:
 #: water 76 %, ship 10 %
 MARINA_EMPTY_BERTHS = 0.05
 MARINA_ROWS_PER_SIDE = (3, 7)
+#: share of marina frames whose camera looks along the berths, not at the vessel in the
+#: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
+#: to main pontoon) from the middle of the nearest row's berths
+BERTH_VIEW_SHARE = 0.4
+BERTH_VIEW_LANES = (0.0, 1.5)
+
+
+def draw_berth_view(rng: np.random.Generator) -> tuple[float, np.random.Generator] | None:
+    """Whether a marina frame looks along the berths (:data:`BERTH_VIEW_SHARE`) and where, in
+    lanes (:data:`BERTH_VIEW_LANES`); the generator is the view's own stream, which the
+    builder draws the side and the place along the rows from."""
+    if rng.random() >= BERTH_VIEW_SHARE:
+        return None
+    return float(rng.uniform(*BERTH_VIEW_LANES)), rng
 
 
 def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float, length_m: float,
@@ -733,6 +747,8 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
     skew = float(rng.uniform(-5, 5))
     berth = float(rng.uniform(8.0, 16.0))
     lane = 2 * berth + rng.uniform(3.5, 7.0)      # main pontoon to main pontoon
+    view = b.berth_view
+    view_side = int(view[1].choice([-1, 1])) if view is not None else 0
     shore_x = float(hull_xy[:, 0].max()) + rng.uniform(40, 90) if rng.random() < 0.7 else None
     if shore_x is not None:
         add_shore(b, (shore_x, 0.0), -90.0 + skew, "shore")
@@ -741,6 +757,9 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
         g = gap_m if s == side else float(rng.uniform(4, 20))
         first_main = s * (half_beam + g + berth + 1.4)   # its boats' outer ends at about g
         along = skew if s > 0 else 180.0 + skew          # its left side faces the fairway
+        if s == view_side:                                # a view along this side's berths
+            b.aim_v = (float(view[1].uniform(-30.0, 30.0)),
+                       first_main - s * berth / 2 + s * view[0] * lane)
         for k in range(int(rng.integers(*MARINA_ROWS_PER_SIDE))):
             x_c = float(rng.uniform(-40, 40))
             length = float(rng.uniform(80, 200))
