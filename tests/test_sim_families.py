@@ -427,3 +427,43 @@ def test_marina_pontoons_are_mostly_pale_as_real_ones(vessels):
     assert len(brightness) >= 12
     assert 0.5 <= (brightness > 0.45).mean() <= 0.9, brightness.round(2)
     assert (brightness < 0.45).any()          # some wood remains
+
+
+def test_marinas_are_dense_rows_of_boats_and_some_frames_look_along_them(vessels):
+    """The real marina tiles are rows of moored boats (ship 30 % of their pixels, water
+    51 %). Marinas have 3-6 rows of pontoons a side and few empty berths; 40 % of their
+    frames aim across the rows on one side instead of at the vessel in the fairway: the same
+    scene (nothing but the camera moves); the other frames are unchanged; a dataset.json
+    from before keeps every camera on the vessel."""
+    from harborsight.sim.dataset import BERTH_VIEW_STREAM
+    from harborsight.sim.families import BERTH_VIEW_SHARE, draw_berth_view
+
+    drawn = [draw_berth_view(np.random.default_rng([5, i, BERTH_VIEW_STREAM])) for i in range(300)]
+    assert abs(np.mean([d is not None for d in drawn]) - BERTH_VIEW_SHARE) < 0.06
+    moved = [i for i, d in enumerate(drawn) if d is not None][:3]
+    kept = [i for i, d in enumerate(drawn) if d is None][:1]
+    config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario="marina",
+                              altitudes_m=(50.0, 80.0))
+    centred = replace(config, berth_views=False)
+    n_rows, boat_m2_per_row_m = [], []
+    for index in moved + kept:
+        a, b = plan_frame(centred, index, vessels), plan_frame(config, index, vessels)
+        assert a.environment == b.environment and len(a.objects) == len(b.objects)
+        for left, right in zip(a.objects, b.objects, strict=True):
+            np.testing.assert_array_equal(left.parts[0].mesh.vertices, right.parts[0].mesh.vertices)
+        rows = [o for o in a.objects if o.kind == "pontoon"]
+        row_length = sum(np.ptp(np.asarray(r.parts[0].mesh.vertices)[:, :2], axis=0).max() for r in rows)
+        n_rows.append(len(rows))
+        boat_m2_per_row_m.append(sum(o.footprint().area for o in a.objects if o.kind == "boat") / row_length)
+        if index in kept:
+            np.testing.assert_array_equal(a.uav_enu, b.uav_enu)
+            continue
+        assert a.uav_enu[2] == b.uav_enu[2]
+        assert np.hypot(*(a.uav_enu[:2] - b.uav_enu[:2])) > 4.0      # across the fairway
+    # the sparser marinas before (2-4 rows a side, 15 % empty berths, wider berths) held
+    # 5-7 rows and 4.9-6.5 m2 of boat per metre of pontoon (seed 5, scenes 0-11; now 6-12
+    # and 6.0-9.5)
+    assert np.mean(n_rows) >= 7 and np.mean(boat_m2_per_row_m) >= 6.8, (n_rows, boat_m2_per_row_m)
+    legacy = SimulationConfig.from_dict({k: v for k, v in config.to_dict().items()
+                                         if k != "berth_views"})
+    assert legacy.berth_views is False

@@ -89,6 +89,11 @@ def simulate(
         "other families keep the 18-70 m pool; with --vessel, that vessel is used "
         "throughout. A dataset rendered before this option resumes only with "
         "--no-leisure-vessels.")] = True,
+    berth_views: Annotated[bool, typer.Option(
+        help="Let 40 % of the marina frames look along the berths on one side (the camera "
+        "aims up to a lane and a half across the rows, the vessel perhaps out of view), as "
+        "real pictures of marinas do; the scenes are the same. A dataset rendered before "
+        "this option resumes only with --no-berth-views.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -104,7 +109,8 @@ def simulate(
             approach_speed_mps=approach_speed_mps,
             pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
             cull_out_of_view=cull_out_of_view, wakes=wakes,
-            auto_exposure=auto_exposure, leisure_vessels=leisure_vessels)
+            auto_exposure=auto_exposure, leisure_vessels=leisure_vessels,
+            berth_views=berth_views)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

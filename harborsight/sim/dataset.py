@@ -59,6 +59,8 @@ WAKE_STREAM = 6
 METERING_STREAM = 7
 #: a leisure craft's paint (the families' vessel of interest) from this stream of (seed, scene)
 LEISURE_PAINT_STREAM = 8
+#: whether a marina frame looks along the berths, and where, from this stream of (seed, scene)
+BERTH_VIEW_STREAM = 9
 
 
 @dataclass(frozen=True)
@@ -94,11 +96,15 @@ class SimulationConfig:
     # a lake shore or a marina centres on a leisure craft of 6-16 m from a pool of its own
     # (sim.layout.LEISURE_FAMILIES); classic scenes and the other families as before
     leisure_vessels: bool = True
+    # some marina frames look along the berths, not at the vessel in the fairway
+    # (sim.families.BERTH_VIEW_SHARE); the scene is the same, only the camera's aim moves
+    berth_views: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
     LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False,
-                                         "auto_exposure": False, "leisure_vessels": False}
+                                         "auto_exposure": False, "leisure_vessels": False,
+                                         "berth_views": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -293,7 +299,9 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
         vessels[name], name, rng, altitude_m=altitude, intrinsics=config.intrinsics(),
         max_tilt_deg=config.max_tilt_deg, scenario=scenario, name=stem_of(index),
         leisure_paint=(np.random.default_rng([config.seed, scene_index, LEISURE_PAINT_STREAM])
-                       if use_leisure else None))
+                       if use_leisure else None),
+        berth_view_rng=(np.random.default_rng([config.seed, scene_index, BERTH_VIEW_STREAM])
+                        if config.berth_views and scenario == "marina" else None))
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame

@@ -679,6 +679,29 @@ def _bounds(obj) -> tuple[float, float, float, float]:
 # ------------------------------------------------------------------------ the marina
 
 
+#: share of a marina's berths left empty, and rows of pontoons either side of the fairway
+#: (integers' range). The real marina tiles are rows of moored boats: water 51 %, ship 30 %
+#: and 15 % undecided (most of it boats and pontoons); renders of 120-150 m with 15 % empty
+#: berths, 2-4 rows a side and a berth's pitch of 0.45 of its length plus 1.2 m showed
+#: water 76 %, ship 10 %
+MARINA_EMPTY_BERTHS = 0.05
+MARINA_ROWS_PER_SIDE = (3, 7)
+#: share of marina frames whose camera looks along the berths, not at the vessel in the
+#: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
+#: to main pontoon) from the middle of the nearest row's berths
+BERTH_VIEW_SHARE = 0.4
+BERTH_VIEW_LANES = (0.0, 1.5)
+
+
+def draw_berth_view(rng: np.random.Generator) -> tuple[float, np.random.Generator] | None:
+    """Whether a marina frame looks along the berths (:data:`BERTH_VIEW_SHARE`) and where, in
+    lanes (:data:`BERTH_VIEW_LANES`); the generator is the view's own stream, which the
+    builder draws the side and the place along the rows from."""
+    if rng.random() >= BERTH_VIEW_SHARE:
+        return None
+    return float(rng.uniform(*BERTH_VIEW_LANES)), rng
+
+
 def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float, length_m: float,
                     tag: str, berth_m: float, both_sides: bool, keep_out: Polygon) -> None:
     """A main pontoon along ``along_deg`` through ``origin_v`` with berths on its left (the
@@ -691,7 +714,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     z = rng.uniform(0.3, 0.6)
     pieces = [(_box(length_m, width, z + 0.4, 0.0, 0.0, -0.4), deck)]
     finger_len = berth_m * rng.uniform(0.55, 0.8)
-    pitch = 0.45 * berth_m + 1.2                  # a berth's width: the widest boat + room
+    pitch = 0.4 * berth_m + 1.0                   # a berth's width: the widest boat + a finger
     n_berths = int((length_m - 2.0) // pitch)
     boats = []
     for s in ((1, -1) if both_sides else (1,)):
@@ -700,7 +723,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
             if j % 2 == 0 or rng.random() < 0.5:
                 finger = _box(0.8, finger_len, z + 0.4, x, s * (width / 2 + finger_len / 2), -0.4)
                 pieces.append((finger, deck))
-            if j < n_berths and rng.random() > 0.15:
+            if j < n_berths and rng.random() > MARINA_EMPTY_BERTHS:
                 boat_l = float(np.clip(rng.normal(0.85 * berth_m, 0.12 * berth_m), 4.0, berth_m))
                 boats.append((x + pitch / 2, s * (width / 2 + 0.4 + boat_l / 2), boat_l, s))
     row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
@@ -724,6 +747,8 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
     skew = float(rng.uniform(-5, 5))
     berth = float(rng.uniform(8.0, 16.0))
     lane = 2 * berth + rng.uniform(3.5, 7.0)      # main pontoon to main pontoon
+    view = b.berth_view
+    view_side = int(view[1].choice([-1, 1])) if view is not None else 0
     shore_x = float(hull_xy[:, 0].max()) + rng.uniform(40, 90) if rng.random() < 0.7 else None
     if shore_x is not None:
         add_shore(b, (shore_x, 0.0), -90.0 + skew, "shore")
@@ -732,7 +757,10 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
         g = gap_m if s == side else float(rng.uniform(4, 20))
         first_main = s * (half_beam + g + berth + 1.4)   # its boats' outer ends at about g
         along = skew if s > 0 else 180.0 + skew          # its left side faces the fairway
-        for k in range(int(rng.integers(2, 5))):
+        if s == view_side:                                # a view along this side's berths
+            b.aim_v = (float(view[1].uniform(-30.0, 30.0)),
+                       first_main - s * berth / 2 + s * view[0] * lane)
+        for k in range(int(rng.integers(*MARINA_ROWS_PER_SIDE))):
             x_c = float(rng.uniform(-40, 40))
             length = float(rng.uniform(80, 200))
             if shore_x is not None:                       # rows end short of the shore

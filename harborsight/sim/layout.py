@@ -244,6 +244,11 @@ class _Builder:
         #: no camera of the scene sees (or is shaded from) farther than this from the
         #: vessel's origin; None: unknown. Filler that only fills the view (woods) stops there
         self.view_reach_m = view_reach_m
+        #: a marina frame that looks along the berths (families.draw_berth_view); None: the
+        #: camera aims at the vessel
+        self.berth_view = None
+        #: where the camera aims, off the vessel's origin (vessel frame, m)
+        self.aim_v: tuple[float, float] = (0.0, 0.0)
         self.r_enu_v = enu_from_vessel_rotation(math.radians(heading_deg))
         self.objects: list[SceneObject] = []
         self.materials: dict[str, Material] = {}
@@ -645,6 +650,7 @@ def sample_harbour_scene(
     intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
     name: str = "scene", timestamp: str | None = None,
     leisure_paint: np.random.Generator | None = None,
+    berth_view_rng: np.random.Generator | None = None,
 ) -> HarbourScene:
     """A seeded harbour around ``vessel`` and a drone camera above it.
 
@@ -662,6 +668,10 @@ def sample_harbour_scene(
                          f"{sorted(SCENARIOS) + list(FAMILIES)}")
     heading = float(rng.uniform(0.0, 360.0))
     b = _Builder(rng, heading, view_reach_m=view_reach(altitude_m, intrinsics, max_tilt_deg))
+    if scenario == "marina" and berth_view_rng is not None:
+        from harborsight.sim.families import draw_berth_view
+
+        b.berth_view = draw_berth_view(berth_view_rng)
     _vessel_object(b, vessel)
     hull_xy = vessel.hull_points[:, :2]
     x_min, x_max = float(hull_xy[:, 0].min()), float(hull_xy[:, 0].max())
@@ -750,7 +760,8 @@ def _with_camera(b: _Builder, vessel: VesselSpec, vessel_dir_name: str, rng: np.
     offset = rng.uniform(-0.1, 0.1, 2) * altitude_m
     look = np.array([math.sin(math.radians(yaw)), math.cos(math.radians(yaw))])
     ahead = altitude_m * math.tan(math.radians(tilt)) * look
-    uav = np.array([offset[0] - ahead[0], offset[1] - ahead[1], altitude_m])
+    aim = (b.r_enu_v @ np.array([b.aim_v[0], b.aim_v[1], 0.0]))[:2]
+    uav = np.array([aim[0] + offset[0] - ahead[0], aim[1] + offset[1] - ahead[1], altitude_m])
     return HarbourScene(
         name=name, vessel=vessel, vessel_dir_name=vessel_dir_name, vessel_heading_deg=heading,
         objects=b.objects, materials=b.materials, intrinsics=intrinsics, uav_enu=uav,
