@@ -633,7 +633,8 @@ def view_reach(altitude_m: float, intrinsics: CameraIntrinsics, max_tilt_deg: fl
     and a ray ``t + θ`` off the vertical (``θ = atan(r_corner / f)``, the image corner; ``t``
     the tilt, plus 3 degrees of roll) meets the water ``h (tan(t + θ) - tan t)`` from that
     point, at most ``h tan(t + θ)``. Plus :data:`VIEW_REACH_MARGIN_M` for what casts a
-    shadow into the view or reaches in from beyond (a tree's crown)."""
+    shadow into the view or reaches in from beyond (a tree's crown). A marina frame along the
+    berths aims farther off; the marinas' shores have no woods, the only filler this bounds."""
     corner_px = math.hypot(intrinsics.width / 2, intrinsics.height / 2)
     off_axis = math.atan(corner_px / min(intrinsics.fx, intrinsics.fy)) + math.radians(max_tilt_deg + 3.0)
     if off_axis >= math.radians(80.0):
@@ -660,7 +661,9 @@ def sample_harbour_scene(
     ``marina``, ``commercial``, ``fishing``: :mod:`harborsight.sim.families`) only when asked
     for by name. ``leisure_paint``: in a family of :data:`LEISURE_FAMILIES`, the vessel is a
     leisure craft, painted with draws from this generator (not ``rng``: the scene's other
-    draws stay those of an unpainted one).
+    draws stay those of an unpainted one). ``berth_view_rng``: in a marina, whether the
+    camera looks along the berths and where (``families.BERTH_VIEW_SHARE``), drawn from this
+    generator, so that the scene is the one drawn without it.
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
@@ -751,7 +754,8 @@ def _with_camera(b: _Builder, vessel: VesselSpec, vessel_dir_name: str, rng: np.
                  heading: float, altitude_m: float, intrinsics: CameraIntrinsics,
                  max_tilt_deg: float, env: Environment, scenario: str, gap: float | None,
                  name: str, timestamp: str | None) -> HarbourScene:
-    """The scene with a drone camera drawn above the vessel."""
+    """The scene with a drone camera drawn above the vessel, or above ``b.aim_v`` off it
+    where a family's builder moved the aim (a marina's view along the berths)."""
     # camera: above the vessel with a horizontal offset and a random yaw; the tilt off nadir
     # is a gimbal pitch toward the yaw direction; a small roll turns the image
     tilt = float(rng.uniform(0.0, max_tilt_deg))
