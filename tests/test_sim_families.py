@@ -429,14 +429,21 @@ def test_marina_pontoons_are_mostly_pale_as_real_ones(vessels):
     assert (brightness < 0.45).any()          # some wood remains
 
 
+def _row_length_m(row) -> float:
+    """A pontoon row's length: the long side of its footprint's rotated bounding box."""
+    box = np.asarray(row.footprint().minimum_rotated_rectangle.exterior.coords)
+    return float(max(np.hypot(*(box[1] - box[0])), np.hypot(*(box[2] - box[1]))))
+
+
 def test_marinas_are_dense_rows_of_boats_and_some_frames_look_along_them(vessels):
     """The real marina tiles are rows of moored boats (ship 30 % of their pixels, water
-    51 %). Marinas have 3-6 rows of pontoons a side and few empty berths; 40 % of their
-    frames aim across the rows on one side instead of at the vessel in the fairway: the same
-    scene (nothing but the camera moves); the other frames are unchanged; a dataset.json
-    from before keeps every camera on the vessel."""
+    51 %). Marinas have more rows of pontoons and more boat per metre of pontoon than the
+    sparse marinas of before, which a dataset.json from before keeps; 40 % of their frames
+    aim across the rows on the side their stream draws, as far along them as it draws,
+    instead of at the vessel: the same scene (nothing but the camera moves); the other
+    frames, and every frame of a flight, are unchanged."""
     from harborsight.sim.dataset import BERTH_VIEW_STREAM
-    from harborsight.sim.families import BERTH_VIEW_SHARE, draw_berth_view
+    from harborsight.sim.families import BERTH_VIEW_LANES, BERTH_VIEW_SHARE, draw_berth_view
 
     drawn = [draw_berth_view(np.random.default_rng([5, i, BERTH_VIEW_STREAM])) for i in range(300)]
     assert abs(np.mean([d is not None for d in drawn]) - BERTH_VIEW_SHARE) < 0.06
@@ -445,25 +452,37 @@ def test_marinas_are_dense_rows_of_boats_and_some_frames_look_along_them(vessels
     config = SimulationConfig(seed=5, preset="tiny", vessel_pool=2, scenario="marina",
                               altitudes_m=(50.0, 80.0))
     centred = replace(config, berth_views=False)
-    n_rows, boat_m2_per_row_m = [], []
+    legacy = SimulationConfig.from_dict({k: v for k, v in config.to_dict().items()
+                                         if k not in ("berth_views", "dense_marinas")})
+    assert legacy.berth_views is False and legacy.dense_marinas is False
+    density = {"dense": [], "sparse": []}
     for index in moved + kept:
         a, b = plan_frame(centred, index, vessels), plan_frame(config, index, vessels)
         assert a.environment == b.environment and len(a.objects) == len(b.objects)
         for left, right in zip(a.objects, b.objects, strict=True):
             np.testing.assert_array_equal(left.parts[0].mesh.vertices, right.parts[0].mesh.vertices)
-        rows = [o for o in a.objects if o.kind == "pontoon"]
-        row_length = sum(np.ptp(np.asarray(r.parts[0].mesh.vertices)[:, :2], axis=0).max() for r in rows)
-        n_rows.append(len(rows))
-        boat_m2_per_row_m.append(sum(o.footprint().area for o in a.objects if o.kind == "boat") / row_length)
+        for kind, scene in (("dense", a), ("sparse", plan_frame(legacy, index, vessels))):
+            rows = [o for o in scene.objects if o.kind == "pontoon"]
+            boat_m2 = sum(o.footprint().area for o in scene.objects if o.kind == "boat")
+            density[kind].append((len(rows), boat_m2 / sum(_row_length_m(r) for r in rows)))
         if index in kept:
             np.testing.assert_array_equal(a.uav_enu, b.uav_enu)
             continue
+        # the camera moved by what the view's stream drew: along the fairway by x, and out
+        # to the drawn side (vessel frame: x bow, y starboard), at the same height
+        stream = np.random.default_rng([5, index, BERTH_VIEW_STREAM])
+        stream.random()
+        assert BERTH_VIEW_LANES[0] <= stream.uniform(*BERTH_VIEW_LANES) <= BERTH_VIEW_LANES[1]
+        side, along_m = int(stream.choice([-1, 1])), float(stream.uniform(-30.0, 30.0))
+        heading = np.radians(a.vessel_heading_deg)
+        bow = np.array([np.sin(heading), np.cos(heading)])            # ENU, clockwise from north
+        starboard = np.array([np.cos(heading), -np.sin(heading)])
+        shift = b.uav_enu[:2] - a.uav_enu[:2]
+        assert shift @ bow == pytest.approx(along_m, abs=1e-6)
+        assert np.sign(shift @ starboard) == side and abs(shift @ starboard) > 5.0
         assert a.uav_enu[2] == b.uav_enu[2]
-        assert np.hypot(*(a.uav_enu[:2] - b.uav_enu[:2])) > 4.0      # across the fairway
-    # the sparser marinas before (2-4 rows a side, 15 % empty berths, wider berths) held
-    # 5-7 rows and 4.9-6.5 m2 of boat per metre of pontoon (seed 5, scenes 0-11; now 6-12
-    # and 6.0-9.5)
-    assert np.mean(n_rows) >= 7 and np.mean(boat_m2_per_row_m) >= 6.8, (n_rows, boat_m2_per_row_m)
-    legacy = SimulationConfig.from_dict({k: v for k, v in config.to_dict().items()
-                                         if k != "berth_views"})
-    assert legacy.berth_views is False
+    dense, sparse = np.mean(density["dense"], axis=0), np.mean(density["sparse"], axis=0)
+    assert dense[0] >= sparse[0] + 1.5 and dense[1] >= 1.2 * sparse[1], density
+    flight = replace(config, sequence_frames=2)
+    a = plan_frame(replace(flight, berth_views=False), 2 * moved[0], vessels)
+    np.testing.assert_array_equal(a.uav_enu, plan_frame(flight, 2 * moved[0], vessels).uav_enu)

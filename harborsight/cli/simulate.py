@@ -93,7 +93,13 @@ def simulate(
         help="Let 40 % of the marina frames look along the berths on one side (the camera "
         "aims up to a lane and a half across the rows, the vessel perhaps out of view), as "
         "real pictures of marinas do; the scenes are the same. A dataset rendered before "
-        "this option resumes only with --no-berth-views.")] = True,
+        "this option resumes only with --no-berth-views. Never in a flight "
+        "(--sequence-frames), whose frames follow the berthing vessel.")] = True,
+    dense_marinas: Annotated[bool, typer.Option(
+        help="Marinas of 3-6 rows of pontoons a side with 5 % of berths empty, each a boat's "
+        "beam and a finger pier wide, as real marinas are; off: the sparser marinas of "
+        "before (2-4 rows, 15 % empty). A dataset rendered before this option resumes only "
+        "with --no-dense-marinas.")] = True,
 ) -> None:
     """Render a synthetic harbour dataset with Blender: images, labels, instances, frame
     metadata with exact per-section ground truth (needs the sim extra: bpy)."""
@@ -110,7 +116,7 @@ def simulate(
             pose_noise=parse_pose_noise_option(pose_noise) if pose_noise else None,
             cull_out_of_view=cull_out_of_view, wakes=wakes,
             auto_exposure=auto_exposure, leisure_vessels=leisure_vessels,
-            berth_views=berth_views)
+            berth_views=berth_views, dense_marinas=dense_marinas)
         config.validate()
         with progress_report("simulate", n, console, transient=False) as progress:
 

@@ -97,14 +97,18 @@ class SimulationConfig:
     # (sim.layout.LEISURE_FAMILIES); classic scenes and the other families as before
     leisure_vessels: bool = True
     # some marina frames look along the berths, not at the vessel in the fairway
-    # (sim.families.BERTH_VIEW_SHARE); the scene is the same, only the camera's aim moves
+    # (sim.families.BERTH_VIEW_SHARE); the scene is the same, only the camera's aim moves.
+    # Never in a flight (sequence_frames), whose frames must show the berthing vessel
     berth_views: bool = True
+    # marinas of 3-6 rows of pontoons a side with few empty berths (sim.families
+    # .MARINA_ROWS_PER_SIDE); off: the sparser marinas of datasets rendered before
+    dense_marinas: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the
     #: behaviour it was rendered with (not the new default), so that it resumes unchanged
     LEGACY_PARAMETERS: ClassVar[dict] = {"cull_out_of_view": False, "wakes": False,
                                          "auto_exposure": False, "leisure_vessels": False,
-                                         "berth_views": False}
+                                         "berth_views": False, "dense_marinas": False}
 
     def validate(self) -> None:
         from harborsight.sim.blender import PRESETS
@@ -301,7 +305,9 @@ def plan_frame(config: SimulationConfig, index: int, vessels: dict[str, VesselSp
         leisure_paint=(np.random.default_rng([config.seed, scene_index, LEISURE_PAINT_STREAM])
                        if use_leisure else None),
         berth_view_rng=(np.random.default_rng([config.seed, scene_index, BERTH_VIEW_STREAM])
-                        if config.berth_views and scenario == "marina" else None))
+                        if config.berth_views and scenario == "marina" and not config.sequence_frames
+                        else None),
+        dense_marinas=config.dense_marinas)
     scene.origin = GeoOrigin(*config.origin_lat_lon, 0.0)
     if config.sequence_frames:
         from harborsight.sim.sequence import sequence_frame

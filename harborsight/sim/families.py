@@ -679,13 +679,16 @@ def _bounds(obj) -> tuple[float, float, float, float]:
 # ------------------------------------------------------------------------ the marina
 
 
-#: share of a marina's berths left empty, and rows of pontoons either side of the fairway
-#: (integers' range). The real marina tiles are rows of moored boats: water 51 %, ship 30 %
-#: and 15 % undecided (most of it boats and pontoons); renders of 120-150 m with 15 % empty
-#: berths, 2-4 rows a side and a berth's pitch of 0.45 of its length plus 1.2 m showed
-#: water 76 %, ship 10 %
+#: share of a marina's berths left empty, rows of pontoons either side of the fairway
+#: (integers' range) and a berth's pitch (share of its length, metres added), dense (the
+#: default) and as before (``dense_marinas`` off, a dataset.json from before). The real
+#: marina tiles are rows of moored boats: water 51 %, ship 30 % and 15 % undecided (most
+#: of it boats and pontoons); the sparse marinas' renders at 120-150 m showed water 76 %,
+#: ship 10 %
 MARINA_EMPTY_BERTHS = 0.05
 MARINA_ROWS_PER_SIDE = (3, 7)
+MARINA_BERTH_PITCH = (0.4, 1.0)             # the widest boat's beam and a finger pier
+SPARSE_MARINA = {"empty_berths": 0.15, "rows_per_side": (2, 5), "berth_pitch": (0.45, 1.2)}
 #: share of marina frames whose camera looks along the berths, not at the vessel in the
 #: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
 #: to main pontoon) from the middle of the nearest row's berths
@@ -714,7 +717,8 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     z = rng.uniform(0.3, 0.6)
     pieces = [(_box(length_m, width, z + 0.4, 0.0, 0.0, -0.4), deck)]
     finger_len = berth_m * rng.uniform(0.55, 0.8)
-    pitch = 0.4 * berth_m + 1.0                   # a berth's width: the widest boat + a finger
+    share, added_m = MARINA_BERTH_PITCH if b.dense_marinas else SPARSE_MARINA["berth_pitch"]
+    pitch = share * berth_m + added_m              # a berth's width
     n_berths = int((length_m - 2.0) // pitch)
     boats = []
     for s in ((1, -1) if both_sides else (1,)):
@@ -723,7 +727,8 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
             if j % 2 == 0 or rng.random() < 0.5:
                 finger = _box(0.8, finger_len, z + 0.4, x, s * (width / 2 + finger_len / 2), -0.4)
                 pieces.append((finger, deck))
-            if j < n_berths and rng.random() > MARINA_EMPTY_BERTHS:
+            if j < n_berths and rng.random() > (MARINA_EMPTY_BERTHS if b.dense_marinas
+                                                else SPARSE_MARINA["empty_berths"]):
                 boat_l = float(np.clip(rng.normal(0.85 * berth_m, 0.12 * berth_m), 4.0, berth_m))
                 boats.append((x + pitch / 2, s * (width / 2 + 0.4 + boat_l / 2), boat_l, s))
     row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
@@ -760,7 +765,8 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
         if s == view_side:                                # a view along this side's berths
             b.aim_v = (float(view[1].uniform(-30.0, 30.0)),
                        first_main - s * berth / 2 + s * view[0] * lane)
-        for k in range(int(rng.integers(*MARINA_ROWS_PER_SIDE))):
+        rows = MARINA_ROWS_PER_SIDE if b.dense_marinas else SPARSE_MARINA["rows_per_side"]
+        for k in range(int(rng.integers(*rows))):
             x_c = float(rng.uniform(-40, 40))
             length = float(rng.uniform(80, 200))
             if shore_x is not None:                       # rows end short of the shore

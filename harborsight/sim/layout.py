@@ -249,6 +249,9 @@ class _Builder:
         self.berth_view = None
         #: where the camera aims, off the vessel's origin (vessel frame, m)
         self.aim_v: tuple[float, float] = (0.0, 0.0)
+        #: marinas of 3-6 rows a side with few empty berths (families.MARINA_ROWS_PER_SIDE);
+        #: False: the sparser marinas of datasets rendered before
+        self.dense_marinas = True
         self.r_enu_v = enu_from_vessel_rotation(math.radians(heading_deg))
         self.objects: list[SceneObject] = []
         self.materials: dict[str, Material] = {}
@@ -651,7 +654,7 @@ def sample_harbour_scene(
     intrinsics: CameraIntrinsics, max_tilt_deg: float = 15.0, scenario: str | None = None,
     name: str = "scene", timestamp: str | None = None,
     leisure_paint: np.random.Generator | None = None,
-    berth_view_rng: np.random.Generator | None = None,
+    berth_view_rng: np.random.Generator | None = None, dense_marinas: bool = True,
 ) -> HarbourScene:
     """A seeded harbour around ``vessel`` and a drone camera above it.
 
@@ -663,7 +666,8 @@ def sample_harbour_scene(
     leisure craft, painted with draws from this generator (not ``rng``: the scene's other
     draws stay those of an unpainted one). ``berth_view_rng``: in a marina, whether the
     camera looks along the berths and where (``families.BERTH_VIEW_SHARE``), drawn from this
-    generator, so that the scene is the one drawn without it.
+    generator, so that the scene is the one drawn without it. ``dense_marinas``: see
+    ``families.MARINA_ROWS_PER_SIDE``.
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
@@ -671,6 +675,7 @@ def sample_harbour_scene(
                          f"{sorted(SCENARIOS) + list(FAMILIES)}")
     heading = float(rng.uniform(0.0, 360.0))
     b = _Builder(rng, heading, view_reach_m=view_reach(altitude_m, intrinsics, max_tilt_deg))
+    b.dense_marinas = dense_marinas
     if scenario == "marina" and berth_view_rng is not None:
         from harborsight.sim.families import draw_berth_view
 
