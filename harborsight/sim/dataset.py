@@ -101,7 +101,7 @@ class SimulationConfig:
     # Never in a flight (sequence_frames), whose frames must show the berthing vessel
     berth_views: bool = True
     # marinas of 3-6 rows of pontoons a side with few empty berths (sim.families
-    # .MARINA_ROWS_PER_SIDE); off: the sparser marinas of datasets rendered before
+    # .DENSE_MARINA); off: the sparser marinas of datasets rendered before
     dense_marinas: bool = True
 
     #: what a parameter added later means for a dataset.json written before it: the

@@ -18,7 +18,8 @@ keep their draws, so datasets rendered before these families are reproduced exac
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import trimesh
@@ -679,16 +680,23 @@ def _bounds(obj) -> tuple[float, float, float, float]:
 # ------------------------------------------------------------------------ the marina
 
 
-#: share of a marina's berths left empty, rows of pontoons either side of the fairway
-#: (integers' range) and a berth's pitch (share of its length, metres added), dense (the
-#: default) and as before (``dense_marinas`` off, a dataset.json from before). The real
-#: marina tiles are rows of moored boats: water 51 %, ship 30 % and 15 % undecided (most
-#: of it boats and pontoons); the sparse marinas' renders at 120-150 m showed water 76 %,
-#: ship 10 %
-MARINA_EMPTY_BERTHS = 0.05
-MARINA_ROWS_PER_SIDE = (3, 7)
-MARINA_BERTH_PITCH = (0.4, 1.0)             # the widest boat's beam and a finger pier
-SPARSE_MARINA = {"empty_berths": 0.15, "rows_per_side": (2, 5), "berth_pitch": (0.45, 1.2)}
+@dataclass(frozen=True)
+class MarinaLayout:
+    """How full a marina is: the share of berths left empty, the rows of pontoons either side
+    of the fairway (an integers' range) and a berth's pitch (share of its length, metres
+    added)."""
+
+    empty_berths: float
+    rows_per_side: tuple[int, int]
+    berth_pitch: tuple[float, float]
+
+
+#: the real marina tiles are rows of moored boats: water 51 %, ship 30 % and 15 % undecided
+#: (most of it boats and pontoons); the sparse marinas' renders at 120-150 m showed water
+#: 76 %, ship 10 %. A berth is the widest boat's beam and a finger pier wide
+DENSE_MARINA = MarinaLayout(empty_berths=0.05, rows_per_side=(3, 7), berth_pitch=(0.4, 1.0))
+#: the marinas of datasets rendered before (``dense_marinas`` off)
+SPARSE_MARINA = MarinaLayout(empty_berths=0.15, rows_per_side=(2, 5), berth_pitch=(0.45, 1.2))
 #: share of marina frames whose camera looks along the berths, not at the vessel in the
 #: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
 #: to main pontoon) from the middle of the nearest row's berths
@@ -696,17 +704,26 @@ BERTH_VIEW_SHARE = 0.4
 BERTH_VIEW_LANES = (0.0, 1.5)
 
 
-def draw_berth_view(rng: np.random.Generator) -> tuple[float, np.random.Generator] | None:
+class BerthView(NamedTuple):
+    """A marina frame that looks along the berths: ``lanes`` out from the nearest row's
+    berths; ``rng`` is the view's own stream, which the builder draws the side and the place
+    along the rows from."""
+
+    lanes: float
+    rng: np.random.Generator
+
+
+def draw_berth_view(rng: np.random.Generator) -> BerthView | None:
     """Whether a marina frame looks along the berths (:data:`BERTH_VIEW_SHARE`) and where, in
-    lanes (:data:`BERTH_VIEW_LANES`); the generator is the view's own stream, which the
-    builder draws the side and the place along the rows from."""
+    lanes (:data:`BERTH_VIEW_LANES`), from the view's own stream ``rng``."""
     if rng.random() >= BERTH_VIEW_SHARE:
         return None
-    return float(rng.uniform(*BERTH_VIEW_LANES)), rng
+    return BerthView(float(rng.uniform(*BERTH_VIEW_LANES)), rng)
 
 
 def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float, length_m: float,
-                    tag: str, berth_m: float, both_sides: bool, keep_out: Polygon) -> None:
+                    tag: str, berth_m: float, both_sides: bool, keep_out: Polygon,
+                    layout: MarinaLayout = DENSE_MARINA) -> None:
     """A main pontoon along ``along_deg`` through ``origin_v`` with berths on its left (the
     fairway side; and on its right with ``both_sides``): boats side by side, bow or stern to
     the pontoon, a finger pier between every pair of berths and most single ones."""
@@ -717,7 +734,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     z = rng.uniform(0.3, 0.6)
     pieces = [(_box(length_m, width, z + 0.4, 0.0, 0.0, -0.4), deck)]
     finger_len = berth_m * rng.uniform(0.55, 0.8)
-    share, added_m = MARINA_BERTH_PITCH if b.dense_marinas else SPARSE_MARINA["berth_pitch"]
+    share, added_m = layout.berth_pitch
     pitch = share * berth_m + added_m              # a berth's width
     n_berths = int((length_m - 2.0) // pitch)
     boats = []
@@ -727,8 +744,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
             if j % 2 == 0 or rng.random() < 0.5:
                 finger = _box(0.8, finger_len, z + 0.4, x, s * (width / 2 + finger_len / 2), -0.4)
                 pieces.append((finger, deck))
-            if j < n_berths and rng.random() > (MARINA_EMPTY_BERTHS if b.dense_marinas
-                                                else SPARSE_MARINA["empty_berths"]):
+            if j < n_berths and rng.random() > layout.empty_berths:
                 boat_l = float(np.clip(rng.normal(0.85 * berth_m, 0.12 * berth_m), 4.0, berth_m))
                 boats.append((x + pitch / 2, s * (width / 2 + 0.4 + boat_l / 2), boat_l, s))
     row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
@@ -752,8 +768,9 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
     skew = float(rng.uniform(-5, 5))
     berth = float(rng.uniform(8.0, 16.0))
     lane = 2 * berth + rng.uniform(3.5, 7.0)      # main pontoon to main pontoon
+    layout = DENSE_MARINA if b.dense_marinas else SPARSE_MARINA
     view = b.berth_view
-    view_side = int(view[1].choice([-1, 1])) if view is not None else 0
+    view_side = int(view.rng.choice([-1, 1])) if view is not None else 0
     shore_x = float(hull_xy[:, 0].max()) + rng.uniform(40, 90) if rng.random() < 0.7 else None
     if shore_x is not None:
         add_shore(b, (shore_x, 0.0), -90.0 + skew, "shore")
@@ -763,10 +780,9 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
         first_main = s * (half_beam + g + berth + 1.4)   # its boats' outer ends at about g
         along = skew if s > 0 else 180.0 + skew          # its left side faces the fairway
         if s == view_side:                                # a view along this side's berths
-            b.aim_v = (float(view[1].uniform(-30.0, 30.0)),
-                       first_main - s * berth / 2 + s * view[0] * lane)
-        rows = MARINA_ROWS_PER_SIDE if b.dense_marinas else SPARSE_MARINA["rows_per_side"]
-        for k in range(int(rng.integers(*rows))):
+            b.aim_v = (float(view.rng.uniform(-30.0, 30.0)),
+                       first_main - s * berth / 2 + s * view.lanes * lane)
+        for k in range(int(rng.integers(*layout.rows_per_side))):
             x_c = float(rng.uniform(-40, 40))
             length = float(rng.uniform(80, 200))
             if shore_x is not None:                       # rows end short of the shore
@@ -776,7 +792,7 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
             if length > 20:
                 add_pontoon_row(b, (x_c, first_main + s * k * lane), along, length,
                                 f"row{b.next_instance}", berth, both_sides=k > 0 or rng.random() < 0.2,
-                                keep_out=keep_out)
+                                keep_out=keep_out, layout=layout)
 
 
 # port vehicles: hi-vis yellow and orange, and the cars' colours

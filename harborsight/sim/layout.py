@@ -249,7 +249,7 @@ class _Builder:
         self.berth_view = None
         #: where the camera aims, off the vessel's origin (vessel frame, m)
         self.aim_v: tuple[float, float] = (0.0, 0.0)
-        #: marinas of 3-6 rows a side with few empty berths (families.MARINA_ROWS_PER_SIDE);
+        #: marinas of 3-6 rows a side with few empty berths (families.DENSE_MARINA);
         #: False: the sparser marinas of datasets rendered before
         self.dense_marinas = True
         self.r_enu_v = enu_from_vessel_rotation(math.radians(heading_deg))
@@ -667,7 +667,7 @@ def sample_harbour_scene(
     draws stay those of an unpainted one). ``berth_view_rng``: in a marina, whether the
     camera looks along the berths and where (``families.BERTH_VIEW_SHARE``), drawn from this
     generator, so that the scene is the one drawn without it. ``dense_marinas``: see
-    ``families.MARINA_ROWS_PER_SIDE``.
+    ``families.DENSE_MARINA``.
     """
     scenario = scenario or str(rng.choice(list(SCENARIOS), p=list(SCENARIOS.values())))
     if scenario not in SCENARIOS and scenario not in FAMILIES:
