@@ -11,7 +11,8 @@ reboot, a GPS time fix, a replay restarted): the estimate starts again from it a
 is counted. A source's own delay (a GNSS receiver that sends its fix 0.2 s after the epoch)
 is a configurable ``offset_s`` added to its mapped times.
 
-A frame's time is its arrival less ``video_delay_s`` (encoder, link and decoder; a DJI or
+A frame's time is its arrival (its timestamp mapped by a :class:`ClockMap` of its own in
+:mod:`harborsight.live.video_in`) less ``video_delay_s`` (encoder, link and decoder; a DJI or
 RTSP feed is 0.1-0.5 s behind). Drone and vessel are sampled there by
 :func:`harborsight.telemetry.metadata.frames_at_times` (linear interpolation, angles
 unwrapped: :meth:`harborsight.telemetry.track.Track.sample`). The newest sample of a feed is

@@ -5,10 +5,12 @@ that stops is noticed instead of blocking the reader. (OpenCV's FFmpeg capture w
 first: at 2 fps it took 4-5 s to open a UDP stream and then delivered the frames it had
 buffered at once.)
 
-A frame's arrival time is read from the stream's own presentation timestamps
-(:class:`StreamClock`), not from when the decoder returned it: on a busy machine a frame
-can leave the decoder a quarter of a second late, and that delay would otherwise pass for
-the moment the picture was taken.
+A frame's arrival time is its presentation timestamp (PTS) mapped to this process's clock
+by the least-delayed frame, as the telemetry feeds' times are
+(:class:`harborsight.live.telemetry.ClockMap`), not the moment the decoder returned it: on a
+busy machine a frame can leave the decoder a quarter of a second late, and that delay would
+otherwise pass for the moment the picture was taken. A frame without a timestamp keeps the
+moment it was decoded.
 
 A stream that cannot be opened, that drops, or that stops sending is warned about and opened
 again every ``retry_s`` until the live aid stops; a change of resolution is warned about (the
@@ -20,11 +22,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 
 from harborsight.flight.sources import FlightFrame
 from harborsight.live.stream import Arrival, LatestFrame
+from harborsight.live.telemetry import ClockMap
 
 STREAM_SCHEMES = ("rtsp://", "rtsps://", "rtmp://", "rtp://", "udp://", "srt://", "tcp://",
                   "http://", "https://")
@@ -41,49 +43,6 @@ def is_stream(source: str) -> bool:
 #: how RTP travels from an RTSP server: interleaved in the TCP connection (the default: UDP
 #: loses packets on a drone's radio link and through NAT), or UDP (servers without TCP)
 RTSP_TRANSPORTS = ("tcp", "udp")
-
-
-class StreamClock:
-    """Monotonic arrival times from a stream's presentation timestamps (PTS).
-
-    A frame decoded at ``received_s`` with timestamp ``pts_s`` came no earlier than
-    ``pts_s + offset``, where the offset between the two clocks is the least delay seen:
-    ``offset = min(received_s - pts_s)`` over the last ``window_s`` seconds (network,
-    buffering and decoding only ever add delay; the window lets the offset follow a slow
-    drift between the sender's clock and ours). The arrival time is then
-    ``pts_s + offset``, never later than ``received_s``: jitter from a busy decoder is
-    taken out, the link's least latency stays in (``--video-delay-s`` covers that).
-
-    A frame without a timestamp, or a timestamp that runs backwards or jumps further than
-    ``max_jump_s`` beyond the time that passed here (a restarted encoder, a new stream),
-    starts the clock again.
-    """
-
-    def __init__(self, window_s: float = 30.0, max_jump_s: float = 2.0) -> None:
-        self.window_s, self.max_jump_s = window_s, max_jump_s
-        self._offsets: deque[tuple[float, float]] = deque()   # (received_s, offset_s), rising offsets
-        self._last: tuple[float, float] | None = None         # (pts_s, received_s)
-
-    def reset(self) -> None:
-        self._offsets.clear()
-        self._last = None
-
-    def arrival_s(self, pts_s: float | None, received_s: float) -> float:
-        if pts_s is None:
-            self.reset()
-            return received_s
-        if self._last is not None:
-            step_pts_s, step_received_s = pts_s - self._last[0], received_s - self._last[1]
-            if step_pts_s < 0 or step_pts_s > step_received_s + self.max_jump_s:
-                self.reset()
-        self._last = (pts_s, received_s)
-        offset_s = received_s - pts_s
-        while self._offsets and self._offsets[-1][1] >= offset_s:   # a monotonic deque
-            self._offsets.pop()
-        self._offsets.append((received_s, offset_s))
-        while self._offsets[0][0] < received_s - self.window_s:
-            self._offsets.popleft()
-        return pts_s + self._offsets[0][1]
 
 
 def _open(source: str, open_timeout_s: float, read_timeout_s: float, rtsp_transport: str = "tcp"):
@@ -109,7 +68,6 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
     warn = warn or (lambda message: None)
     index = 0
     size: tuple[int, int] | None = None
-    clock = StreamClock()
     try:
         while not stop.is_set():
             try:
@@ -118,10 +76,12 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 warn(f"cannot open {source} ({exc}); retrying every {retry_s:g} s")
                 stop.wait(retry_s)
                 continue
-            clock.reset()
+            clock = ClockMap()        # a reopened stream may number its timestamps afresh
             try:
                 for picture in container.decode(video=0):
-                    now = clock.arrival_s(picture.time, time.monotonic())
+                    now = time.monotonic()
+                    if picture.time is not None:
+                        now = clock.observe(picture.time, now)
                     image = picture.to_ndarray(format="bgr24")
                     shape = (image.shape[1], image.shape[0])
                     if size is not None and shape != size:
