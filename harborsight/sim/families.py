@@ -699,15 +699,16 @@ DENSE_MARINA = MarinaLayout(empty_berths=0.05, rows_per_side=(3, 7), berth_pitch
 SPARSE_MARINA = MarinaLayout(empty_berths=0.15, rows_per_side=(2, 5), berth_pitch=(0.45, 1.2))
 #: share of marina frames whose camera looks along the berths, not at the vessel in the
 #: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
-#: to main pontoon) from the middle of the nearest row's berths
+#: to main pontoon) from the middle of the nearest row's berths: at the moored boat nearest
+#: that spot (a spot drawn alone fell past a row's end, on the shore, in one view of three)
 BERTH_VIEW_SHARE = 0.4
 BERTH_VIEW_LANES = (0.0, 1.5)
 
 
 class BerthView(NamedTuple):
-    """A marina frame that looks along the berths: ``lanes`` out from the nearest row's
-    berths; ``rng`` is the view's own stream, which the builder draws the side and the place
-    along the rows from."""
+    """A marina frame that looks along the berths: at the boat nearest a spot ``lanes`` out
+    from the nearest row's berths; ``rng`` is the view's own stream, which the builder draws
+    the side and the place along the rows from."""
 
     lanes: float
     rng: np.random.Generator
@@ -723,10 +724,11 @@ def draw_berth_view(rng: np.random.Generator) -> BerthView | None:
 
 def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float, length_m: float,
                     tag: str, berth_m: float, both_sides: bool, keep_out: Polygon,
-                    layout: MarinaLayout = DENSE_MARINA) -> None:
+                    layout: MarinaLayout = DENSE_MARINA) -> list[tuple[float, float]]:
     """A main pontoon along ``along_deg`` through ``origin_v`` with berths on its left (the
     fairway side; and on its right with ``both_sides``): boats side by side, bow or stern to
-    the pontoon, a finger pier between every pair of berths and most single ones."""
+    the pontoon, a finger pier between every pair of berths and most single ones. Returns
+    the centres (vessel frame) of the boats placed (none where the row did not fit)."""
     rng = b.rng
     deck = _planks(b, tag, _PONTOON_RGB) if rng.random() < 0.6 else b.material(
         f"{tag}-concrete", Material(_grey(_PONTOON_CONCRETE_RGB, rng, 0.25), 0.85, 0.0, 0.2, 1.0))
@@ -750,13 +752,17 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
     row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
     if row.footprint().intersects(keep_out) or _overlaps_others([row], b.objects):
         b.objects.remove(row)
-        return
+        return []
+    placed = []
     for bx, by, bl, s in boats:
         xv, yv = _local_to_vessel(origin_v, along_deg, bx, by)
         heading = along_deg - 90.0 * s + float(rng.choice([0.0, 180.0], p=[0.6, 0.4]))
         boat = add_leisure_boat(b, xv, yv, heading, bl, "sail" if rng.random() < 0.35 else None)
         if boat.footprint().intersects(keep_out) or _overlaps_others([boat], b.objects, margin_m=0.05):
             b.objects.remove(boat)
+        else:
+            placed.append((float(xv), float(yv)))
+    return placed
 
 
 def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap_m: float) -> None:
@@ -771,6 +777,7 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
     layout = DENSE_MARINA if b.dense_marinas else SPARSE_MARINA
     view = b.berth_view
     view_side = int(view.rng.choice([-1, 1])) if view is not None else 0
+    view_spot, view_boats = None, []
     shore_x = float(hull_xy[:, 0].max()) + rng.uniform(40, 90) if rng.random() < 0.7 else None
     if shore_x is not None:
         add_shore(b, (shore_x, 0.0), -90.0 + skew, "shore")
@@ -780,8 +787,8 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
         first_main = s * (half_beam + g + berth + 1.4)   # its boats' outer ends at about g
         along = skew if s > 0 else 180.0 + skew          # its left side faces the fairway
         if s == view_side:                                # a view along this side's berths
-            b.aim_v = (float(view.rng.uniform(-30.0, 30.0)),
-                       first_main - s * berth / 2 + s * view.lanes * lane)
+            view_spot = (float(view.rng.uniform(-30.0, 30.0)),
+                         first_main - s * berth / 2 + s * view.lanes * lane)
         for k in range(int(rng.integers(*layout.rows_per_side))):
             x_c = float(rng.uniform(-40, 40))
             length = float(rng.uniform(80, 200))
@@ -790,9 +797,15 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
                 length = far_end - (x_c - length / 2)
                 x_c = far_end - length / 2
             if length > 20:
-                add_pontoon_row(b, (x_c, first_main + s * k * lane), along, length,
-                                f"row{b.next_instance}", berth, both_sides=k > 0 or rng.random() < 0.2,
-                                keep_out=keep_out, layout=layout)
+                boats = add_pontoon_row(b, (x_c, first_main + s * k * lane), along, length,
+                                        f"row{b.next_instance}", berth,
+                                        both_sides=k > 0 or rng.random() < 0.2,
+                                        keep_out=keep_out, layout=layout)
+                if s == view_side:
+                    view_boats += boats
+    if view_spot is not None:           # the boat nearest the spot (the spot where none fitted)
+        b.aim_v = min(view_boats, default=view_spot,
+                      key=lambda c: math.hypot(c[0] - view_spot[0], c[1] - view_spot[1]))
 
 
 # port vehicles: hi-vis yellow and orange, and the cars' colours
