@@ -7,7 +7,8 @@ contact), updates the alarms (:mod:`harborsight.live.alarms`) and the sources' h
 
 ``schema``, ``time`` (UTC ISO 8601), ``frame_index``, ``frame_time`` (the measured frame's
 timestamp), ``latency_ms`` (frame arrival to the
-state), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status``
+state; for a stream, from the arrival its timestamp gives, so a decoder's backlog
+counts), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status``
 ``ok``/``caution``/``danger``, or the measurement's status when it has no distance to
 judge, e.g. ``out_of_view``; ``measured``, the measurement's own status; ``distance_m``,
 ``distance_lower_m``, ``sigma_m``, ``filtered_distance_m``, ``closing_speed_mps``,
