@@ -37,21 +37,29 @@ runner = CliRunner()
 HELDOUT_MIOU = 0.8765
 
 
-def colour_model(path: Path, batch: int | str = 1, height: int = 360, width: int = 640) -> Path:
-    """ONNX graph image (N, H, W, 3) uint8 -> logits = the image as float, channels first;
-    labels = their argmax. ``batch``: a fixed size or a name (free)."""
+def colour_model(path: Path, batch: int | str = 1, height: int = 360, width: int = 640,
+                 bias: np.ndarray | None = None) -> Path:
+    """ONNX graph image (N, H, W, 3) uint8 -> logits = the image as float, channels first
+    (plus ``bias`` (3, H, W), if given: a model that knows left from right); labels = their
+    argmax. ``batch``: a fixed size or a name (free)."""
     onnx = pytest.importorskip("onnx")
-    from onnx import TensorProto, helper
+    from onnx import TensorProto, helper, numpy_helper
 
+    chw = "logits" if bias is None else "chw"
     nodes = [helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
-             helper.make_node("Transpose", ["x"], ["logits"], perm=[0, 3, 1, 2]),
-             helper.make_node("ArgMax", ["logits"], ["index"], axis=1, keepdims=0),
-             helper.make_node("Cast", ["index"], ["labels"], to=TensorProto.UINT8)]
+             helper.make_node("Transpose", ["x"], [chw], perm=[0, 3, 1, 2])]
+    initializers = []
+    if bias is not None:
+        nodes.append(helper.make_node("Add", [chw, "bias"], ["logits"]))
+        initializers.append(numpy_helper.from_array(bias[None].astype(np.float32), "bias"))
+    nodes += [helper.make_node("ArgMax", ["logits"], ["index"], axis=1, keepdims=0),
+              helper.make_node("Cast", ["index"], ["labels"], to=TensorProto.UINT8)]
     graph = helper.make_graph(
         nodes, "colour",
         [helper.make_tensor_value_info("image", TensorProto.UINT8, [batch, height, width, 3])],
         [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [batch, 3, height, width]),
-         helper.make_tensor_value_info("labels", TensorProto.UINT8, [batch, height, width])])
+         helper.make_tensor_value_info("labels", TensorProto.UINT8, [batch, height, width])],
+        initializers)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     entry = model.metadata_props.add()
@@ -261,6 +269,85 @@ def test_auto_enlarges_small_frames_and_stretches_large_ones(segmenter, width, h
 
 
 # --- finding and writing --------------------------------------------------------------------
+
+# --- test-time flips ------------------------------------------------------------------------
+
+def _softmax(logits: np.ndarray) -> np.ndarray:
+    e = np.exp(logits - logits.max(axis=0))
+    return e / e.sum(axis=0)
+
+
+def test_flips_average_the_probabilities_of_the_flipped_copies(tmp_path):
+    """A model that knows left from right and up from down (a ramp added to the ship and
+    obstacle logits): with flips the result is the mean of the softmax of each flipped
+    copy, flipped back (numpy by hand), and the labels turn with the frame."""
+    height, width = 36, 64
+    bias = np.zeros((3, height, width))
+    bias[1] = np.linspace(-6, 6, width)[None, :] + 0.137   # ship to the right
+    bias[2] = np.linspace(-4, 4, height)[:, None] + 0.291  # obstacle to the bottom
+    seg = load_onnx_segmenter(colour_model(tmp_path / "ramp.onnx", 1, height, width, bias))
+    image = np.random.default_rng(5).integers(0, 12, (height, width, 3), dtype=np.uint8)
+    x = image.transpose(2, 0, 1).astype(float)
+    copies = {1: [(False, False)], 2: [(False, False), (True, False)],
+              4: [(False, False), (True, False), (False, True), (True, True)]}
+    for flips, views in copies.items():
+        expected = np.zeros((3, height, width))
+        for mirror, upside_down in views:
+            flipped = x[:, ::-1 if upside_down else 1, ::-1 if mirror else 1]
+            p = _softmax(flipped + bias)
+            expected += p[:, ::-1 if upside_down else 1, ::-1 if mirror else 1] / len(views)
+        got = np.exp(seg.batch_logits(image[None], flips)[0])
+        if flips == 1:
+            got = _softmax(np.log(got))
+        np.testing.assert_allclose(got, expected, atol=1e-5)
+        labels = seg.segment(image, flips)
+        top_two = np.sort(expected, axis=0)[-2:]
+        clear = top_two[1] - top_two[0] > 1e-4             # no near-tie for float32 to break
+        assert clear.mean() > 0.99
+        assert np.array_equal(labels[clear], expected.argmax(axis=0)[clear])
+        # the same labels in tiles mode, where the windows go through the flips too
+        assert np.array_equal(segment_labels(seg, image, SegmentOptions("tiles", flips=flips)), labels)
+    for turn in (lambda a: a[:, ::-1], lambda a: a[::-1]):           # mirror, upside down
+        four = seg.segment(image, 4)
+        assert np.array_equal(seg.segment(np.ascontiguousarray(turn(image)), 4), turn(four))
+        one = seg.segment(image, 1)
+        assert not np.array_equal(seg.segment(np.ascontiguousarray(turn(image)), 1), turn(one))
+    with pytest.raises(InputError, match="--flips"):
+        SegmentOptions(flips=3)
+    with pytest.raises(InputError, match="--flips"):
+        seg.segment(image, 3)
+
+
+def test_segment_and_evaluate_take_flips(model_path, tmp_path):
+    image = random_image(640, 360, seed=3)
+    (tmp_path / "in").mkdir()
+    cv2.imwrite(str(tmp_path / "in" / "f.png"), image)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["segment", str(tmp_path / "in"), "--out", str(out), "--model",
+                                 str(model_path), "--flips", "4", "--mode", "resize"],
+                           terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "with its mirror images" in result.output
+    summary = json.loads((out / "segment.json").read_text())
+    assert summary["mode"]["mode"] == "resize" and summary["mode"]["flips"] == 4
+    mask = cv2.imread(str(out / "f.png"), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(mask, expected_labels(image))      # a pixel-wise model: flips agree
+    result = runner.invoke(app, ["segment", str(tmp_path / "in"), "--out", str(out), "--model",
+                                 str(model_path), "--flips", "3"], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
+    data = write_dataset(tmp_path / "data", {"f": (image, expected_labels(image))})
+    report = tmp_path / "e.json"
+    result = runner.invoke(app, ["evaluate", "segmentation", "--model", str(model_path), "--data",
+                                 str(data), "--flips", "2", "--json", str(report), "--fps-seconds",
+                                 "0", "--height-bin-m", "0"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    written = json.loads(report.read_text())
+    assert written["mode"] == {"mode": "resize", "flips": 2}
+    assert written["splits"]["test"]["miou"] == pytest.approx(1.0)
+    result = runner.invoke(app, ["evaluate", "segmentation", "--data", str(data), "--predictions",
+                                 str(out), "--flips", "2"], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
+
 
 def test_natural_order_and_suffixes(tmp_path):
     names = ["frame_10.png", "frame_2.PNG", "Frame_1.jpeg", "x.TIF", "y.tiff", "z.JPG",

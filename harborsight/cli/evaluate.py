@@ -12,6 +12,7 @@ from rich.table import Table
 
 from harborsight.cli.app import (
     EXACT_INT8_HELP,
+    FLIPS_HELP,
     MAX_MARGIN_PX,
     MAX_THREADS,
     OWN_RIM_HELP,
@@ -91,6 +92,7 @@ def evaluate_segmentation_command(
         help="Score the masks in this folder (<stem>.png, e.g. from harborsight segment) "
         "instead of running a model; a frame whose mask is missing or of another size is "
         "listed and skipped.")] = None,
+    flips: Annotated[int, typer.Option(help=FLIPS_HELP + " ONNX models only.")] = 1,
     exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
     """Mean accuracy, IoU per class, mIoU, FPS, resolution and parameters (paper Table II)."""
@@ -105,7 +107,7 @@ def evaluate_segmentation_command(
         for path, option in ((json_out, "--json"), (markdown, "--markdown")):
             if path is not None:
                 prepare_output_file(path, option)
-        options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
+        options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side, flips)
         with progress_report("reading frames", None, console) as progress:
 
             def on_split(name: str, n_frames: int) -> None:

@@ -8,7 +8,14 @@ from typing import Annotated
 import typer
 from rich.markup import escape
 
-from harborsight.cli.app import EXACT_INT8_HELP, app, console, err_console, load_segmenter
+from harborsight.cli.app import (
+    EXACT_INT8_HELP,
+    FLIPS_HELP,
+    app,
+    console,
+    err_console,
+    load_segmenter,
+)
 from harborsight.errors import HarborsightError
 from harborsight.perception.segment_images import SegmentMode
 from harborsight.progress import progress_report
@@ -56,6 +63,7 @@ def segment_command(
     max_side: Annotated[int | None, typer.Option(min=1, show_default=False, help=MAX_SIDE_HELP)
                         ] = None,
     recursive: Annotated[bool, typer.Option(help="Also search the folders' subfolders.")] = False,
+    flips: Annotated[int, typer.Option(help=FLIPS_HELP)] = 1,
     exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
     """Write a label mask for each image: OUT/<stem>.png, one channel, uint8, at the image's
@@ -78,7 +86,7 @@ def segment_command(
     )
 
     try:
-        options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side)
+        options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side, flips)
         paths = collect_images(inputs, recursive)
         segmenter = load_segmenter(model, exact_int8)
         arithmetic = segmenter.int8_arithmetic()

@@ -329,9 +329,9 @@ def evaluate_segmentation(
 
     options = options or SegmentOptions()
     if predictions is not None:
-        if model_path is not None or options.mode == "tiles":
+        if model_path is not None or options.mode == "tiles" or options.flips != 1:
             raise InputError(predictions, "--predictions", "scores written masks: give no "
-                             "--model and no --mode tiles with it")
+                             "--model, --mode tiles or --flips with it")
         predictions = Path(predictions)
         if not predictions.is_dir():
             raise InputError(predictions, "--predictions", "folder not found")
@@ -340,10 +340,12 @@ def evaluate_segmentation(
         mode = {"mode": "predictions", "predictions": str(predictions)}
     else:
         loaded = load_segmenter(model_path, device, threads, reference_arithmetic)
-        if options.mode in ("tiles", "auto"):
-            if loaded.kind != "onnx":
+        if options.mode in ("tiles", "auto") or options.flips != 1:
+            if loaded.kind != "onnx" and options.mode in ("tiles", "auto"):
                 raise InputError(model_path, "--mode", f"{options.mode} needs an ONNX model (a "
                                  "fixed input size to cut the windows to)")
+            if loaded.kind != "onnx":
+                raise InputError(model_path, "--flips", "test-time flips need an ONNX model")
             from harborsight.perception.default_model import load_onnx_segmenter
 
             loaded.segment = segment_function(

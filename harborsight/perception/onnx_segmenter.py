@@ -12,6 +12,7 @@ import onnxruntime as ort
 
 from harborsight.errors import InputError
 from harborsight.perception.confidence import SolidConfidence
+from harborsight.perception.flips import flip_views
 
 #: :func:`cpu_int8_dot_product` of a CPU whose fused uint8 x int8 sums saturate
 SATURATING_CPU = "avx2 without vnni"
@@ -253,28 +254,47 @@ class OnnxSegmenter:
                              f"missing output(s) {sorted(missing)}, found {sorted(outputs)}")
         return int(shape[1]), int(shape[2])
 
-    def logits(self, image_bgr: np.ndarray) -> np.ndarray:
-        """Float logits (C, H, W) at the model's input size."""
-        return self.session.run(["logits"], {"image": self.fit(image_bgr)[None]})[0][0]
+    def batch_logits(self, images: np.ndarray, flips: int = 1) -> np.ndarray:
+        """Float logits (N, C, H, W) of a batch of images (N, H, W, 3) at the model's input
+        size. ``flips`` (:data:`FLIP_VIEWS`) > 1: test-time flips, each copy's logits flipped
+        back, and ``log(mean softmax)`` over the copies returned, so that an argmax or a
+        softmax of the result reads the averaged probabilities."""
+        views = flip_views(flips)
+        if len(views) == 1:
+            return self.session.run(["logits"], {"image": np.ascontiguousarray(images)})[0]
+        mean = None
+        for mirror, upside_down in views:
+            axes = (2,) * mirror + (1,) * upside_down          # W and H of (N, H, W, 3)
+            flipped = np.flip(images, axes) if axes else images
+            logits = self.session.run(["logits"], {"image": np.ascontiguousarray(flipped)})[0]
+            logits = np.flip(logits, tuple(a + 1 for a in axes)) if axes else logits  # (N, C, H, W)
+            probability = np.exp(logits - logits.max(axis=1, keepdims=True))
+            probability /= probability.sum(axis=1, keepdims=True)
+            mean = probability if mean is None else mean + probability
+        return np.log(mean / len(views) + 1e-12).astype(np.float32)
 
-    def segment(self, image_bgr: np.ndarray) -> np.ndarray:
-        """uint8 class labels (H, W) at the frame's own size."""
+    def logits(self, image_bgr: np.ndarray, flips: int = 1) -> np.ndarray:
+        """Float logits (C, H, W) at the model's input size (``flips``: :meth:`batch_logits`)."""
+        return self.batch_logits(self.fit(image_bgr)[None], flips)[0]
+
+    def segment(self, image_bgr: np.ndarray, flips: int = 1) -> np.ndarray:
+        """uint8 class labels (H, W) at the frame's own size (``flips``: :meth:`batch_logits`)."""
         h, w = image_bgr.shape[:2]
         image = self.fit(image_bgr)[None]
-        if (h, w) == (self.input_height, self.input_width):
+        if (h, w) == (self.input_height, self.input_width) and flips == 1:
             return self.session.run(["labels"], {"image": image})[0][0]
-        logits = self.session.run(["logits"], {"image": image})[0][0]
-        return self._frame_labels(logits, w, h)
+        return self._frame_labels(self.batch_logits(image, flips)[0], w, h)
 
-    def segment_with_confidence(self, image_bgr: np.ndarray) -> tuple[np.ndarray, SolidConfidence]:
+    def segment_with_confidence(self, image_bgr: np.ndarray, flips: int = 1
+                                ) -> tuple[np.ndarray, SolidConfidence]:
         """The labels of :meth:`segment` and, from the same model call, the model's solid
         probability at any pixel (:class:`~harborsight.perception.confidence.SolidConfidence`)."""
         h, w = image_bgr.shape[:2]
         image = self.fit(image_bgr)[None]
-        if (h, w) == (self.input_height, self.input_width):
+        if (h, w) == (self.input_height, self.input_width) and flips == 1:
             logits, labels = self.session.run(["logits", "labels"], {"image": image})
             return labels[0], SolidConfidence(logits[0], w, h)
-        logits = self.session.run(["logits"], {"image": image})[0][0]
+        logits = self.batch_logits(image, flips)[0]
         return self._frame_labels(logits, w, h), SolidConfidence(logits, w, h)
 
     @staticmethod

@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -49,6 +49,7 @@ import numpy as np
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import natural_key, strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES, OBSTACLE, SHIP, WATER
+from harborsight.perception.flips import flip_views
 
 if TYPE_CHECKING:  # onnxruntime is imported by the commands that run a model
     from harborsight.perception.onnx_segmenter import OnnxSegmenter
@@ -80,13 +81,15 @@ class SegmentMode(StrEnum):
 class SegmentOptions:
     """The mode and its parameters; ``tile_*``, ``max_side`` and ``batch_size`` act in
     ``tiles`` mode only. ``batch_size``: windows per model call when the model's batch
-    dimension is free (a fixed batch dimension wins)."""
+    dimension is free (a fixed batch dimension wins). ``flips``: test-time flips in every
+    mode (:data:`~harborsight.perception.onnx_segmenter.FLIP_VIEWS`)."""
 
     mode: SegmentMode = SegmentMode.resize
     tile_overlap: float = 0.25
     tile_scale: float = 1.0
     max_side: int | None = None
     batch_size: int = 4
+    flips: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mode", SegmentMode(self.mode))
@@ -99,11 +102,12 @@ class SegmentOptions:
             raise InputError(None, "--max-side", f"expected pixels >= 1, got {self.max_side}")
         if self.batch_size < 1:
             raise InputError(None, "batch_size", f"expected >= 1, got {self.batch_size}")
+        flip_views(self.flips)
 
     @classmethod
     def from_options(cls, mode: str | SegmentMode = SegmentMode.resize,
                      tile_overlap: float | None = None, tile_scale: float | None = None,
-                     max_side: int | None = None) -> SegmentOptions:
+                     max_side: int | None = None, flips: int = 1) -> SegmentOptions:
         """From command-line options, where ``None`` is "not given": a tiles option with
         ``resize`` is refused rather than silently ignored."""
         mode = SegmentMode(mode)
@@ -113,25 +117,27 @@ class SegmentOptions:
                 if value is not None:
                     raise InputError(None, name, f"{name} is for --mode tiles ({mode.value} "
                                      "chooses for itself how a frame meets the model input)")
-            return cls(mode)
+            return cls(mode, flips=flips)
         return cls(SegmentMode.tiles, 0.25 if tile_overlap is None else tile_overlap,
-                   1.0 if tile_scale is None else tile_scale, max_side)
+                   1.0 if tile_scale is None else tile_scale, max_side, flips=flips)
 
     def to_dict(self) -> dict:
+        flips = {"flips": self.flips} if self.flips != 1 else {}
         if self.mode is not SegmentMode.tiles:
-            return {"mode": self.mode.value}
+            return {"mode": self.mode.value, **flips}
         return {"mode": "tiles", "tile_overlap": self.tile_overlap, "tile_scale": self.tile_scale,
-                "max_side": self.max_side}
+                "max_side": self.max_side, **flips}
 
     def describe(self) -> str:
+        cap = f", longer side at most {self.max_side} px" if self.max_side else ""
+        flips = {1: "", 2: "; with its mirror image", 4: "; with its mirror images"}[self.flips]
         if self.mode is SegmentMode.resize:
-            return "resize (each frame stretched to the model input)"
+            return f"resize (each frame stretched to the model input{flips})"
         if self.mode is SegmentMode.auto:
             return ("auto (frames no larger than the model input enlarged without stretching "
-                    "to fill one window, larger ones stretched into it)")
-        cap = f", longer side at most {self.max_side} px" if self.max_side else ""
+                    f"to fill one window, larger ones stretched into it{flips})")
         return (f"tiles (frame scaled x{self.tile_scale:g}{cap}, windows overlapping by "
-                f"{self.tile_overlap:g})")
+                f"{self.tile_overlap:g}{flips})")
 
 
 # --- finding images -------------------------------------------------------------------------
@@ -269,21 +275,22 @@ def model_batch(segmenter: OnnxSegmenter) -> int | None:
     return dim if isinstance(dim, int) and dim > 0 else None
 
 
-def _window_runner(segmenter: OnnxSegmenter) -> Callable[[np.ndarray], np.ndarray]:
+def _window_runner(segmenter: OnnxSegmenter, flips: int = 1) -> Callable[[np.ndarray], np.ndarray]:
     """``run(windows) -> logits`` feeding the model at its fixed batch size (the last group
-    filled with copies of its last window) or all at once when the batch is free."""
+    filled with copies of its last window) or all at once when the batch is free; with
+    test-time ``flips`` (:meth:`OnnxSegmenter.batch_logits`)."""
     fixed = model_batch(segmenter)
 
     def run(windows: np.ndarray) -> np.ndarray:
         if fixed is None:
-            return segmenter.session.run(["logits"], {"image": np.ascontiguousarray(windows)})[0]
+            return segmenter.batch_logits(windows, flips)
         parts = []
         for start in range(0, len(windows), fixed):
             part = windows[start:start + fixed]
             n = len(part)
             if n < fixed:
                 part = np.concatenate([part, np.repeat(part[-1:], fixed - n, axis=0)])
-            parts.append(segmenter.session.run(["logits"], {"image": np.ascontiguousarray(part)})[0][:n])
+            parts.append(segmenter.batch_logits(part, flips)[:n])
         return np.concatenate(parts)
 
     return run
@@ -305,7 +312,7 @@ def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: Segm
                             interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
     fixed = model_batch(segmenter)
     counted: list[int] = []
-    logits = tiled_logits(scaled, _window_runner(segmenter),
+    logits = tiled_logits(scaled, _window_runner(segmenter, options.flips),
                           (segmenter.input_height, segmenter.input_width), options.tile_overlap,
                           fixed or options.batch_size, counted.append)
     if info is not None:
@@ -317,19 +324,19 @@ def segment_labels(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: Seg
                    info: dict | None = None) -> np.ndarray:
     """uint8 labels (H, W) at the frame's own size, in the mode of ``options``."""
     if options.mode is SegmentMode.auto:
-        options = auto_options(segmenter, image_bgr)
+        options = replace(auto_options(segmenter, image_bgr), flips=options.flips)
     if options.mode is SegmentMode.tiles:
         return segment_tiles(segmenter, image_bgr, options, info)
     if info is not None:
         info.update(windows=1, processed=[segmenter.input_width, segmenter.input_height])
-    return segmenter.segment(image_bgr)
+    return segmenter.segment(image_bgr, options.flips)
 
 
 def segment_function(segmenter: OnnxSegmenter, options: SegmentOptions
                      ) -> Callable[[np.ndarray], np.ndarray]:
     """``segment(image) -> labels`` in the mode of ``options`` (for the evaluation loops)."""
     if options.mode is SegmentMode.resize:
-        return segmenter.segment
+        return lambda image: segmenter.segment(image, options.flips)
     if options.mode is SegmentMode.auto:
         return lambda image: segment_labels(segmenter, image, options)
     return lambda image: segment_tiles(segmenter, image, options)
