@@ -572,6 +572,35 @@ def test_run_on_a_video_with_json_lines(tmp_path, untrained_model):
     assert _video_frame_count(out / "annotated.mp4") == 5
 
 
+def test_run_with_test_time_flips_records_them(tmp_path, untrained_model):
+    """``run --flips 2`` segments every frame with its mirror image and says so in run.json;
+    with --masks there is no model to flip, and --flips 3 is no flip set: one line each."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for path in sorted((SAMPLES / "frames").glob("*.json"))[:2]:
+        (frames / path.name).write_text(path.read_text())
+        image = json.loads(path.read_text())["image"]
+        (frames / image).write_bytes((SAMPLES / "images" / image).read_bytes())
+    vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+    common = ["--vessel", str(vessel), "--no-video", "--no-overlays"]
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(frames), "--model", str(untrained_model), "--flips",
+                                 "2", "--out", str(out), *common], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["measured"] == 2 and record["settings"]["flips"] == 2
+    result = runner.invoke(app, ["run", str(frames), "--model", str(untrained_model), "--flips",
+                                 "3", "--out", str(tmp_path / "out3"), *common], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
+    result = runner.invoke(app, ["run", str(SAMPLES), "--masks", str(SAMPLES / "labels"), "--flips",
+                                 "2", "--out", str(tmp_path / "masks"), *common], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
+    result = runner.invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), "--model",
+                                 str(untrained_model), "--flips", "3", "--out",
+                                 str(tmp_path / "distance")], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
+
+
 def test_explicit_frame_indices(tmp_path):
     meta = json.loads((SAMPLES / "frames" / "000000.json").read_text())
     path = tmp_path / "m.jsonl"

@@ -419,6 +419,44 @@ def test_a_frame_s_time_is_its_timestamp_not_when_a_busy_decoder_returned_it(mon
     assert arrivals[30] == 1015.3
 
 
+@pytest.mark.parametrize("case", ["stepped back", "slow timestamps"])
+def test_video_timestamps_that_jump_or_drift_move_a_frame_half_a_second_at_most(monkeypatch, case):
+    """An encoder restarted 1.5 s back; FFmpeg's own timestamps at 25 fps on a 15 fps camera:
+    the frames' times stay within VIDEO_JUMP_S of their decoding, with a warning."""
+    import threading
+    import types
+
+    from harborsight.live import video_in
+    from harborsight.live.stream import LatestFrame
+
+    n = 60
+    decoded = 1000.0 + (0.5 * np.arange(n) if case == "stepped back" else np.arange(n) / 15)
+    pts = 0.5 * np.arange(n) if case == "stepped back" else np.arange(n) / 25
+    if case == "stepped back":
+        pts[30:] -= 16.5                                 # 1.5 s before the last one's
+    times, clock_s, arrivals, warnings = iter(pts), iter(decoded), [], []
+    stop = threading.Event()
+
+    class Container:
+        def decode(self, video):
+            for pts_s in times:
+                yield types.SimpleNamespace(time=float(pts_s), to_ndarray=lambda format: np.zeros((4, 6, 3)))
+            stop.set()
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(video_in, "_open", lambda *args: Container())
+    monkeypatch.setattr(video_in, "time", types.SimpleNamespace(monotonic=lambda: next(clock_s)))
+    video_in.read_stream("udp://127.0.0.1:1", LatestFrame(), stop, warn=warnings.append,
+                         on_arrival=lambda frame, now_s: arrivals.append(now_s))
+    early_s = decoded - np.array(arrivals)
+    assert np.all(early_s >= -1e-9) and early_s.max() <= video_in.VIDEO_JUMP_S + 1e-9
+    assert any("timestamps jumped" in w for w in warnings)
+    if case == "stepped back":
+        assert np.allclose(early_s, 0.0)                 # every delay here is the same
+
+
 def test_a_stream_that_cannot_be_opened_is_warned_about_and_retried():
     import threading
 

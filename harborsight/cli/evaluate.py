@@ -181,6 +181,7 @@ def evaluate_distance_command(
         "pixel quantisation alone, which separates the planar assumption.")] = False,
     model: Annotated[Path | None, typer.Option(
         help="Also measure on masks from this ONNX model; 'default' for the shipped one.")] = None,
+    flips: Annotated[int, typer.Option(help="--model: " + FLIPS_HELP)] = 1,
     methods: Annotated[str, typer.Option(help="Comma list of gsd, ground_plane.")
                        ] = "gsd,ground_plane",
     split: Annotated[str | None, typer.Option(help="Only frames of this split.")] = None,
@@ -217,6 +218,7 @@ def evaluate_distance_command(
         truth_obstacle_kinds,
         write_outputs,
     )
+    from harborsight.perception.flips import FlippedSegmenter, flip_views
 
     clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
                                   pose_refinement=PoseRefinementSettings(enabled=refine_pose),
@@ -236,7 +238,9 @@ def evaluate_distance_command(
         if model is not None:
             from harborsight.perception.default_model import load_default_segmenter
 
-            segmenter = load_default_segmenter(None if str(model) == "default" else model)
+            flip_views(flips)
+            segmenter = FlippedSegmenter(
+                load_default_segmenter(None if str(model) == "default" else model), flips)
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
             sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence)))
         if not sources:

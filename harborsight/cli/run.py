@@ -12,6 +12,7 @@ from typing import Annotated
 import typer
 
 from harborsight.cli.app import (
+    FLIPS_HELP,
     MAX_MARGIN_PX,
     MAX_VIDEO_FPS,
     OWN_RIM_HELP,
@@ -145,11 +146,13 @@ def run_command(
         min=0.1, max=3600.0,
         help="Closing speed: least-squares fit over this many seconds.")
     ] = 2.0,
+    flips: Annotated[int, typer.Option(help=FLIPS_HELP)] = 1,
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
     from harborsight.flight import FolderSource, RunOptions, VideoSource
     from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.perception.flips import FlippedSegmenter
 
     running = False         # whether run_flight has started (and owns run.json)
     try:
@@ -176,6 +179,10 @@ def run_command(
                 raise InputError(masks, None, "--masks is for folders of frames")
             source = VideoSource(input_path, metadata, camera=intrinsics)
             segmenter = load_segmenter(model)
+        if segmenter is not None and flips != 1:
+            segmenter = FlippedSegmenter(segmenter, flips)
+        elif flips != 1:
+            raise InputError(masks, "--flips", "test-time flips are for a model, not --masks")
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
                                                 pose_margin_px, own_rim_px, refine_pose, sigma),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)

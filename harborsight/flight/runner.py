@@ -357,7 +357,8 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "closing_window_s": options.window_s,
                            "sigma_options": dict(options.settings.sigma_options),
                            "video_fps": video_fps,
-                           "model": str(segmenter.path) if segmenter is not None else None},
+                           "model": str(segmenter.path) if segmenter is not None else None,
+                           "flips": getattr(segmenter, "flips", 1)},
               **summary.to_dict()}
     write_text_atomic(out_dir / "run.json",
                       strict_json(record, indent=2, default=str) + "\n")

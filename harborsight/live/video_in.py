@@ -10,7 +10,10 @@ by the least-delayed frame, as the telemetry feeds' times are
 (:class:`harborsight.live.telemetry.ClockMap`), not the moment the decoder returned it: on a
 busy machine a frame can leave the decoder a quarter of a second late, and that delay would
 otherwise pass for the moment the picture was taken. A frame without a timestamp keeps the
-moment it was decoded.
+moment it was decoded. A frame whose offset differs from the least one by more than
+:data:`VIDEO_JUMP_S` starts the mapping again from itself, with a warning: timestamps that
+step back (a restarted encoder), or that do not keep time (FFmpeg's own at a frame rate the
+camera does not send), can then move a frame's time by that much at most.
 
 A stream that cannot be opened, that drops, or that stops sending is warned about and opened
 again every ``retry_s`` until the live aid stops; a change of resolution is warned about (the
@@ -26,10 +29,13 @@ from collections.abc import Callable
 
 from harborsight.flight.sources import FlightFrame
 from harborsight.live.stream import Arrival, LatestFrame
-from harborsight.live.telemetry import ClockMap
+from harborsight.live.telemetry import ClockMap, worth_saying
 
 STREAM_SCHEMES = ("rtsp://", "rtsps://", "rtmp://", "rtp://", "udp://", "srt://", "tcp://",
                   "http://", "https://")
+#: seconds a frame's timestamp may disagree with the least-delayed frame's before the mapping
+#: starts again from it (a decoder's backlog on a busy machine stays under it: 0.24 s seen)
+VIDEO_JUMP_S = 0.5
 #: FFmpeg input options for a live source
 LOW_DELAY_OPTIONS = {"fflags": "nobuffer", "flags": "low_delay", "analyzeduration": "500000",
                      "probesize": "500000"}
@@ -76,12 +82,17 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 warn(f"cannot open {source} ({exc}); retrying every {retry_s:g} s")
                 stop.wait(retry_s)
                 continue
-            clock = ClockMap()        # a reopened stream may number its timestamps afresh
+            clock = ClockMap(jump_s=VIDEO_JUMP_S)   # a reopened stream numbers afresh
             try:
                 for picture in container.decode(video=0):
                     now = time.monotonic()
                     if picture.time is not None:
+                        jumps = clock.jumps
                         now = clock.observe(picture.time, now)
+                        if clock.jumps > jumps and worth_saying(clock.jumps):
+                            warn(f"the video's timestamps jumped by more than {VIDEO_JUMP_S:g} s "
+                                 f"against this machine's clock ({clock.jumps} time(s)): frame "
+                                 "times start again from the frame's arrival")
                     image = picture.to_ndarray(format="bgr24")
                     shape = (image.shape[1], image.shape[0])
                     if size is not None and shape != size:

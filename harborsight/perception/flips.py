@@ -22,3 +22,23 @@ def flip_views(flips: int) -> tuple[tuple[bool, bool], ...]:
     if flips not in FLIP_VIEWS:
         raise InputError(None, "--flips", f"expected one of {sorted(FLIP_VIEWS)}, got {flips}")
     return FLIP_VIEWS[flips]
+
+
+class FlippedSegmenter:
+    """A segmenter (an :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter`) whose
+    ``segment`` and ``segment_with_confidence`` run with ``flips``, for the pipelines that
+    hand it a frame alone (``run``, ``evaluate distance``); anything else is the wrapped
+    segmenter's."""
+
+    def __init__(self, segmenter, flips: int) -> None:
+        flip_views(flips)
+        self._segmenter, self.flips = segmenter, flips
+
+    def __getattr__(self, name: str):
+        return getattr(self._segmenter, name)
+
+    def segment(self, image_bgr):
+        return self._segmenter.segment(image_bgr, self.flips)
+
+    def segment_with_confidence(self, image_bgr):
+        return self._segmenter.segment_with_confidence(image_bgr, self.flips)

@@ -256,9 +256,10 @@ class OnnxSegmenter:
 
     def batch_logits(self, images: np.ndarray, flips: int = 1) -> np.ndarray:
         """Float logits (N, C, H, W) of a batch of images (N, H, W, 3) at the model's input
-        size. ``flips`` (:data:`FLIP_VIEWS`) > 1: test-time flips, each copy's logits flipped
-        back, and ``log(mean softmax)`` over the copies returned, so that an argmax or a
-        softmax of the result reads the averaged probabilities."""
+        size. ``flips`` > 1 (:data:`~harborsight.perception.flips.FLIP_VIEWS`): test-time
+        flips, each copy's logits flipped back, and ``log(mean softmax)`` over the copies
+        returned, so that an argmax or a softmax of the result reads the averaged
+        probabilities."""
         views = flip_views(flips)
         if len(views) == 1:
             return self.session.run(["logits"], {"image": np.ascontiguousarray(images)})[0]

@@ -82,7 +82,7 @@ class SegmentOptions:
     """The mode and its parameters; ``tile_*``, ``max_side`` and ``batch_size`` act in
     ``tiles`` mode only. ``batch_size``: windows per model call when the model's batch
     dimension is free (a fixed batch dimension wins). ``flips``: test-time flips in every
-    mode (:data:`~harborsight.perception.onnx_segmenter.FLIP_VIEWS`)."""
+    mode (:data:`~harborsight.perception.flips.FLIP_VIEWS`)."""
 
     mode: SegmentMode = SegmentMode.resize
     tile_overlap: float = 0.25

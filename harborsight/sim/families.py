@@ -700,7 +700,8 @@ SPARSE_MARINA = MarinaLayout(empty_berths=0.15, rows_per_side=(2, 5), berth_pitc
 #: share of marina frames whose camera looks along the berths, not at the vessel in the
 #: fairway, and where such a frame aims across the rows on one side, in lanes (main pontoon
 #: to main pontoon) from the middle of the nearest row's berths: at the moored boat nearest
-#: that spot (a spot drawn alone fell past a row's end, on the shore, in one view of three)
+#: that spot, if one is within a lane of it (a spot drawn alone fell past a row's end, on
+#: the shore, in one view of three)
 BERTH_VIEW_SHARE = 0.4
 BERTH_VIEW_LANES = (0.0, 1.5)
 
@@ -803,9 +804,11 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
                                         keep_out=keep_out, layout=layout)
                 if s == view_side:
                     view_boats += boats
-    if view_spot is not None:           # the boat nearest the spot (the spot where none fitted)
-        b.aim_v = min(view_boats, default=view_spot,
+    if view_spot is not None:   # the boat nearest the spot, if one is within a lane of it
+        nearest = min(view_boats, default=view_spot,
                       key=lambda c: math.hypot(c[0] - view_spot[0], c[1] - view_spot[1]))
+        near = math.hypot(nearest[0] - view_spot[0], nearest[1] - view_spot[1]) <= lane
+        b.aim_v = nearest if near else view_spot
 
 
 # port vehicles: hi-vis yellow and orange, and the cars' colours
