@@ -14,7 +14,9 @@ including start-up.
 ``--scenarios``: the warm time per frame of each scenario family (``classic``: the five
 classic scenarios drawn as by default) in one run, and its ratio to the first one's (issue
 #26: what the realistic families cost). A name ending in ``/full`` renders without the
-out-of-view culling (``--no-cull-out-of-view``), e.g. ``--scenarios marina,marina/full``.
+out-of-view culling (``--no-cull-out-of-view``), e.g. ``--scenarios marina,marina/full``; one
+ending in ``/sparse`` with the marinas and views of datasets before the thirty-second session
+(``--no-dense-marinas --no-berth-views``).
 """
 
 from __future__ import annotations
@@ -44,11 +46,12 @@ def cold_start_seconds(preset: str, seed: int) -> float:
 
 
 def warm_seconds(preset: str, n_frames: int, seed: int, scenario: str | None = None,
-                 cull: bool = True) -> list[float]:
+                 cull: bool = True, dense: bool = True) -> list[float]:
     with tempfile.TemporaryDirectory() as tmp:
         summary = simulate(Path(tmp) / "ds", n_frames,
                            SimulationConfig(seed=seed, preset=preset, scenario=scenario,
-                                            cull_out_of_view=cull))
+                                            cull_out_of_view=cull, dense_marinas=dense,
+                                            berth_views=dense))
         return [r.seconds for r in sorted(summary.rendered, key=lambda r: r.index)]
 
 
@@ -58,7 +61,7 @@ def scenario_costs(preset: str, n_frames: int, seed: int, scenarios: list[str]) 
     for name in scenarios:
         family, _, mode = name.partition("/")
         warm = warm_seconds(preset, n_frames + 1, seed, None if family == "classic" else family,
-                            cull=mode != "full")[1:]
+                            cull=mode != "full", dense=mode != "sparse")[1:]
         rows.append({"scenario": name, "warm_mean_s_per_frame": round(sum(warm) / len(warm), 2),
                      "warm_min_s": round(min(warm), 2), "warm_max_s": round(max(warm), 2),
                      "frames": len(warm)})
