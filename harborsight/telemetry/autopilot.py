@@ -47,8 +47,11 @@ the receiver's (``z_global`` is never set), epv 5.22-6.98 m; ArduPilot SITL HAcc
 
 GPS samples are timed by when the receiver measured them (PX4's ``timestamp_sample``, where the
 message has it) rather than when the driver published them, which is 0.1-0.2 s later on
-u-blox receivers. Where a log has only the arrival (older PX4 topics, ArduPilot's
-``GPS.TimeUS``) the track's notes say that the attitude is then read that much late
+u-blox receivers. ArduPilot logs only the arrival (``GPS.TimeUS``): its fixes are moved
+back by the delay the autopilot itself assumes, where the log says it
+(:func:`ardupilot_gps_lag_s`: ``GPS_DELAY_MS``, or the u-blox hardware of its startup
+messages). Where a log has only the arrival and no such delay (older PX4 topics, another
+receiver on ArduPilot) the track's notes say that the attitude is then read that much late
 (:data:`RECEIVER_DELAY_NOTE`). A log cut short (power lost in flight, or only the first part copied) ends in
 a partial record: it is read up to there, and the track's notes say so.
 """
@@ -94,6 +97,32 @@ RECEIVER_DELAY_NOTE = ("GPS fixes are timed by {stamp}, after the receiver's del
                        "on u-blox receivers; ArduPilot's GPS_DELAY_MS or EK3_GPS_DELAY says "
                        "what the autopilot assumes): the attitude is read that much after the "
                        "moment each frame was taken")
+
+
+#: ArduPilot's own lag of a u-blox fix by the receiver's hardware version (MON-VER, which the
+#: log's startup message "u-blox 1 HW: 00080000 SW: ..." names): 0.22 s for u-blox 5 and 6,
+#: 0.12 s for 7, M8, F9 and M10 (AP_GPS_UBLOX::get_lag; a non-zero GPS_DELAY_MS overrides it)
+UBLOX_LAG_S = {"00040005": 0.22, "00040007": 0.22, "00070000": 0.12, "00080000": 0.12,
+               "00190000": 0.12, "000A0000": 0.12}
+
+
+def ardupilot_gps_lag_s(params: dict[str, float], messages: list[str]) -> tuple[float, str] | None:
+    """How long after its fix ArduPilot takes the first receiver's position to arrive, as the
+    autopilot itself assumes it: ``GPS_DELAY_MS`` (``GPS1_DELAY_MS`` from 4.6) where it is
+    set above 0, else the u-blox driver's lag for the hardware the log's startup messages
+    name (:data:`UBLOX_LAG_S`); ``(seconds, where from)``, or None where the log does not
+    say (another receiver, or no startup messages)."""
+    for name in ("GPS_DELAY_MS", "GPS1_DELAY_MS"):
+        delay_ms = params.get(name)
+        if delay_ms is not None and delay_ms > 0:
+            return delay_ms / 1000.0, f"{name} {delay_ms:g}"
+    for message in messages:
+        words = message.split()
+        if words[:3] == ["u-blox", "1", "HW:"] and len(words) > 3:
+            hardware = words[3].upper()
+            if hardware in UBLOX_LAG_S:
+                return UBLOX_LAG_S[hardware], f"the u-blox driver's lag for hardware {hardware}"
+    return None
 
 
 def utc_from_gps_time(gps_seconds: float) -> datetime:
@@ -401,10 +430,12 @@ def read_ardupilot_bin(path: str | Path) -> Track:
         raise InputError(path, None, f"not a readable ArduPilot DataFlash log: {exc}") from None
     gps_rows, att_rows, pos_rows, unfixed, other_instances = [], [], [], 0, 0
     accuracy: dict[int, tuple[float, float]] = {}   # GPA by TimeUS: HAcc, VAcc (m)
+    params: dict[str, float] = {}
+    texts: list[str] = []
     with _captured_output(noise):
         while True:
             try:
-                message = log.recv_match(type=["GPS", "ATT", "POS", "GPA"])
+                message = log.recv_match(type=["GPS", "ATT", "POS", "GPA", "PARM", "MSG"])
             except Exception as exc:  # a torn record at the end of a log cut by power loss
                 raise InputError(path, None, f"unreadable record after {len(gps_rows)} GPS "
                                  f"sample(s): {exc}") from None
@@ -427,6 +458,10 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                                                     getattr(message, "VAcc", np.nan))
                 elif message.get_type() == "POS":
                     pos_rows.append((message.TimeUS / 1e6, message.Alt))
+                elif message.get_type() == "PARM":
+                    params[str(message.Name)] = float(message.Value)
+                elif message.get_type() == "MSG":
+                    texts.append(str(message.Message))
                 else:
                     att_rows.append((message.TimeUS / 1e6, message.Yaw, message.Pitch,
                                      message.Roll))
@@ -451,7 +486,9 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     if not len(gps):
         raise InputError(path, "GPS", "no GPS sample with a possible time and position (the "
                          "log is corrupt)")
-    t_s = gps[:, 0]
+    # GPS.TimeUS is when the fix was logged, on its arrival; the fix is that much older
+    lag = ardupilot_gps_lag_s(params, texts)
+    t_s = gps[:, 0] - (lag[0] if lag else 0.0)
     hacc_m, vacc_m = np.array([accuracy.get(int(time_us), (np.nan, np.nan))
                                for time_us in gps[:, 8]], dtype=float).reshape(-1, 2).T
     accuracy_notes: list[str] = []       # said last, after what was skipped
@@ -484,7 +521,10 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     if att is None:
         notes.append("no ATT messages: no attitude")
     notes += accuracy_notes
-    if att is not None:
+    if lag is not None:
+        notes.append(f"GPS fixes are timed by GPS.TimeUS less {lag[0]:g} s, the receiver's "
+                     f"delay ArduPilot assumes ({lag[1]})")
+    elif att is not None:
         notes.append(RECEIVER_DELAY_NOTE.format(stamp="GPS.TimeUS, when they were logged"))
     return Track(
         source=path, kind="ardupilot-bin", t_s=t_s, lat_deg=gps[:, 1], lon_deg=gps[:, 2],
