@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import json
 import shutil
+import types
 from importlib import resources
 from pathlib import Path
 
@@ -595,10 +596,22 @@ def test_run_with_test_time_flips_records_them(tmp_path, untrained_model):
     result = runner.invoke(app, ["run", str(SAMPLES), "--masks", str(SAMPLES / "labels"), "--flips",
                                  "2", "--out", str(tmp_path / "masks"), *common], terminal_width=200)
     assert result.exit_code == 2 and "--flips" in result.output
-    result = runner.invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), "--model",
-                                 str(untrained_model), "--flips", "3", "--out",
-                                 str(tmp_path / "distance")], terminal_width=200)
-    assert result.exit_code == 2 and "--flips" in result.output
+    for wrong in (["--model", str(untrained_model), "--flips", "3"], ["--flips", "2"]):
+        result = runner.invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), *wrong,
+                                     "--out", str(tmp_path / "distance")], terminal_width=200)
+        assert result.exit_code == 2 and "--flips" in result.output
+        assert not (tmp_path / "distance").exists()          # refused before anything is written
+    assert not (tmp_path / "out3").exists()
+    import copy
+    import pickle
+
+    from harborsight.perception.flips import FlippedSegmenter
+
+    wrapped = FlippedSegmenter(types.SimpleNamespace(path=Path("m.onnx")), 4)
+    assert copy.copy(wrapped).flips == 4 and wrapped.path == Path("m.onnx")
+    with pytest.raises(AttributeError):
+        _ = wrapped.input_width
+    assert pickle.loads(pickle.dumps(wrapped)).flips == 4
 
 
 def test_explicit_frame_indices(tmp_path):

@@ -252,17 +252,19 @@ def test_ardupilot_bin_gps_week_to_utc():
     assert abs((track.utc_at(81.855471 - 0.22) - expected).total_seconds()) < 0.05
     assert "GPS fixes are timed by GPS.TimeUS less 0.22 s" in " ".join(track.notes)
     assert track.lat_deg[0] == pytest.approx(-35.3626277) and track.lon_deg[0] == pytest.approx(149.1653034)
-    # altitude: the EKF's POS.Alt, not the receiver's GPS.Alt, where POS reaches: the first
-    # fix (81.635 s) is older than the first POS (81.796 s) and keeps the receiver's 588.82 m
+    # altitude: the EKF's POS.Alt, not the receiver's GPS.Alt (588.82 m at the first fix); the
+    # first fix, logged after the first POS (81.796 s) but dated before it (81.635 s), holds
+    # POS's first value
     from pymavlink import DFReader
     log = DFReader.DFReader_binary(str(TELEMETRY / "ardupilot" / "test.BIN"), zero_time_base=False)
     pos = []
     while (message := log.recv_match(type="POS")) is not None:
         pos.append((message.TimeUS / 1e6, message.Alt))
     pos_t, pos_alt = np.array(pos).T
-    assert track.alt_m[0] == pytest.approx(588.82)
+    assert track.alt_m[0] == pytest.approx(pos_alt[0])
     assert track.alt_m[1] == pytest.approx(np.interp(track.t_s[1], pos_t, pos_alt))
-    assert 584.0 < track.alt_m[1] < 584.5 and "POS.Alt" in track.alt_reference
+    assert 584.0 < track.alt_m[0] < 584.5 and track.alt_reference == (
+        "EKF altitude above mean sea level (POS.Alt)")
     assert track.attitude_of == "vehicle" and track.yaw_deg is not None
 
 
@@ -835,10 +837,8 @@ def test_ardupilot_accuracy_is_gpa_hacc_else_the_fix_class(tmp_path):
     np.testing.assert_allclose(track.position_sigma_m,
                                [hacc[t] / math.sqrt(2.0) for t in gps_time_us])
     # the altitude is the EKF's POS.Alt, whose accuracy the log does not state: GPA.VAcc
-    # (2.41 m) belongs to the receiver's altitude, so only the first fix, older than the
-    # first POS and at the receiver's altitude, has it
-    assert track.alt_sigma_m[0] == 2.41 and np.isnan(track.alt_sigma_m[1:]).all()
-    assert "POS.Alt" in track.alt_reference
+    # (2.41 m) belongs to the receiver's altitude, so the track gives none
+    assert track.alt_sigma_m is None and "POS.Alt" in track.alt_reference
     assert any(n.startswith("alt_sigma_m: none for the EKF altitude (POS.Alt)") for n in track.notes)
 
     # without GPA: GPS.Status's class, widened by HDop. The first three GPS records are set to
@@ -1044,7 +1044,7 @@ def test_cli_show_lists_the_accuracy_figures(tmp_path):
     assert "none in the log (the sensor defaults apply)" in result.output
     px4, ardupilot, dji = json.loads((tmp_path / "s.json").read_text())
     assert px4["position_sigma_m"] == pytest.approx([1.7727, 2.3052], abs=1e-4)
-    assert ardupilot["alt_sigma_m"] == [2.41, 2.41] and dji["position_sigma_m"] is None
+    assert ardupilot["alt_sigma_m"] is None and dji["position_sigma_m"] is None
 
 
 def test_a_log_that_times_its_fixes_by_arrival_says_the_attitude_runs_late():
@@ -1066,8 +1066,8 @@ def test_a_log_that_times_its_fixes_by_arrival_says_the_attitude_runs_late():
 
 def test_ardupilot_receiver_lag_is_the_one_the_autopilot_assumes():
     """GPS_DELAY_MS (GPS1_DELAY_MS from ArduPilot 4.6) where set above 0, else AP_GPS_UBLOX's
-    lag for the hardware of the startup message: 0.22 s for u-blox 5 and 6, 0.12 s later;
-    nothing where the log does not say."""
+    lag for the hardware of the startup message (0.22 s for u-blox 5, 6 and unknown ones,
+    0.12 s later), else the EKF's EK3/EK2_GPS_DELAY; nothing where the log does not say."""
     from harborsight.telemetry.autopilot import ardupilot_gps_lag_s
 
     m8 = ["GPS 1: detected as u-blox at 230400 baud", "u-blox 1 HW: 00080000 SW: ROM CORE 3.01"]
@@ -1075,7 +1075,18 @@ def test_ardupilot_receiver_lag_is_the_one_the_autopilot_assumes():
     assert ardupilot_gps_lag_s({"GPS1_DELAY_MS": 80.0}, []) == (0.08, "GPS1_DELAY_MS 80")
     assert ardupilot_gps_lag_s({"GPS_DELAY_MS": 0.0}, m8)[0] == 0.12
     assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 00040007 SW: 7.03 (45970)"])[0] == 0.22
-    assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 00190000 SW: EXT CORE 1.00"])[0] == 0.12
-    assert ardupilot_gps_lag_s({}, ["u-blox 2 HW: 00080000 SW: 3.01"]) is None   # a second receiver
-    assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 12345678 SW: ?"]) is None
+    assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 00190000 SW: EXT CORE 1.00 (61b2dd)"])[0] == 0.12
+    # an F9's hardware with other software is a generation the driver does not know: 0.22 s
+    assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 00190000 SW: ROM BASE 0x118B2060"])[0] == 0.22
+    assert ardupilot_gps_lag_s({}, ["u-blox 1 HW: 12345678 SW: ?"])[0] == 0.22
+    # a moving-baseline rover (GPS_TYPE 18) 0.04 s more
+    assert ardupilot_gps_lag_s({"GPS_TYPE": 18.0}, m8) == (
+        0.16, "the u-blox driver's lag for hardware 00080000, moving baseline")
+    # older firmware numbered the receivers from 0: "u-blox 0" is the first, "u-blox 1" the second
+    assert ardupilot_gps_lag_s({}, ["u-blox 0 HW: 00040007 SW: 7.03", "u-blox 1 HW: 00080000 SW: 3.01"]
+                               )[0] == 0.22
+    assert ardupilot_gps_lag_s({}, ["u-blox 2 HW: 00080000 SW: 3.01"]) is None   # a third receiver
+    # no u-blox and no GPS_DELAY_MS: the EKF's own delay where the firmware had one
+    assert ardupilot_gps_lag_s({"GPS_DELAY_MS": 0.0, "EK2_GPS_DELAY": 220.0}, []) == (
+        0.22, "EK2_GPS_DELAY 220")
     assert ardupilot_gps_lag_s({"GPS_DELAY_MS": 0.0}, ["GPS 1: detected as NMEA at 9600 baud"]) is None

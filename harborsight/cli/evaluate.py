@@ -232,16 +232,19 @@ def evaluate_distance_command(
     if oracle:
         sources.append(("oracle", oracle_masks))
     try:
+        flip_views(flips)
+        if flips != 1 and model is None:
+            raise InputError(None, "--flips", "test-time flips are for --model's masks")
         prepare_output_folder(out, "--out", inputs=(data,))
         if flat_world:
             sources.append(("flat", flat_world_masks(data)))
         if model is not None:
             from harborsight.perception.default_model import load_default_segmenter
 
-            flip_views(flips)
             segmenter = FlippedSegmenter(
                 load_default_segmenter(None if str(model) == "default" else model), flips)
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
+            name += f"+flips{flips}" if flips != 1 else ""
             sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence)))
         if not sources:
             raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "

@@ -152,10 +152,11 @@ def run_command(
     closing speeds per section over time. A bad frame is reported and skipped."""
     from harborsight.flight import FolderSource, RunOptions, VideoSource
     from harborsight.geometry.camera import load_camera_calibration
-    from harborsight.perception.flips import FlippedSegmenter
+    from harborsight.perception.flips import FlippedSegmenter, flip_views
 
     running = False         # whether run_flight has started (and owns run.json)
     try:
+        flip_views(flips)
         if not input_path.exists():
             raise InputError(input_path, None, "not found (give a folder of frames, or a video "
                              "with --metadata)")

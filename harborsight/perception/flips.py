@@ -35,6 +35,8 @@ class FlippedSegmenter:
         self._segmenter, self.flips = segmenter, flips
 
     def __getattr__(self, name: str):
+        if name.startswith("__") or name == "_segmenter":   # copy and pickle look these up first
+            raise AttributeError(name)
         return getattr(self._segmenter, name)
 
     def segment(self, image_bgr):

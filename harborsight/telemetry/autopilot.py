@@ -100,28 +100,56 @@ RECEIVER_DELAY_NOTE = ("GPS fixes are timed by {stamp}, after the receiver's del
 
 
 #: ArduPilot's own lag of a u-blox fix by the receiver's hardware version (MON-VER, which the
-#: log's startup message "u-blox 1 HW: 00080000 SW: ..." names): 0.22 s for u-blox 5 and 6,
-#: 0.12 s for 7, M8, F9 and M10 (AP_GPS_UBLOX::get_lag; a non-zero GPS_DELAY_MS overrides it)
+#: log's startup message "u-blox 1 HW: 00080000 SW: ..." names): 0.22 s for u-blox 5 and 6
+#: and a generation it does not know, 0.12 s for 7, M8, F9, M9 and M10
+#: (``AP_GPS_UBLOX::get_lag``). "00190000" is an F9 or M9 only with software "EXT CORE 1"
+#: or "EXT CORE 4"; a moving-baseline receiver (GPS_TYPE 17 or 18) adds 0.04 s
 UBLOX_LAG_S = {"00040005": 0.22, "00040007": 0.22, "00070000": 0.12, "00080000": 0.12,
                "00190000": 0.12, "000A0000": 0.12}
+UBLOX_UNKNOWN_LAG_S = 0.22
+UBLOX_MOVING_BASELINE_LAG_S = 0.04
+
+
+def _first_ublox_version(messages: list[str]) -> tuple[str, str] | None:
+    """(hardware, software) of the first receiver's startup message: "u-blox 1 HW: ...", or
+    "u-blox 0 HW: ..." where older firmware numbered the receivers from 0."""
+    versions = {}
+    for message in messages:
+        head, _, rest = message.partition(" HW: ")
+        words = head.split()
+        if len(words) == 2 and words[0] == "u-blox" and words[1] in ("0", "1") and rest:
+            hardware, _, software = rest.partition(" SW: ")
+            versions.setdefault(words[1], (hardware.strip().upper(), software.strip()))
+    return versions.get("0") or versions.get("1")
 
 
 def ardupilot_gps_lag_s(params: dict[str, float], messages: list[str]) -> tuple[float, str] | None:
     """How long after its fix ArduPilot takes the first receiver's position to arrive, as the
     autopilot itself assumes it: ``GPS_DELAY_MS`` (``GPS1_DELAY_MS`` from 4.6) where it is
-    set above 0, else the u-blox driver's lag for the hardware the log's startup messages
-    name (:data:`UBLOX_LAG_S`); ``(seconds, where from)``, or None where the log does not
-    say (another receiver, or no startup messages)."""
+    set above 0; else the u-blox driver's lag for the hardware the log's startup messages
+    name (:data:`UBLOX_LAG_S`); else, in firmware whose EKF was given the delay,
+    ``EK3_GPS_DELAY`` or ``EK2_GPS_DELAY``. ``(seconds, where from)``, or None where the log
+    does not say (another receiver without a delay set)."""
     for name in ("GPS_DELAY_MS", "GPS1_DELAY_MS"):
         delay_ms = params.get(name)
         if delay_ms is not None and delay_ms > 0:
             return delay_ms / 1000.0, f"{name} {delay_ms:g}"
-    for message in messages:
-        words = message.split()
-        if words[:3] == ["u-blox", "1", "HW:"] and len(words) > 3:
-            hardware = words[3].upper()
-            if hardware in UBLOX_LAG_S:
-                return UBLOX_LAG_S[hardware], f"the u-blox driver's lag for hardware {hardware}"
+    version = _first_ublox_version(messages)
+    if version is not None:
+        hardware, software = version
+        lag_s = UBLOX_LAG_S.get(hardware, UBLOX_UNKNOWN_LAG_S)
+        if hardware == "00190000" and not software.startswith(("EXT CORE 1", "EXT CORE 4")):
+            lag_s = UBLOX_UNKNOWN_LAG_S
+        why = f"the u-blox driver's lag for hardware {hardware}"
+        gps_type = params.get("GPS_TYPE", params.get("GPS1_TYPE"))
+        if gps_type in (17.0, 18.0):
+            lag_s += UBLOX_MOVING_BASELINE_LAG_S
+            why += ", moving baseline"
+        return round(lag_s, 3), why
+    for name in ("EK3_GPS_DELAY", "EK2_GPS_DELAY"):
+        delay_ms = params.get(name)
+        if delay_ms is not None and delay_ms > 0:
+            return delay_ms / 1000.0, f"{name} {delay_ms:g}"
     return None
 
 
@@ -186,12 +214,13 @@ def _px4_estimator_altitude(datasets: dict
 def _estimator_altitude(t_s: np.ndarray, gps_alt_m: np.ndarray, est_t_s: np.ndarray,
                         est_alt_m: np.ndarray, est_reference: str, notes: list[str],
                         est_sigma_m: np.ndarray | None = None,
-                        gps_sigma_m: np.ndarray | None = None,
+                        gps_sigma_m: np.ndarray | None = None, edge_s: float = 0.0,
                         ) -> tuple[np.ndarray, str, np.ndarray]:
     """The estimator's altitude at the GPS sample times (linear interpolation, within its own
-    time span only), the raw GPS altitude where it does not reach; what the result is; and
-    its one sigma (m), from the same source as each altitude: the estimator's ``est_sigma_m``
-    or the receiver's ``gps_sigma_m`` (NaN where that source states none)."""
+    time span only, or ``edge_s`` beyond its ends, where its end value holds), the raw GPS
+    altitude where it does not reach; what the result is; and its one sigma (m), from the
+    same source as each altitude: the estimator's ``est_sigma_m`` or the receiver's
+    ``gps_sigma_m`` (NaN where that source states none)."""
     raw = "GPS receiver altitude above mean sea level"
     gps_sigma = np.full(len(t_s), np.nan) if gps_sigma_m is None else usable(gps_sigma_m)
     finite = np.isfinite(est_t_s) & np.isfinite(est_alt_m)
@@ -204,7 +233,7 @@ def _estimator_altitude(t_s: np.ndarray, gps_alt_m: np.ndarray, est_t_s: np.ndar
         est_sigma_m[finite])
     order = np.argsort(est_t_s, kind="stable")
     est_t_s, est_alt_m, est_sigma = est_t_s[order], est_alt_m[order], est_sigma[order]
-    covered = (t_s >= est_t_s[0]) & (t_s <= est_t_s[-1])
+    covered = (t_s >= est_t_s[0] - edge_s) & (t_s <= est_t_s[-1] + edge_s)
     alt = np.where(covered, np.interp(t_s, est_t_s, est_alt_m), gps_alt_m)
     stated = np.isfinite(est_sigma)
     sigma = np.where(covered, np.interp(t_s, est_t_s[stated], est_sigma[stated])
@@ -497,9 +526,10 @@ def read_ardupilot_bin(path: str | Path) -> Track:
         np.ones(len(gps), bool), accuracy_notes,
         "GPA.HAcc / √2 (the receiver's horizontal accuracy, radial)", "GPS Status")
     pos = np.array(pos_rows, dtype=float).reshape(-1, 2)
+    # a fix logged inside POS's span but dated up to the lag before it holds POS's first value
     alt, alt_reference, alt_sigma = _estimator_altitude(
         t_s, gps[:, 3], pos[:, 0], pos[:, 1], "EKF altitude above mean sea level (POS.Alt)",
-        notes, None, vacc_m)
+        notes, None, vacc_m, edge_s=lag[0] if lag else 0.0)
     alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
     alt_sigma = none_if_missing(alt_sigma)
     if alt_sigma is not None:
