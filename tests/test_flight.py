@@ -596,6 +596,16 @@ def test_run_with_test_time_flips_records_them(tmp_path, untrained_model):
     result = runner.invoke(app, ["run", str(SAMPLES), "--masks", str(SAMPLES / "labels"), "--flips",
                                  "2", "--out", str(tmp_path / "masks"), *common], terminal_width=200)
     assert result.exit_code == 2 and "--flips" in result.output
+    # measure too: a folder labelled by the model, and a folder whose frames all have masks
+    result = runner.invoke(app, ["measure", str(frames), "--model", str(untrained_model),
+                                 "--flips", "4", "--vessel", str(vessel), "--out",
+                                 str(tmp_path / "measured"), "--no-tables"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "4 flipped copies a frame" in result.output
+    assert len(list((tmp_path / "measured").glob("*.json"))) == 2
+    result = runner.invoke(app, ["measure", str(SAMPLES), "--flips", "2", "--out",
+                                 str(tmp_path / "masked")], terminal_width=200)
+    assert result.exit_code == 2 and "--flips" in result.output
     for wrong in (["--model", str(untrained_model), "--flips", "3"], ["--flips", "2"]):
         result = runner.invoke(app, ["evaluate", "distance", "--data", str(SAMPLES), *wrong,
                                      "--out", str(tmp_path / "distance")], terminal_width=200)

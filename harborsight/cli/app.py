@@ -153,7 +153,7 @@ EXACT_INT8_HELP = ("Run an int8 model's graph as written (dequantise, float conv
                    "int8 sums saturate, the weights run as uint8 (docs/results.md).")
 
 
-#: help of --flips (segment, evaluate segmentation)
+#: help of --flips (segment, evaluate segmentation and distance, measure, run)
 FLIPS_HELP = ("Test-time flips: 1, the frame alone; 2, also its mirror image; 4, also both upside "
               "down (nadir views; an oblique view with a horizon: 2). The class probabilities of "
               "the copies, flipped back, are averaged: more time for better masks (the default "
@@ -161,13 +161,18 @@ FLIPS_HELP = ("Test-time flips: 1, the frame alone; 2, also its mirror image; 4,
               "docs/results.md).")
 
 
-def load_segmenter(model: Path | None, reference_arithmetic: bool = False):
-    """The ONNX model at ``model``, or the packaged default model (clear error if absent)."""
+def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips: int = 1):
+    """The ONNX model at ``model``, or the packaged default model (clear error if absent);
+    with ``flips`` > 1 one whose ``segment`` and ``segment_with_confidence`` use them
+    (:class:`~harborsight.perception.flips.FlippedSegmenter`, for the pipelines)."""
     from harborsight.perception.default_model import describe, load_default_segmenter
+    from harborsight.perception.flips import FlippedSegmenter, flip_views
 
+    flip_views(flips)
     segmenter = load_default_segmenter(model, reference_arithmetic)
-    console.print(f"segmenting with {describe(segmenter)}", markup=False)
-    return segmenter
+    console.print(f"segmenting with {describe(segmenter)}"
+                  + (f", {flips} flipped copies a frame" if flips != 1 else ""), markup=False)
+    return segmenter if flips == 1 else FlippedSegmenter(segmenter, flips)
 
 
 def need_torch() -> None:

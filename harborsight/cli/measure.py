@@ -10,6 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from harborsight.cli.app import (
+    FLIPS_HELP,
     MAX_MARGIN_PX,
     OWN_RIM_HELP,
     OWN_RIM_PX,
@@ -85,7 +86,7 @@ def print_report_table(outcome: FrameOutcome) -> None:
 
 def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
-                model: Path | None = None, strict: bool = False) -> int:
+                model: Path | None = None, strict: bool = False, flips: int = 1) -> int:
     """Measure a folder; exit code 1 if every frame failed (``strict``: if any did), 130
     when Ctrl-C stopped it (after the frame in hand: the reports and overlays written are
     whole)."""
@@ -93,7 +94,11 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     from harborsight.pipeline import discover_jobs, run_batch
 
     jobs = discover_jobs(folder, masks, segment=model is not None)
-    segmenter = load_segmenter(model) if any(job.mask_path is None for job in jobs) else None
+    segmenter = (load_segmenter(model, flips=flips) if any(job.mask_path is None for job in jobs)
+                 else None)
+    if segmenter is None and flips != 1:
+        raise InputError(masks or folder, "--flips", "every frame has a mask: test-time flips "
+                         "are for a model's masks")
     measured = skipped = 0
     try:
         with stop_on_interrupt() as stop, progress_report("measure", len(jobs), console) as report:
@@ -180,12 +185,15 @@ def measure(
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
+    flips: Annotated[int, typer.Option(help="Frames a model labels: " + FLIPS_HELP)] = 1,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
     from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.perception.flips import flip_views
     from harborsight.pipeline import FrameJob, measure_job
 
     try:
+        flip_views(flips)
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
         settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px,
@@ -200,13 +208,15 @@ def measure(
                                      "frames carry their own JSON files (and masks: --masks)")
             check_masks_folder(masks)
             raise typer.Exit(run_folder(input_path, masks, vessels, settings, out, intrinsics,
-                                         tables, model))
+                                         tables, model, flips=flips))
         if masks is not None:
             raise InputError(masks, "--masks", "--masks is for folders; give a single image's "
                              "mask with --mask")
         meta_path = meta or input_path.with_suffix(".json")
         job = FrameJob(input_path.stem, meta_path, input_path, mask)
-        segmenter = load_segmenter(model) if mask is None else None
+        if mask is not None and flips != 1:
+            raise InputError(mask, "--flips", "test-time flips are for a model, not --mask")
+        segmenter = load_segmenter(model, flips=flips) if mask is None else None
         outcome = measure_job(job, vessels, settings, out, intrinsics, segmenter=segmenter)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)

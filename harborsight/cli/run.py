@@ -152,7 +152,7 @@ def run_command(
     closing speeds per section over time. A bad frame is reported and skipped."""
     from harborsight.flight import FolderSource, RunOptions, VideoSource
     from harborsight.geometry.camera import load_camera_calibration
-    from harborsight.perception.flips import FlippedSegmenter, flip_views
+    from harborsight.perception.flips import flip_views
 
     running = False         # whether run_flight has started (and owns run.json)
     try:
@@ -171,7 +171,7 @@ def run_command(
             check_masks_folder(masks)
             source = FolderSource(input_path, masks, use_masks=masks is not None,
                                   camera=intrinsics)
-            segmenter = None if masks is not None else load_segmenter(model)
+            segmenter = None if masks is not None else load_segmenter(model, flips=flips)
         else:
             if metadata is None:
                 raise InputError(input_path, None, "a video needs --metadata FLIGHT.jsonl "
@@ -179,10 +179,8 @@ def run_command(
             if masks is not None:
                 raise InputError(masks, None, "--masks is for folders of frames")
             source = VideoSource(input_path, metadata, camera=intrinsics)
-            segmenter = load_segmenter(model)
-        if segmenter is not None and flips != 1:
-            segmenter = FlippedSegmenter(segmenter, flips)
-        elif flips != 1:
+            segmenter = load_segmenter(model, flips=flips)
+        if segmenter is None and flips != 1:
             raise InputError(masks, "--flips", "test-time flips are for a model, not --masks")
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
                                                 pose_margin_px, own_rim_px, refine_pose, sigma),
