@@ -127,6 +127,10 @@ def test_cli_evaluates_a_checkpoint(trained_run, tiny_dataset, tmp_path):
     assert "val split, by drone height" in per_split[0]
     assert len(per_split[1].strip().splitlines()) == 2 + len(expected)
     assert "val by drone height" in result.output
+    result = runner.invoke(app, [
+        "evaluate", "segmentation", "--model", str(trained_run / "best.pt"),
+        "--data", str(tiny_dataset), "--flips", "2"], terminal_width=160)
+    assert result.exit_code == 2 and "--flips" in result.output and "ONNX" in result.output
 
 
 def test_cli_leaves_out_an_unreadable_frame_and_scores_the_rest(trained_run, tiny_dataset,
