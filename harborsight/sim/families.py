@@ -805,10 +805,11 @@ def build_marina(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, gap
                 if s == view_side:
                     view_boats += boats
     if view_spot is not None:   # the boat nearest the spot, if one is within a lane of it
-        nearest = min(view_boats, default=view_spot,
-                      key=lambda c: math.hypot(c[0] - view_spot[0], c[1] - view_spot[1]))
-        near = math.hypot(nearest[0] - view_spot[0], nearest[1] - view_spot[1]) <= lane
-        b.aim_v = nearest if near else view_spot
+        def off_spot_m(centre: tuple[float, float]) -> float:
+            return math.hypot(centre[0] - view_spot[0], centre[1] - view_spot[1])
+
+        nearest = min(view_boats, default=view_spot, key=off_spot_m)
+        b.aim_v = nearest if off_spot_m(nearest) <= lane else view_spot
 
 
 # port vehicles: hi-vis yellow and orange, and the cars' colours

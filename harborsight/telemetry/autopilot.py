@@ -130,10 +130,17 @@ def ardupilot_gps_lag_s(params: dict[str, float], messages: list[str]) -> tuple[
     name (:data:`UBLOX_LAG_S`); else, in firmware whose EKF was given the delay,
     ``EK3_GPS_DELAY`` or ``EK2_GPS_DELAY``. ``(seconds, where from)``, or None where the log
     does not say (another receiver without a delay set)."""
-    for name in ("GPS_DELAY_MS", "GPS1_DELAY_MS"):
-        delay_ms = params.get(name)
-        if delay_ms is not None and delay_ms > 0:
-            return delay_ms / 1000.0, f"{name} {delay_ms:g}"
+    def set_delay(*names: str) -> tuple[float, str] | None:
+        """The first of the parameters ``names`` set above 0, in seconds, and its name."""
+        for name in names:
+            delay_ms = params.get(name)
+            if delay_ms is not None and delay_ms > 0:
+                return delay_ms / 1000.0, f"{name} {delay_ms:g}"
+        return None
+
+    given = set_delay("GPS_DELAY_MS", "GPS1_DELAY_MS")
+    if given is not None:
+        return given
     version = _first_ublox_version(messages)
     if version is not None:
         hardware, software = version
@@ -146,11 +153,7 @@ def ardupilot_gps_lag_s(params: dict[str, float], messages: list[str]) -> tuple[
             lag_s += UBLOX_MOVING_BASELINE_LAG_S
             why += ", moving baseline"
         return round(lag_s, 3), why
-    for name in ("EK3_GPS_DELAY", "EK2_GPS_DELAY"):
-        delay_ms = params.get(name)
-        if delay_ms is not None and delay_ms > 0:
-            return delay_ms / 1000.0, f"{name} {delay_ms:g}"
-    return None
+    return set_delay("EK3_GPS_DELAY", "EK2_GPS_DELAY")
 
 
 def utc_from_gps_time(gps_seconds: float) -> datetime:
@@ -517,7 +520,8 @@ def read_ardupilot_bin(path: str | Path) -> Track:
                          "log is corrupt)")
     # GPS.TimeUS is when the fix was logged, on its arrival; the fix is that much older
     lag = ardupilot_gps_lag_s(params, texts)
-    t_s = gps[:, 0] - (lag[0] if lag else 0.0)
+    lag_s = lag[0] if lag else 0.0
+    t_s = gps[:, 0] - lag_s
     hacc_m, vacc_m = np.array([accuracy.get(int(time_us), (np.nan, np.nan))
                                for time_us in gps[:, 8]], dtype=float).reshape(-1, 2).T
     accuracy_notes: list[str] = []       # said last, after what was skipped
@@ -529,7 +533,7 @@ def read_ardupilot_bin(path: str | Path) -> Track:
     # a fix logged inside POS's span but dated up to the lag before it holds POS's first value
     alt, alt_reference, alt_sigma = _estimator_altitude(
         t_s, gps[:, 3], pos[:, 0], pos[:, 1], "EKF altitude above mean sea level (POS.Alt)",
-        notes, None, vacc_m, edge_s=lag[0] if lag else 0.0)
+        notes, None, vacc_m, edge_s=lag_s)
     alt = _missing_if_absurd(alt, MAX_LOG_ALTITUDE_M)
     alt_sigma = none_if_missing(alt_sigma)
     if alt_sigma is not None:
