@@ -492,3 +492,36 @@ def test_marinas_are_dense_rows_of_boats_and_some_frames_look_along_them(vessels
     flight = replace(config, sequence_frames=2)
     a = plan_frame(replace(flight, berth_views=False), 2 * moved[0], vessels)
     np.testing.assert_array_equal(a.uav_enu, plan_frame(flight, 2 * moved[0], vessels).uav_enu)
+
+
+def test_the_placed_bounds_follow_a_list_that_objects_leave_and_join():
+    """The overlap check's cached bounds stay those of the builder's list when objects are
+    removed from its middle and end and others appended, and the check says what a plain
+    distance between footprints says."""
+    from harborsight.sim.families import PlacedBounds, _overlaps_others
+    from harborsight.sim.layout import _box, _Builder
+
+    b = _Builder(np.random.default_rng(0), 30.0)
+
+    def crate(x: float, y: float, kind: str = "crate"):
+        return b.add(f"c{b.next_instance}", kind, OBSTACLE, [(_box(2.0, 2.0, 1.0), "m")], x, y)
+
+    b.next_instance = 1
+    crate(0.0, 0.0, "vessel")                            # instance 1: never counted
+    for x in range(10):
+        crate(10.0 * x, 20.0)
+    index = PlacedBounds()
+    for step in range(30):
+        if step % 3 == 0:
+            b.objects.remove(b.objects[1 + step % (len(b.objects) - 1)])
+        elif step % 3 == 1:
+            del b.objects[-2:]
+        new = crate(float(step * 7 % 90), 20.0 + step % 4)
+        index.sync(b.objects)
+        assert [id(o) for o in index.objects] == [id(o) for o in b.objects]
+        assert np.allclose(index.bounds, [o.footprint().bounds for o in b.objects])
+        truth = any(new.footprint().distance(o.footprint()) <= 0.5 for o in b.objects
+                    if o is not new and o.instance_id != 1)
+        assert _overlaps_others([new], b, margin_m=0.5) == truth
+        if truth:
+            b.objects.remove(new)

@@ -593,7 +593,7 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
             xv, yv = beside(x_c + 2.6 * k, y_c)
             made = add_jetski_port(b, xv, yv, out_deg - side * 90.0, f"{tag}-{k}",
                                    with_jetski=bool(rng.random() < 0.65))
-            if _overlaps_others(made, b.objects, margin_m=0.1):
+            if _overlaps_others(made, b, margin_m=0.1):
                 del b.objects[-len(made):]
             else:
                 placed += made
@@ -604,7 +604,7 @@ def add_private_dock(b: _Builder, start_v: tuple[float, float], out_deg: float, 
         y_c = -side * (width / 2 + 0.5 + boat_l * 0.2)
         xv, yv = beside(x_c, y_c)
         boat = add_leisure_boat(b, xv, yv, out_deg + float(rng.choice([0.0, 180.0])), boat_l, kind)
-        if _overlaps_others([boat], b.objects, margin_m=0.2):
+        if _overlaps_others([boat], b, margin_m=0.2):
             b.objects.remove(boat)
         else:
             placed.append(boat)
@@ -635,7 +635,7 @@ def build_lakeshore(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, 
             add_private_dock(b, start, out_deg, length, f"dock{b.next_instance}")
             new = b.objects[n_before:]
             nearest = min(o.footprint().distance(vessel_fp) for o in new)
-            if nearest >= limit and not _overlaps_others(new, b.objects):
+            if nearest >= limit and not _overlaps_others(new, b):
                 break
             del b.objects[n_before:]
             if nearest >= limit:                  # it hit another dock: leave the place empty
@@ -647,25 +647,54 @@ def build_lakeshore(b: _Builder, hull: Polygon, hull_xy: np.ndarray, side: int, 
 _GROUND = ("land", "riprap", "tree", "road", "house", "car")
 
 
-def _overlaps_others(new: list, objects: list, margin_m: float = 0.0) -> bool:
-    """Whether an object of ``new`` comes within ``margin_m`` of an object placed before
-    them (the vessel of interest aside: its gap is kept apart). Docks and pontoons may start
-    on land, so what stands there counts against boats only. Bounding boxes first: a marina
-    has hundreds of objects."""
-    new_ids = {id(o) for o in new}
-    earlier = [o for o in objects if id(o) not in new_ids and o.instance_id != 1]
-    if not earlier:
+class PlacedBounds:
+    """The footprint bounds of a builder's objects as arrays, kept in step with its list.
+
+    Objects are appended and now and then removed (mostly the last ones), so each call
+    keeps the cached rows of the list's unchanged head, found by object identity, and adds
+    the rest. The cache holds the objects themselves: an id it holds cannot be reused by a
+    new object. A marina has hundreds of objects and checks each new boat against them.
+    """
+
+    def __init__(self) -> None:
+        self.objects: list = []
+        self.ids = np.empty(0, np.int64)
+        self.bounds = np.empty((0, 4))
+        self.ground = np.empty(0, bool)          # a kind in _GROUND (docks may start there)
+        self.vessel = np.empty(0, bool)          # the vessel of interest (its gap is apart)
+
+    def sync(self, objects: list) -> None:
+        ids = np.fromiter(map(id, objects), np.int64, len(objects))
+        m = min(len(ids), len(self.ids))
+        changed = np.flatnonzero(ids[:m] != self.ids[:m])
+        keep = int(changed[0]) if len(changed) else m
+        tail = objects[keep:]
+        self.objects = self.objects[:keep] + tail
+        self.ids = ids
+        self.bounds = np.vstack((self.bounds[:keep], np.array([_bounds(o) for o in tail]).reshape(-1, 4)))
+        self.ground = np.concatenate((self.ground[:keep], np.array([o.kind in _GROUND for o in tail], bool)))
+        self.vessel = np.concatenate((self.vessel[:keep], np.array([o.instance_id == 1 for o in tail], bool)))
+
+
+def _overlaps_others(new: list, b: _Builder, margin_m: float = 0.0) -> bool:
+    """Whether an object of ``new`` comes within ``margin_m`` of an object of ``b`` placed
+    before them (the vessel of interest aside: its gap is kept apart). Docks and pontoons
+    may start on land, so what stands there counts against boats only. Bounding boxes first
+    (:class:`PlacedBounds`), then the footprints' distance."""
+    index = b.__dict__.setdefault("placed_bounds", PlacedBounds())
+    index.sync(b.objects)
+    earlier = ~index.vessel & ~np.isin(index.ids, np.fromiter(map(id, new), np.int64, len(new)))
+    if not earlier.any():
         return False
-    bounds = np.array([_bounds(o) for o in earlier])
-    ground = np.array([o.kind in _GROUND for o in earlier])
+    bounds = index.bounds
     for n in new:
         fp = n.footprint()
         x0, y0, x1, y1 = _bounds(n)
-        near = ((bounds[:, 0] <= x1 + margin_m) & (bounds[:, 2] >= x0 - margin_m)
+        near = (earlier & (bounds[:, 0] <= x1 + margin_m) & (bounds[:, 2] >= x0 - margin_m)
                 & (bounds[:, 1] <= y1 + margin_m) & (bounds[:, 3] >= y0 - margin_m))
         if n.kind != "boat":
-            near &= ~ground
-        if any(fp.distance(earlier[k].footprint()) <= margin_m for k in np.flatnonzero(near)):
+            near &= ~index.ground
+        if any(fp.distance(index.objects[k].footprint()) <= margin_m for k in np.flatnonzero(near)):
             return True
     return False
 
@@ -751,7 +780,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
                 boat_l = float(np.clip(rng.normal(0.85 * berth_m, 0.12 * berth_m), 4.0, berth_m))
                 boats.append((x + pitch / 2, s * (width / 2 + 0.4 + boat_l / 2), boat_l, s))
     row = b.add(f"{tag}-pontoon", "pontoon", OBSTACLE, pieces, *origin_v, along_deg)
-    if row.footprint().intersects(keep_out) or _overlaps_others([row], b.objects):
+    if row.footprint().intersects(keep_out) or _overlaps_others([row], b):
         b.objects.remove(row)
         return []
     placed = []
@@ -759,7 +788,7 @@ def add_pontoon_row(b: _Builder, origin_v: tuple[float, float], along_deg: float
         xv, yv = _local_to_vessel(origin_v, along_deg, bx, by)
         heading = along_deg - 90.0 * s + float(rng.choice([0.0, 180.0], p=[0.6, 0.4]))
         boat = add_leisure_boat(b, xv, yv, heading, bl, "sail" if rng.random() < 0.35 else None)
-        if boat.footprint().intersects(keep_out) or _overlaps_others([boat], b.objects, margin_m=0.05):
+        if boat.footprint().intersects(keep_out) or _overlaps_others([boat], b, margin_m=0.05):
             b.objects.remove(boat)
         else:
             placed.append((float(xv), float(yv)))
@@ -1072,7 +1101,7 @@ def add_boats_under_way(b: _Builder, hull: Polygon, count: int, gap_m: float) ->
         boat = add_leisure_boat(b, p.x, p.y, rel_heading, float(rng.uniform(3.5, 9.0)),
                                 "jetski" if rng.random() < 0.2 else None)
         boat.course_deg = (b.heading_deg + rel_heading) % 360.0      # the bow's bearing
-        if (_overlaps_others([boat], b.objects, margin_m=1.0)
+        if (_overlaps_others([boat], b, margin_m=1.0)
                 or boat.footprint().distance(vessel_fp) < gap_m):
             b.objects.remove(boat)
 

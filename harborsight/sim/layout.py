@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
+import shapely
 import trimesh
 from scipy.spatial import ConvexHull
 from shapely.geometry import MultiPoint, Polygon
@@ -94,7 +95,7 @@ class SceneObject:
         """
         if self._footprint is not None:  # parts do not move once placed
             return self._footprint
-        polys = []
+        clouds = []
         for part in self.parts:
             vertices = np.asarray(part.mesh.vertices)
             points = [vertices[vertices[:, 2] >= 0.0, :2]]
@@ -102,9 +103,13 @@ class SceneObject:
                 points.append(waterline_crossings(vertices, np.asarray(part.mesh.faces)))
             points = np.vstack(points)
             if len(points) >= 3:
-                hull = MultiPoint(points).convex_hull
-                if isinstance(hull, Polygon):
-                    polys.append(hull)
+                clouds.append(points)
+        polys = []
+        if clouds:      # every part's hull in one call (a marina has thousands of parts);
+            # a line through the points has their hull, and is made without a Point for each
+            which = np.repeat(np.arange(len(clouds)), [len(c) for c in clouds])
+            hulls = shapely.convex_hull(shapely.linestrings(np.vstack(clouds), indices=which))
+            polys = list(hulls[shapely.get_type_id(hulls) == shapely.GeometryType.POLYGON])
         self._footprint = footprint_union(polys)
         return self._footprint
 
