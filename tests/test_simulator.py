@@ -4,6 +4,7 @@ metadata round trip, determinism, resume, Dask and the CLI."""
 from __future__ import annotations
 
 import json
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -350,3 +351,32 @@ def test_pose_noise_writes_noisy_frames_with_the_true_pose_kept(dataset, tmp_pat
         result = runner.invoke(app, ["simulate", "--n", "1", "--out", str(tmp_path / "x"),
                                      "--preset", "tiny", "--pose-noise", bad])
         assert result.exit_code == 2 and "--pose-noise" in result.output, bad
+
+
+def test_each_scene_object_is_one_blender_object_with_a_slot_for_each_material():
+    """A scene object's parts become one Blender mesh: every part's faces, each with the
+    slot of its own material, at the parts' world coordinates (the textures read them)."""
+    from harborsight.sim.blender import PRESETS, BlenderRenderer
+    from harborsight.sim.dataset import prepare_vessels
+
+    config = SimulationConfig(seed=404, preset="tiny", scenario="marina")
+    with tempfile.TemporaryDirectory() as tmp:
+        vessels = {name: load_vessel_spec(p) for name, p in prepare_vessels(Path(tmp), config).items()}
+    scene = plan_frame(config, 1, vessels)
+    renderer = BlenderRenderer(PRESETS["tiny"])
+    renderer.build(scene, cull=False)
+    bpy = renderer.bpy
+    meshes = {o.name: o for o in bpy.data.objects if o.type == "MESH" and o.name != "ocean"}
+    assert len(meshes) == len(scene.objects) > 100
+    for obj in scene.objects:
+        blender_obj = meshes[obj.name]
+        slots = [m.name for m in blender_obj.data.materials]
+        assert slots == list(dict.fromkeys(p.material for p in obj.parts))
+        index = np.zeros(len(blender_obj.data.polygons), np.int32)
+        blender_obj.data.polygons.foreach_get("material_index", index)
+        expected = np.concatenate([np.full(len(p.mesh.faces), slots.index(p.material)) for p in obj.parts])
+        assert np.array_equal(index, expected)
+        co = np.zeros(3 * len(blender_obj.data.vertices))
+        blender_obj.data.vertices.foreach_get("co", co)
+        assert np.allclose(co.reshape(-1, 3), np.vstack([p.mesh.vertices for p in obj.parts]), atol=1e-4)
+        assert np.allclose(blender_obj.matrix_world, np.eye(4))

@@ -32,7 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harborsight.sim.layout import NO_HIT, Environment, HarbourScene, Material
+from harborsight.sim.layout import NO_HIT, Environment, HarbourScene, Material, SceneObject
 
 
 @dataclass(frozen=True)
@@ -185,16 +185,32 @@ class BlenderRenderer:
         links.new(ramp.outputs["Result"], bsdf.inputs["Base Color"])
         return mat
 
-    def _add_mesh_object(self, name: str, vertices: np.ndarray, faces: np.ndarray, material,
-                         instance_id: int):
+    def _add_scene_object(self, obj: SceneObject, materials: dict) -> None:
+        """One Blender object for a scene object: its parts joined into one mesh (world
+        coordinates, so that the textures' object coordinates are the world's as before), a
+        material slot for each material they use. A marina holds a thousand parts; one
+        object for each cost 0.2-0.5 s a frame in Cycles' scene sync (the pixels are the
+        same; docs/results.md)."""
+        if not obj.parts:
+            return
         bpy = self.bpy
-        mesh = bpy.data.meshes.new(name)
-        mesh.from_pydata(vertices.tolist(), [], faces.tolist())
-        mesh.materials.append(material)
-        obj = bpy.data.objects.new(name, mesh)
-        obj.color = _id_colour(instance_id)
-        self.scene.collection.objects.link(obj)
-        return obj
+        slots: dict[str, int] = {}
+        vertices, faces, slot_of_face = [], [], []
+        n_vertices = 0
+        for part in obj.parts:
+            part_vertices, part_faces = np.asarray(part.mesh.vertices), np.asarray(part.mesh.faces)
+            vertices.append(part_vertices)
+            faces.append(part_faces + n_vertices)
+            slot_of_face.append(np.full(len(part_faces), slots.setdefault(part.material, len(slots))))
+            n_vertices += len(part_vertices)
+        mesh = bpy.data.meshes.new(obj.name)
+        mesh.from_pydata(np.vstack(vertices).tolist(), [], np.vstack(faces).tolist())
+        for key in slots:                                # in slot order (dicts keep it)
+            mesh.materials.append(materials[key])
+        mesh.polygons.foreach_set("material_index", np.concatenate(slot_of_face).astype(np.int32))
+        blender_obj = bpy.data.objects.new(obj.name, mesh)
+        blender_obj.color = _id_colour(obj.instance_id)
+        self.scene.collection.objects.link(blender_obj)
 
     def _water(self, scene: HarbourScene, centre_xy: np.ndarray, half_extent_m: float):
         bpy, env, preset = self.bpy, scene.environment, self.preset
@@ -328,10 +344,7 @@ class BlenderRenderer:
         materials = {key: self._material(key, spec) for key, spec in scene.materials.items()
                      if key in used or not cull}
         for obj in objects:
-            for i, part in enumerate(obj.parts):
-                self._add_mesh_object(f"{obj.name}.{i}", np.asarray(part.mesh.vertices),
-                                      np.asarray(part.mesh.faces), materials[part.material],
-                                      obj.instance_id)
+            self._add_scene_object(obj, materials)
         geometry = scene.geometry()
         intr = scene.intrinsics
         corners = np.array([[0, 0], [intr.width - 1, 0], [intr.width - 1, intr.height - 1],
