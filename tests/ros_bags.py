@@ -100,14 +100,16 @@ def flight_messages(types, ros1: bool, indices, *, with_images: bool = True,
     return out
 
 
-def write_flight_bag(path: Path, kind: str, indices, **options) -> Path:
+def write_flight_bag(path: Path, kind: str, indices, *, leave_out=None, **options) -> Path:
     """A bag of the flight's frames ``indices``: ``kind`` is ``ros1`` (``path`` a .bag file),
-    ``sqlite3`` or ``mcap`` (``path`` a ROS 2 bag folder). Returns the bag's path."""
+    ``sqlite3`` or ``mcap`` (``path`` a ROS 2 bag folder); ``leave_out(topic, seconds)``, the
+    messages not to write (a dropout). Returns the bag's path."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = kind == "ros1"
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    messages = flight_messages(store.types, ros1, indices, **options)
+    messages = [m for m in flight_messages(store.types, ros1, indices, **options)
+                if leave_out is None or not leave_out(m[0], m[2])]
     if ros1:
         from rosbags.rosbag1 import Writer
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from datetime import datetime
 
 import numpy as np
 import pytest
@@ -182,3 +183,22 @@ def test_a_rectified_image_topic_takes_p_and_no_distortion():
                                             "/cam/image_raw", "/cam/image_raw/compressed",
                                             "image_rect")] == [True, True, False, False, True]
 
+
+
+def test_a_dropout_of_the_height_topic_is_a_gap_not_a_straight_line(tmp_path):
+    """MAVROS' rel_alt silent for 8 s while the fixes go on: the fixes in between have no
+    height (the drone may have climbed or sunk), so frames there are skipped, with a note."""
+    stamps = [datetime.fromisoformat(flight_frame(i)["timestamp"].replace("Z", "+00:00")).timestamp()
+              for i in range(48)]
+    silent = (stamps[10], stamps[26])          # 8 s at 2 Hz: frames 11-25 have no height
+
+    def dropout(topic: str, seconds: float) -> bool:
+        return topic.endswith("rel_alt") and silent[0] < seconds < silent[1]
+
+    bag = write_flight_bag(tmp_path / "gap.bag", "ros1", range(48), with_images=False,
+                           leave_out=dropout)
+    track = read_bag_track(bag)
+    assert np.isnan(track.alt_m[11:26]).all() and np.isfinite(track.alt_m[:11]).all()
+    assert any("gaps (up to 8.0 s)" in note for note in track.notes)
+    sampled = track.sample(track.t_s[[5, 18, 40]], max_gap_s=1.0)["alt_m"]
+    assert np.isfinite(sampled[[0, 2]]).all() and np.isnan(sampled[1])

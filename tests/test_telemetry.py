@@ -1090,3 +1090,46 @@ def test_ardupilot_receiver_lag_is_the_one_the_autopilot_assumes():
     assert ardupilot_gps_lag_s({"GPS_DELAY_MS": 0.0, "EK2_GPS_DELAY": 220.0}, []) == (
         0.22, "EK2_GPS_DELAY 220")
     assert ardupilot_gps_lag_s({"GPS_DELAY_MS": 0.0}, ["GPS 1: detected as NMEA at 9600 baud"]) is None
+
+
+def test_a_second_source_is_not_drawn_straight_across_its_own_gaps():
+    """An altitude source interpolated onto the fixes' times has none inside its gaps, and
+    the track's own gap rule then decides, with the user's max_gap_s."""
+    from harborsight.telemetry.track import interpolate_source
+
+    source_t = np.concatenate([np.arange(0, 25), np.arange(75, 101)]) * 0.2     # 0-4.8, 15-20 s
+    source_alt = np.where(source_t < 10, 10.0, 50.0)
+    fixes_t = np.arange(0, 201) * 0.1
+    alt, widest_s = interpolate_source(fixes_t, source_t, source_alt)
+    assert widest_s == pytest.approx(10.2)
+    inside = (fixes_t > 4.8 + 1e-9) & (fixes_t < 15.0 - 1e-9)
+    assert np.isnan(alt[inside]).all() and np.isfinite(alt[~inside]).all()
+    assert set(np.round(alt[~inside], 6)) == {10.0, 50.0}
+    # one sample missing is no gap
+    dropped = np.delete(np.arange(0, 101) * 0.2, 10)
+    alt, widest_s = interpolate_source(fixes_t, dropped, np.full(len(dropped), 10.0))
+    assert widest_s is None and np.isnan(alt).sum() == 0
+    track = Track(source=Path("t"), kind="test", t_s=fixes_t, lat_deg=np.full(len(fixes_t), 56.0),
+                  lon_deg=np.full(len(fixes_t), 10.0),
+                  alt_m=interpolate_source(fixes_t, source_t, source_alt)[0])
+    assert np.isnan(track.sample(np.array([7.0, 10.0, 13.0]), max_gap_s=1.0)["alt_m"]).all()
+    bridged = track.sample(np.array([10.0]), max_gap_s=6.0)["alt_m"]
+    assert 10.0 < bridged[0] < 50.0      # the user asked for gaps of 12 s to be bridged
+
+
+def test_an_autopilots_estimated_altitude_leaves_its_dropouts_empty():
+    """The estimator's altitude merged into the GPS samples: none inside a 10 s dropout of
+    its topic (not a straight line, nor the receiver's altitude metres away), with a note."""
+    from harborsight.telemetry.autopilot import _estimator_altitude
+
+    gps_t = np.arange(0.0, 20.01, 0.2)
+    receiver = np.where(gps_t < 10, 114.0, 156.0)
+    est_t = np.concatenate([np.arange(0.0, 5.0, 0.1), np.arange(15.0, 20.0, 0.1)])
+    est_alt = np.where(est_t < 10, 110.0, 150.0)
+    notes: list[str] = []
+    alt, _, sigma = _estimator_altitude(gps_t, receiver, est_t, est_alt, "EKF", notes,
+                                        est_sigma_m=np.full(len(est_t), 0.5))
+    gap = (gps_t > 4.9 + 1e-9) & (gps_t < 15.0 - 1e-9)
+    assert np.isnan(alt[gap]).all() and np.isnan(sigma[gap]).all()
+    assert np.allclose(alt[gps_t <= 4.8], 110.0) and np.allclose(alt[(gps_t >= 15) & (gps_t <= 19.9)], 150.0)
+    assert any("gaps of the estimator's altitude (up to 10.1 s)" in n for n in notes)

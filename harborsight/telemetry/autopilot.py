@@ -81,7 +81,7 @@ from harborsight.telemetry.accuracy import (
     per_axis_from_radial_m,
     usable,
 )
-from harborsight.telemetry.track import Track, utc_from_epoch_s
+from harborsight.telemetry.track import Track, interpolate_source, utc_from_epoch_s
 
 GPS_EPOCH = datetime(1980, 1, 6, tzinfo=UTC)
 #: GPS time minus UTC, from each UTC date on (IERS Bulletin C; none added since 2017-01-01).
@@ -237,10 +237,19 @@ def _estimator_altitude(t_s: np.ndarray, gps_alt_m: np.ndarray, est_t_s: np.ndar
     order = np.argsort(est_t_s, kind="stable")
     est_t_s, est_alt_m, est_sigma = est_t_s[order], est_alt_m[order], est_sigma[order]
     covered = (t_s >= est_t_s[0] - edge_s) & (t_s <= est_t_s[-1] + edge_s)
-    alt = np.where(covered, np.interp(t_s, est_t_s, est_alt_m), gps_alt_m)
+    # within edge_s past an end the end value holds; in a gap of the estimator's samples
+    # there is none (track.interpolate_source): the receiver's altitude would jump from the
+    # estimator's by metres, and a straight line across a dropout invents a climb
+    inner, widest_s = interpolate_source(np.clip(t_s, est_t_s[0], est_t_s[-1]), est_t_s, est_alt_m)
+    alt = np.where(covered, inner, gps_alt_m)
     stated = np.isfinite(est_sigma)
     sigma = np.where(covered, np.interp(t_s, est_t_s[stated], est_sigma[stated])
                      if stated.any() else np.nan, gps_sigma)
+    sigma[covered & np.isnan(inner)] = np.nan
+    if widest_s is not None:
+        notes.append(f"{int((covered & np.isnan(inner)).sum())} GPS sample(s) fall in gaps of "
+                     f"the estimator's altitude (up to {widest_s:.1f} s) and have no altitude: "
+                     "frames there are skipped unless --max-gap-s bridges them")
     if not covered.all():
         notes.append(f"{int((~covered).sum())} GPS sample(s) outside the estimator's time "
                      "span keep the receiver's own altitude")

@@ -45,7 +45,7 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json
 from harborsight.telemetry.accuracy import per_axis_from_class_m, usable
 from harborsight.telemetry.rosbag_io import BagMessage, BagReader, open_bag
-from harborsight.telemetry.track import Track, utc_from_epoch_s
+from harborsight.telemetry.track import Track, interpolate_source, utc_from_epoch_s
 
 IMAGE_TYPES = ("sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/Image")
 FIX_TYPES = ("sensor_msgs/msg/NavSatFix",)
@@ -204,7 +204,11 @@ def read_bag_track(path: str | Path, *, reader: BagReader | None = None,
     if topics.rel_alt and heights:
         heights.sort()
         h_t = np.array([h[0] - t0 for h in heights])
-        alt = np.interp(t_s, h_t, [h[1] for h in heights], left=np.nan, right=np.nan)
+        alt, widest_s = interpolate_source(t_s, h_t, np.array([h[1] for h in heights]))
+        if widest_s is not None:
+            notes.append(f"{int(np.isnan(alt).sum())} fix(es) without a height: outside "
+                         f"{topics.rel_alt}'s span or in its gaps (up to {widest_s:.1f} s); "
+                         "frames there are skipped unless --max-gap-s bridges them")
         reference = f"height above the take-off point ({topics.rel_alt})"
     else:
         alt = np.array([f[3] for f in fixes])
