@@ -9,6 +9,7 @@ import struct
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -1133,3 +1134,42 @@ def test_an_autopilots_estimated_altitude_leaves_its_dropouts_empty():
     assert np.isnan(alt[gap]).all() and np.isnan(sigma[gap]).all()
     assert np.allclose(alt[gps_t <= 4.8], 110.0) and np.allclose(alt[(gps_t >= 15) & (gps_t <= 19.9)], 150.0)
     assert any("gaps of the estimator's altitude (up to 10.1 s)" in n for n in notes)
+
+
+@pytest.mark.parametrize("form", ["[dzoom_ratio: {ten_thousandths}, delta:0]", "[dzoom_ratio: {ratio:.2f}]",
+                                  "DZOOM {ratio:.3f},"])
+def test_a_digital_zoom_in_the_srt_scales_the_frames_intrinsics(tmp_path, form):
+    """A digital zoom is a centre crop of the sensor, enlarged: the focal length stays
+    (``focal_len : 240``) while every pixel covers 1/ratio of the water. The frames of the
+    zoomed blocks get the camera's intrinsics scaled about the image centre, checked against
+    OpenCV: a point projects where the unzoomed frame's pixel lands once enlarged about the
+    centre, distortion included."""
+    from harborsight.telemetry.metadata import CameraMount, build_video_metadata
+    from harborsight.telemetry.vessel_track import read_vessel_csv
+
+    blocks = (DJI / "air2s.srt").read_text(encoding="utf-8").split("\n\n")
+    text = "\n\n".join(b.replace("[latitude:", form.format(ten_thousandths=20000, ratio=2.0) + " [latitude:")
+                       if k >= 8 else b for k, b in enumerate(blocks))
+    srt = tmp_path / "zoomed.srt"
+    srt.write_text(text, encoding="utf-8")
+    drone = read_dji_srt(srt, utc_offset_h=2.0)
+    assert np.isnan(drone.digital_zoom[0]) and drone.digital_zoom[9] == 2.0
+    assert any("digital zoom in" in note and "up to 2x" in note for note in drone.notes)
+    camera = {"width": 1280, "height": 720, "fx": 1010.0, "fy": 1012.0, "cx": 652.0, "cy": 351.0,
+              "distortion": [-0.12, 0.05, 0.001, -0.002, 0.0]}
+    vessel = read_vessel_csv(_vessel_csv(tmp_path / "ship.csv", drone.utc_start, 2))
+    result = build_video_metadata(drone, vessel, camera, 16, 30.0, water_level_m=0.0,
+                                  mount=CameraMount("stabilised", yaw_deg=0.0))
+    assert [f["frame_index"] for f in result.frames] == list(range(16))
+    plain, zoomed = result.frames[2], result.frames[12]
+    assert plain["camera"] == camera and "digital_zoom" not in plain["telemetry"]
+    assert zoomed["telemetry"]["digital_zoom"] == 2.0
+    point = np.array([[[1.5, -0.8, 20.0]]])
+
+    def pixel(block: dict) -> np.ndarray:
+        k = np.array([[block["fx"], 0, block["cx"]], [0, block["fy"], block["cy"]], [0, 0, 1]])
+        uv, _ = cv2.projectPoints(point, np.zeros(3), np.zeros(3), k, np.array(block["distortion"]))
+        return uv.ravel()
+
+    centre = np.array([(1280 - 1) / 2, (720 - 1) / 2])
+    assert pixel(zoomed["camera"]) == pytest.approx(centre + 2.0 * (pixel(camera) - centre), abs=1e-9)

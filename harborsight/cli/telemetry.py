@@ -43,7 +43,9 @@ VesselOffsetOption = Annotated[float, typer.Option(
     "track: -5 if the vessel's clock runs 5 s behind.")]
 MaxGapOption = Annotated[float, typer.Option(
     "--max-gap-s", min=0.01, max=3600.0,
-    help="Longest gap in a track bridged by interpolation.")]
+    help="Gaps in a track: a frame between two samples more than twice this apart gets no "
+    "value (it is skipped, with the reason), and a track's end value is held for at most this "
+    "(or half its last sample interval). Gaps up to twice this are interpolated across.")]
 MmsiOption = Annotated[int | None, typer.Option(
     "--mmsi", min=1, max=999_999_999,
     help="An AIS vessel track: the vessel (default: the file's own AIVDO reports, or its only "

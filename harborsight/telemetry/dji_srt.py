@@ -61,6 +61,9 @@ _BARO = re.compile(r"\b(?:BAROMETER\s*:\s*|Hb\s*:\s*|H\s+)(" + _NUMBER + r")\s*m
 _UNIT = r"[^\d,()+-]*"
 _PRY = re.compile(r"\b([GF])\.PRY\s*\(\s*(" + _NUMBER + ")" + _UNIT + r",\s*(" + _NUMBER + ")" + _UNIT
                   + r",\s*(" + _NUMBER + ")" + _UNIT + r"\)", re.IGNORECASE)
+# digital zoom: "[dzoom_ratio: 20000, delta:0]" (Mini 3/4, Air 2S, Mavic 3: ten-thousandths),
+# "[dzoom_ratio: 2.00]" (enterprise thermal files), "DZOOM 2.000" (Mini 2, Mini SE)
+_DZOOM = re.compile(r"\b(?:dzoom_ratio\s*:\s*|DZOOM\s*:?\s*)(" + _NUMBER + ")", re.IGNORECASE)
 _GIMBAL_ANGLES = re.compile(r"\bgb_(yaw|pitch|roll)\s*:\s*(" + _NUMBER + ")", re.IGNORECASE)
 _DATE = re.compile(r"\b(\d{4})[-.](\d{1,2})[-.](\d{1,2})\s+(\d{1,2}):(\d{2}):(\d{2})"
                    r"(?:[,.](\d{3})(?:[,.](\d{3}))?)?")
@@ -206,6 +209,12 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
                 row.setdefault("latitude", second)
         if (m := _BARO.search(content)) is not None:
             row["baro_alt"] = float(m.group(1))
+        if (m := _DZOOM.search(content)) is not None:
+            ratio = float(m.group(1))
+            if "." not in m.group(1) and ratio >= 100:      # ten-thousandths: 10000 is 1x
+                ratio /= 10000.0
+            if ratio > 0:                                   # a 0 states nothing
+                row["digital_zoom"] = ratio
         for which, pitch, roll, yaw in _PRY.findall(content):
             if which.upper() == "G":
                 row["gimbal"] = (float(yaw), float(pitch), float(roll))
@@ -287,6 +296,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
     focal_len = column("focal_len")
     if focal_len is not None and not focal_in_mm:
         focal_len = focal_len / 10.0
+    digital_zoom = column("digital_zoom")
 
     notes = [f"{len(lines)} block(s) {what} (" + _lines(lines) + ")" for lines, what in (
         (skipped, "without a position skipped"),
@@ -296,6 +306,11 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (too_large, "with a number too large to be a reading skipped"),
         (torn, "cut short at the end of the file left out"),
     ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
+    if digital_zoom is not None and np.nanmax(np.abs(digital_zoom - 1.0), initial=0.0) > 1e-3:
+        zoomed = int((np.abs(digital_zoom - 1.0) > 1e-3).sum())
+        notes.append(f"digital zoom in {zoomed} block(s), up to {np.nanmax(digital_zoom):g}x: "
+                     "a centre crop of the sensor, so those frames' intrinsics are the camera's "
+                     "scaled by it about the image centre")
     utc_start = None
     try:
         local_start = _local_time_at_zero(rows, t_s)
@@ -317,5 +332,6 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         pitch_deg=None if gimbal is None else gimbal[:, 1],
         roll_deg=None if gimbal is None else gimbal[:, 2],
         attitude_of=None if gimbal is None else "gimbal",
-        focal_35mm_mm=focal_len, utc_start=utc_start, clock=clock, notes=notes,
+        focal_35mm_mm=focal_len, digital_zoom=digital_zoom, utc_start=utc_start, clock=clock,
+        notes=notes,
     )

@@ -213,6 +213,7 @@ def frames_at_times(
     indices = list(range(n_frames)) if indices is None else indices
     uav = drone.sample(drone_t, max_gap_s, hold_s)
     focal = uav.get("focal_35mm_mm")
+    digital = uav.get("digital_zoom")
     reference_focal = camera.get("focal_35mm_mm") or _first_focal(drone)
     ship = vessel.sample(vessel_t, max_gap_s, hold_s)
     yaw, pitch, roll = camera_attitude_deg(drone, uav, mount)
@@ -231,6 +232,12 @@ def frames_at_times(
         if zoomed:
             skipped.append((indices[i], zoomed))
             continue
+        ratio = None if digital is None or not np.isfinite(digital[i]) else float(digital[i])
+        if ratio is not None and ratio < 1.0 - ZOOM_TOLERANCE:
+            skipped.append((indices[i], f"digital zoom {ratio:g}x in the log: below 1x, not a "
+                                        "zoom this reader knows"))
+            continue
+        frame_camera = digitally_zoomed(camera, ratio or 1.0)
         height_m = uav["alt_m"][i] - water_level_m
         if height_m <= 0:
             skipped.append((indices[i], f"drone not above the water level: altitude "
@@ -239,7 +246,7 @@ def frames_at_times(
         frames.append({
             "schema": "harborsight.frame/1", "frame_index": indices[i],
             "timestamp": utc[i].isoformat().replace("+00:00", "Z"),
-            "camera": {k: v for k, v in camera.items() if k != "focal_35mm_mm"},
+            "camera": frame_camera,
             "uav": {"lat": round(float(uav["lat_deg"][i]), 8), "lon": round(float(uav["lon_deg"][i]), 8),
                     "alt_m": round(float(uav["alt_m"][i]), 3)},
             "camera_attitude": {"yaw_deg": round(float(yaw[i]), 3), "pitch_deg": round(float(pitch[i]), 3),
@@ -252,6 +259,8 @@ def frames_at_times(
                           "vessel": str(vessel.source), "vessel_t_s": round(float(vessel_t[i]), 4),
                           "alt_reference": drone.alt_reference},
         })
+        if frame_camera["fx"] != camera["fx"]:
+            frames[-1]["telemetry"]["digital_zoom"] = ratio
         for samples, fields in ((uav, UAV_SIGMA_FIELDS), (ship, VESSEL_SIGMA_FIELDS)):
             for section, key, name in fields:
                 value = _frame_sigma(samples.get(name), i)
@@ -288,6 +297,23 @@ def zoom_reason(focal_mm: float | None, reference_mm: float | None, camera: dict
     return (f"zoomed: focal_len {focal_mm:g} mm (35 mm equivalent) in the log, the camera's "
             f"intrinsics ({camera.get('fx', 0):.1f} px) hold for {reference_mm:g} mm; a zoomed "
             "frame needs intrinsics of its own")
+
+
+def digitally_zoomed(camera: dict, ratio: float) -> dict:
+    """The frame/1 camera block of a frame taken with a digital zoom of ``ratio``: a centre
+    crop of ``1/ratio`` of the sensor, enlarged to the full frame, so a pixel ``u`` of the
+    unzoomed image is at ``c + ratio (u - c)``, ``c = (width - 1) / 2`` (pixel centres at
+    whole numbers): ``fx, fy`` times ``ratio``, ``cx`` and ``cy`` moved away from the centre
+    by it. The distortion coefficients act on normalized coordinates, which the crop does not
+    change, and stay. Within :data:`ZOOM_TOLERANCE` of 1x the block is the camera's."""
+    block = {k: v for k, v in camera.items() if k != "focal_35mm_mm"}
+    if abs(ratio - 1.0) <= ZOOM_TOLERANCE:
+        return block
+    centre_u, centre_v = (camera["width"] - 1) / 2.0, (camera["height"] - 1) / 2.0
+    block.update(fx=camera["fx"] * ratio, fy=camera["fy"] * ratio,
+                 cx=centre_u + ratio * (camera["cx"] - centre_u),
+                 cy=centre_v + ratio * (camera["cy"] - centre_v))
+    return block
 
 
 def _frame_sigma(values: np.ndarray | None, i: int) -> float | None:

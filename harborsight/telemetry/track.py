@@ -30,13 +30,14 @@ import numpy as np
 
 #: The quantities a track may carry, each an array over samples or None.
 QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg",
-              "position_sigma_m", "alt_sigma_m", "heading_sigma_deg", "focal_35mm_mm")
+              "position_sigma_m", "alt_sigma_m", "heading_sigma_deg", "focal_35mm_mm",
+              "digital_zoom")
 #: the accuracy figures among them (one sigma; see the module docstring)
 SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
 ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
 #: quantities that change in steps, sampled at the nearest sample rather than interpolated
 #: (a zoom between 24 and 48 mm is either, never 24.2 mm)
-STEPS = frozenset({"focal_35mm_mm"})
+STEPS = frozenset({"focal_35mm_mm", "digital_zoom"})
 #: Quantities that may run on their own time axis (``attitude_t_s``): autopilots log attitude
 #: 10-50 times as often as position, and a gyrocompass sends heading more often than a GNSS
 #: receiver sends fixes.
@@ -69,6 +70,10 @@ class Track:
     #: the camera's focal length as its 35 mm equivalent, where the log states it (a DJI
     #: SRT's ``focal_len``): a zoom changes the intrinsics (:func:`zoom_reason`)
     focal_35mm_mm: np.ndarray | None = None
+    #: the ratio of a digital zoom (a centre crop of the sensor, enlarged), where the log
+    #: states it (a DJI SRT's ``dzoom_ratio`` or ``DZOOM``): the intrinsics scale with it
+    #: (:func:`~harborsight.telemetry.metadata.digitally_zoomed`)
+    digital_zoom: np.ndarray | None = None
     utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
     clock: str = ""                          # what t_s counts, in words
     notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
