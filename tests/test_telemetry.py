@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -1173,3 +1174,44 @@ def test_a_digital_zoom_in_the_srt_scales_the_frames_intrinsics(tmp_path, form):
 
     centre = np.array([(1280 - 1) / 2, (720 - 1) / 2])
     assert pixel(zoomed["camera"]) == pytest.approx(centre + 2.0 * (pixel(camera) - centre), abs=1e-9)
+
+
+def test_px4_utc_belongs_to_timestamp_plus_timestamp_time_relative(monkeypatch):
+    """sensor_gps.msg: "timestamp + timestamp_time_relative = Time of the UTC timestamp since
+    system start". A driver that takes the time from another message than the position's
+    sets it (+0.2 s here, in every record of the sample log): the boot's UTC moves 0.2 s
+    earlier, as the definition computed with pyulog says."""
+    import pyulog
+
+    path = TELEMETRY / "px4" / "sample_log_small.ulg"
+    before = read_drone_log(path).utc_start
+
+    class Relative(pyulog.ULog):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            for d in self.data_list:
+                if d.name == "vehicle_gps_position":
+                    d.data["timestamp_time_relative"] = d.data["timestamp_time_relative"] + 200_000
+
+    monkeypatch.setattr(pyulog, "ULog", Relative)
+    after = read_drone_log(path).utc_start
+    gps = next(d.data for d in Relative(str(path), ["vehicle_gps_position"]).data_list)
+    synced = gps["time_utc_usec"] > 0
+    boot_utc_s = np.median((gps["time_utc_usec"][synced].astype(float)
+                            - gps["timestamp"][synced] - gps["timestamp_time_relative"][synced]) / 1e6)
+    assert (before - after).total_seconds() == pytest.approx(0.2, abs=1e-6)
+    assert after.timestamp() == pytest.approx(boot_utc_s, abs=1e-6)
+
+
+def test_the_matrice_300s_zero_gps_altitude_is_a_placeholder_not_a_height(tmp_path):
+    """The Matrice 300's GPS(lat, lon, 0.0M) is 0.0 in all its blocks while BAROMETER climbs
+    to 88 m: with the barometer, nothing changes; without it the file has no altitude (not a
+    drone 0 m up, 3.5 m above water at a water level of -3.5 m)."""
+    real = read_dji_srt(DJI / "matrice_300.srt", utc_offset_h=2.0)
+    assert real.alt_reference.startswith("barometric") and np.nanmax(real.alt_m) > 80
+    text = (DJI / "matrice_300.srt").read_text(encoding="utf-8", errors="replace")
+    stripped = tmp_path / "no_baro.srt"
+    stripped.write_text(re.sub(r"BAROMETER:\s*[-\d.]+M?", "", text), encoding="utf-8")
+    track = read_dji_srt(stripped, utc_offset_h=2.0)
+    assert track.alt_m is None
+    assert any("0.0 in every block, a placeholder" in note for note in track.notes)

@@ -401,8 +401,15 @@ def read_px4_ulog(path: str | Path) -> Track:
     if "time_utc_usec" in gps:
         utc_us = gps["time_utc_usec"].astype(float)
         synced = good & (utc_us > 0)
+        # the boot time the UTC stamp belongs to is timestamp + timestamp_time_relative
+        # (sensor_gps.msg): drivers that take the time from another message than the
+        # position's set it, and then neither timestamp nor timestamp_sample is that time
+        stamped_s = t_s
+        if "timestamp_time_relative" in gps:
+            stamped_s = (gps["timestamp"].astype(float)
+                         + gps["timestamp_time_relative"].astype(float)) / 1e6
         if synced.any():
-            offset_s = np.median(utc_us[synced] / 1e6 - t_s[synced])
+            offset_s = np.median(utc_us[synced] / 1e6 - stamped_s[synced])
             try:
                 utc_start = utc_from_epoch_s(offset_s)
             except (ValueError, OverflowError, OSError):    # a corrupt time_utc_usec

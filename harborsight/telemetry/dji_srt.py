@@ -280,7 +280,15 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         blank = np.full(width, np.nan) if width else np.nan
         return np.array([r.get(key, blank) for r in rows], dtype=float)
 
-    altitude, reference = None, None
+    altitude, reference, altitude_notes = None, None, []
+    placeholder = [r["gps_alt"] for r in rows if "gps_alt" in r]
+    if placeholder and not any(placeholder):
+        # DJI Pilot writes GPS(lat, lon, 0.0M) in every block while its BAROMETER climbs (a
+        # Matrice 300's 381 blocks): a zero there is no altitude
+        for r in rows:
+            r.pop("gps_alt", None)
+        altitude_notes.append("GPS(lat, lon, 0.0M): the altitude in the GPS field is 0.0 in every "
+                           "block, a placeholder, and is not read")
     for key, words in (("rel_alt", "barometric height above the take-off point (rel_alt)"),
                        ("baro_alt", "barometric height above the take-off point"),
                        ("abs_alt", "above mean sea level (abs_alt)"),
@@ -305,7 +313,7 @@ def read_dji_srt(path: str | Path, utc_offset_h: float | None = None) -> Track:
         (bad_dates, "with an impossible date line (date ignored)"),
         (too_large, "with a number too large to be a reading skipped"),
         (torn, "cut short at the end of the file left out"),
-    ) if lines] + partial + notes_clock + _coarse_position_notes(rows)
+    ) if lines] + partial + notes_clock + altitude_notes + _coarse_position_notes(rows)
     if digital_zoom is not None and np.nanmax(np.abs(digital_zoom - 1.0), initial=0.0) > 1e-3:
         zoomed = int((np.abs(digital_zoom - 1.0) > 1e-3).sum())
         notes.append(f"digital zoom in {zoomed} block(s), up to {np.nanmax(digital_zoom):g}x: "
