@@ -492,7 +492,10 @@ def measure_clearance(
             f"the hull spans {span_px:.1f} px in the image, too few to measure clearances "
             f"(at {height_m:.0f} m above the water with fx {intr.fx:.3g} px: check uav.alt_m, "
             "water_level_m and the camera's focal length)")
-    own = own_vessel_region(vessel_outline_px, labels.shape, settings.pose_margin_px)
+    own_layers_px = ([vessel_outline_px] if len(vessel.own_layers) == 1 else
+                     [camera.project_convex_outline(geometry.vessel_to_enu(layer))
+                      for layer in vessel.own_layers])
+    own = own_vessel_region(own_layers_px, labels.shape, settings.pose_margin_px)
     contours = obstacle_contours(labels, own, settings.own_rim_px)
     points_px = contours.points_px.astype(float)
 

@@ -3,8 +3,10 @@
 **Own vessel.** The paper drops the blob the projected hull overlaps. When a moored
 neighbour (or a quay) touches the hull, that blob is the vessel *and* the neighbour, and
 dropping or keeping it whole both go wrong (every section reads zero, or the neighbour
-vanishes). We instead remove only the vessel's own *region*: the convex hull of the whole
-vessel (mesh, or outline plus air draft) projected into the image with the frame's pose,
+vanishes). We instead remove only the vessel's own *region*: the vessel (mesh, or outline
+plus air draft) projected into the image with the frame's pose, as the union of the convex
+hulls of its horizontal layers (:attr:`VesselSpec.silhouette_layers`: one hull over a tall
+deckhouse and a long low deck would also cover water beside the deck in an oblique view),
 grown by ``pose_margin_px`` for pose and mask error. Solid pixels outside that region are
 obstacles whatever blob they belong to, so a touching neighbour is cut at the region's edge
 and only the sections facing it read a small distance. Contour points on such a cut are
@@ -47,18 +49,24 @@ class OwnRegion:
 
 
 def own_vessel_region(
-    hull_px: np.ndarray, shape: tuple[int, int], pose_margin_px: float
+    hull_px: np.ndarray | list[np.ndarray], shape: tuple[int, int], pose_margin_px: float
 ) -> OwnRegion:
-    """The convex hull of projected vessel points, grown by ``pose_margin_px`` (elliptical
-    dilation)."""
+    """The union of the convex hulls of projected vessel points (one set, or one per layer
+    of the vessel: :attr:`VesselSpec.silhouette_layers`), grown by ``pose_margin_px``
+    (elliptical dilation)."""
     region = np.zeros(shape, np.uint8)
-    pts = hull_px[np.isfinite(hull_px).all(axis=1)]
-    if len(pts) < 3:
+    corners = []
+    for layer_px in [hull_px] if isinstance(hull_px, np.ndarray) else hull_px:
+        pts = layer_px[np.isfinite(layer_px).all(axis=1)]
+        if len(pts) < 3:
+            continue
+        hull = cv2.convexHull(np.round(pts * (1 << _SUBPIXEL_BITS)).astype(np.int32))
+        cv2.fillConvexPoly(region, hull, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
+        corners.append(hull.reshape(-1, 2))
+    if not corners:
         return OwnRegion(region, None)
-    hull = cv2.convexHull(np.round(pts * (1 << _SUBPIXEL_BITS)).astype(np.int32))
-    cv2.fillConvexPoly(region, hull, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
     radius = int(np.ceil(pose_margin_px))
-    roi = _grown_bbox(hull.reshape(-1, 2) / (1 << _SUBPIXEL_BITS), radius + 1, shape)
+    roi = _grown_bbox(np.vstack(corners) / (1 << _SUBPIXEL_BITS), radius + 1, shape)
     if radius > 0 and roi is not None:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         # the same as dilating region[roi] alone: the polygon lies inside roi, zeros around it

@@ -133,7 +133,7 @@ def flat_world_labels(geometry, footprints: list[tuple],
     is painted last, over the image silhouette of its hull points."""
     import shapely
 
-    from harborsight.sim.ground_truth import vessel_silhouette_px
+    from harborsight.sim.ground_truth import vessel_silhouette
 
     intr = geometry.camera.intrinsics
     u, v = np.meshgrid(np.arange(intr.width, dtype=float), np.arange(intr.height, dtype=float))
@@ -150,7 +150,7 @@ def flat_world_labels(geometry, footprints: list[tuple],
         inside[near] = shapely.contains_xy(polygon, x[near], y[near])
         labels[inside] = class_id
     if vessel is not None:
-        silhouette = shapely.Polygon(vessel_silhouette_px(vessel[0], geometry))
+        silhouette = vessel_silhouette(vessel[0], geometry)
         labels[shapely.contains_xy(silhouette, u.ravel(), v.ravel())] = vessel[1]
     return labels.reshape(intr.height, intr.width)
 

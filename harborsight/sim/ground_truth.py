@@ -73,12 +73,22 @@ def section_distances(
     return results
 
 
-def vessel_silhouette_px(vessel: VesselSpec, geometry: FrameGeometry) -> np.ndarray:
-    """Convex hull (pixels) of the vessel's image: its hull points' convex hull projected,
-    edges followed through the lens distortion (:meth:`Camera.project_convex_outline`)."""
-    uv = geometry.camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
-    hull = cv2.convexHull(uv.astype(np.float32))
-    return hull.reshape(-1, 2).astype(float)
+def vessel_silhouette_px(vessel: VesselSpec, geometry: FrameGeometry) -> list[np.ndarray]:
+    """The vessel's image as convex polygons (pixels), one per layer
+    (:attr:`VesselSpec.own_layers`): each layer's convex hull projected, edges followed
+    through the lens distortion (:meth:`Camera.project_convex_outline`); their union is
+    the silhouette. Layers that do not project are left out."""
+    polygons = []
+    for layer in vessel.own_layers:
+        uv = geometry.camera.project_convex_outline(geometry.vessel_to_enu(layer))
+        if len(uv) >= 3:
+            polygons.append(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2).astype(float))
+    return polygons
+
+
+def vessel_silhouette(vessel: VesselSpec, geometry: FrameGeometry) -> Polygon | MultiPolygon:
+    """The union of :func:`vessel_silhouette_px`'s polygons (pixels)."""
+    return shapely.union_all([Polygon(p).buffer(0) for p in vessel_silhouette_px(vessel, geometry)])
 
 
 def image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) -> Polygon:
@@ -140,9 +150,10 @@ def visible_water_plane(geometry: FrameGeometry, vessel: VesselSpec) -> Polygon:
     """ENU polygon of the water plane the image shows beside the vessel: the back-projected
     frame minus the vessel's own silhouette."""
     seen = image_ground_polygon(geometry)
-    hidden_ground, ok = geometry.camera.back_project_to_plane(vessel_silhouette_px(vessel, geometry))
-    if ok.all():
-        seen = seen.difference(Polygon(hidden_ground[:, :2]).buffer(0))
+    for polygon_px in vessel_silhouette_px(vessel, geometry):
+        hidden_ground, ok = geometry.camera.back_project_to_plane(polygon_px)
+        if ok.all():
+            seen = seen.difference(Polygon(hidden_ground[:, :2]).buffer(0))
     return seen
 
 

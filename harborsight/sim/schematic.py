@@ -27,7 +27,7 @@ from shapely.geometry import MultiPoint, Polygon, box
 
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin
-from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette_px
+from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette
 from harborsight.sim.layout import VESSEL_INSTANCE
 from harborsight.sim.pose import PosedScene
 from harborsight.vessel.spec import VesselSpec
@@ -106,7 +106,7 @@ def render(scene: SchematicScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             colour[on_deck] = fp.deck_colour_bgr
 
     # the vessel of interest: the image of its whole hull
-    silhouette = Polygon(vessel_silhouette_px(scene.vessel, geometry))
+    silhouette = vessel_silhouette(scene.vessel, geometry)
     own = shapely.contains_xy(silhouette, grid[:, 0], grid[:, 1])
     labels[own] = SHIP
     instances[own] = VESSEL_INSTANCE
