@@ -472,3 +472,27 @@ def test_a_killed_session_leaves_a_readable_record(tmp_path, replay):
     assert len(frames) >= len(reports) - 1
     for path in frames:
         assert (record / "images" / json.loads(path.read_text())["image"]).is_file()
+
+
+def test_a_clear_band_the_vessel_hides_past_the_danger_distance_holds_the_alarm():
+    """A clear section seen past the caution distance lets the alarm fall, unless the
+    vessel itself hides its water out to the danger distance or more (behind its deckhouse,
+    obliquely: an obstacle there would not be seen); a flared deck's metre does not hold it."""
+    from harborsight.clearance.report import ClearanceReport, SectionClearance
+
+    engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)),
+                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0))
+
+    def level_after(status: str, hidden_to_m: float | None, time_s: float) -> str:
+        section = (SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=1.0, sigma_m=0.1,
+                                    sigma_random_m=0.1, distance_lower_m=0.8)
+                   if status == "ok" else
+                   SectionClearance(0, "clear", [[0.0, 0.0]], 1.0, clear_to_m=20.0, hidden_to_m=hidden_to_m))
+        engine._update_sections(ClearanceReport("frame", None, 40.0, 0.01, "ground_plane", [section],
+                                                pose_refinement={"sensors_contradicted": False}), time_s)
+        return engine.refresh()["sections"][0]["status"]
+
+    assert level_after("ok", None, 0.0) == "danger"
+    assert level_after("clear", 9.4, 0.5) == "danger"         # hidden out to 9.4 m: held
+    assert engine.refresh()["sections"][0]["hidden_to_m"] == 9.4
+    assert level_after("clear", 0.9, 1.0) == "ok"             # a flared deck's 0.9 m

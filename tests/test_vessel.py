@@ -320,6 +320,10 @@ def test_a_buoy_beside_the_bow_is_not_erased_by_the_deckhouse_in_an_oblique_view
     settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
     report = measure_clearance(labels, geometry, spec, settings)
     assert report.min_distance_m == pytest.approx(truth_m, abs=0.15)
+    # behind the deckhouse all of some starboard bands in the picture is hidden: not seen
+    # clear to anywhere (they read 7.2 m before hidden water was counted)
+    hidden_in_full = [s for s in report.sections if s.status == "clear" and s.clear_to_m == 0.0]
+    assert len(hidden_in_full) >= 2 and all(s.hidden_to_m > 5.0 for s in hidden_in_full)
 
 
 def test_the_layers_contain_the_vessel_above_the_waterline_and_no_skirt():
@@ -343,3 +347,53 @@ def test_the_layers_contain_the_vessel_above_the_waterline_and_no_skirt():
     assert inside.all()
     layered = sum(ConvexHull(layer).volume for layer in spec.silhouette_layers)
     assert layered < 0.8 * ConvexHull(above.vertices).volume
+
+
+def test_water_the_vessel_itself_hides_is_reported_and_a_band_hidden_in_full_is_not_clear():
+    """A 20 x 8 m box 8 m tall, seen 30 m up from 22 m off its port side, 50 degrees off
+    nadir: its starboard bands are hidden out to where the ray over the top starboard edge
+    meets the water (9.45 m, by hand), and a buoy 1.5 m off that side is not in the picture.
+    Those sections say so (``hidden_to_m``), and the live alarm does not count them as seen
+    clear; the port side, facing the camera, hides nothing."""
+    import cv2
+    from shapely.geometry import Point
+
+    from harborsight.clearance import ClearanceSettings, measure_clearance
+    from harborsight.clearance.pose_refinement import PoseRefinementSettings
+    from harborsight.frame import FrameGeometry
+    from harborsight.geometry.camera import Camera, CameraIntrinsics
+    from harborsight.geometry.geodesy import GeoOrigin
+    from harborsight.geometry.rotations import world_from_camera_rotation
+    from harborsight.vessel.outline import outline_from_dimensions
+    from harborsight.vessel.spec import VesselSpec
+
+    outline = outline_from_dimensions(10.0, 10.0, 4.0, 4.0, bow="box")
+    hull_points = np.vstack((np.column_stack((outline, np.zeros(len(outline)))),
+                             np.column_stack((outline, np.full(len(outline), -8.0)))))
+    spec = VesselSpec("box", outline, hull_points, 12)
+    camera = Camera(CameraIntrinsics(1280, 720, 914.0, 914.0, 639.5, 359.5), np.array([-22.0, 0.0, 30.0]),
+                    world_from_camera_rotation(np.radians(90.0), np.radians(-50.0), 0.0))
+    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
+
+    def to_px(points_v: np.ndarray) -> np.ndarray:
+        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
+
+    labels = np.zeros((720, 1280), np.uint8)
+    buoy = np.asarray(Point(0.0, 5.5).buffer(0.5).exterior.coords)[:-1]       # 1.5 m to starboard
+    cv2.fillPoly(labels, [to_px(np.column_stack((buoy, np.zeros(len(buoy)))))], 2, cv2.LINE_8, shift=4)
+    assert (labels == 2).sum() > 100
+    cv2.fillConvexPoly(labels, cv2.convexHull(to_px(hull_points)), 1, cv2.LINE_8, shift=4)
+    assert (labels == 2).sum() == 0                                  # the box hides it whole
+    settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+    report = measure_clearance(labels, geometry, spec, settings)
+    # the ray from the camera over the top starboard edge (4 m east, 8 m up) meets the water at
+    # east = -22 + 30 / (30 - 8) * (4 + 22): 9.45 m beyond the side
+    by_hand_m = -22.0 + 30.0 / 22.0 * 26.0 - 4.0
+    sections = report.sections
+    starboard = [s for s in sections if spec.sections().section_polyline(s.index)[:, 1].min() > 3.9]
+    assert len(starboard) >= 2
+    for s in starboard:
+        assert s.status == "clear" and s.hidden_to_m == pytest.approx(by_hand_m, abs=0.15)
+        assert s.to_dict()["hidden_to_m"] == pytest.approx(s.hidden_to_m, abs=1e-3)
+    port = [s for s in sections if spec.sections().section_polyline(s.index)[:, 1].max() < -3.9]
+    assert port and all(s.hidden_to_m is None for s in port)

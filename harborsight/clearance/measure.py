@@ -32,7 +32,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from harborsight.clearance.obstacles import LABEL_VALUES, obstacle_contours, own_vessel_region
+from harborsight.clearance.obstacles import (
+    LABEL_VALUES,
+    hidden_water_edge,
+    obstacle_contours,
+    own_vessel_region,
+)
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
 from harborsight.clearance.report import (
     STATUS_CLEAR,
@@ -415,6 +420,22 @@ def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
     return reach
 
 
+#: water the vessel hides out to fewer pixels than this (at the nadir's scale) beyond its
+#: waterline grown by the pose margin is not reported (the pixels' own rounding)
+HIDDEN_MIN_PX = 2.0
+
+
+def _band_hidden(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
+                 n_sections: int) -> np.ndarray:
+    """How far out each band's water is hidden by the vessel itself, from the edge points of
+    the hidden water (:func:`~harborsight.clearance.obstacles.hidden_water_edge`): the
+    farthest in the band, in the outline's units; NaN where none is."""
+    seen = valid & (section >= 0) & np.isfinite(distance)
+    far = np.full(n_sections, -np.inf)
+    np.maximum.at(far, section[seen], distance[seen])
+    return np.where(np.isfinite(far), far, np.nan)
+
+
 def _bound_by_what_was_seen(results: list[SectionClearance]) -> None:
     """An ``ok`` section whose band leaves the picture nearer than its obstacle (it carries
     that distance as ``clear_to_m``) may have a nearer obstacle out of view: nothing solid
@@ -523,13 +544,21 @@ def measure_clearance(
 
         def to_outline(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return uv, np.ones(len(uv), bool)
-    # the image's border goes through the same map and assignment, for the clear bands' reach
+    # the image's border, and the edge of the water the vessel hides, go through the same map
+    # and assignment: how far each band is seen, and how far out its water is hidden
     border_px = _border_points(labels.shape[1], labels.shape[0])
-    n_contour = len(points_px)
-    mapped, mapped_valid = to_outline(np.vstack((points_px, border_px)))
+    hidden_px = hidden_water_edge(own_layers_px, camera.project_convex_outline(
+        geometry.vessel_to_enu(vessel.outline)), labels.shape, settings.pose_margin_px)
+    n_contour, n_border = len(points_px), len(border_px)
+    mapped, mapped_valid = to_outline(np.vstack((points_px, border_px, hidden_px)))
     everything = outline.assign(np.where(mapped_valid[:, None], mapped, 0.0))
-    reach = _band_reach(everything.section[n_contour:], everything.distance[n_contour:],
-                        mapped_valid[n_contour:], len(in_image.visible_fraction))
+    n_bands = len(in_image.visible_fraction)
+    on_border = slice(n_contour, n_contour + n_border)
+    reach = _band_reach(everything.section[on_border], everything.distance[on_border],
+                        mapped_valid[on_border], n_bands)
+    on_hidden = slice(n_contour + n_border, None)
+    hidden = _band_hidden(everything.section[on_hidden], everything.distance[on_hidden],
+                          mapped_valid[on_hidden], n_bands)
     points, valid = mapped[:n_contour], mapped_valid[:n_contour]
     assignment = SectionAssignment(everything.section[:n_contour], everything.distance[:n_contour],
                                    everything.nearest[:n_contour])
@@ -612,12 +641,16 @@ def measure_clearance(
     metres_per_unit = 1.0 if outline is sections_v else gsd
     for result in results:
         seen_m = float(reach[result.index]) * metres_per_unit
-        if not np.isfinite(seen_m):
-            continue
-        # a clear band's reach; an ok one's when it leaves the picture nearer than its obstacle
-        # (one nearer may be out of view)
-        if result.status == STATUS_CLEAR or (result.status == STATUS_OK and seen_m < result.distance_m):
+        if np.isfinite(seen_m) and (result.status == STATUS_CLEAR or (
+                result.status == STATUS_OK and seen_m < result.distance_m)):
+            # a clear band's reach; an ok one's when it leaves the picture nearer than its
+            # obstacle (one nearer may be out of view)
             result.clear_to_m = seen_m
+        hidden_m = float(hidden[result.index]) * metres_per_unit
+        if result.status != STATUS_OUT_OF_VIEW and hidden_m > HIDDEN_MIN_PX * gsd:
+            result.hidden_to_m = hidden_m
+            if result.status == STATUS_CLEAR and hidden_m >= (result.clear_to_m or np.inf):
+                result.clear_to_m = 0.0     # all of the band in the picture is hidden
     unexplained = add_section_uncertainty(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,

@@ -75,6 +75,33 @@ def own_vessel_region(
     return OwnRegion(region, roi)
 
 
+def hidden_water_edge(layers_px: list[np.ndarray], waterline_px: np.ndarray,
+                      shape: tuple[int, int], margin_px: float) -> np.ndarray:
+    """Pixels ``(N, 2)`` on the edge of the water the vessel itself hides: its image (the
+    layers' hulls, not grown) less its waterline outline grown by ``margin_px``. Seen
+    obliquely a deckhouse hides the water beyond the deck on the far side, and at nadir a
+    flared deck hides the water under its edge; an obstacle wholly there cannot be seen. The
+    outer edge is the farthest such water from the hull (empty when none)."""
+    region = own_vessel_region(layers_px, shape, 0.0)
+    pts = waterline_px[np.isfinite(waterline_px).all(axis=1)]
+    if region.bbox is None or len(pts) < 3:
+        return np.zeros((0, 2))
+    box = region.bbox
+    offset = np.array([box[1].start, box[0].start])
+    waterline = np.zeros((box[0].stop - box[0].start, box[1].stop - box[1].start), np.uint8)
+    corners = cv2.convexHull(np.round((pts - offset) * (1 << _SUBPIXEL_BITS)).astype(np.int32))
+    cv2.fillConvexPoly(waterline, corners, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
+    radius = int(np.ceil(margin_px))
+    if radius > 0:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        waterline = cv2.dilate(waterline, kernel)
+    hidden = cv2.bitwise_and(region.mask[box], cv2.bitwise_not(waterline))
+    edges, _ = cv2.findContours(hidden, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not edges:
+        return np.zeros((0, 2))
+    return np.vstack([e.reshape(-1, 2) for e in edges]).astype(float) + offset
+
+
 def _grown_slices(box: tuple[slice, slice], grow: int, shape: tuple[int, int]):
     """``box`` (row and column slices) grown by ``grow`` px, clipped to the image."""
     corners = np.array([[box[1].start, box[0].start], [box[1].stop - 1, box[0].stop - 1]])

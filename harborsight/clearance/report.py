@@ -49,6 +49,11 @@ class SectionClearance:
     #: ``ok`` section has it when its band leaves the image nearer than its obstacle, and its
     #: lower bound is then at most this (an obstacle out of view may be nearer)
     clear_to_m: float | None = None
+    #: how far out from the hull the band's water is hidden by the vessel itself (a deckhouse
+    #: seen obliquely, a flared deck at nadir), metres; None when no more than the pixels'
+    #: rounding is. An obstacle wholly inside it cannot be seen; a ``clear`` section all of
+    #: whose band in the picture is hidden has ``clear_to_m`` 0
+    hidden_to_m: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -62,6 +67,7 @@ class SectionClearance:
             "distance_lower_m": (None if self.distance_lower_m is None
                                  else round(self.distance_lower_m, 3)),
             "clear_to_m": None if self.clear_to_m is None else round(self.clear_to_m, 3),
+            "hidden_to_m": None if self.hidden_to_m is None else round(self.hidden_to_m, 3),
             "hull_point_px": _round_list(self.hull_point_px, 2),
             "obstacle_point_px": _round_list(self.obstacle_point_px, 2),
             "hull_point_enu": _round_list(self.hull_point_enu, 3),

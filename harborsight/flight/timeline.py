@@ -36,7 +36,7 @@ CSV_COLUMNS = [
     "status", "distance_m", "sigma_m", "distance_lower_m", "distance_px", "contact", "truncated",
     "closing_speed_raw_mps", "filtered_distance_m", "filtered_sigma_m", "closing_speed_mps",
     "closing_speed_sigma_mps", "time_to_contact_s", "track", "track_state", "clear_to_m",
-    "pose_contradicted",
+    "pose_contradicted", "hidden_to_m",
 ]
 
 
@@ -193,6 +193,7 @@ class ClearanceTimeline:
                 "track": estimate.track, "track_state": estimate.state if timed else "",
                 "clear_to_m": _round(section.clear_to_m, 2),
                 "pose_contradicted": int(report.sensors_contradicted),
+                "hidden_to_m": _round(section.hidden_to_m, 2),
             })
         if timed:
             self._last_time_s = time_s

@@ -197,7 +197,7 @@ class LiveEngine:
                 # wrong (the frame's own alarm says so); the section's alarm holds its level
                 sections.append({"index": section.index, "measured": POSE_CONTRADICTED,
                                  "distance_m": None, "distance_lower_m": None, "sigma_m": None,
-                                 "clear_to_m": None, "filtered_distance_m": None,
+                                 "clear_to_m": None, "hidden_to_m": None, "filtered_distance_m": None,
                                  "closing_speed_mps": None, "time_to_contact_s": None})
                 continue
             if section.status == STATUS_OK:
@@ -211,9 +211,13 @@ class LiveEngine:
                 if value is not None:
                     alarm.update(time.monotonic(), value, ttc)
             elif section.status == STATUS_CLEAR and (
-                    section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m):
+                    section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m) and (
+                    section.hidden_to_m is None or section.hidden_to_m < alarm.settings.danger_m):
                 # measured: nothing solid in its band, seen past the caution distance (a band
-                # that leaves the picture sooner says nothing, and the alarm holds its level)
+                # that leaves the picture sooner says nothing, and the alarm holds its level;
+                # so does one whose water the vessel itself hides out to the danger distance,
+                # behind its deckhouse: an obstacle there would not be seen; a flared deck's
+                # metre at nadir does not hold it)
                 alarm.update(time.monotonic(), None, None)
             sections.append({
                 "index": section.index, "measured": section.status,
@@ -221,6 +225,7 @@ class LiveEngine:
                 "distance_lower_m": _rounded(section.distance_lower_m, 3),
                 "sigma_m": _rounded(section.sigma_m, 3),
                 "clear_to_m": _rounded(section.clear_to_m, 2),
+                "hidden_to_m": _rounded(section.hidden_to_m, 2),
                 "filtered_distance_m": _rounded(estimate.distance_m if estimate else None, 3),
                 "closing_speed_mps": _rounded(closing, 3),
                 "time_to_contact_s": _rounded(ttc, 1),

@@ -169,6 +169,10 @@ def draw_overlay(
             colour = section_colour(alarm_distance_m(s), warn_m, alarm_m)
         elif report.sensors_contradicted:   # read with a pose known to be wrong
             text, colour = "??", WHITE
+        elif s.hidden_to_m is not None and s.hidden_to_m >= alarm_m:
+            # the vessel itself hides its band's water out to there (a deckhouse, obliquely)
+            seen = f">{s.clear_to_m:.1f}m " if s.clear_to_m else ""
+            text, colour = f"{seen}hid {s.hidden_to_m:.1f}m", WHITE
         elif s.clear_to_m is not None:      # nothing solid as far as its band was seen
             text, colour = f">{s.clear_to_m:.1f}m", WHITE
         else:                               # seen to the horizon
