@@ -40,6 +40,9 @@ _SUBPIXEL_BITS = 4
 _SIMD_COLUMNS = 16
 
 
+_SQUARE_3X3 = np.ones((3, 3), np.uint8)
+
+
 @dataclass(frozen=True)
 class OwnRegion:
     """uint8 mask (255 = own vessel) and the slices of its bounding box (None if empty)."""
@@ -99,7 +102,11 @@ def hidden_water_edge(layers_px: list[np.ndarray], waterline_px: np.ndarray,
     edges, _ = cv2.findContours(hidden, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not edges:
         return np.zeros((0, 2))
-    return np.vstack([e.reshape(-1, 2) for e in edges]).astype(float) + offset
+    points = np.vstack([e.reshape(-1, 2) for e in edges])
+    # the edge along the waterline is no reach: only the outer edge, every second pixel (the
+    # image border is sampled so too)
+    beside = cv2.dilate(waterline, _SQUARE_3X3)[points[:, 1], points[:, 0]] > 0
+    return points[~beside][::2].astype(float) + offset
 
 
 def _grown_slices(box: tuple[slice, slice], grow: int, shape: tuple[int, int]):
