@@ -57,10 +57,11 @@ def write_dji_photo(path: Path, rgb: np.ndarray, xmp: dict[str, str] | None, *,
     """A JPEG of ``rgb`` with DJI's XMP fields ``xmp`` and EXIF: make, model, the named Exif
     IFD fields of ``exif`` (``DateTimeOriginal``, ``SubSecTimeOriginal``,
     ``OffsetTimeOriginal``, ``FocalLength``, ``FocalLengthIn35mmFilm``, ``PixelXDimension``,
-    ``PixelYDimension``), ``gps`` (lat, lon) and ``gps_time`` (date "YYYY:MM:DD", h, m, s)."""
+    ``PixelYDimension``, ``DigitalZoomRatio``), ``gps`` (lat, lon) and ``gps_time`` (date
+    "YYYY:MM:DD", h, m, s)."""
     tags = {"DateTimeOriginal": 36867, "SubSecTimeOriginal": 37521, "OffsetTimeOriginal": 36881,
             "FocalLength": 37386, "FocalLengthIn35mmFilm": 41989, "PixelXDimension": 40962,
-            "PixelYDimension": 40963}
+            "PixelYDimension": 40963, "DigitalZoomRatio": 41988}
     info = Image.Exif()
     info[271] = make
     if model:

@@ -278,3 +278,55 @@ def test_a_turned_photo_is_not_made_a_frame(tmp_path):
     with pytest.raises(InputError, match="Orientation 3"):
         photo_frame(photo, read_vessel_track(FLIGHT / "logs" / "ship.nmea"), image="turned.jpg",
                     water_level_m=0.0)
+
+
+def test_a_digitally_zoomed_photo_gets_its_intrinsics_scaled(tmp_path):
+    """EXIF DigitalZoomRatio 2: a centre crop of half the sensor, enlarged. The frame's
+    intrinsics are the photo's own scaled by 2 about the image centre (a point projects
+    where the unzoomed pixel lands once enlarged about the centre, by OpenCV), and the frame
+    says so; a ratio of 0 (none used) changes nothing."""
+    from harborsight.telemetry.dji_photo import photo_frame
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    vessel = read_vessel_track(FLIGHT / "logs" / "ship.nmea")
+    frames = {}
+    for ratio in (0, 2):
+        path = _photo(tmp_path, {**P4RTK_CALIBRATION, "UTCAtExposure": "2026:05:01 12:00:05.000"},
+                      name=f"zoom{ratio}.jpg", rgb=np.zeros((456, 684, 3), np.uint8),
+                      exif={**LOCAL_TIME, "DigitalZoomRatio": float(ratio)})
+        frames[ratio] = photo_frame(read_dji_photo(path), vessel, image=path.name,
+                                    water_level_m=0.0, max_gap_s=1e6)
+    plain, zoomed = frames[0].frame, frames[2].frame
+    assert plain is not None and zoomed is not None, (frames[0].reason, frames[2].reason)
+    assert "digital_zoom" not in plain["telemetry"] and zoomed["telemetry"]["digital_zoom"] == 2.0
+    assert any("digital zoom 2x" in note for note in frames[2].notes)
+    point = np.array([[[1.5, -0.8, 20.0]]])
+
+    def pixel(block: dict) -> np.ndarray:
+        k = np.array([[block["fx"], 0, block["cx"]], [0, block["fy"], block["cy"]], [0, 0, 1]])
+        uv, _ = cv2.projectPoints(point, np.zeros(3), np.zeros(3), k, np.array(block["distortion"]))
+        return uv.ravel()
+
+    centre = np.array([(684 - 1) / 2, (456 - 1) / 2])
+    assert zoomed["camera"]["fx"] == pytest.approx(2 * plain["camera"]["fx"])
+    assert pixel(zoomed["camera"]) == pytest.approx(centre + 2 * (pixel(plain["camera"]) - centre), abs=1e-6)
+
+
+def test_a_given_lens_model_is_not_applied_to_a_photo_the_camera_undistorted(tmp_path):
+    """DewarpFlag 1: the camera undistorted the photo. A --camera calibration of the raw lens
+    (k1 -0.26) would bend its pixels a second time (a point 40 m from the nadir read 45.6 m,
+    60 m up): its distortion is left out, with the reason."""
+    from harborsight.telemetry.dji_photo import photo_frame
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    path = _photo(tmp_path, {**P4RTK_CALIBRATION, "DewarpFlag": "1",
+                             "UTCAtExposure": "2026:05:01 12:00:05.000"},
+                  rgb=np.zeros((456, 684, 3), np.uint8), exif=LOCAL_TIME)
+    camera = {"width": 684, "height": 456, "fx": 460.56, "fy": 459.7, "cx": 341.78, "cy": 230.26,
+              "distortion": [-0.263482, 0.106788, 3.7e-05, -0.000327, -0.030078]}
+    result = photo_frame(read_dji_photo(path), read_vessel_track(FLIGHT / "logs" / "ship.nmea"),
+                         image=path.name, water_level_m=0.0, camera=camera, max_gap_s=1e6)
+    assert result.frame is not None, result.reason
+    assert result.frame["camera"]["distortion"] == [0.0] * 5
+    assert result.frame["camera"]["fx"] == camera["fx"]
+    assert "lens distortion left out" in result.frame["telemetry"]["camera_from"]

@@ -530,3 +530,23 @@ def test_the_vessel_from_its_ais_transponder_live():
     assert listener.unmeasured == 1 and listener.reports == 1
     assert any("true heading" in w for w in warnings) and any("unreadable" in w for w in warnings)
     assert any("position system inoperative" in w for w in warnings)
+
+
+def test_a_live_feed_with_two_heading_sensors_follows_one():
+    """A gyro (HEHDT, 100 deg) and a magnetic compass (HCHDG 101 deg + 3 deg E variation =
+    104 deg true) on one feed: the track follows the gyro, whichever sentence comes first,
+    and says once that the compass is left out; a compass heard first is followed until the
+    gyro speaks."""
+    warnings: list[str] = []
+    track = LiveTrack("vessel", "nmea")
+    track.on_warning = lambda source, message: warnings.append(message)
+    listener = NmeaVessel(track)
+    for k in range(4):
+        now = 10.0 + k
+        listener.feed(_nmea(f"GPRMC,1200{k:02d}.00,A,5609.0000,N,01012.6000,E,0.5,10.0,010526,,,A"), now)
+        compass, gyro = _nmea("HCHDG,101.0,0.0,E,3.0,E"), _nmea("HEHDT,100.0,T")
+        for line in ((compass, gyro) if k % 2 else (gyro, compass)):
+            listener.feed(line, now + 0.1)
+    headings = track.track().heading_deg
+    assert np.allclose(headings[1:], 100.0) and headings[0] in (100.0, 104.0)
+    assert sum("HCHDG left out" in w for w in warnings) == 1

@@ -1215,3 +1215,27 @@ def test_the_matrice_300s_zero_gps_altitude_is_a_placeholder_not_a_height(tmp_pa
     track = read_dji_srt(stripped, utc_offset_h=2.0)
     assert track.alt_m is None
     assert any("0.0 in every block, a placeholder" in note for note in track.notes)
+
+
+@pytest.mark.parametrize("compass_first", [False, True])
+def test_an_nmea_file_with_two_heading_sensors_keeps_one(tmp_path, compass_first):
+    """A gyro (HEHDT, 100 deg) and a magnetic compass (HCHDG 101 deg + 3 deg E variation =
+    104 deg true) interleaved: the track took whichever spoke last before each fix; now the
+    gyro's (a true heading sentence before a compass made true), with a note of how far the
+    compass differs."""
+    from functools import reduce
+
+    def sentence(body: str) -> str:
+        return f"${body}*{reduce(lambda a, c: a ^ ord(c), body, 0):02X}"
+
+    lines = []
+    for k in range(6):
+        pair = [sentence("HEHDT,100.0,T"), sentence("HCHDG,101.0,0.0,E,3.0,E")]
+        lines += [sentence(f"GPRMC,1200{k:02d}.00,A,5609.0000,N,01012.6000,E,0.5,10.0,010526,,,A"),
+                  *(pair[::-1] if compass_first else pair)]
+    path = tmp_path / "two.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert np.allclose(track.heading_deg, 100.0)
+    assert any("6 heading(s) from HCHDG left out: the track uses HEHDT (HCHDG differs from it "
+               "by +4.0 deg" in note for note in track.notes)

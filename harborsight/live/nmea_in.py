@@ -74,6 +74,9 @@ class NmeaVessel:
         self._last_fix: Fix | None = None
         self._declination: tuple[tuple[float, float], float] | None = None
         self._warned: set[str] = set()
+        #: the heading source followed (talker + sentence, its rank), the others heard
+        self._heading_source: tuple[str, tuple[int, int]] | None = None
+        self._heading_sources_ignored: set[str] = set()
         self.lines = 0
 
     def _warn_new_kinds(self) -> None:
@@ -105,6 +108,8 @@ class NmeaVessel:
                 if self.on_fix is not None:
                     self.on_fix(now_s)
             elif isinstance(event, Heading):
+                if not self._heading_source_used(event):
+                    continue
                 degrees = event.deg if event.true else self._made_true(event.deg)
                 if degrees is not None:
                     self.track.add_heading(now_s + self._fix_delay_s, degrees % 360.0)
@@ -112,6 +117,28 @@ class NmeaVessel:
                 pass                      # live: the GGA's class stands (module docstring)
         if self.decoder.bad_count + sum(self.decoder.skipped.values()) != bad_before:
             self._warn_new_kinds()
+
+    def _heading_source_used(self, heading: Heading) -> bool:
+        """Whether this heading's source is the one the track follows: the first heard, until
+        one of a better :func:`~harborsight.telemetry.nmea.heading_rank` (a true heading
+        before a magnetic one) is heard; each other source is said once."""
+        from harborsight.telemetry.nmea import heading_rank
+
+        rank = (0 if heading.true else 1, heading_rank(heading.source))
+        current = self._heading_source
+        if current is None or rank < current[1]:
+            if current is not None:
+                self.track.warn(f"NMEA: headings from {heading.source} used from now on, "
+                                f"not {current[0]}")
+            self._heading_source = (heading.source, rank)
+            return True
+        if heading.source == current[0]:
+            return True
+        if heading.source not in self._heading_sources_ignored:
+            self._heading_sources_ignored.add(heading.source)
+            self.track.warn(f"NMEA: headings from {heading.source} left out: the track follows "
+                            f"{current[0]}")
+        return False
 
     def _made_true(self, magnetic_deg: float) -> float | None:
         from harborsight.telemetry.declination import magnetic_declination_deg

@@ -273,7 +273,7 @@ def _read_exif(exif, photo: DjiPhoto) -> None:
     sub = exif.get_ifd(_EXIF_IFD)
     names = {36867: "DateTimeOriginal", 37521: "SubSecTimeOriginal",
              36881: "OffsetTimeOriginal", 37386: "FocalLength", 41989: "FocalLengthIn35mmFilm",
-             40962: "PixelXDimension", 40963: "PixelYDimension"}
+             40962: "PixelXDimension", 40963: "PixelYDimension", 41988: "DigitalZoomRatio"}
     for tag, name in names.items():
         if tag in sub:
             value = sub[tag]
@@ -562,9 +562,17 @@ def photo_track(photo: DjiPhoto, *, altitude: str = "relative", yaw_reference: s
     reference = ("barometric height above the take-off point (RelativeAltitude)"
                  if altitude == "relative" else
                  "DJI AbsoluteAltitude (mean sea level on most models, ellipsoid on RTK ones)")
+    # EXIF DigitalZoomRatio (0: none used): a centre crop, enlarged, so the intrinsics scale
+    # with it (metadata.digitally_zoomed), as for a video's SRT
+    zoom = _to_float(photo.exif.get("DigitalZoomRatio"))
+    zoom = zoom if zoom is not None and math.isfinite(zoom) and zoom > 0 else None
+    if zoom is not None and abs(zoom - 1.0) > 1e-3:
+        notes.append(f"digital zoom {zoom:g}x (EXIF DigitalZoomRatio): a centre crop of the "
+                     "sensor, so the intrinsics are scaled by it about the image centre")
     return Track(
         source=photo.source, kind="dji-photo", t_s=[0.0],
         lat_deg=[position[0]], lon_deg=[position[1]], alt_m=[alt_m], alt_reference=reference,
+        digital_zoom=None if zoom is None else [zoom],
         yaw_deg=[yaw], pitch_deg=[pitch], roll_deg=[roll], attitude_of="gimbal",
         position_sigma_m=None if sigma is None else [sigma],
         alt_sigma_m=None if alt_sigma is None else [alt_sigma],
@@ -615,6 +623,12 @@ def photo_frame(
             raise InputError(photo.source, "size", f"the camera is calibrated for "
                              f"{camera['width']}x{camera['height']}, the photo is "
                              f"{photo.width}x{photo.height}")
+        if photo.number("DewarpFlag") == 1 and any(camera.get("distortion") or ()):
+            # the camera undistorted the photo already: the lens model would be applied twice
+            # (a P4 RTK's k1 -0.26 put a point 40 m from the nadir at 45.6 m, 60 m up)
+            camera = {**camera, "distortion": [0.0] * len(camera["distortion"])}
+            how += ("; its lens distortion left out: the photo was undistorted in the camera "
+                    "(DewarpFlag 1)")
     if vessel.utc_start is None:
         raise InputError(vessel.source, "time", "the vessel track states no UTC time")
     vessel_t = np.array([vessel.seconds_of(when) + vessel_offset_s])

@@ -54,6 +54,17 @@ class Fix:
 class Heading:
     deg: float
     true: bool                       # False: magnetic (deviation applied), needs the declination
+    #: talker and sentence ("HEHDT", "HCHDG"): a feed may carry two heading sensors (a gyro
+    #: and a magnetic compass, two GNSS compasses), each read on its own (:func:`heading_rank`)
+    source: str = ""
+
+
+def heading_rank(source: str) -> int:
+    """Which heading source a vessel track uses when a feed has several (lowest first): a
+    true heading sentence (HDT, THS: a gyro or a GNSS compass) before an HDG made true with
+    its own variation (a magnetic compass), before the rest."""
+    kind = source[-3:]
+    return 0 if kind in ("HDT", "THS") else 1 if kind == "HDG" else 2
 
 
 @dataclass(frozen=True)
@@ -191,16 +202,17 @@ class NmeaDecoder:
         elif kind in ("HDT", "THS", "HDG", "HDM") and sentence.heading is not None:
             if self.last_fix_utc is None:
                 skipped["headings before the first fix"] += 1
-            elif kind in ("HDT", "THS"):
-                return [Heading(angle(sentence.heading), True)]
+            source = f"{getattr(sentence, 'talker', '') or ''}{kind}"
+            if kind in ("HDT", "THS"):
+                return [Heading(angle(sentence.heading), True, source)]
             elif kind == "HDM":
-                return [Heading(angle(sentence.heading), False)]
+                return [Heading(angle(sentence.heading), False, source)]
             else:
                 deviation = angle(sentence.deviation or 0) * (-1 if sentence.dev_dir == "W" else 1)
                 if sentence.variation is None:
-                    return [Heading(angle(sentence.heading) + deviation, False)]
+                    return [Heading(angle(sentence.heading) + deviation, False, source)]
                 variation = angle(sentence.variation) * (-1 if sentence.var_dir == "W" else 1)
-                return [Heading(angle(sentence.heading) + deviation + variation, True)]
+                return [Heading(angle(sentence.heading) + deviation + variation, True, source)]
         return []
 
     def notes(self) -> list[str]:

@@ -119,8 +119,8 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
         raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
     decoder = NmeaDecoder()
     fixes: list[tuple[datetime, float, float]] = []       # in arrival order
-    headings: list[tuple[int, float]] = []                # (index of the last fix, degrees)
-    magnetic: list[tuple[int, float]] = []                # HDM / HDG without variation
+    headings: list[tuple[int, float, str]] = []           # (index of the last fix, degrees, source)
+    magnetic: list[tuple[int, float, str]] = []           # HDM / HDG without variation
     qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
     errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
     for number, line in enumerate(lines, start=1):
@@ -131,13 +131,14 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                 if event.quality is not None:
                     qualities[len(fixes) - 1] = (event.quality, event.hdop)
             elif isinstance(event, Heading):
-                (headings if event.true else magnetic).append((len(fixes) - 1, event.deg))
+                (headings if event.true else magnetic).append((len(fixes) - 1, event.deg, event.source))
             else:
                 errors.append((len(fixes) - 1, event.clock, event.sigma_m))
     if not fixes:
         raise InputError(path, None, "no NMEA position fix with a date (RMC, or GGA after an "
                          "RMC/ZDA) found")
     notes = []
+    headings, magnetic = _one_source(headings, notes), _one_source(magnetic, notes)
     if magnetic and headings:
         notes.append(f"{len(magnetic)} magnetic heading(s) (HDM, or HDG without variation) "
                      "left out: the feed has true headings")
@@ -210,6 +211,31 @@ def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
         notes.append(f"{unusable_gst} GST sentence(s) without a time or a usable latitude/"
                      "longitude error skipped")
     return sigma
+
+
+def _one_source(headings: list[tuple[int, float, str]], notes: list[str]) -> list[tuple[int, float]]:
+    """The headings ``(fix index, degrees)`` of one source: a feed with two heading sensors
+    (a gyro and a magnetic compass, two GNSS compasses) would otherwise give the track
+    whichever spoke last before each fix. The source of the lowest
+    :func:`~harborsight.telemetry.nmea.heading_rank`, then the most sentences; the others are
+    left out with a note of how far they differ from it (the median, where both spoke between
+    the same fixes)."""
+    from harborsight.telemetry.nmea import heading_rank
+
+    counts: dict[str, int] = {}
+    for _, _, source in headings:
+        counts[source] = counts.get(source, 0) + 1
+    if len(counts) <= 1:
+        return [(epoch, deg) for epoch, deg, _ in headings]
+    chosen = min(counts, key=lambda source: (heading_rank(source), -counts[source]))
+    used = {epoch: deg for epoch, deg, source in headings if source == chosen}
+    for other in sorted(set(counts) - {chosen}):
+        differences = [(deg - used[epoch] + 180.0) % 360.0 - 180.0
+                       for epoch, deg, source in headings if source == other and epoch in used]
+        notes.append(f"{counts[other]} heading(s) from {other} left out: the track uses {chosen}"
+                     + (f" ({other} differs from it by {float(np.median(differences)):+.1f} deg, "
+                        "the median)" if differences else ""))
+    return [(epoch, deg) for epoch, deg, source in headings if source == chosen]
 
 
 def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datetime, float, float]]
