@@ -100,6 +100,14 @@ def test_a_log_without_receiver_times_is_refused_and_iso_prefixes_are_read(tmp_p
     stamped = _log(tmp_path, [f"2026-05-01T12:00:{2 * k + 1:02d}.3Z " + encode_dict(_report(k))[0]
                               for k in range(3)], "stamped.ais")
     assert np.allclose(read_ais_track(stamped).t_s, [0.0, 2.0, 4.0])
+    assert not any("no zone" in note for note in read_ais_track(stamped).notes)
+    # a logger's time without a zone is taken as UTC, and the track says so (local time would
+    # put the vessel hours off, and the reports' second of the minute cannot tell)
+    zoneless = _log(tmp_path, [f"2026-05-01 12:00:{2 * k + 1:02d} " + encode_dict(_report(k))[0]
+                               for k in range(3)], "zoneless.ais")
+    track = read_ais_track(zoneless)
+    assert track.utc_start == datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
+    assert any("3 receiver time(s) at the start of a line carry no zone" in note for note in track.notes)
 
 
 def test_the_vessel_is_chosen_by_mmsi(tmp_path):

@@ -330,3 +330,15 @@ def test_a_given_lens_model_is_not_applied_to_a_photo_the_camera_undistorted(tmp
     assert result.frame["camera"]["distortion"] == [0.0] * 5
     assert result.frame["camera"]["fx"] == camera["fx"]
     assert "lens distortion left out" in result.frame["telemetry"]["camera_from"]
+
+
+def test_a_six_coefficient_dewarp_model_not_read_is_said(tmp_path):
+    """A Matrice 4 writes DewarpDataK6, which the reader does not take: the intrinsics come
+    from CalibratedFocalLength without distortion, and how they were found says so."""
+    fields = {k: v for k, v in P4RTK_CALIBRATION.items() if k != "DewarpData"}
+    path = _photo(tmp_path, {**fields, "DewarpDataK6": "2024-01-01;3684.0,3677.0,2.2,22.0,"
+                                                        "-0.26,0.1,0.0,0.0,-0.03,0.0,0.0,0.0"},
+                  rgb=np.zeros((456, 684, 3), np.uint8))
+    intrinsics, how = photo_intrinsics(read_dji_photo(path))
+    assert intrinsics.distortion == (0.0,) * 5
+    assert "DewarpDataK6" in how and "not read" in how

@@ -63,9 +63,16 @@ class AisFile:
     unreadable: int = 0
     unsupported: int = 0
     orphan_fragments: int = 0
+    #: lines whose leading receiver time has no zone, taken as UTC
+    zoneless_times: int = 0
 
     def notes(self) -> list[str]:
         out = []
+        if self.zoneless_times:
+            out.append(f"{self.zoneless_times} receiver time(s) at the start of a line carry no "
+                       "zone and are taken as UTC: a logger writing local time puts the vessel "
+                       "hours off (the reports' second of the minute cannot tell); write the "
+                       "zone ('Z', '+02:00') to be sure")
         if self.unreadable:
             out.append(f"{self.unreadable} unreadable AIS line(s) skipped (bad checksum or payload)")
         if self.unsupported:
@@ -93,21 +100,22 @@ def _tag_block_time(block: str) -> datetime | None:
     return datetime.fromtimestamp(value, UTC) if 0 < value < 253402300800 else None
 
 
-def _received(line: str, start: int) -> datetime | None:
-    """The receiver's time of the sentence starting at ``start`` (module docstring)."""
+def _received(line: str, start: int) -> tuple[datetime | None, bool]:
+    """The receiver's time of the sentence starting at ``start`` (module docstring), and
+    whether it was a leading time without a zone, taken as UTC."""
     block = re.search(r"\\([^\\]*)\\\s*$", line[:start])
     if block:
         when = _tag_block_time(block[1])
         if when is not None:
-            return when
+            return when, False
     match = _LEADING_TIME.match(line)
     if match:
         try:
             when = datetime.fromisoformat(match[1].replace("Z", "+00:00").replace(" ", "T"))
         except ValueError:
-            return None
-        return when if when.tzinfo else when.replace(tzinfo=UTC)
-    return None
+            return None, False
+        return (when, False) if when.tzinfo else (when.replace(tzinfo=UTC), True)
+    return None, False
 
 
 def sentence_start(line: str) -> int:
@@ -178,7 +186,8 @@ def read_ais_file(path: str | Path) -> AisFile:
         except Exception:          # pyais's parse errors are many types
             result.unreadable += 1
             continue
-        received = _received(line, start)
+        received, zoneless = _received(line, start)
+        result.zoneless_times += zoneless
         if message.frag_cnt > 1:
             key = (message.seq_id, message.channel, message.frag_cnt)
             parts = pending.setdefault(key, [])

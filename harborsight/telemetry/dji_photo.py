@@ -391,6 +391,9 @@ def photo_intrinsics(photo: DjiPhoto) -> tuple[CameraIntrinsics, str]:
             dx = 0.0 if centre_x is None else centre_x - half_w
             dy = 0.0 if centre_y is None else centre_y - half_h
             distortion, how = (0.0,) * 5, "CalibratedFocalLength (DJI's design values, no distortion)"
+            if photo.xmp.get("DewarpDataK6"):
+                how += ("; DewarpDataK6 (a six-coefficient lens model, Matrice 4) is not read: "
+                        "give --camera for the lens's distortion")
         intrinsics = CameraIntrinsics(
             width, height, fx * scale, fy * scale,
             (half_w + dx) * scale - 0.5, (half_h + dy) * scale - 0.5, distortion)
