@@ -342,3 +342,14 @@ def test_a_six_coefficient_dewarp_model_not_read_is_said(tmp_path):
     intrinsics, how = photo_intrinsics(read_dji_photo(path))
     assert intrinsics.distortion == (0.0,) * 5
     assert "DewarpDataK6" in how and "not read" in how
+
+
+def test_a_phantom_4s_focal_length_agrees_with_its_35mm_equivalent(tmp_path):
+    """FC330 (Phantom 4, 1/2.3", 4000 x 3000 pixels of 1.55 um): 3.61 mm over its 4:3 active
+    area agrees with EXIF's 20 mm equivalent through the diagonal to 1 % (the nominal
+    6.17 x 4.55 mm, not 4:3, read 3 % long)."""
+    path = _photo(tmp_path, model="FC330", rgb=np.zeros((300, 400, 3), np.uint8),
+                  exif={"FocalLength": 3.61, "FocalLengthIn35mmFilm": 20})
+    intrinsics, how = photo_intrinsics(read_dji_photo(path))
+    equivalent = 20 * math.hypot(400, 300) / math.hypot(36, 24)
+    assert intrinsics.fx == pytest.approx(equivalent, rel=0.01) and "spans the sensor's width" in how
