@@ -353,3 +353,14 @@ def test_a_phantom_4s_focal_length_agrees_with_its_35mm_equivalent(tmp_path):
     intrinsics, how = photo_intrinsics(read_dji_photo(path))
     equivalent = 20 * math.hypot(400, 300) / math.hypot(36, 24)
     assert intrinsics.fx == pytest.approx(equivalent, rel=0.01) and "spans the sensor's width" in how
+
+
+def test_an_rtk_altitude_type_names_the_ellipsoid(tmp_path):
+    """AltitudeType RtkAlt (DJI's enterprise XMP): AbsoluteAltitude is the RTK receiver's
+    ellipsoid height, and the track's altitude reference says so (a water level given above
+    mean sea level would be off by the geoid's height)."""
+    path = _photo(tmp_path, {"AltitudeType": "RtkAlt"})
+    track = photo_track(read_dji_photo(path), altitude="absolute")
+    assert "RtkAlt" in track.alt_reference and "ellipsoid" in track.alt_reference
+    plain = photo_track(read_dji_photo(_photo(tmp_path, name="plain.jpg")), altitude="absolute")
+    assert "mean sea level on most models" in plain.alt_reference

@@ -565,9 +565,18 @@ def photo_track(photo: DjiPhoto, *, altitude: str = "relative", yaw_reference: s
     if alt_sigma is not None and not 0 < alt_sigma <= MAX_SIGMA_M:
         alt_sigma = None
     notes.append(f"position accuracy: {how}")
-    reference = ("barometric height above the take-off point (RelativeAltitude)"
-                 if altitude == "relative" else
-                 "DJI AbsoluteAltitude (mean sea level on most models, ellipsoid on RTK ones)")
+    # AltitudeType (DJI's enterprise XMP): "RtkAlt" is the RTK receiver's ellipsoid height,
+    # tens of metres from mean sea level where the geoid is far from the ellipsoid
+    altitude_type = photo.xmp.get("AltitudeType")
+    altitude_type = altitude_type.strip() if isinstance(altitude_type, str) else None
+    if altitude == "relative":
+        reference = "barometric height above the take-off point (RelativeAltitude)"
+    elif altitude_type == "RtkAlt":
+        reference = ("DJI AbsoluteAltitude, AltitudeType RtkAlt: the RTK receiver's ellipsoid "
+                     "height (WGS 84, or the RTK service's frame), not mean sea level")
+    else:
+        reference = ("DJI AbsoluteAltitude (mean sea level on most models, ellipsoid on RTK ones"
+                     + (f"; AltitudeType {altitude_type}" if altitude_type else "") + ")")
     # EXIF DigitalZoomRatio (0: none used): a centre crop, enlarged, so the intrinsics scale
     # with it (metadata.digitally_zoomed), as for a video's SRT
     zoom = _to_float(photo.exif.get("DigitalZoomRatio"))
