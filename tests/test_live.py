@@ -496,3 +496,15 @@ def test_a_clear_band_the_vessel_hides_past_the_danger_distance_holds_the_alarm(
     assert level_after("clear", 9.4, 0.5) == "danger"         # hidden out to 9.4 m: held
     assert engine.refresh()["sections"][0]["hidden_to_m"] == 9.4
     assert level_after("clear", 0.9, 1.0) == "ok"             # a flared deck's 0.9 m
+    assert level_after("ok", None, 1.5) == "danger"
+
+    def ok_far(hidden_to_m: float | None, time_s: float) -> str:
+        section = SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=15.0, sigma_m=0.3,
+                                   sigma_random_m=0.1, distance_lower_m=14.5, hidden_to_m=hidden_to_m)
+        engine._update_sections(ClearanceReport("frame", None, 40.0, 0.01, "ground_plane", [section],
+                                                pose_refinement={"sensors_contradicted": False}), time_s)
+        return engine.refresh()["sections"][0]["status"]
+
+    # an obstacle seen 15 m out, with the band hidden out to 9.4 m: held; with 0.9 m: falls
+    assert ok_far(9.4, 2.0) == "danger"
+    assert ok_far(0.9, 2.5) == "ok"

@@ -549,4 +549,23 @@ def test_a_live_feed_with_two_heading_sensors_follows_one():
             listener.feed(line, now + 0.1)
     headings = track.track().heading_deg
     assert np.allclose(headings[1:], 100.0) and headings[0] in (100.0, 104.0)
-    assert sum("HCHDG left out" in w for w in warnings) == 1
+    assert sum("headings from HC left out" in w for w in warnings) == 1
+
+
+def test_a_live_heading_sensor_that_falls_silent_hands_over():
+    """The gyro speaks for the first two seconds only: after HEADING_SENSOR_HOLD_S of its
+    silence the compass's headings are taken."""
+    from harborsight.live.nmea_in import HEADING_SENSOR_HOLD_S
+
+    track = LiveTrack("vessel", "nmea")
+    listener = NmeaVessel(track)
+    for k in range(8):
+        now = 10.0 + k
+        listener.feed(_nmea(f"GPRMC,1200{k:02d}.00,A,5609.0000,N,01012.6000,E,0.5,10.0,010526,,,A"), now)
+        if k < 2:
+            listener.feed(_nmea("HEHDT,100.0,T"), now + 0.1)
+        listener.feed(_nmea("HCHDG,101.0,0.0,E,3.0,E"), now + 0.2)
+    t = track.track()
+    times = t.attitude_t_s - 10.0
+    assert np.allclose(t.heading_deg[times < 2.0], 100.0)
+    assert np.allclose(t.heading_deg[times > 1.1 + HEADING_SENSOR_HOLD_S], 104.0)

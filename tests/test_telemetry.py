@@ -322,7 +322,9 @@ def test_nmea_vessel_track(tmp_path):
     assert track.lat_deg[0] == pytest.approx(48 + 7.038 / 60)
     assert track.lat_deg[2] == pytest.approx(48 + 7.042 / 60)
     np.testing.assert_allclose(track.heading_deg, [358.0, 0.0, 2.0], atol=1e-9)
-    assert track.notes == ["1 unreadable sentence(s) skipped (bad checksum or field; line 6)",
+    assert track.notes == ["headings from two sensors: the track uses HE (HDT), and HC (HDG)'s 1 "
+                           "where it was silent",
+                           "1 unreadable sentence(s) skipped (bad checksum or field; line 6)",
                            "position_sigma_m (per axis): the GGA quality class, widened by "
                            "HDOP above 1, for 2 (GPS 2)"]
     # the RMC fix states no accuracy; the GGA fixes (quality 1, HDOP 0.9) are standalone GPS
@@ -1237,5 +1239,35 @@ def test_an_nmea_file_with_two_heading_sensors_keeps_one(tmp_path, compass_first
     path.write_text("\n".join(lines) + "\n")
     track = read_vessel_track(path)
     assert np.allclose(track.heading_deg, 100.0)
-    assert any("6 heading(s) from HCHDG left out: the track uses HEHDT (HCHDG differs from it "
-               "by +4.0 deg" in note for note in track.notes)
+    assert any("6 heading(s) from HC (HDG) left out: the track uses HE (HDT) (HC differs from "
+               "it by +4.0 deg" in note for note in track.notes)
+
+
+def test_a_heading_sensor_that_falls_silent_hands_over_to_the_next(tmp_path):
+    """The gyro (HEHDT, 100 deg) speaks in the first two fix intervals only, the compass
+    (HCHDG, 104 deg true) in all six: the gyro where it spoke, the compass after."""
+    from functools import reduce
+
+    def sentence(body: str) -> str:
+        return f"${body}*{reduce(lambda a, c: a ^ ord(c), body, 0):02X}"
+
+    lines = []
+    for k in range(6):
+        lines.append(sentence(f"GPRMC,1200{k:02d}.00,A,5609.0000,N,01012.6000,E,0.5,10.0,010526,,,A"))
+        lines += ([sentence("HEHDT,100.0,T")] if k < 2 else []) + [sentence("HCHDG,101.0,0.0,E,3.0,E")]
+    path = tmp_path / "handover.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert np.allclose(track.heading_deg, [100.0, 100.0, 104.0, 104.0, 104.0, 104.0])
+    assert any("2 heading(s) from HC (HDG) left out" in note and "4 where it was silent" in note
+               for note in track.notes)
+
+
+def test_a_source_in_bursts_with_repeated_times_is_not_all_gaps():
+    """A height topic stamped on arrival comes in bursts (three samples at one time, then a
+    pause): its median interval is 0, and no fix may lose its height for that."""
+    from harborsight.telemetry.track import interpolate_source
+
+    bursts = np.repeat(np.arange(0.0, 10.0, 0.2), 3)
+    alt, widest_s = interpolate_source(np.arange(0.0, 9.8, 0.1), bursts, np.full(len(bursts), 30.0))
+    assert widest_s is None and np.isfinite(alt).all()

@@ -208,6 +208,12 @@ class LiveEngine:
                     # a clear band seen short, unless the obstacle seen calls for more itself
                     value = seen_lower_bound_m(section)
                     value = value if value < alarm.settings.caution_m else None
+                if (value is not None and value >= alarm.settings.caution_m
+                        and section.hidden_to_m is not None
+                        and section.hidden_to_m >= alarm.settings.danger_m):
+                    # an obstacle seen past the caution distance says nothing of the water the
+                    # vessel hides nearer (behind its deckhouse): it raises no alarm, nor lowers one
+                    value = None
                 if value is not None:
                     alarm.update(time.monotonic(), value, ttc)
             elif section.status == STATUS_CLEAR and (

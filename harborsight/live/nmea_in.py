@@ -26,6 +26,9 @@ from harborsight.live.telemetry import LiveTrack
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_class_m
 from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder
 
+#: a heading sensor heard within this many seconds keeps a worse one's headings out
+HEADING_SENSOR_HOLD_S = 2.0
+
 
 @dataclass(frozen=True)
 class NmeaAddress:
@@ -74,9 +77,9 @@ class NmeaVessel:
         self._last_fix: Fix | None = None
         self._declination: tuple[tuple[float, float], float] | None = None
         self._warned: set[str] = set()
-        #: the heading source followed (talker + sentence, its rank), the others heard
-        self._heading_source: tuple[str, tuple[int, int]] | None = None
-        self._heading_sources_ignored: set[str] = set()
+        #: heading sensors heard (talker: best rank, last heard), and those said left out
+        self._heading_sensors: dict[str, tuple[tuple[int, int], float]] = {}
+        self._heading_sensors_said: set[str] = set()
         self.lines = 0
 
     def _warn_new_kinds(self) -> None:
@@ -108,7 +111,7 @@ class NmeaVessel:
                 if self.on_fix is not None:
                     self.on_fix(now_s)
             elif isinstance(event, Heading):
-                if not self._heading_source_used(event):
+                if not self._heading_source_used(event, now_s):
                     continue
                 degrees = event.deg if event.true else self._made_true(event.deg)
                 if degrees is not None:
@@ -118,27 +121,26 @@ class NmeaVessel:
         if self.decoder.bad_count + sum(self.decoder.skipped.values()) != bad_before:
             self._warn_new_kinds()
 
-    def _heading_source_used(self, heading: Heading) -> bool:
-        """Whether this heading's source is the one the track follows: the first heard, until
-        one of a better :func:`~harborsight.telemetry.nmea.heading_rank` (a true heading
-        before a magnetic one) is heard; each other source is said once."""
-        from harborsight.telemetry.nmea import heading_rank
+    def _heading_source_used(self, heading: Heading, now_s: float) -> bool:
+        """Whether this heading's sensor (its talker) is the one the track follows now: the
+        best :func:`~harborsight.telemetry.nmea.heading_rank` (a true heading before a
+        magnetic one) heard within :data:`HEADING_SENSOR_HOLD_S`, so a sensor that falls
+        silent hands over to the next; each sensor left out is said once."""
+        from harborsight.telemetry.nmea import heading_rank, heading_sensor
 
+        sensor = heading_sensor(heading.source)
         rank = (0 if heading.true else 1, heading_rank(heading.source))
-        current = self._heading_source
-        if current is None or rank < current[1]:
-            if current is not None:
-                self.track.warn(f"NMEA: headings from {heading.source} used from now on, "
-                                f"not {current[0]}")
-            self._heading_source = (heading.source, rank)
-            return True
-        if heading.source == current[0]:
-            return True
-        if heading.source not in self._heading_sources_ignored:
-            self._heading_sources_ignored.add(heading.source)
-            self.track.warn(f"NMEA: headings from {heading.source} left out: the track follows "
-                            f"{current[0]}")
-        return False
+        self._heading_sensors[sensor] = (min(rank, self._heading_sensors.get(sensor, (rank, 0.0))[0]), now_s)
+        better = [other for other, (other_rank, heard_s) in self._heading_sensors.items()
+                  if other != sensor and other_rank < self._heading_sensors[sensor][0]
+                  and now_s - heard_s <= HEADING_SENSOR_HOLD_S]
+        if better:
+            if sensor not in self._heading_sensors_said:
+                self._heading_sensors_said.add(sensor)
+                self.track.warn(f"NMEA: headings from {sensor or 'no talker'} left out while "
+                                f"{better[0] or 'no talker'} speaks (a better heading sentence)")
+            return False
+        return True
 
     def _made_true(self, magnetic_deg: float) -> float | None:
         from harborsight.telemetry.declination import magnetic_declination_deg

@@ -60,11 +60,17 @@ class Heading:
 
 
 def heading_rank(source: str) -> int:
-    """Which heading source a vessel track uses when a feed has several (lowest first): a
-    true heading sentence (HDT, THS: a gyro or a GNSS compass) before an HDG made true with
-    its own variation (a magnetic compass), before the rest."""
+    """Which heading sentence a vessel track prefers when a feed has several sensors (lowest
+    first): a true heading sentence (HDT, THS: a gyro or a GNSS compass) before an HDG made
+    true with its own variation (a magnetic compass), before the rest."""
     kind = source[-3:]
     return 0 if kind in ("HDT", "THS") else 1 if kind == "HDG" else 2
+
+
+def heading_sensor(source: str) -> str:
+    """The sensor a heading sentence comes from: its talker (``HE`` of ``HEHDT``); one
+    compass sends its HDG and its HDM under one talker."""
+    return source[:-3]
 
 
 @dataclass(frozen=True)
@@ -202,6 +208,7 @@ class NmeaDecoder:
         elif kind in ("HDT", "THS", "HDG", "HDM") and sentence.heading is not None:
             if self.last_fix_utc is None:
                 skipped["headings before the first fix"] += 1
+                return []
             source = f"{getattr(sentence, 'talker', '') or ''}{kind}"
             if kind in ("HDT", "THS"):
                 return [Heading(angle(sentence.heading), True, source)]

@@ -212,20 +212,27 @@ def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float,
 #: shows in the track, and :meth:`Track.sample` judges it by its own rule (``max_gap_s``)
 #: instead of a straight line drawn across it
 SOURCE_GAP_INTERVALS = 3.0
+#: ... and never a gap shorter than this (s): a source stamped on arrival comes in bursts
+#: with repeated times, whose median interval is near 0
+SOURCE_GAP_FLOOR_S = 0.5
 
 
 def interpolate_source(times_s: np.ndarray, source_t_s: np.ndarray, source_values: np.ndarray
                        ) -> tuple[np.ndarray, float | None]:
     """``source_values`` (at the increasing ``source_t_s``) at ``times_s``: linear between
     the two source samples around a time, NaN outside the source's span and across a gap of
-    more than :data:`SOURCE_GAP_INTERVALS` median intervals. Returns the values and the
+    more than :data:`SOURCE_GAP_INTERVALS` median intervals (of those above 0) and
+    :data:`SOURCE_GAP_FLOOR_S`. Returns the values and the
     longest such gap that held a time (s; None when none did)."""
     times_s = np.asarray(times_s, dtype=float)
     values = np.interp(times_s, source_t_s, source_values, left=np.nan, right=np.nan)
     if len(source_t_s) < 2:
         return values, None
     steps = np.diff(source_t_s)
-    limit = SOURCE_GAP_INTERVALS * float(np.median(steps))
+    steps = steps[steps > 1e-6]
+    if not len(steps):
+        return values, None
+    limit = max(SOURCE_GAP_INTERVALS * float(np.median(steps)), SOURCE_GAP_FLOOR_S)
     after = np.clip(np.searchsorted(source_t_s, times_s, side="right"), 1, len(source_t_s) - 1)
     span = source_t_s[after] - source_t_s[after - 1]
     on_sample = (times_s == source_t_s[after]) | (times_s == source_t_s[after - 1])

@@ -214,28 +214,48 @@ def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
 
 
 def _one_source(headings: list[tuple[int, float, str]], notes: list[str]) -> list[tuple[int, float]]:
-    """The headings ``(fix index, degrees)`` of one source: a feed with two heading sensors
-    (a gyro and a magnetic compass, two GNSS compasses) would otherwise give the track
-    whichever spoke last before each fix. The source of the lowest
-    :func:`~harborsight.telemetry.nmea.heading_rank`, then the most sentences; the others are
-    left out with a note of how far they differ from it (the median, where both spoke between
-    the same fixes)."""
-    from harborsight.telemetry.nmea import heading_rank
+    """The headings ``(fix index, degrees)`` of one sensor in each fix interval: a feed with
+    two heading sensors (a gyro and a magnetic compass, two GNSS compasses) would otherwise
+    give the track whichever spoke last before each fix. Sensors are talkers
+    (:func:`~harborsight.telemetry.nmea.heading_sensor`), ranked by their best sentence
+    (:func:`~harborsight.telemetry.nmea.heading_rank`), then by how often they spoke; in each
+    interval the best one that spoke there is used, so a sensor that falls silent hands over
+    to the next. The others are noted with how far they differ from the first (the median,
+    where both spoke in an interval)."""
+    from harborsight.telemetry.nmea import heading_rank, heading_sensor
 
-    counts: dict[str, int] = {}
-    for _, _, source in headings:
-        counts[source] = counts.get(source, 0) + 1
-    if len(counts) <= 1:
+    by_sensor: dict[str, list[tuple[int, float, str]]] = {}
+    for entry in headings:
+        by_sensor.setdefault(heading_sensor(entry[2]), []).append(entry)
+    if len(by_sensor) <= 1:
         return [(epoch, deg) for epoch, deg, _ in headings]
-    chosen = min(counts, key=lambda source: (heading_rank(source), -counts[source]))
-    used = {epoch: deg for epoch, deg, source in headings if source == chosen}
-    for other in sorted(set(counts) - {chosen}):
-        differences = [(deg - used[epoch] + 180.0) % 360.0 - 180.0
-                       for epoch, deg, source in headings if source == other and epoch in used]
-        notes.append(f"{counts[other]} heading(s) from {other} left out: the track uses {chosen}"
-                     + (f" ({other} differs from it by {float(np.median(differences)):+.1f} deg, "
-                        "the median)" if differences else ""))
-    return [(epoch, deg) for epoch, deg, source in headings if source == chosen]
+    rank = {sensor: min(heading_rank(source) for _, _, source in entries)
+            for sensor, entries in by_sensor.items()}
+    order = sorted(by_sensor, key=lambda sensor: (rank[sensor], -len(by_sensor[sensor])))
+    spoke = {sensor: {epoch for epoch, _, _ in entries} for sensor, entries in by_sensor.items()}
+    used_by = {epoch: next(sensor for sensor in order if epoch in spoke[sensor])
+               for epoch, _, _ in headings}
+
+    def name(sensor: str) -> str:
+        kinds = sorted({source[-3:] for _, _, source in by_sensor[sensor]})
+        return f"{sensor or 'no talker'} ({', '.join(kinds)})"
+
+    first = {epoch: deg for epoch, deg, _ in reversed(by_sensor[order[0]])}
+    for other in order[1:]:
+        entries = by_sensor[other]
+        used = sum(used_by[epoch] == other for epoch, _, _ in entries)
+        differences = [(deg - first[epoch] + 180.0) % 360.0 - 180.0
+                       for epoch, deg, _ in entries if epoch in first]
+        left = len(entries) - used
+        note = (f"{left} heading(s) from {name(other)} left out: the track uses {name(order[0])}"
+                if left else f"headings from two sensors: the track uses {name(order[0])}")
+        if used:
+            note += f", and {name(other)}'s {used} where it was silent"
+        if differences:
+            note += (f" ({other or 'no talker'} differs from it by "
+                     f"{float(np.median(differences)):+.1f} deg, the median)")
+        notes.append(note)
+    return [(epoch, deg) for epoch, deg, source in headings if used_by[epoch] == heading_sensor(source)]
 
 
 def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datetime, float, float]]
