@@ -74,3 +74,15 @@ def torn_copies(whole: bytes, trials: int = 200, seed: int = 29) -> Iterator[tup
                 if data:
                     data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
         yield trial, cut, bytes(data)
+
+
+def pixel_of_camera_block(block: dict, point_camera: tuple[float, float, float]) -> np.ndarray:
+    """Where OpenCV projects a camera-frame point with a frame/1 ``camera`` block (its
+    intrinsics and distortion): an independent check of intrinsics written by the code."""
+    import cv2
+
+    k = np.array([[block["fx"], 0, block["cx"]], [0, block["fy"], block["cy"]], [0, 0, 1]])
+    uv, _ = cv2.projectPoints(np.array([[point_camera]], float), np.zeros(3), np.zeros(3), k,
+                              np.array(block["distortion"], float))
+    return uv.ravel()
+

@@ -25,7 +25,7 @@ from harborsight.telemetry.dji_photo import (
     read_dji_photo,
 )
 from tests.dji_photos import P4RTK_CALIBRATION, write_dji_photo
-from tests.helpers import torn_copies
+from tests.helpers import pixel_of_camera_block, torn_copies
 
 runner = CliRunner()
 FLIGHT = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples" / "flight"
@@ -300,12 +300,8 @@ def test_a_digitally_zoomed_photo_gets_its_intrinsics_scaled(tmp_path):
     assert plain is not None and zoomed is not None, (frames[0].reason, frames[2].reason)
     assert "digital_zoom" not in plain["telemetry"] and zoomed["telemetry"]["digital_zoom"] == 2.0
     assert any("digital zoom 2x" in note for note in frames[2].notes)
-    point = np.array([[[1.5, -0.8, 20.0]]])
-
     def pixel(block: dict) -> np.ndarray:
-        k = np.array([[block["fx"], 0, block["cx"]], [0, block["fy"], block["cy"]], [0, 0, 1]])
-        uv, _ = cv2.projectPoints(point, np.zeros(3), np.zeros(3), k, np.array(block["distortion"]))
-        return uv.ravel()
+        return pixel_of_camera_block(block, (1.5, -0.8, 20.0))
 
     centre = np.array([(684 - 1) / 2, (456 - 1) / 2])
     assert zoomed["camera"]["fx"] == pytest.approx(2 * plain["camera"]["fx"])

@@ -10,7 +10,6 @@ import struct
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -25,6 +24,7 @@ from harborsight.telemetry.dji_srt import read_dji_srt
 from harborsight.telemetry.metadata import CameraMount, build_video_metadata, camera_attitude_deg
 from harborsight.telemetry.track import Track
 from harborsight.telemetry.vessel_track import read_vessel_track
+from tests.helpers import pixel_of_camera_block
 
 TELEMETRY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "telemetry"
 DJI = TELEMETRY / "dji"
@@ -1167,12 +1167,9 @@ def test_a_digital_zoom_in_the_srt_scales_the_frames_intrinsics(tmp_path, form):
     plain, zoomed = result.frames[2], result.frames[12]
     assert plain["camera"] == camera and "digital_zoom" not in plain["telemetry"]
     assert zoomed["telemetry"]["digital_zoom"] == 2.0
-    point = np.array([[[1.5, -0.8, 20.0]]])
 
     def pixel(block: dict) -> np.ndarray:
-        k = np.array([[block["fx"], 0, block["cx"]], [0, block["fy"], block["cy"]], [0, 0, 1]])
-        uv, _ = cv2.projectPoints(point, np.zeros(3), np.zeros(3), k, np.array(block["distortion"]))
-        return uv.ravel()
+        return pixel_of_camera_block(block, (1.5, -0.8, 20.0))
 
     centre = np.array([(1280 - 1) / 2, (720 - 1) / 2])
     assert pixel(zoomed["camera"]) == pytest.approx(centre + 2.0 * (pixel(camera) - centre), abs=1e-9)
