@@ -86,3 +86,36 @@ def pixel_of_camera_block(block: dict, point_camera: tuple[float, float, float])
                               np.array(block["distortion"], float))
     return uv.ravel()
 
+
+
+def side_view(off_m: float, alt_m: float, depression_deg: float,
+              size: tuple[int, int] = (1280, 720), focal_px: float = 914.0):
+    """A camera ``off_m`` west of a vessel at the origin heading north, ``alt_m`` up, looking
+    east ``depression_deg`` below the horizon (90: nadir; the vessel's port side faces it).
+    Returns the frame's geometry and ``to_px(points_v)``: vessel-frame points as pixel
+    coordinates in 1/16 px, for ``cv2.fillPoly(..., shift=4)``."""
+    from harborsight.frame import FrameGeometry
+    from harborsight.geometry.camera import Camera, CameraIntrinsics
+    from harborsight.geometry.geodesy import GeoOrigin
+    from harborsight.geometry.rotations import world_from_camera_rotation
+
+    width, height = size
+    intrinsics = CameraIntrinsics(width, height, focal_px, focal_px, (width - 1) / 2, (height - 1) / 2)
+    camera = Camera(intrinsics, np.array([-off_m, 0.0, alt_m]),
+                    world_from_camera_rotation(np.radians(90.0), np.radians(-depression_deg), 0.0))
+    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
+
+    def to_px(points_v: np.ndarray) -> np.ndarray:
+        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
+
+    return geometry, to_px
+
+
+def draw_vessel_as_seen(labels: np.ndarray, mesh_v, to_px) -> None:
+    """Paint the part of a V-frame mesh above the waterline into ``labels`` as ship (1),
+    face by face: what the vessel hides in the image, without any hull taken."""
+    import cv2
+
+    above = mesh_v.slice_plane([0, 0, 0], [0, 0, -1])
+    for triangle in above.vertices[above.faces]:
+        cv2.fillConvexPoly(labels, to_px(triangle), 1, cv2.LINE_8, shift=4)

@@ -344,7 +344,7 @@ def test_the_ship_fill_drawn_on_its_bounding_box_counts_as_on_the_whole_window()
                 inside = interior
             counted = (inside > 0) & known
             expected = float((ship & counted).sum()) / counted.sum() if counted.any() else 0.0
-            assert ship_fill(uv, window, ship, known) == expected
+            assert ship_fill([uv], window, ship, known) == expected
 
 
 def test_the_ship_fill_counts_the_silhouette_s_interior():
@@ -356,12 +356,12 @@ def test_the_ship_fill_counts_the_silhouette_s_interior():
     ship = np.zeros((60, 80), bool)
     ship[21:31, 21:59] = True                                                  # 38 x 10 px
     known = np.ones_like(ship)
-    assert ship_fill(uv, window, ship, known) == 1.0
+    assert ship_fill([uv], window, ship, known) == 1.0
     assert (ship[20:32, 20:60].mean()) == pytest.approx(380 / 480)
     sliver = np.array([[20.0, 20.0], [59.0, 20.0], [59.0, 21.0], [20.0, 21.0]])   # 40 x 2 px
     half = np.zeros_like(ship)
     half[20, 20:60] = True
-    assert ship_fill(sliver, window, half, known) == pytest.approx(0.5)
+    assert ship_fill([sliver], window, half, known) == pytest.approx(0.5)
 
 
 def test_exact_poses_are_left_where_they_are():

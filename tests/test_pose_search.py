@@ -13,7 +13,7 @@ import pytest
 from shapely.geometry import MultiPoint
 
 from harborsight.clearance import pose_refinement
-from harborsight.clearance.alignment import corrected_geometry, homogeneous
+from harborsight.clearance.alignment import Silhouette, corrected_geometry
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
 from harborsight.clearance.pose_search import (
@@ -152,7 +152,7 @@ def test_a_start_puts_the_silhouette_s_centroid_on_the_blob_s():
     told = corrected_geometry(true, np.array([5.0, -5.0, 0.0, 40.0]))
     ship = mask.astype(bool)
     align = whole_image_alignment(ship, told)
-    hull_h = homogeneous(TUG.hull_points)
+    hull_h = Silhouette([TUG.hull_points])
     starts = _starts(align, hull_h, ship)
     start = min(starts, key=lambda s: abs(s[3] + 40.0) + abs(s[2]))
     assert start[3] == pytest.approx(-40.0, abs=4.0) and abs(start[2]) < math.radians(5)
@@ -389,7 +389,7 @@ def test_the_refinement_s_refused_correction_is_a_start_of_the_search(monkeypatc
     told = corrected_geometry(scene.geometry(), np.array([16.0, 0.0, 0.0, 0.0]))
     ship = labels == SHIP
     align = whole_image_alignment(ship, told)
-    hull_h = homogeneous(TUG.hull_points)
+    hull_h = Silhouette([TUG.hull_points])
     monkeypatch.setattr(pose_search, "_starts", lambda *args: [])    # no blob start fits
     assert place_hull(align, hull_h, ship, labels != 255) is None
     refused = np.array([-15.2, 0.6, 0.01, 0.3])                       # near the truth
@@ -411,7 +411,7 @@ def test_the_sliding_search_finds_a_hull_no_blob_start_reaches(monkeypatch):
     told = corrected_geometry(scene.geometry(), np.array([16.0, -5.0, 0.0, 0.0]))
     ship = labels == SHIP
     align = whole_image_alignment(ship, told)
-    hull_h = homogeneous(TUG.hull_points)
+    hull_h = Silhouette([TUG.hull_points])
     starts = _sliding_starts(align, hull_h)
     assert 1 <= len(starts) <= 6
     nearest = min(starts, key=lambda s: np.hypot(s[0] + 16.0, s[1] - 5.0) + abs(s[2]))

@@ -13,6 +13,7 @@ from harborsight.vessel.hullgen import generate_hull_mesh
 from harborsight.vessel.outline import outline_from_dimensions
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import load_vessel_spec
+from tests.helpers import draw_vessel_as_seen, side_view
 
 
 def write_spec(tmp_path, text: str):
@@ -134,27 +135,15 @@ def test_submerged_hull_does_not_hide_an_obstacle_beside_the_vessel():
     import cv2
 
     from harborsight.clearance import ClearanceSettings, measure_clearance
-    from harborsight.frame import FrameGeometry
-    from harborsight.geometry.camera import Camera, CameraIntrinsics
-    from harborsight.geometry.geodesy import GeoOrigin
-    from harborsight.geometry.rotations import world_from_camera_rotation
 
     samples = Path(str(resources.files("harborsight") / "data" / "samples"))
     spec = load_vessel_spec(samples / "vessels" / "harbour-tug" / "vessel.yaml")
     assert spec.mesh.bounds[1, 2] > 3.0 and spec.hull_points[:, 2].max() <= 1e-9
-    intrinsics = CameraIntrinsics(640, 360, 454.66, 454.66, 319.5, 179.5)
-    camera = Camera(intrinsics, np.array([-40.0, 0.0, 60.0]),
-                    world_from_camera_rotation(np.radians(90.0), np.radians(-70.0), 0.0))
-    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
-
-    def to_px(points_v: np.ndarray) -> np.ndarray:
-        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
+    geometry, to_px = side_view(40.0, 60.0, 70.0, size=(640, 360), focal_px=454.66)
 
     port_y = spec.outline[:, 1].min()
     labels = np.zeros((360, 640), np.uint8)
-    above = spec.mesh.slice_plane([0, 0, 0], [0, 0, -1])                # what the image shows
-    for triangle in above.vertices[above.faces]:
-        cv2.fillConvexPoly(labels, to_px(triangle), 1, cv2.LINE_8, shift=4)
+    draw_vessel_as_seen(labels, spec.mesh, to_px)                       # what the image shows
     quay = np.array([[-5.0, port_y - 0.5, 0], [25.0, port_y - 0.5, 0],
                      [25.0, port_y - 15.5, 0], [-5.0, port_y - 15.5, 0]])
     cv2.fillPoly(labels, [to_px(quay)], 2, cv2.LINE_8, shift=4)
@@ -275,80 +264,6 @@ def test_a_hull_from_dimensions_says_how_far_it_may_be_off(tmp_path):
     assert len(bare.notes) == 1 and bare.notes[0].startswith("outline_sigma_m: not given")
 
 
-def test_a_buoy_beside_the_bow_is_not_erased_by_the_deckhouse_in_an_oblique_view():
-    """The bundled tug (an 8.5 m deckhouse on a 2.5 m deck) seen 30 m up from 25 m off its
-    port side, 60 degrees off nadir: one convex hull over the deckhouse and the deck also
-    covers the water 2-3 m beside the starboard bow, where a visible buoy lies. The vessel's
-    region is the union of its layers' hulls, so the buoy is measured (it read clear, with
-    nothing solid nearer than 7.5 m); the truth is shapely's distance from the outline."""
-    from importlib import resources
-
-    import cv2
-    from shapely.geometry import Point, Polygon
-
-    from harborsight.clearance import ClearanceSettings, measure_clearance
-    from harborsight.clearance.pose_refinement import PoseRefinementSettings
-    from harborsight.frame import FrameGeometry
-    from harborsight.geometry.camera import Camera, CameraIntrinsics
-    from harborsight.geometry.geodesy import GeoOrigin
-    from harborsight.geometry.rotations import world_from_camera_rotation
-
-    samples = Path(str(resources.files("harborsight") / "data" / "samples"))
-    spec = load_vessel_spec(samples / "vessels" / "harbour-tug" / "vessel.yaml")
-    assert len(spec.silhouette_layers) >= 2        # the hull, and the deckhouse above it
-    intrinsics = CameraIntrinsics(1280, 720, 914.0, 914.0, 639.5, 359.5)
-    camera = Camera(intrinsics, np.array([-25.0, 0.0, 30.0]),
-                    world_from_camera_rotation(np.radians(90.0), np.radians(-60.0), 0.0))
-    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
-
-    def to_px(points_v: np.ndarray) -> np.ndarray:
-        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
-
-    buoy_v = Point(8.0, 10.0).buffer(0.5, quad_segs=16)           # bow north: x north, y east
-    ring = np.column_stack((np.asarray(buoy_v.exterior.coords)[:-1], np.zeros(64)))
-    labels = np.zeros((720, 1280), np.uint8)
-    cv2.fillPoly(labels, [to_px(ring)], 2, cv2.LINE_8, shift=4)
-    seen_alone = int((labels == 2).sum())
-    above = spec.mesh.slice_plane([0, 0, 0], [0, 0, -1])
-    for triangle in above.vertices[above.faces]:                   # the vessel as it hides
-        cv2.fillConvexPoly(labels, to_px(triangle), 1, cv2.LINE_8, shift=4)
-    assert int((labels == 2).sum()) == seen_alone > 150           # nothing of it hidden
-    one_hull = np.zeros_like(labels)
-    cv2.fillConvexPoly(one_hull, cv2.convexHull(to_px(above.vertices)), 1, cv2.LINE_8, shift=4)
-    assert one_hull[labels == 2].all()            # the single hull covered all of it
-    truth_m = Polygon(spec.outline).distance(buoy_v)
-    settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
-    report = measure_clearance(labels, geometry, spec, settings)
-    assert report.min_distance_m == pytest.approx(truth_m, abs=0.15)
-    # behind the deckhouse all of some starboard bands in the picture is hidden: not seen
-    # clear to anywhere (they read 7.2 m before hidden water was counted)
-    hidden_in_full = [s for s in report.sections if s.status == "clear" and s.clear_to_m == 0.0]
-    assert len(hidden_in_full) >= 2 and all(s.hidden_to_m > 5.0 for s in hidden_in_full)
-
-
-def test_the_layers_contain_the_vessel_above_the_waterline_and_no_skirt():
-    """Every point of the above-water mesh (its vertices and points spread over its faces)
-    lies in some layer's convex hull; and the layers hold less volume than one hull over
-    everything (the slanted skirt from the deckhouse's roof to the deck's ends is gone)."""
-    from importlib import resources
-
-    from scipy.spatial import ConvexHull, Delaunay
-
-    samples = Path(str(resources.files("harborsight") / "data" / "samples"))
-    spec = load_vessel_spec(samples / "vessels" / "harbour-tug" / "vessel.yaml")
-    above = spec.mesh.slice_plane([0, 0, 0], [0, 0, -1])
-    rng = np.random.default_rng(3)
-    weights = rng.dirichlet(np.ones(3), size=(len(above.faces), 20))
-    on_faces = np.einsum("fkc,fcd->fkd", weights, above.vertices[above.faces]).reshape(-1, 3)
-    points = np.vstack((above.vertices, on_faces))
-    inside = np.zeros(len(points), bool)
-    for layer in spec.silhouette_layers:
-        inside |= Delaunay(layer).find_simplex(points, tol=1e-7) >= 0
-    assert inside.all()
-    layered = sum(ConvexHull(layer).volume for layer in spec.silhouette_layers)
-    assert layered < 0.8 * ConvexHull(above.vertices).volume
-
-
 def test_water_the_vessel_itself_hides_is_reported_and_a_band_hidden_in_full_is_not_clear():
     """A 20 x 8 m box 8 m tall, seen 30 m up from 22 m off its port side, 50 degrees off
     nadir: its starboard bands are hidden out to where the ray over the top starboard edge
@@ -360,10 +275,6 @@ def test_water_the_vessel_itself_hides_is_reported_and_a_band_hidden_in_full_is_
 
     from harborsight.clearance import ClearanceSettings, measure_clearance
     from harborsight.clearance.pose_refinement import PoseRefinementSettings
-    from harborsight.frame import FrameGeometry
-    from harborsight.geometry.camera import Camera, CameraIntrinsics
-    from harborsight.geometry.geodesy import GeoOrigin
-    from harborsight.geometry.rotations import world_from_camera_rotation
     from harborsight.vessel.outline import outline_from_dimensions
     from harborsight.vessel.spec import VesselSpec
 
@@ -371,12 +282,7 @@ def test_water_the_vessel_itself_hides_is_reported_and_a_band_hidden_in_full_is_
     hull_points = np.vstack((np.column_stack((outline, np.zeros(len(outline)))),
                              np.column_stack((outline, np.full(len(outline), -8.0)))))
     spec = VesselSpec("box", outline, hull_points, 12)
-    camera = Camera(CameraIntrinsics(1280, 720, 914.0, 914.0, 639.5, 359.5), np.array([-22.0, 0.0, 30.0]),
-                    world_from_camera_rotation(np.radians(90.0), np.radians(-50.0), 0.0))
-    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
-
-    def to_px(points_v: np.ndarray) -> np.ndarray:
-        return np.round(camera.project(geometry.vessel_to_enu(points_v))[0] * 16).astype(np.int32)
+    geometry, to_px = side_view(22.0, 30.0, 50.0)
 
     labels = np.zeros((720, 1280), np.uint8)
     buoy = np.asarray(Point(0.0, 5.5).buffer(0.5).exterior.coords)[:-1]       # 1.5 m to starboard

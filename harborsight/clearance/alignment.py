@@ -116,25 +116,133 @@ def homogeneous(points: np.ndarray) -> np.ndarray:
     return out
 
 
+def _hull_corners(uv: np.ndarray) -> np.ndarray | None:
+    """Indices of the points whose pixels ``(N, 2)`` (NaN where they do not project) are the
+    corners of their convex hull, in order; None when fewer than 3 project."""
+    keep = np.isfinite(uv).all(axis=1).nonzero()[0]
+    if len(keep) < 3:
+        return None
+    return keep[cv2.convexHull(uv[keep].astype(np.float32), returnPoints=False).reshape(-1)]
+
+
+def _blend(points_h: np.ndarray, uv: np.ndarray, corner: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Samples every :data:`SAMPLE_STEP_PX` along the polygon of the points ``corner`` (in
+    order), ``(4, M)`` homogeneous blends of two points each, and their pixels blended
+    alike (on a straight edge of the image; off it by a fraction of a pixel under
+    perspective)."""
+    following = np.concatenate((corner[1:], corner[:1]))
+    lengths = np.hypot(*(uv[following] - uv[corner]).T)
+    steps = np.minimum(np.maximum(np.ceil(lengths / SAMPLE_STEP_PX), 1), 2000).astype(int)
+    first = np.repeat(np.cumsum(steps) - steps, steps)
+    t = (np.arange(len(first)) - first) / np.repeat(steps, steps)      # k / n along an edge
+    at, to = np.repeat(corner, steps), np.repeat(following, steps)
+    points = points_h.take(at, axis=1) * (1 - t)
+    points += points_h.take(to, axis=1) * t
+    points[3] = 1.0
+    return points, uv[at] * (1 - t)[:, None] + uv[to] * t[:, None]
+
+
 def outline_points(hull_h: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Points along the silhouette outline, ``(4, M)`` homogeneous in the vessel frame,
     given the hull points ``(4, N)`` and their pixels ``(N, 2)`` (NaN where they do not
     project): every :data:`SAMPLE_STEP_PX` along the convex hull of the pixels, as fixed
     blends of two hull points each, so that they can be projected again under a changed
     pose. Empty when fewer than 3 hull points project."""
-    keep = np.isfinite(uv).all(axis=1).nonzero()[0]
-    if len(keep) < 3:
-        return np.zeros((4, 0))
-    corner = keep[cv2.convexHull(uv[keep].astype(np.float32), returnPoints=False).reshape(-1)]
-    following = np.concatenate((corner[1:], corner[:1]))
-    lengths = np.hypot(*(uv[following] - uv[corner]).T)
-    steps = np.minimum(np.maximum(np.ceil(lengths / SAMPLE_STEP_PX), 1), 2000).astype(int)
-    first = np.repeat(np.cumsum(steps) - steps, steps)
-    t = (np.arange(len(first)) - first) / np.repeat(steps, steps)      # k / n along an edge
-    points = hull_h.take(np.repeat(corner, steps), axis=1) * (1 - t)
-    points += hull_h.take(np.repeat(following, steps), axis=1) * t
-    points[3] = 1.0
-    return points
+    corner = _hull_corners(uv)
+    return np.zeros((4, 0)) if corner is None else _blend(hull_h, uv, corner)[0]
+
+
+#: an outline sample of one layer this far (px) inside another layer's image is inside the
+#: vessel's image, not on its outline
+COVERED_PX = 0.5
+
+
+def _half_planes(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """A convex polygon ``corners`` ``(V, 2)`` (in order, either way round) as half-planes
+    ``n_i . p <= c_i`` with unit outward normals ``n_i``; None when it has no area."""
+    edges = np.concatenate((corners[1:], corners[:1])) - corners
+    lengths = np.hypot(edges[:, 0], edges[:, 1])
+    usable = lengths > 1e-9
+    if usable.sum() < 3:
+        return None
+    edges, corners = edges[usable] / lengths[usable, None], corners[usable]
+    following = np.concatenate((edges[1:], edges[:1]))
+    turn = float(np.sum(edges[:, 0] * following[:, 1] - edges[:, 1] * following[:, 0]))
+    normals = np.column_stack((edges[:, 1], -edges[:, 0])) * math.copysign(1.0, turn)
+    return normals, (normals * corners).sum(axis=1)
+
+
+def _inside_convex(corners: np.ndarray, points: np.ndarray, margin_px: float) -> np.ndarray:
+    """Which of ``points`` ``(M, 2)`` lie more than ``margin_px`` inside the convex polygon
+    ``corners`` ``(V, 2)`` (in order): inside every edge's half-plane by the margin (only
+    the points inside its box are tested)."""
+    inside = np.zeros(len(points), bool)
+    low, high = corners.min(axis=0) + margin_px, corners.max(axis=0) - margin_px
+    near = ((points > low) & (points < high)).all(axis=1).nonzero()[0]
+    planes = _half_planes(corners) if len(near) else None
+    if planes is not None:
+        normals, offsets = planes
+        inside[near] = (points[near] @ normals.T < offsets - margin_px).all(axis=1)
+    return inside
+
+
+def _corners_inside(corners: np.ndarray, points: np.ndarray) -> bool:
+    """Whether all of a few ``points`` lie more than :data:`COVERED_PX` inside the convex
+    polygon ``corners`` (OpenCV's signed distance, point by point)."""
+    contour = corners.astype(np.float32).reshape(-1, 1, 2)
+    return all(cv2.pointPolygonTest(contour, (float(u), float(v)), True) > COVERED_PX
+               for u, v in points)
+
+
+class Silhouette:
+    """The vessel's image: the union of its layers' projected convex hulls
+    (:attr:`VesselSpec.own_layers`: one hull for a prism drawn from dimensions; a hull and a
+    deckhouse, a mast, for a mesh). ``points_h`` ``(4, N)`` holds every layer's points,
+    homogeneous in the vessel frame, one layer after another; a single hull over them all
+    would hold the slanted skirt from a deckhouse's roof to the deck's ends, which an
+    oblique view shows as water beside the vessel, and the alignment pulled the hull off
+    the vessel to fill it (docs/geometry.md)."""
+
+    def __init__(self, layers) -> None:
+        layers = [np.asarray(layer, float) for layer in layers]
+        self.points_h = homogeneous(np.vstack(layers))
+        self.ends = np.cumsum([len(layer) for layer in layers])[:-1]
+
+    @property
+    def layered(self) -> bool:
+        return len(self.ends) > 0
+
+    def layers_uv(self, uv: np.ndarray) -> list[np.ndarray]:
+        """The pixels of ``points_h`` ``(N, 2)`` split by layer."""
+        return np.split(uv, self.ends)
+
+    def outline(self, uv: np.ndarray) -> np.ndarray:
+        """Samples along the outline of the union of the layers' images, ``(4, M)``, given
+        the pixels of ``points_h`` (NaN where they do not project): each layer's outline
+        (:func:`outline_points`) less the samples more than :data:`COVERED_PX` inside
+        another layer's image."""
+        if not self.layered:
+            return outline_points(self.points_h, uv)
+        starts = np.concatenate(([0], self.ends))
+        corners = []
+        for start, layer_uv in zip(starts, self.layers_uv(uv), strict=True):
+            corner = _hull_corners(layer_uv)
+            corners.append(None if corner is None else corner + start)
+        shown = [k for k, corner in enumerate(corners) if corner is not None]
+        # a layer all inside another's image (a deckhouse seen from above) adds no outline,
+        # and no other layer's outline enters it (its images are convex)
+        shown = [k for k in shown if not any(
+            j != k and _corners_inside(uv[corners[j]], uv[corners[k]]) for j in shown)]
+        kept = []
+        for k in shown:
+            points, pixels = _blend(self.points_h, uv, corners[k])
+            covered = np.zeros(points.shape[1], bool)
+            for j in shown:
+                if j != k:
+                    covered |= _inside_convex(uv[corners[j]], pixels, COVERED_PX)
+            kept.append(points[:, ~covered])
+        return np.hstack(kept) if kept else np.zeros((4, 0))
 
 
 class Alignment:
@@ -264,10 +372,11 @@ _SQUARE_3X3 = np.ones((3, 3), np.uint8)
 FILL_INTERIOR_MIN_PX = 20
 
 
-def ship_fill(uv: np.ndarray, window: tuple[slice, slice], ship: np.ndarray,
-               known: np.ndarray) -> float:
+def ship_fill(layers_uv: list[np.ndarray], window: tuple[slice, slice], ship: np.ndarray,
+              known: np.ndarray) -> float:
     """Share of the silhouette's labelled pixels inside ``window`` that are ship pixels,
-    given the hull points' pixels ``uv`` (NaN where they do not project).
+    given the pixels of each layer's points (:meth:`Silhouette.layers_uv`; NaN where they
+    do not project): the union of the layers' convex hulls.
 
     Only the silhouette's interior counts (its drawn pixels eroded by a 3x3 square; the
     window's edge does not erode it), unless that leaves fewer than
@@ -275,11 +384,15 @@ def ship_fill(uv: np.ndarray, window: tuple[slice, slice], ship: np.ndarray,
     mask's edge falls a pixel inside the hull's, and at 110-150 m, where a hull is a few
     dozen pixels long, that ring alone took the fill under the gate and threw away good
     alignments (docs/results.md)."""
-    uv = uv[np.isfinite(uv).all(axis=1)]      # the corners' hull: close enough for a share
-    if len(uv) < 3:
-        return 0.0
     offset = np.array([window[1].start, window[0].start])
-    corners = cv2.convexHull(np.round((uv - offset) * 16).astype(np.int32))
+    polygons = []
+    for uv in layers_uv:
+        uv = uv[np.isfinite(uv).all(axis=1)]      # the corners' hull: close enough for a share
+        if len(uv) >= 3:
+            polygons.append(cv2.convexHull(np.round((uv - offset) * 16).astype(np.int32)))
+    if not polygons:
+        return 0.0
+    corners = np.vstack(polygons)
     # drawn only over its bounding box within the window, with a margin of empty pixels
     # (drawing rounds a corner up to a pixel out) for the erosion
     lo = np.maximum((corners.min(axis=(0, 1)) >> 4) - 2, 0)
@@ -288,7 +401,9 @@ def ship_fill(uv: np.ndarray, window: tuple[slice, slice], ship: np.ndarray,
         return 0.0
     box = slice(lo[1], hi[1]), slice(lo[0], hi[0])
     inside = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
-    cv2.fillConvexPoly(inside, (corners - lo * 16).astype(np.int32), 1, lineType=cv2.LINE_8, shift=4)
+    for polygon in polygons:
+        cv2.fillConvexPoly(inside, (polygon - lo * 16).astype(np.int32), 1, lineType=cv2.LINE_8,
+                           shift=4)
     interior = cv2.erode(inside, _SQUARE_3X3, borderType=cv2.BORDER_REPLICATE)
     if np.count_nonzero(interior) >= FILL_INTERIOR_MIN_PX:
         inside = interior
@@ -325,8 +440,8 @@ def outline_fit(value: np.ndarray) -> tuple[float, float | None, int]:
 
 
 
-def gauss_newton(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, schedule, start: np.ndarray,
-                 prior_diagonal: np.ndarray, edge_weight: float
+def gauss_newton(align: Alignment, silhouette: Silhouette, outline: np.ndarray, schedule,
+                 start: np.ndarray, prior_diagonal: np.ndarray, edge_weight: float
                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Gauss-Newton IRLS through ``schedule`` (``(loss, scale px, iterations)`` stages) from
     ``start``, with a Gaussian prior ``diag(prior_diagonal)`` (inverse variances) about the
@@ -344,7 +459,8 @@ def gauss_newton(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, sche
     for stage, (loss, scale_px, iterations) in enumerate(schedule):
         tolerance_m = 1e-3 if stage == len(schedule) - 1 else 1e-2
         # at the sensors' pose that is the outline already sampled
-        points = outline_points(hull_h, align.pixels(hull_h, params)) if params.any() else outline
+        points = (silhouette.outline(align.pixels(silhouette.points_h, params)) if params.any()
+                  else outline)
         if points.shape[1] == 0:
             return failed()
         for _ in range(iterations):

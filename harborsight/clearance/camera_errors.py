@@ -20,11 +20,10 @@ from harborsight.clearance.alignment import (
     SCHEDULES,
     Alignment,
     SignedDistance,
+    Silhouette,
     corrected_geometry,
     gauss_newton,
-    homogeneous,
     outline_fit,
-    outline_points,
 )
 from harborsight.clearance.pose_search import edge_share
 from harborsight.frame import FrameGeometry
@@ -99,7 +98,7 @@ def _tilt_start(params: np.ndarray, geometry: FrameGeometry, hull_points_v: np.n
     return x
 
 
-def camera_tilt_explaining(params: np.ndarray, geometry: FrameGeometry, hull_points_v: np.ndarray,
+def camera_tilt_explaining(params: np.ndarray, geometry: FrameGeometry, silhouette: Silhouette,
                            ship: np.ndarray, prior_sigma: np.ndarray, reach: np.ndarray,
                            edge_weight: float, max_residual_px: float, min_edge_share: float
                            ) -> float | None:
@@ -115,9 +114,9 @@ def camera_tilt_explaining(params: np.ndarray, geometry: FrameGeometry, hull_poi
     dh``). The tilt explains the placement when that alignment leaves every sensor error
     within its ``reach`` (shift m, turn rad, height m), fits (RMS residual within
     ``max_residual_px``, at least ``min_edge_share`` of the outline's points in view on a
-    ship edge) and the tilt is at least :data:`MIN_TILT_DEG`. ``hull_points_v`` are the
-    hull's points in the vessel frame."""
-    start = _tilt_start(params, geometry, hull_points_v, prior_sigma)
+    ship edge) and the tilt is at least :data:`MIN_TILT_DEG`. ``silhouette`` is the vessel's
+    (its layers' points in the vessel frame)."""
+    start = _tilt_start(params, geometry, silhouette.points_h[:3].T, prior_sigma)
     if start is None:
         return None
     tilt_deg = math.degrees(math.hypot(start[0], start[1]))
@@ -125,16 +124,15 @@ def camera_tilt_explaining(params: np.ndarray, geometry: FrameGeometry, hull_poi
         return None
     tilted = replace(geometry, camera=_tilted(geometry.camera, start[0], start[1]))
     align = Alignment(tilted, SignedDistance(ship, (0, 0)))
-    hull_h = homogeneous(hull_points_v)
-    outline = outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
+    outline = silhouette.outline(align.pixels(silhouette.points_h, np.zeros(4)))
     if outline.shape[1] == 0:
         return None
-    fitted, _, cost, _ = gauss_newton(align, hull_h, outline, SCHEDULES[1],
+    fitted, _, cost, _ = gauss_newton(align, silhouette, outline, SCHEDULES[1],
                                       np.array([0.0, 0.0, start[2], start[3]]),
                                       np.asarray(prior_sigma, float) ** -2.0, edge_weight)
     if not (math.isfinite(cost) and np.isfinite(fitted).all()):
         return None
-    final = outline_points(hull_h, align.pixels(hull_h, fitted))
+    final = silhouette.outline(align.pixels(silhouette.points_h, fitted))
     if final.shape[1] == 0:
         return None
     value = align.residuals(final, fitted)

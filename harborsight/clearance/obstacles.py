@@ -5,8 +5,9 @@ neighbour (or a quay) touches the hull, that blob is the vessel *and* the neighb
 dropping or keeping it whole both go wrong (every section reads zero, or the neighbour
 vanishes). We instead remove only the vessel's own *region*: the vessel (mesh, or outline
 plus air draft) projected into the image with the frame's pose, as the union of the convex
-hulls of its horizontal layers (:attr:`VesselSpec.silhouette_layers`: one hull over a tall
-deckhouse and a long low deck would also cover water beside the deck in an oblique view),
+hulls of its layers (:attr:`VesselSpec.silhouette_layers`, :mod:`harborsight.vessel.layers`:
+one hull over a tall deckhouse and a long low deck, or over a deckhouse aft and a mast
+forward, would also cover water beside the deck in an oblique view),
 grown by ``pose_margin_px`` for pose and mask error. Solid pixels outside that region are
 obstacles whatever blob they belong to, so a touching neighbour is cut at the region's edge
 and only the sections facing it read a small distance. Contour points on such a cut are

@@ -68,11 +68,10 @@ from harborsight.clearance.alignment import (
     SCHEDULES,
     Alignment,
     SignedDistance,
+    Silhouette,
     corrected_geometry,
     gauss_newton,
-    homogeneous,
     outline_fit,
-    outline_points,
     ship_fill,
     tukey_cost,
 )
@@ -330,8 +329,8 @@ def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselS
     share = found.edge_share or 0.0
     if share >= UNCONFIRMED_BELOW_SHARE:
         return found
-    hull_h = homogeneous(vessel.hull_points)
-    outline = outline_points(hull_h, geometry.camera.project(geometry.vessel_to_enu(hull_h[:3].T))[0])
+    silhouette = Silhouette(vessel.own_layers)
+    outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
         return found
     uv = geometry.camera.project(geometry.vessel_to_enu(outline[:3].T))[0]
@@ -377,7 +376,7 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
     if gross[0] and (sum(gross) != 1 or sum(reach) > 1 or scaled):
         # shift and height (and the turn a tilt gives) may be one error: the camera's tilt
         tilt_deg = camera_tilt_explaining(
-            placement.params, geometry, vessel.hull_points, labels == SHIP,
+            placement.params, geometry, Silhouette(vessel.own_layers), labels == SHIP,
             np.array([settings.prior_shift_m, settings.prior_shift_m,
                       math.radians(settings.prior_heading_deg), settings.prior_height_m]),
             np.array([reach_shift_m, math.radians(reach_rotation_deg), reach_height_m]),
@@ -398,6 +397,12 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
         placement.edge_points, ship_fill=placement.ship_fill, sensors_contradicted=True,
         edge_share=found.edge_share, image_hull_px=_silhouette_px(geometry, vessel, placement.params),
         reason=reason)
+
+
+def _pixels(geometry: FrameGeometry, silhouette: Silhouette) -> np.ndarray:
+    """The pixels of the silhouette's points at the frame's pose (NaN where they do not
+    project)."""
+    return geometry.camera.project(geometry.vessel_to_enu(silhouette.points_h[:3].T))[0]
 
 
 def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarray
@@ -494,14 +499,14 @@ ENDS_ON_EDGES_SHARE = 0.5
 ENDS_MIN_POINTS = 3
 
 
-def _ends_on_edges(align: Alignment, hull_h: np.ndarray, params: np.ndarray) -> bool:
+def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray) -> bool:
     """Whether the outline under the correction ``params`` has both its ends on ship edges
     (:data:`HULL_END_SHARE`, :data:`ENDS_ON_EDGES_SHARE`; an end with fewer than
     :data:`ENDS_MIN_POINTS` points in view is not on edges)."""
-    outline = outline_points(hull_h, align.pixels(hull_h, params))
+    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
     if outline.shape[1] == 0:
         return False
-    x = hull_h[0]
+    x = silhouette.points_h[0]
     reach = HULL_END_SHARE * float(x.max() - x.min())
     for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
         values = align.residuals(end, params)
@@ -527,20 +532,22 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     if not ship.any():
         return None
     align = whole_image_alignment(ship, geometry)
-    hull_h = homogeneous(vessel.hull_points)
+    silhouette = Silhouette(vessel.own_layers)
     chosen = _as_params(found) if found.applied else np.zeros(4)
     known = labels != IGNORE
     # the refinement's own correction, refused for its size, is a start too: the search's
     # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)
     refused = (_as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
-    chosen_uv = align.pixels(hull_h, chosen)
+    chosen_uv = align.pixels(silhouette.points_h, chosen)
     whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
-    on_a_ship = ((share >= HELD_FROM_SHARE or _ends_on_edges(align, hull_h, chosen))
-                 and ship_fill(chosen_uv, whole, ship, known) >= settings.min_ship_fill)
+    on_a_ship = ((share >= HELD_FROM_SHARE or _ends_on_edges(align, silhouette, chosen))
+                 and ship_fill(silhouette.layers_uv(chosen_uv), whole, ship, known)
+                 >= settings.min_ship_fill)
 
     def elsewhere(params: np.ndarray) -> bool:
         """The pose sits on a ship, and ``params`` lay the hull on another one."""
-        return on_a_ship and silhouette_overlap(chosen_uv, align.pixels(hull_h, params)) < SAME_SHIP_OVERLAP
+        return on_a_ship and silhouette_overlap(
+            chosen_uv, align.pixels(silhouette.points_h, params)) < SAME_SHIP_OVERLAP
 
     reach_shift_m = _reach(settings)[0]
 
@@ -550,7 +557,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
             return 1 + gross[2]             # shift and turn are one error: the camera's yaw
         return sum(gross)
 
-    placement = place_hull(align, hull_h, ship, known, settings.edge_sigma_px ** -2.0,
+    placement = place_hull(align, silhouette, ship, known, settings.edge_sigma_px ** -2.0,
                            settings.min_ship_fill, against=chosen, extra_starts=refused,
                            slide=share < SLIDE_BELOW_SHARE, slide_beyond_m=reach_shift_m,
                            gross_errors=gross_errors,
@@ -574,7 +581,7 @@ SCALE_CONFLICT_Z = 3.0
 SCALE_SCREEN_Z = 1.5
 
 
-def _image_scale(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, params: np.ndarray,
+def _image_scale(align: Alignment, silhouette: Silhouette, outline: np.ndarray, params: np.ndarray,
                  information: np.ndarray, value: np.ndarray, prior_diagonal: np.ndarray,
                  edge_weight: float, geometry: FrameGeometry, edge_px: float
                  ) -> tuple[tuple, float] | None:
@@ -614,7 +621,7 @@ def _image_scale(align: Alignment, hull_h: np.ndarray, outline: np.ndarray, para
     prior_m = math.hypot(math.sqrt(sigma_p2), 3.0 * mean_d)
     widened = prior_diagonal.copy()
     widened[3] = prior_m ** -2.0
-    again = gauss_newton(align, hull_h, outline, SCHEDULES[0], params, widened, edge_weight)
+    again = gauss_newton(align, silhouette, outline, SCHEDULES[0], params, widened, edge_weight)
     if not (np.isfinite(again[2]) and np.isfinite(again[0]).all()):
         return None
     try:
@@ -636,8 +643,8 @@ def _refine_within_prior(
 ) -> tuple[FrameGeometry, PoseRefinement]:
     """The refinement proper, within the sensors' prior; ``extra_start`` (a correction the
     whole-image search found within the limits) joins the starts, and the window reaches it."""
-    hull_h = homogeneous(vessel.hull_points)
-    outline = outline_points(hull_h, geometry.camera.project(geometry.vessel_to_enu(hull_h[:3].T))[0])
+    silhouette = Silhouette(vessel.own_layers)
+    outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
         return geometry, PoseRefinement(False, reason=NOT_IN_VIEW[0])
     uv0 = geometry.camera.project(geometry.vessel_to_enu(outline[:3].T))[0]
@@ -665,12 +672,13 @@ def _refine_within_prior(
     edge_weight = settings.edge_sigma_px ** -2.0
 
     def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        return gauss_newton(align, hull_h, outline, schedule, start, prior_diagonal, edge_weight)
+        return gauss_newton(align, silhouette, outline, schedule, start, prior_diagonal, edge_weight)
 
     known = labels[window] != IGNORE
 
     def fill(params: np.ndarray) -> float:
-        return ship_fill(align.pixels(hull_h, params), window, ship, known)
+        return ship_fill(silhouette.layers_uv(align.pixels(silhouette.points_h, params)), window,
+                         ship, known)
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side
@@ -692,7 +700,7 @@ def _refine_within_prior(
     full = [c for c in candidates if c[4] >= settings.min_ship_fill]
     params, information, _, value, fill_share = best = min(full or candidates, key=lambda c: c[2])
     scale_prior_m = None
-    rescaled = (_image_scale(align, hull_h, outline, params, information, value, prior_diagonal,
+    rescaled = (_image_scale(align, silhouette, outline, params, information, value, prior_diagonal,
                              edge_weight, geometry, settings.scale_edge_px)
                 if settings.refine_height and np.isfinite(params).all() else None)
     if rescaled is not None:

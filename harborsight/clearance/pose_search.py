@@ -44,9 +44,9 @@ from harborsight.clearance.alignment import (
     SCHEDULES,
     Alignment,
     SignedDistance,
+    Silhouette,
     gauss_newton,
     outline_fit,
-    outline_points,
     ship_fill,
     tukey_cost,
 )
@@ -136,10 +136,11 @@ def _region(polygon: np.ndarray) -> tuple[float, np.ndarray, float, float] | Non
     return area, centroid, angle, math.sqrt(12 * major)
 
 
-def _silhouette(align: Alignment, hull_h: np.ndarray, params: np.ndarray
+def _silhouette(align: Alignment, silhouette: Silhouette, params: np.ndarray
                 ) -> tuple[float, np.ndarray, float, float] | None:
-    """The projected silhouette's region (:func:`_region`) under ``params``."""
-    uv = align.pixels(hull_h, params)
+    """The projected silhouette's region (:func:`_region`) under ``params``: the convex
+    hull of all its layers' points (a start's coarse measures)."""
+    uv = align.pixels(silhouette.points_h, params)
     uv = uv[np.isfinite(uv).all(axis=1)]
     if len(uv) < 3:
         return None
@@ -151,14 +152,14 @@ def _wrap_axis(angle: float) -> float:
     return (angle + math.pi / 2) % math.pi - math.pi / 2
 
 
-def _centroid_jacobian(align: Alignment, hull_h: np.ndarray
+def _centroid_jacobian(align: Alignment, silhouette: Silhouette
                        ) -> tuple[tuple[float, np.ndarray, float, float], np.ndarray] | None:
     """The predicted silhouette's region (:func:`_region`) at the sensors' pose and its
     centroid's Jacobian in the shift (pixels per metre, columns east and north), from
     projections 1 m east and 1 m north; None when either fails or it is singular."""
-    predicted = _silhouette(align, hull_h, np.zeros(4))
-    east = _silhouette(align, hull_h, np.array([1.0, 0.0, 0.0, 0.0]))
-    north = _silhouette(align, hull_h, np.array([0.0, 1.0, 0.0, 0.0]))
+    predicted = _silhouette(align, silhouette, np.zeros(4))
+    east = _silhouette(align, silhouette, np.array([1.0, 0.0, 0.0, 0.0]))
+    north = _silhouette(align, silhouette, np.array([0.0, 1.0, 0.0, 0.0]))
     if predicted is None or east is None or north is None:
         return None
     jacobian = np.column_stack((east[1] - predicted[1], north[1] - predicted[1]))
@@ -167,18 +168,18 @@ def _centroid_jacobian(align: Alignment, hull_h: np.ndarray
     return predicted, jacobian
 
 
-def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.ndarray]:
+def _starts(align: Alignment, silhouette: Silhouette, ship: np.ndarray) -> list[np.ndarray]:
     """Poses ``(de, dn, dpsi, dh)`` that lay the silhouette on the largest ship blobs. The
     shift puts the silhouette's centroid on the blob's in one Newton step, with the
     centroid's Jacobian in the shift taken at the sensors' pose from projections 1 m east
     and 1 m north and scaled by ``H / (H + dh)`` (pixels per metre go as one over the
     range); the silhouette moves as a whole, so the Jacobian holds for any heading."""
-    found = _centroid_jacobian(align, hull_h)
+    found = _centroid_jacobian(align, silhouette)
     height_m = float(align.camera.position_enu[2])
     if found is None or height_m <= 0:
         return []
     (area_pred, _, angle_pred, length_pred), jacobian = found
-    turned = _silhouette(align, hull_h, np.array([0.0, 0.0, 0.2, 0.0]))
+    turned = _silhouette(align, silhouette, np.array([0.0, 0.0, 0.2, 0.0]))
     # +1 when the image axis turns with the heading, -1 when against it (a mirrored view)
     sense = 1.0 if turned is None or _wrap_axis(turned[2] - angle_pred) >= 0 else -1.0
     # the blobs' outer contours (8-connected; holes filled): their polygons' moments are a
@@ -208,7 +209,7 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
             for turn in turns:
                 key = (round(turn, 6), round(dh, 6))
                 if key not in centroids:
-                    here = _silhouette(align, hull_h, np.array([0.0, 0.0, turn, dh]))
+                    here = _silhouette(align, silhouette, np.array([0.0, 0.0, turn, dh]))
                     centroids[key] = None if here is None else here[1]
                 if centroids[key] is None:
                     continue
@@ -218,7 +219,7 @@ def _starts(align: Alignment, hull_h: np.ndarray, ship: np.ndarray) -> list[np.n
     return starts
 
 
-def _sliding_starts(align: Alignment, hull_h: np.ndarray, beyond_m: float = 0.0) -> list[np.ndarray]:
+def _sliding_starts(align: Alignment, silhouette: Silhouette, beyond_m: float = 0.0) -> list[np.ndarray]:
     """Poses ``(de, dn, dpsi, 0)`` that slide the predicted silhouette, at the sensors'
     heading and reversed and at their scale, to where its outline lies best along ship
     edges anywhere in the image: a chamfer match. The blob starts lay the silhouette's
@@ -234,7 +235,7 @@ def _sliding_starts(align: Alignment, hull_h: np.ndarray, beyond_m: float = 0.0)
     give a shift through the centroid's Jacobian (pixels per metre at the sensors' pose);
     shifts under ``beyond_m`` are left to the refinement, whose reach they are within (at
     150 m a poor mask's blob near the pose took a shrunk hull there for a height error)."""
-    predicted = _centroid_jacobian(align, hull_h)
+    predicted = _centroid_jacobian(align, silhouette)
     if predicted is None:
         return []
     jacobian = predicted[1]
@@ -244,10 +245,10 @@ def _sliding_starts(align: Alignment, hull_h: np.ndarray, beyond_m: float = 0.0)
     starts: list[np.ndarray] = []
     for turn in (0.0, math.pi):
         params = np.array([0.0, 0.0, turn, 0.0])
-        region = _silhouette(align, hull_h, params)
+        region = _silhouette(align, silhouette, params)
         if region is None:
             continue
-        outline = outline_points(hull_h, align.pixels(hull_h, params))
+        outline = silhouette.outline(align.pixels(silhouette.points_h, params))
         uv = align.pixels(outline, params)
         uv = uv[np.isfinite(uv).all(axis=1)]
         if len(uv) < MIN_EDGE_POINTS:
@@ -288,7 +289,7 @@ def _start_cost(align: Alignment, outline: np.ndarray, params: np.ndarray) -> fl
     return float(cost) / outline.shape[1]
 
 
-def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np.ndarray,
+def place_hull(align: Alignment, silhouette: Silhouette, ship: np.ndarray, known: np.ndarray,
                edge_weight: float = 1.0, min_ship_fill: float = 0.9,
                against: np.ndarray | None = None, extra_starts: tuple[np.ndarray, ...] = (),
                slide: bool = False, slide_beyond_m: float = 0.0,
@@ -310,13 +311,13 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     ``align`` is
     :func:`whole_image_alignment`'s, ``ship`` and ``known`` are the whole image's ship and
     labelled pixels."""
-    starts = [*_starts(align, hull_h, ship), *extra_starts]
-    sliding = _sliding_starts(align, hull_h, slide_beyond_m) if slide else []
+    starts = [*_starts(align, silhouette, ship), *extra_starts]
+    sliding = _sliding_starts(align, silhouette, slide_beyond_m) if slide else []
     if not starts and not sliding:
         return None
     # the outline's samples are fixed blends of hull points, taken once at the sensors' pose
     # (a silhouette keeps its corners under a shift, a turn or a scale of a nadir view)
-    outline = outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
+    outline = silhouette.outline(align.pixels(silhouette.points_h, np.zeros(4)))
     if outline.shape[1] == 0:
         return None
     scoring = outline[:, ::-(-outline.shape[1] // START_POINTS)]
@@ -336,13 +337,13 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
     lowest_m, highest_m = max(MIN_HEIGHT_M, height_m / SCALE_RANGE[1]), height_m / SCALE_RANGE[0]
     best: tuple[tuple[float, float], Placement] | None = None
     for _, start in scored:
-        params, _, cost, _ = gauss_newton(align, hull_h, outline, SCHEDULES[1], start,
+        params, _, cost, _ = gauss_newton(align, silhouette, outline, SCHEDULES[1], start,
                                           FLAT_PRIOR_SIGMA ** -2.0, edge_weight)
         if not (math.isfinite(cost) and np.isfinite(params).all()):
             continue
         if not lowest_m <= height_m + params[3] <= highest_m:
             continue            # shrunk to a speck far away, or grown past the scales tried
-        final = outline_points(hull_h, align.pixels(hull_h, params))
+        final = silhouette.outline(align.pixels(silhouette.points_h, params))
         if final.shape[1] == 0:
             continue
         value = align.residuals(final, params)
@@ -350,7 +351,8 @@ def place_hull(align: Alignment, hull_h: np.ndarray, ship: np.ndarray, known: np
         if telling < MIN_EDGE_POINTS:
             continue
         found = Placement(params, edge_share(value), fraction, residual_px,
-                          ship_fill(align.pixels(hull_h, params), window, ship, known),
+                          ship_fill(silhouette.layers_uv(align.pixels(silhouette.points_h, params)), window,
+                                    ship, known),
                           len(value) / final.shape[1], telling)
         filled = found.ship_fill >= min_ship_fill
         # among fits good enough to count, the fewest gross errors: a hull shrunk and turned

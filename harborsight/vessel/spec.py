@@ -13,6 +13,7 @@ import trimesh
 
 from harborsight.errors import InputError, brief
 from harborsight.geometry.camera import load_yaml_text
+from harborsight.vessel.layers import above_water_layers
 from harborsight.vessel.outline import (
     BOW_SHAPES,
     bow_looks_aft,
@@ -55,8 +56,9 @@ class VesselSpec:
     #: one sigma (m) of the outline's place against the real hull (``outline_sigma_m``; 0: a
     #: mesh taken as exact), a systematic term of every distance's sigma
     outline_sigma_m: float = 0.0
-    #: V-frame point sets, one per horizontal layer of the vessel above the waterline, whose
-    #: convex hulls together contain it (:func:`above_water_layers`); empty: the convex hull
+    #: V-frame point sets, one per layer of the vessel above the waterline (a hull, a
+    #: deckhouse, a mast; at most 12), whose convex hulls together contain it
+    #: (:func:`harborsight.vessel.layers.above_water_layers`); empty: the convex hull
     #: of ``hull_points`` alone (a prism from dimensions, which is exact)
     silhouette_layers: tuple[np.ndarray, ...] = field(default=(), repr=False, compare=False)
     _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -288,88 +290,6 @@ def above_water_hull_points(mesh_v) -> np.ndarray:
     if above is None or len(above.vertices) < 4:
         raise ValueError("no part of the hull mesh is above the waterline")
     return np.asarray(trimesh.convex.convex_hull(above.vertices).vertices)
-
-
-#: :func:`above_water_layers`: the thickness of the thin slabs the layers are made of (m),
-#: at most this many slabs, and how much larger (a share) a layer's plan may be than its
-#: smallest slab's for the next slab to join it
-LAYER_SLAB_M = 0.25
-MAX_LAYER_SLABS = 400
-LAYER_GROWTH = 0.1
-
-
-def _crossings_at_heights(vertices: np.ndarray, edges: np.ndarray, levels: np.ndarray
-                          ) -> list[np.ndarray]:
-    """For each height in ``levels`` (m above the waterline, ``-z``), the points where the
-    mesh's edges cross it: ``p + t (q - p)``, ``t = (l - h_p) / (h_q - h_p)``."""
-    p, q = vertices[edges[:, 0]], vertices[edges[:, 1]]
-    hp, hq = -p[:, 2], -q[:, 2]
-    out = []
-    for level in levels:
-        crossing = (np.minimum(hp, hq) < level) & (np.maximum(hp, hq) > level)
-        t = (level - hp[crossing]) / (hq[crossing] - hp[crossing])
-        out.append(p[crossing] + t[:, None] * (q[crossing] - p[crossing]))
-    return out
-
-
-def _plan_area_m2(points: np.ndarray) -> float:
-    """Area of the convex hull of points' horizontal positions (0 for fewer than 3)."""
-    import cv2
-
-    if len(points) < 3:
-        return 0.0
-    return float(cv2.contourArea(cv2.convexHull(points[:, :2].astype(np.float32))))
-
-
-def above_water_layers(mesh_v) -> tuple[np.ndarray, ...]:
-    """The part of a V-frame mesh above the waterline as a few horizontal layers: point sets
-    whose convex hulls together contain it, each hull close to the vessel's own shape.
-
-    One convex hull over a tall deckhouse and a long low deck also holds the slanted faces
-    from the deckhouse's roof down to the deck's ends, which in an oblique view cover water
-    the vessel does not hide (2-3 m beside a tug's bow at 30 m up, 60 degrees off nadir): an
-    obstacle there would be erased as the vessel's own pixels. Here the mesh is cut into
-    slabs :data:`LAYER_SLAB_M` thick (each face's part in a slab is the convex hull of its
-    corners in the slab and its edges' crossings of the slab's planes, so the slabs' hulls
-    contain the mesh), and consecutive slabs are joined while the joined plan's area stays
-    within :data:`LAYER_GROWTH` of the smallest slab plan in it: the hull's slabs join,
-    the deckhouse's start a layer of their own. Each layer is returned as the vertices of
-    its convex hull."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    above = mesh_v.slice_plane(plane_origin=[0.0, 0.0, 0.0], plane_normal=[0.0, 0.0, -1.0])
-    if above is None or len(above.vertices) < 4:
-        raise ValueError("no part of the hull mesh is above the waterline")
-    vertices = np.asarray(above.vertices, float)
-    heights = -vertices[:, 2]
-    top = float(heights.max())
-    n_slabs = max(1, min(MAX_LAYER_SLABS, math.ceil(top / LAYER_SLAB_M)))
-    levels = np.linspace(0.0, top, n_slabs + 1)
-    crossings = _crossings_at_heights(vertices, np.asarray(above.edges_unique), levels)
-    slabs = []
-    for k in range(n_slabs):
-        inside = (heights >= levels[k]) & (heights <= levels[k + 1])
-        points = np.vstack((vertices[inside], crossings[k], crossings[k + 1]))
-        if len(points):
-            slabs.append(points)
-    layers, current, smallest = [], None, 0.0
-    for points in slabs:
-        area = max(_plan_area_m2(points), 1e-6)
-        if current is not None:
-            joined = np.vstack((current, points))
-            if _plan_area_m2(joined) <= (1.0 + LAYER_GROWTH) * min(smallest, area):
-                current, smallest = joined, min(smallest, area)
-                continue
-            layers.append(current)
-        current, smallest = points, area
-    layers.append(current)
-    out = []
-    for points in layers:
-        try:
-            out.append(points[ConvexHull(points).vertices])
-        except (QhullError, ValueError):       # flat or too few: keep the points themselves
-            out.append(points)
-    return tuple(out)
 
 
 def load_vessel_spec(path: str | Path) -> VesselSpec:
