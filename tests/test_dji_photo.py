@@ -360,3 +360,28 @@ def test_an_rtk_altitude_type_names_the_ellipsoid(tmp_path):
     assert "RtkAlt" in track.alt_reference and "ellipsoid" in track.alt_reference
     plain = photo_track(read_dji_photo(_photo(tmp_path, name="plain.jpg")), altitude="absolute")
     assert "mean sea level on most models" in plain.alt_reference
+
+
+@pytest.mark.parametrize("flags", [{"CamReverse": "1"}, {"GimbalReverse": "1"},
+                                   {"CamReverse": "true", "GimbalReverse": "0"}])
+def test_a_camera_mounted_upside_down_is_not_made_a_frame(tmp_path, flags):
+    """``CamReverse``/``GimbalReverse`` 1 (DJI's M3M and P1 XMP tables): a camera on a top
+    gimbal port. The gimbal's angles are written as for an upright camera, and whether the
+    photo was turned back to match them is not: every distance could be measured in a scene
+    turned 180 degrees. Refused, naming the field; 0 changes nothing."""
+    from harborsight.telemetry.dji_photo import photo_frame
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    vessel = read_vessel_track(FLIGHT / "logs" / "ship.nmea")
+    common = {**P4RTK_CALIBRATION, "UTCAtExposure": "2026:05:01 12:00:05.000"}
+    plain = _photo(tmp_path, {**common, "CamReverse": "0", "GimbalReverse": "0"}, name="plain.jpg",
+                   rgb=np.zeros((456, 684, 3), np.uint8), exif=LOCAL_TIME)
+    made = photo_frame(read_dji_photo(plain), vessel, image="plain.jpg", water_level_m=0.0,
+                       max_gap_s=1e6)
+    assert made.frame is not None, made.reason
+    turned = _photo(tmp_path, {**common, **flags}, name="turned.jpg",
+                    rgb=np.zeros((456, 684, 3), np.uint8), exif=LOCAL_TIME)
+    field = next(k for k, v in flags.items() if v != "0")
+    with pytest.raises(InputError, match=f"{field}.*upside down"):
+        photo_frame(read_dji_photo(turned), vessel, image="turned.jpg", water_level_m=0.0,
+                    max_gap_s=1e6)

@@ -16,6 +16,9 @@ firmware writes a different subset, as attributes of ``rdf:Description`` or as e
   size photo), ``DewarpData`` (``date;fx,fy,cx,cy,k1,k2,p1,p2,k3``: cx, cy are offsets in pixels
   from the photo's centre, per DJI's Mavic 3M and Matrice 4 manuals) and ``DewarpFlag`` (1: the
   photo was already undistorted in the camera);
+* mounting: ``CamReverse`` and ``GimbalReverse`` (1: mounted upside down, as on a top
+  gimbal port; such a photo is refused: whether its pixels were turned back to match the
+  gimbal's angles is not written);
 * accuracy: ``RtkFlag`` (0 no position, 16 single point, 32-49 float, 50 fixed) and
   ``RtkStdLon``/``RtkStdLat``/``RtkStdHgt`` (one sigma, metres);
 * time: ``UTCAtExposure`` (newer enterprise models).
@@ -627,6 +630,16 @@ def photo_frame(
         raise InputError(photo.source, "Orientation", f"EXIF Orientation {photo.orientation}: "
                          "the photo was turned after capture, and a decoder turns it back, so "
                          "its pixels are not the camera's; save it with Orientation 1")
+    for flag in ("CamReverse", "GimbalReverse"):
+        text = str(photo.xmp.get(flag, "")).strip().lower()
+        if photo.number(flag) not in (None, 0.0) or text == "true":
+            # a camera or gimbal mounted upside down (a top gimbal port): DJI writes the
+            # gimbal's angles, and whether the photo was turned back to match them is not said
+            raise InputError(photo.source, flag, f"{brief(photo.xmp.get(flag))}: the camera is "
+                             "mounted upside down, and the photo does not say whether its pixels "
+                             "were turned back to match the gimbal's angles; a camera that looks "
+                             "down at a vessel hangs under the drone (write the frame/1 file by "
+                             "hand if this one does)")
     when, clock = capture_utc(photo, utc_offset_h)
     drone = photo_track(photo, altitude=altitude, yaw_reference=yaw_reference, when=when)
     if camera is None:
