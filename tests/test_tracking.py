@@ -318,3 +318,97 @@ def test_a_reading_without_a_sigma_is_no_surer_than_the_tracks_last():
         return tracker.step(5.0, Reading(11.0, sigma, sigma)).distance_m
     assert after_jump(None) == pytest.approx(after_jump(0.8), abs=1e-9)
     assert after_jump(None) < 10.5
+
+
+@pytest.mark.parametrize("rate_hz, speed_mps", [(2.0, 4.0), (2.0, 6.0), (10.0, 6.0)])
+def test_a_fast_approach_gets_its_closing_speed_and_time_to_contact(rate_hz, speed_mps):
+    """A boat closing at 4-6 m/s lies 2-3 m nearer each half second, beyond the first gate
+    (3 x 1 m/s x 0.5 s): every reading started a track of its own, and no closing speed nor
+    time to contact was ever given (a 2 m/s boat got both). The current track seen once
+    takes the next reading (no faster than max_speed_mps) and starts its speed from the two;
+    from the third reading (and half a second) on both are given, within 0.3 m/s and 10 %."""
+    tracker = SectionTracker()
+    times = np.arange(0.0, 9.0 / speed_mps, 1.0 / rate_hz)
+    rng = np.random.default_rng(5)
+    for i, t in enumerate(times):
+        truth = 10.0 - speed_mps * t
+        estimate = tracker.step(float(t), Reading(float(truth + rng.normal(0, 0.05)), 0.05, 0.05))
+        if i >= max(2, rate_hz / 2):
+            assert estimate.closing_speed_mps == pytest.approx(speed_mps, abs=0.3)
+            assert estimate.time_to_contact_s == pytest.approx(truth / speed_mps, rel=0.1)
+    assert len({tracker.step(float(times[-1]), None).track}) == 1
+
+
+def test_an_outlier_s_track_does_not_take_a_later_reading():
+    """Exact readings of 12 - 0.4 t, one 3 m too far at 19 s, one 0.15 m short at 23.5 s.
+    The outlier's track, seen once, stayed, took the short reading (nearer to it, in its
+    widening gate, than to the right track's), made up a speed from the two and was shown
+    for three frames: 1.35 m against 2.20 m true. A track seen once that the next reading
+    does not take is dropped."""
+    tracker = SectionTracker()
+    for t in np.arange(0.0, 26.0, 0.5):
+        truth = 12.0 - 0.4 * t
+        z = truth + (3.0 if t == 19.0 else -0.15 if t == 23.5 else 0.0)
+        estimate = tracker.step(float(t), Reading(float(z), 0.1, 0.1))
+        if t >= 20.0:
+            assert estimate.distance_m == pytest.approx(truth, abs=0.2)
+            assert estimate.closing_speed_mps == pytest.approx(0.4, abs=0.15)
+    assert len(tracker.tracks) == 1
+
+
+def test_a_section_seen_clear_is_not_coasted_into_contact():
+    """A boat closing at 1 m/s leaves the band at 2 m; the section then reads clear (nothing
+    out to 30 m). It was coasted for 5 s: filtered 0 m, "contact in 0 s". Now nothing is
+    reported while the band is seen clear; an obstacle that was only missed for a frame (a
+    quay seen again where predicted) takes its track, and its speed, back."""
+    tracker = SectionTracker()
+    for t in np.arange(0.0, 8.0, 0.5):
+        tracker.step(float(t), Reading(10.0 - t, 0.05, 0.05))
+    for t in np.arange(8.0, 12.0, 0.5):
+        estimate = tracker.step(float(t), None, seen_clear=(0.0, 30.0))
+        assert estimate.state == "clear" and estimate.distance_m is None
+        assert estimate.time_to_contact_s is None
+    out_of_view = SectionTracker()
+    for t in np.arange(0.0, 4.0, 0.5):
+        out_of_view.step(float(t), Reading(10.0 - 0.3 * t, 0.05, 0.05))
+    assert out_of_view.step(4.0, None).state == "coasting"          # not seen: coasts
+    assert out_of_view.step(4.5, None, seen_clear=(0.0, 5.0)).state == "coasting"   # beyond
+    assert out_of_view.step(5.0, None, seen_clear=(0.0, 30.0)).state == "clear"
+    back = out_of_view.step(5.5, Reading(10.0 - 0.3 * 5.5, 0.05, 0.05))
+    assert back.state == "updated" and back.closing_speed_mps == pytest.approx(0.3, abs=0.05)
+
+
+def test_a_reading_without_a_sigma_is_gated_with_the_track_s_sigmas():
+    """A reading 0.6 m short without a sigma, on a track of 0.3 m readings: it was gated with
+    the 2 cm floor, started a track of its own, shown as 10.90 +- 0.02 m (truth 11.50). It
+    is gated, and taken, as a reading of the track's last sigma would be. A non-finite
+    reading is no reading."""
+    def last(z_sigma):
+        tracker = SectionTracker()
+        for t in np.arange(0.0, 5.0, 0.5):
+            tracker.step(float(t), Reading(14.0 - 0.5 * t, 0.3, 0.3))
+        return tracker.step(5.0, Reading(10.9, z_sigma, z_sigma))
+    without, given = last(None), last(0.3)
+    assert without.state == given.state == "updated"
+    assert without.distance_m == pytest.approx(given.distance_m, abs=1e-9)
+    assert without.sigma_m == pytest.approx(given.sigma_m, abs=1e-9)
+    tracker = SectionTracker()
+    tracker.step(0.0, Reading(5.0, 0.1, 0.1))
+    assert tracker.step(0.5, Reading(float("nan"), 0.1, 0.1)).state == "coasting"
+    assert tracker.step(1.0, Reading(4.8, float("nan"), None)).state in ("updated", "new")
+
+
+def test_the_overlay_footer_names_only_sections_measured_this_frame():
+    """The footer drawn on every overlay of `run` took the smallest time to contact over all
+    sections, coasting ones too: a section out of view for seconds, its track extrapolated,
+    read "contact in 0 s". Only sections with a reading this frame count; under 10 s the time
+    has a decimal."""
+    from harborsight.flight.runner import trend_footer
+    from harborsight.flight.timeline import SectionTrend
+    from harborsight.flight.tracking import SectionEstimate
+
+    coasting = SectionTrend(estimate=SectionEstimate(0.1, 0.1, 1.0, 0.1, 0.1, 0, "coasting"))
+    measured = SectionTrend(estimate=SectionEstimate(6.0, 0.1, 0.8, 0.1, 7.5, 1, "updated"))
+    assert trend_footer({0: coasting, 1: measured}, True) == (
+        "section 1 closing at 0.80 m/s, contact in 7.5 s")
+    assert trend_footer({0: coasting}, True) == "no section closing"

@@ -249,7 +249,8 @@ def test_run_writes_sigmas_and_filtered_values_and_takes_sigma_options(tmp_path)
     ok = [r for r in rows if r["status"] == "ok"]
     assert ok and all(r["sigma_m"] and r["distance_lower_m"] for r in ok)
     assert any(r["filtered_distance_m"] and r["closing_speed_mps"] for r in ok)
-    assert {r["track_state"] for r in rows} <= {"updated", "new", "held", "coasting", "none"}
+    assert {r["track_state"] for r in rows} <= {"updated", "new", "held", "coasting", "clear",
+                                                "none"}
     clear = [r for r in rows if r["status"] == "clear"]
     assert clear and any(r["clear_to_m"] for r in clear)
     # an ok section carries it only when its band leaves the picture nearer than its

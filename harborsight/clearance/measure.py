@@ -655,6 +655,7 @@ def measure_clearance(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
         vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points),
+        vessel_layers_enu=[geometry.vessel_to_enu(layer) for layer in vessel.own_layers],
         outline_sigma_m=vessel.outline_sigma_m)
     if settings.method == "gsd":
         add_nadir_approximation(results)

@@ -90,7 +90,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from harborsight.clearance.alignment import homogeneous, outline_points
+from harborsight.clearance.alignment import Silhouette
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
 from harborsight.clearance.report import STATUS_OK, SectionClearance
 from harborsight.frame import FrameGeometry
@@ -179,14 +179,15 @@ def _points_at_heights(cameras: list[Camera], uv: np.ndarray, height_m: np.ndarr
     return points
 
 
-def _silhouette_enu(camera: Camera, vessel_points_enu: np.ndarray) -> np.ndarray | None:
+def _silhouette_enu(camera: Camera, layers_enu: list[np.ndarray]) -> np.ndarray | None:
     """What the alignment fits: points every :data:`~harborsight.clearance.alignment.SAMPLE_STEP_PX`
-    along the convex hull of the vessel's points in the image (every k-th, at most
+    along the outline of the vessel's image (its layers' hulls' union,
+    :class:`~harborsight.clearance.alignment.Silhouette`; every k-th, at most
     :data:`_SILHOUETTE_POINTS`), in ENU with their heights (the deck's edge, not the
     waterline), those that project into the image; None when fewer than 3 do."""
-    points = np.asarray(vessel_points_enu, float)
-    uv, _ = camera.project(points)
-    sampled = outline_points(homogeneous(points), uv)[:3].T
+    silhouette = Silhouette(layers_enu)
+    uv, _ = camera.project(silhouette.points_h[:3].T)
+    sampled = silhouette.outline(uv)[:3].T
     if len(sampled) < 3:
         return None
     sampled = sampled[::-(-len(sampled) // _SILHOUETTE_POINTS)]     # evenly, at most that many
@@ -488,6 +489,7 @@ def add_section_uncertainty(
     velocities: FrameVelocities | None = None, *, outline_px: np.ndarray | None = None,
     confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
     vessel_points_enu: np.ndarray | None = None, outline_sigma_m: float = 0.0,
+    vessel_layers_enu: list[np.ndarray] | None = None,
 ) -> dict | None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
@@ -495,8 +497,9 @@ def add_section_uncertainty(
     ``outline_px`` their pixels with that geometry's camera (NaN where they do not project),
     when the caller has them already (else they are projected here); ``confidence`` the
     model's probabilities, when the mask came from a model; ``vessel_points_enu`` the
-    vessel's hull points (above the waterline), for the silhouette the alignment fits and
-    for its shadow when the sun is known; ``outline_sigma_m`` the hull outline's own one
+    vessel's hull points (above the waterline), for its shadow when the sun is known, and
+    ``vessel_layers_enu`` its layers' points, for the silhouette the alignment fits (the
+    hull points' hull when not given); ``outline_sigma_m`` the hull outline's own one
     sigma against the real hull (a hull drawn from AIS dimensions). Returns what
     :func:`_unexplained_shift` found
     (``shift_sigmas``, ``tilt_deg``, ``height_m``) when it widened the bars, else None."""
@@ -533,8 +536,8 @@ def add_section_uncertainty(
     # the alignment fits the hull's silhouette at its own heights (the deck's edge): a camera
     # tilt moves it in the image by (H - z)·δ, not H·δ, and the difference is the parallax the
     # distances keep. Without the vessel's points the waterline outline stands in for it.
-    silhouette = (_silhouette_enu(camera, vessel_points_enu)
-                  if refined and vessel_points_enu is not None else None)
+    layers = vessel_layers_enu or ([vessel_points_enu] if vessel_points_enu is not None else None)
+    silhouette = _silhouette_enu(camera, layers) if refined and layers else None
     if silhouette is not None:
         outline_px = np.zeros((0, 2))
     # one back-projection of every pixel needed, with the camera and each perturbed camera:

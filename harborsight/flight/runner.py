@@ -46,6 +46,7 @@ from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
+from harborsight.flight.tracking import MEASURED_STATES
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
 from harborsight.viz.overlay import GREY, RED, draw_banner, draw_overlay
 
@@ -154,11 +155,13 @@ def trend_footer(trends: dict[int, SectionTrend], has_time: bool) -> str:
     """One line on the closing section nearest to contact (or why there is none)."""
     if not has_time:
         return "closing speed: frames need timestamps"
+    # only sections measured this frame: a coasting track's prediction is no reading
     closing = [(t.time_to_contact_s, k, t.closing_speed_mps) for k, t in trends.items()
-               if t.time_to_contact_s is not None]
+               if t.time_to_contact_s is not None and t.estimate.state in MEASURED_STATES]
     if closing:
         ttc, k, speed = min(closing)
-        return f"section {k} closing at {speed:.2f} m/s, contact in {ttc:.0f} s"
+        when = f"{ttc:.1f}" if ttc < 10 else f"{ttc:.0f}"
+        return f"section {k} closing at {speed:.2f} m/s, contact in {when} s"
     speeds = [t.closing_speed_mps for t in trends.values() if t.closing_speed_mps is not None]
     return "no section closing" if speeds else "closing speed: collecting frames"
 

@@ -28,7 +28,13 @@ import numpy as np
 
 from harborsight.clearance.report import STATUS_OK, ClearanceReport
 from harborsight.errors import InputError
-from harborsight.flight.tracking import Reading, SectionEstimate, SectionTracker, TrackerSettings
+from harborsight.flight.tracking import (
+    Reading,
+    SectionEstimate,
+    SectionTracker,
+    TrackerSettings,
+    seen_clear,
+)
 from harborsight.frame import FrameMetadata
 
 CSV_COLUMNS = [
@@ -171,7 +177,7 @@ class ClearanceTimeline:
                     section.index, SectionTracker(self.tracker_settings))
                 reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
                            if fits else None)
-                trend.estimate = tracker.step(time_s, reading)
+                trend.estimate = tracker.step(time_s, reading, seen_clear(section))
             trends[section.index] = trend
             estimate = trend.estimate
             rows.append({
@@ -260,7 +266,8 @@ class ClearanceTimeline:
         ax_v.set_xlabel(x_label)
         ax_v.grid(alpha=0.3)
         if not rows:
-            ax_v.text(0.5, 0.5, "no closing speed: frames need timestamps", ha="center",
+            ax_v.text(0.5, 0.5, "no closing speed" if use_time else
+                      "no closing speed: frames need timestamps", ha="center",
                       va="center", transform=ax_v.transAxes, color="grey")
         fig.savefig(path, dpi=120)
         plt.close(fig)
@@ -272,4 +279,4 @@ def write_rows(writer: csv.DictWriter, rows: list[dict]) -> None:
 
 
 def _round(value: float | None, digits: int) -> float | None:
-    return None if value is None else round(float(value), digits)
+    return None if value is None or not math.isfinite(value) else round(float(value), digits)

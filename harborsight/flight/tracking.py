@@ -63,8 +63,18 @@ track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is wit
   is current again. A real obstacle seen twice is held like any other. (On the bundled
   demo flight with the shipped model this took the filtered MAE from 0.372 to 0.336 m: one
   false 1.8 m reading had been held for two more frames against a quay 9 m off.)
-* a track with no reading for ``max_coast_s`` is dropped; a section out of view or clear
-  coasts its current track meanwhile (``state = "coasting"``).
+* a track with no reading for ``max_coast_s`` is dropped; a section out of view, or cut by
+  the image's edge, coasts its current track meanwhile (``state = "coasting"``). A section
+  measured ``clear`` is evidence, not absence: a current track predicted where its band was
+  seen clear (:func:`seen_clear`) is no longer reported (``state = "clear"``), so a boat
+  that left the band is not coasted into "contact in 0 s" (it was, for 5 s); the track
+  stays, to take its obstacle again should the mask have missed it for a frame;
+* a track seen once that the next reading does not take is dropped (it was an outlier's:
+  kept, it took a later reading that strayed from the right track and showed motion it
+  made up, the filtered distance 0.85 m short);
+* the current track seen once takes a reading beyond its gate when the two mean a change
+  of at most ``max_speed_mps``, its speed started from the two: a boat closing at 4 m/s is
+  2 m nearer each half second, beyond the first gate, and never got a closing speed.
 
 So a boat passing between the hull and a quay takes its own track, and the quay's track
 keeps its closing speed and resumes when the quay is seen again. A closing speed is
@@ -94,8 +104,13 @@ class TrackerSettings:
     min_updates: int = 3
     min_closing_mps: float = 0.05
     drift_time_s: float = 60.0
-    #: the least one-sigma of a reading (m), when its own sigma is missing or tiny
+    #: the least one-sigma of a reading (m), when its own sigma is tiny
     min_reading_sigma_m: float = 0.02
+    #: the one-sigma taken for a reading without one when no track says better (m)
+    unknown_reading_sigma_m: float = 0.5
+    #: the fastest a section's obstacle closes or opens (m/s): a track seen once takes a
+    #: reading beyond its gate when the two mean no faster a change (two-point start)
+    max_speed_mps: float = 10.0
     max_tracks: int = 3
     #: readings a track keeps to measure its own white noise (module docstring); 0: off
     noise_window: int = 15
@@ -107,7 +122,8 @@ class TrackerSettings:
 
     def __post_init__(self) -> None:
         require_positive(self, ("accel_sigma_mps2", "gate_sigma", "max_coast_s",
-                                "initial_speed_sigma_mps", "drift_time_s", "min_reading_sigma_m"))
+                                "initial_speed_sigma_mps", "drift_time_s", "min_reading_sigma_m",
+                                "unknown_reading_sigma_m", "max_speed_mps"))
         for name in ("confirm_frames", "min_updates", "max_tracks"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -177,6 +193,36 @@ class _Track:
         return F @ self.state, F @ self.covariance @ F.T + Q
 
 
+#: the estimate's states of a section that had a reading this frame (else it coasts a
+#: prediction, or has nothing)
+MEASURED_STATES = ("updated", "new", "held")
+
+
+def _sane(reading: Reading) -> Reading | None:
+    """The reading with a sigma that is not a finite non-negative number taken as not given;
+    None for a distance that is not finite (nothing to go on: as a frame without one)."""
+    if not math.isfinite(reading.distance_m):
+        return None
+
+    def usable(sigma: float | None) -> float | None:
+        return sigma if sigma is not None and math.isfinite(sigma) and sigma >= 0 else None
+
+    return Reading(reading.distance_m, usable(reading.sigma_m), usable(reading.sigma_random_m))
+
+
+def seen_clear(section) -> tuple[float, float] | None:
+    """What a section measured ``clear`` saw of its band, for :meth:`SectionTracker.step`:
+    ``(hidden_to_m or 0, clear_to_m)``, its water seen from where the vessel stops hiding
+    it out to where the band leaves the picture (no end when it does not); None for any
+    other section, or a clear one seen nowhere (hidden in full, or a pose the image
+    contradicts)."""
+    if section.status != "clear" or section.clear_to_m == 0.0:
+        return None
+    near_m = section.hidden_to_m or 0.0
+    far_m = math.inf if section.clear_to_m is None else section.clear_to_m   # no edge in view
+    return (near_m, far_m) if far_m > near_m else None
+
+
 @dataclass
 class SectionEstimate:
     """What the tracker says of one section after a frame."""
@@ -187,7 +233,7 @@ class SectionEstimate:
     closing_speed_sigma_mps: float | None = None
     time_to_contact_s: float | None = None
     track: int | None = None
-    state: str = "none"       # updated | new | held | coasting | none
+    state: str = "none"       # updated | new | held | coasting | clear | none
 
 
 @dataclass
@@ -199,31 +245,33 @@ class SectionTracker:
     current: _Track | None = None
     _next_id: int = 0
 
-    def _reading_variance(self, reading: Reading, dt: float, track: _Track | None = None
-                          ) -> tuple[float, float]:
+    def _reading_variance(self, reading: Reading, dt: float, track: _Track | None = None,
+                          measured: bool = True) -> tuple[float, float]:
         """``R`` of a reading ``dt`` after the track's last (a negative ``dt``, a frame a
-        little out of order, counts as 0), and the reading's systematic sigma; with
-        ``track``, its measured white noise caps the model's (module docstring)."""
+        little out of order, counts as 0), and the reading's systematic sigma. A reading
+        without a sigma (a pixel past a lens's fold) is no surer than ``track``'s last
+        reading, or than :attr:`TrackerSettings.unknown_reading_sigma_m` when no track
+        says; with ``measured``, the track's measured white noise caps the model's (module
+        docstring; the gate uses the model's alone)."""
         s = self.settings
         random = reading.sigma_random_m
         total = reading.sigma_m if reading.sigma_m is not None else random
         if total is None and track is not None and track.last_sigmas is not None:
-            # no sigma could be given (a pixel past a lens's fold): no surer than the track's
-            # last reading, rather than sure to the floor
             total, random = track.last_sigmas
         if total is None:
-            total = s.min_reading_sigma_m
+            total = s.unknown_reading_sigma_m
         random = max(total if random is None else min(random, total), s.min_reading_sigma_m)
-        measured = (track.white_variance(s.min_noise_residuals)
-                    if track is not None and s.noise_window else None)
-        if measured is not None:
-            random = min(random, max(s.noise_margin * math.sqrt(measured), s.min_reading_sigma_m))
+        white = (track.white_variance(s.min_noise_residuals)
+                 if measured and track is not None and s.noise_window else None)
+        if white is not None:
+            random = min(random, max(s.noise_margin * math.sqrt(white), s.min_reading_sigma_m))
         systematic2 = max(total ** 2 - random ** 2, 0.0)
         variance = random ** 2 + systematic2 * min(1.0, max(dt, 0.0) / s.drift_time_s)
         return variance, math.sqrt(systematic2)
 
     def _new_track(self, time_s: float, reading: Reading) -> _Track:
-        variance, systematic = self._reading_variance(reading, 0.0)   # the bias is added later
+        # the bias is added later; a reading without a sigma is no surer than the current's
+        variance, systematic = self._reading_variance(reading, 0.0, self.current, measured=False)
         track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
                        np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
                        systematic_m=systematic,
@@ -239,20 +287,35 @@ class SectionTracker:
                                    key=lambda t: t.time_s))
         return track
 
-    def step(self, time_s: float, reading: Reading | None) -> SectionEstimate:
+    def step(self, time_s: float, reading: Reading | None,
+             seen_clear: tuple[float, float] | None = None) -> SectionEstimate:
         """Advance to ``time_s`` (non-decreasing) with this frame's reading, or None when
-        the section has none (not ok, or cut by the image edge)."""
+        the section has none (not ok, or cut by the image edge). ``seen_clear`` ``(from_m,
+        to_m)``: the section was measured clear, its water seen from ``from_m`` (where the
+        vessel stops hiding it) out to ``to_m``; a current track predicted in that range is
+        no longer reported (a boat that left the band), not coasted into contact."""
         s = self.settings
         self.tracks = [t for t in self.tracks if time_s - t.time_s <= s.max_coast_s]
+        if reading is not None:
+            reading = _sane(reading)
         if self.current is not None and self.current not in self.tracks:
             self.current = None
+        if reading is None and seen_clear is not None and self.current is not None:
+            near_m, far_m = seen_clear
+            if near_m <= self._predicted(self.current, time_s)[0][0] < far_m:
+                # seen clear where the track would be: not coasted, no longer reported; it
+                # stays to take the obstacle again should a mask have missed it a frame
+                self.current = None
         if reading is None:
-            return self._estimate(time_s, "coasting" if self.current else "none")
+            if self.current is not None:
+                return self._estimate(time_s, "coasting")
+            return SectionEstimate(state="clear" if seen_clear is not None else "none")
 
         best, best_score = None, math.inf
         for track in self.tracks:
             x, P = self._predicted(track, time_s)
-            variance, _ = self._reading_variance(reading, time_s - track.time_s)
+            variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
+                                                 measured=False)
             score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
             if score < best_score:
                 best, best_score = track, score
@@ -260,15 +323,50 @@ class SectionTracker:
             self._update(best, time_s, reading)
             state = "updated"
         else:
-            best = self._new_track(time_s, reading)
-            state = "new"
-        for track in self.tracks:
+            best = self._two_point_start(time_s, reading)
+            state = "updated" if best is not None else "new"
+            if best is None:
+                best = self._new_track(time_s, reading)
+        for track in list(self.tracks):
             if track is not best:
                 track.misses_in_row += 1
+                if track.updates == 1 and track is not self.current:
+                    # seen once, then not: an outlier's track would take a later reading
+                    # that strays from the right track and show motion it made up
+                    self.tracks.remove(track)
         if self._takes_over(best, time_s):
             self.current = best
             return self._estimate(time_s, state)
         return self._estimate(time_s, "held")
+
+    def _two_point_start(self, time_s: float, reading: Reading) -> _Track | None:
+        """The current track, when seen once, takes a reading beyond its gate if the two
+        mean a change of at most :attr:`TrackerSettings.max_speed_mps`: its speed is
+        started from the two, ``ḋ = (z₂ - z₁)/Δt`` with ``Var ḋ = (R₁ + R₂)/Δt²`` and
+        ``Cov(d, ḋ) = R₂/Δt``. A boat closing at 4 m/s lies 2 m nearer each half second,
+        beyond a gate of 3 x 1 m/s x 0.5 s: each reading started a track of its own, and no
+        closing speed nor time to contact was ever given. Only the current track: another
+        track seen once is an outlier held back, and would make up a speed from a reading
+        of something else. None when it does not fit."""
+        best = self.current
+        if best is None or best.updates != 1 or time_s <= best.time_s:
+            return None
+        dt = time_s - best.time_s
+        if abs(reading.distance_m - best.state[0]) / dt > self.settings.max_speed_mps:
+            return None
+        first = best.covariance[0, 0]
+        variance, systematic = self._reading_variance(reading, dt, best, measured=False)
+        best.state = np.array([reading.distance_m, (reading.distance_m - best.state[0]) / dt])
+        best.covariance = np.array([[variance, variance / dt],
+                                    [variance / dt, (first + variance) / dt ** 2]])
+        best.time_s = time_s
+        best.updates += 1
+        best.misses_in_row = 0
+        best.systematic_m = systematic
+        if reading.sigma_m is not None:
+            best.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
+        best.remember(time_s, reading.distance_m)
+        return best
 
     def _predicted(self, track: _Track, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         return track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
@@ -297,7 +395,7 @@ class SectionTracker:
         innovation = reading.distance_m - x[0]
         c = self.settings.robust_sigma
         if c and innovation > 0:                # a farther reading: capped; a nearer one never
-            variance = min(self._reading_variance(reading, dt)[0],
+            variance = min(self._reading_variance(reading, dt, track, measured=False)[0],
                            max(variance, (innovation / c) ** 2 - P[0, 0]))
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * innovation

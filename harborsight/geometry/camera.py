@@ -525,7 +525,7 @@ class Camera:
             uv[in_front, 1] = intr.fy * front[:, 1] / front[:, 2] + intr.cy
         return uv, in_front
 
-    def project_convex_outline(self, points_enu: np.ndarray, max_step_px: float = 1.0) -> np.ndarray:
+    def project_convex_outline(self, points_enu: np.ndarray, max_step_px: float = 4.0) -> np.ndarray:
         """Pixels ``(M, 2)`` along the image outline of the convex hull of ``points_enu``.
 
         A pinhole maps the solid's convex hull to the 2-D convex hull of its projected
@@ -534,7 +534,10 @@ class Camera:
         corners for ``k1 ≈ -0.25``), so the hull of the projected corners alone would cut
         the curve. The edges are therefore cut, in undistorted normalised coordinates
         ``(x/z, y/z)``, into steps of at most ``max_step_px`` before distorting, and the
-        convex hull of the result follows a barrel-bent edge within a fraction of a pixel.
+        convex hull of the result follows a barrel-bent edge: the chord of a step ``s`` on a
+        curve of radius ``R`` falls ``s^2 / 8R`` short, 0.004 px for 4 px steps on a box
+        near the corner of a 90-degree lens with ``k1 = -0.2`` (0.0002 px for 1 px steps, at
+        four times the cost; 0.055 px for 16 px).
         Points at or behind the camera plane, and points past a fold, are left out.
         """
         pts_c = self.to_camera_frame(np.atleast_2d(points_enu))
@@ -546,11 +549,13 @@ class Camera:
         corner_index = cv2.convexHull(ideal.astype(np.float32), returnPoints=False).reshape(-1)
         corners = ideal[corner_index]
         step = max_step_px / max(self.intrinsics.fx, self.intrinsics.fy)
-        following = np.roll(corners, -1, axis=0)
+        following = np.concatenate((corners[1:], corners[:1]))
         n_steps = np.clip(np.ceil(np.hypot(*(following - corners).T) / step), 1,
                           _MAX_STEPS_PER_EDGE).astype(int)
-        dense = np.vstack([a + np.outer(np.arange(n) / n, b - a)
-                           for a, b, n in zip(corners, following, n_steps, strict=True)])
+        edge = np.repeat(np.arange(len(corners)), n_steps)
+        t = np.arange(len(edge)) - np.repeat(np.cumsum(n_steps) - n_steps, n_steps)
+        t = (t / n_steps[edge])[:, None]
+        dense = corners[edge] * (1.0 - t) + following[edge] * t
         rays_c = np.column_stack((dense, np.ones(len(dense))))
         uv, front = self.project(rays_c @ self.world_from_camera.T + self.position_enu)
         return uv[front]

@@ -43,7 +43,7 @@ from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
-from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
+from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
 from harborsight.live.health import SourceHealth
@@ -186,7 +186,8 @@ class LiveEngine:
                 tracker = self._trackers.setdefault(section.index, SectionTracker(self.tracker_settings))
                 reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
                            if fits else None)
-                estimate = tracker.step(time_s, reading)
+                estimate = tracker.step(time_s, reading,
+                                        None if report.sensors_contradicted else seen_clear(section))
             # a closing speed is shown only beside a current distance (the tracker coasts
             # through frames without one, but the crew should not read it as measured)
             closing = estimate.closing_speed_mps if estimate is not None and fits else None
