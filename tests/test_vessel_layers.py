@@ -129,26 +129,56 @@ def test_the_layers_contain_the_vessel_above_the_waterline_and_no_skirt(tmp_path
         above.vertices).volume
 
 
-def test_many_separate_parts_are_capped_at_max_layers_and_each_stays_inside():
-    """Forty railing posts along each side of a deck, far more separate pieces than
-    MAX_LAYERS: they are joined where that adds the least volume (posts into fences), the
-    count is capped, and every post's corners still lie in some layer."""
+def _railing_posts():
+    """A 40 x 10 m deck (1 m freeboard) with forty 1 m posts along each side."""
     tm = trimesh.transformations.translation_matrix
-    parts = [_box([-20, -5, -2], [20, 5, 1])]
     posts = [trimesh.creation.cylinder(radius=0.03, height=1.0, sections=8, transform=tm([x, y, 1.5]))
              for x in np.linspace(-19, 19, 40) for y in (-4.8, 4.8)]
-    mesh = trimesh.util.concatenate(parts + posts)
-    mesh.vertices[:, 2] *= -1                       # (bow, starboard, down): the V frame
-    mesh.invert()
-    layers = above_water_layers(mesh)
-    assert len(layers) == MAX_LAYERS
-    corners = np.vstack([p.vertices for p in posts]) * [1, 1, -1]
+    return trimesh.util.concatenate([_box([-20, -5, -2], [20, 5, 1]), *posts]), posts
+
+
+def test_many_separate_parts_are_capped_and_joined_where_they_hide_least(tmp_path, monkeypatch):
+    """Eighty railing posts are 81 layers with the deck, more than the cap: they are joined
+    where the joined hull adds the least surface (a convex body's mean projected area is a
+    quarter of its surface), every post still inside a layer. Joined by least added volume,
+    two thin posts make a "fence" of no volume that seen obliquely hides the water beyond:
+    with the cap at 24, a quay 2 m off the side read 3.37 m on two sections (16 poles so
+    joined hid water out to 21 m); now every section reads it (shapely: 2.00 m)."""
+    import harborsight.vessel.layers as layers_module
+
+    monkeypatch.setattr(layers_module, "MAX_LAYERS", 24)
+    mesh, posts = _railing_posts()
+    spec = _spec_of(tmp_path, mesh)
+    assert len(spec.silhouette_layers) == 24
+    corners = spec.mesh.vertices[spec.mesh.vertices[:, 2] < -1.0 + 1e-6]     # the posts, as read
+    assert len(corners) >= len(np.vstack([p.vertices for p in posts]))
     inside = np.zeros(len(corners), bool)
-    for layer in layers:
+    for layer in spec.silhouette_layers:
         inside |= Delaunay(layer).find_simplex(corners, tol=1e-7) >= 0
     assert inside.all()
-    deck = max(layers, key=lambda layer: np.ptp(layer[:, 0]) * np.ptp(layer[:, 1]))
-    assert -deck[:, 2].max() == pytest.approx(0.0) and -deck[:, 2].min() < 1.01   # no post on it
+    geometry, to_px = side_view(40.0, 30.0, 35.0)
+    labels = np.zeros((720, 1280), np.uint8)
+    quay = np.array([[-30, 7, 0], [30, 7, 0], [30, 30, 0], [-30, 30, 0.0]])
+    cv2.fillPoly(labels, [to_px(quay)], 2, cv2.LINE_8, shift=4)
+    draw_vessel_as_seen(labels, spec.mesh, to_px)
+    report = measure_clearance(labels, geometry, spec, NO_REFINEMENT)
+    truth_m = Polygon(spec.outline).distance(Polygon(quay[:, :2]))
+    readings = [s.distance_m for s in report.sections if s.status == "ok"]
+    assert len(readings) >= 6 and truth_m == pytest.approx(2.0)
+    assert readings == pytest.approx([truth_m] * len(readings), abs=0.15)
+
+
+def test_a_triangle_soup_s_corners_a_hair_apart_are_shared():
+    """An exporter that tessellates each patch on its own writes shared corners a hair
+    apart (here 10 um): no face shares an edge, every face was a piece of its own, and the
+    tug took seconds and 48 layers. Corners within 0.1 mm are one: 2 layers, as merged."""
+    spec = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
+    rng = np.random.default_rng(1)
+    triangles = spec.mesh.vertices[spec.mesh.faces] + rng.normal(0, 1e-5, (len(spec.mesh.faces), 3, 3))
+    soup = trimesh.Trimesh(triangles.reshape(-1, 3), np.arange(triangles.size // 3).reshape(-1, 3),
+                           process=False)
+    layers = above_water_layers(soup)
+    assert len(layers) == len(spec.silhouette_layers) == 2
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])

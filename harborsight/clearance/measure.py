@@ -514,8 +514,8 @@ def measure_clearance(
             f"(at {height_m:.0f} m above the water with fx {intr.fx:.3g} px: check uav.alt_m, "
             "water_level_m and the camera's focal length)")
     own_layers_px = ([vessel_outline_px] if len(vessel.own_layers) == 1 else
-                     [camera.project_convex_outline(geometry.vessel_to_enu(layer))
-                      for layer in vessel.own_layers])
+                     camera.project_convex_outlines([geometry.vessel_to_enu(layer)
+                                                     for layer in vessel.own_layers]))
     own = own_vessel_region(own_layers_px, labels.shape, settings.pose_margin_px)
     contours = obstacle_contours(labels, own, settings.own_rim_px)
     points_px = contours.points_px.astype(float)
@@ -655,7 +655,7 @@ def measure_clearance(
         results, geometry, geometry.vessel_to_enu(sections_v.vertices), refinement, sigmas,
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
         vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points),
-        vessel_layers_enu=[geometry.vessel_to_enu(layer) for layer in vessel.own_layers],
+        vessel_layers_enu=[geometry.vessel_to_enu(layer) for layer in vessel.alignment_layers],
         outline_sigma_m=vessel.outline_sigma_m)
     if settings.method == "gsd":
         add_nadir_approximation(results)

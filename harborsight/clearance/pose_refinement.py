@@ -329,7 +329,7 @@ def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselS
     share = found.edge_share or 0.0
     if share >= UNCONFIRMED_BELOW_SHARE:
         return found
-    silhouette = Silhouette(vessel.own_layers)
+    silhouette = Silhouette(vessel.alignment_layers)
     outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
         return found
@@ -376,7 +376,7 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
     if gross[0] and (sum(gross) != 1 or sum(reach) > 1 or scaled):
         # shift and height (and the turn a tilt gives) may be one error: the camera's tilt
         tilt_deg = camera_tilt_explaining(
-            placement.params, geometry, Silhouette(vessel.own_layers), labels == SHIP,
+            placement.params, geometry, Silhouette(vessel.alignment_layers), labels == SHIP,
             np.array([settings.prior_shift_m, settings.prior_shift_m,
                       math.radians(settings.prior_heading_deg), settings.prior_height_m]),
             np.array([reach_shift_m, math.radians(reach_rotation_deg), reach_height_m]),
@@ -532,7 +532,7 @@ def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinem
     if not ship.any():
         return None
     align = whole_image_alignment(ship, geometry)
-    silhouette = Silhouette(vessel.own_layers)
+    silhouette = Silhouette(vessel.alignment_layers)
     chosen = _as_params(found) if found.applied else np.zeros(4)
     known = labels != IGNORE
     # the refinement's own correction, refused for its size, is a start too: the search's
@@ -643,7 +643,7 @@ def _refine_within_prior(
 ) -> tuple[FrameGeometry, PoseRefinement]:
     """The refinement proper, within the sensors' prior; ``extra_start`` (a correction the
     whole-image search found within the limits) joins the starts, and the window reaches it."""
-    silhouette = Silhouette(vessel.own_layers)
+    silhouette = Silhouette(vessel.alignment_layers)
     outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
         return geometry, PoseRefinement(False, reason=NOT_IN_VIEW[0])

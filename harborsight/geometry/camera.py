@@ -540,16 +540,35 @@ class Camera:
         four times the cost; 0.055 px for 16 px).
         Points at or behind the camera plane, and points past a fold, are left out.
         """
-        pts_c = self.to_camera_frame(np.atleast_2d(points_enu))
-        pts_c = pts_c[pts_c[:, 2] > 1e-9]
-        if len(pts_c) < 3 or not self.intrinsics.has_distortion:
-            uv, front = self.project(pts_c @ self.world_from_camera.T + self.position_enu)
-            return uv[front]
-        ideal = pts_c[:, :2] / pts_c[:, 2:3]
-        corner_index = cv2.convexHull(ideal.astype(np.float32), returnPoints=False).reshape(-1)
-        corners = ideal[corner_index]
+        return self.project_convex_outlines([points_enu], max_step_px)[0]
+
+    def project_convex_outlines(self, point_sets: list[np.ndarray], max_step_px: float = 4.0
+                                ) -> list[np.ndarray]:
+        """:meth:`project_convex_outline` of several point sets (a vessel's layers) at once:
+        one projection for all of them, the edges of every set's hull cut into steps
+        together."""
+        sizes = [len(np.atleast_2d(points)) for points in point_sets]
+        every = np.vstack([np.atleast_2d(points) for points in point_sets])
+        if not self.intrinsics.has_distortion:
+            uv, front = self.project(every)
+            return [u[f] for u, f in zip(np.split(uv, np.cumsum(sizes)[:-1]),
+                                         np.split(front, np.cumsum(sizes)[:-1]), strict=True)]
         step = max_step_px / max(self.intrinsics.fx, self.intrinsics.fy)
-        following = np.concatenate((corners[1:], corners[:1]))
+        corners, following, owner = [], [], []
+        for k, pts_c in enumerate(np.split(self.to_camera_frame(every), np.cumsum(sizes)[:-1])):
+            pts_c = pts_c[pts_c[:, 2] > 1e-9]
+            if len(pts_c) == 0:
+                continue
+            ideal = pts_c[:, :2] / pts_c[:, 2:3]
+            if len(ideal) >= 3:
+                ideal = ideal[cv2.convexHull(ideal.astype(np.float32), returnPoints=False).reshape(-1)]
+            corners.append(ideal)
+            following.append(np.concatenate((ideal[1:], ideal[:1])))
+            owner.append(np.full(len(ideal), k))
+        out = [np.zeros((0, 2)) for _ in point_sets]
+        if not corners:
+            return out
+        corners, following, owner = np.vstack(corners), np.vstack(following), np.concatenate(owner)
         n_steps = np.clip(np.ceil(np.hypot(*(following - corners).T) / step), 1,
                           _MAX_STEPS_PER_EDGE).astype(int)
         edge = np.repeat(np.arange(len(corners)), n_steps)
@@ -558,7 +577,11 @@ class Camera:
         dense = corners[edge] * (1.0 - t) + following[edge] * t
         rays_c = np.column_stack((dense, np.ones(len(dense))))
         uv, front = self.project(rays_c @ self.world_from_camera.T + self.position_enu)
-        return uv[front]
+        dense_owner = owner[edge]
+        for k in np.unique(dense_owner):
+            mine = (dense_owner == k) & front
+            out[k] = uv[mine]
+        return out
 
     def _undistorted(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates of pixels ``(N, 2)``: OpenCV's fixed-point

@@ -79,8 +79,8 @@ def vessel_silhouette_px(vessel: VesselSpec, geometry: FrameGeometry) -> list[np
     through the lens distortion (:meth:`Camera.project_convex_outline`); their union is
     the silhouette. Layers that do not project are left out."""
     polygons = []
-    for layer in vessel.own_layers:
-        uv = geometry.camera.project_convex_outline(geometry.vessel_to_enu(layer))
+    for uv in geometry.camera.project_convex_outlines([geometry.vessel_to_enu(layer)
+                                                       for layer in vessel.own_layers]):
         if len(uv) >= 3:
             polygons.append(cv2.convexHull(uv.astype(np.float32)).reshape(-1, 2).astype(float))
     return polygons

@@ -14,14 +14,18 @@ erased as the vessel's own pixels. :func:`above_water_layers` therefore cuts the
 2. **joined where it costs nothing**: two pieces (or layers) are joined while the hull of
    both holds at most :data:`LAYER_GROWTH` more volume than the pieces they are made of
    (the hull's slabs join, a deckhouse's join, a stay's join along it; a deckhouse and a
-   mast at one height do not);
-3. **joined where it costs least**, until at most :data:`MAX_LAYERS` remain: the pair
-   whose joined hull adds the least volume to theirs (a rig's stays join the mast, not the
-   deckhouse across the deck). Every frame projects each layer, so their number is its cost.
+   mast at one height do not). A connected part of the mesh that is convex (a post, a box)
+   is taken whole at once;
+3. **joined where it hides least**, until at most :data:`MAX_LAYERS` remain: the pair
+   whose joined hull adds the least surface to theirs (a convex body's mean projected area
+   over all views is a quarter of its surface, so this is the water the join hides on
+   average). Added volume was the first measure: two thin posts joined into a fence have
+   none, and seen obliquely 16 poles joined so hid water out to 21 m from the hull. Every
+   frame projects each layer, so their number is its cost.
 
 Pairs are only weighed between neighbours (step 2: pieces that touch, in the same or the
-next slab; step 3: also the :data:`NEIGHBOURS` nearest layers), which keeps a mesh of 10^5
-faces to seconds.
+next slab; step 3: also the :data:`NEIGHBOURS` nearest layers, more where groups lie
+apart), which keeps a mesh of 10^5 faces to seconds.
 """
 
 from __future__ import annotations
@@ -38,32 +42,38 @@ MAX_LAYER_SLABS = 400
 #: how much more volume (a share) a joined hull may hold than the slab pieces inside it
 LAYER_GROWTH = 0.1
 #: at most this many layers (each costs a projection and a fill per frame)
-MAX_LAYERS = 12
+MAX_LAYERS = 48
+#: the pose alignment fits at most this many, those of the largest surface (:func:`largest`)
+MAX_ALIGNMENT_LAYERS = 8
 #: pieces whose boxes are this close (m) touch: joining them may cost nothing
 TOUCH_M = 0.01
 #: step 3 weighs each layer against this many nearest (by centre); a joined layer keeps at
 #: most MAX_NEIGHBOURS (the nearest by box) of its two parts' neighbours
 NEIGHBOURS = 8
-MAX_NEIGHBOURS = 24
+MAX_NEIGHBOURS = 12
+#: corners this close (m) are one: an exporter that tessellates each patch on its own
+#: writes their shared corners a hair apart, and the faces would share no edge
+MERGE_TOLERANCE_M = 1e-4
 #: volumes below this are nothing (m^3): a flat plate, a thin stay
 _NO_VOLUME_M3 = 1e-6
 _CHUNK = 100_000
 
 
-def _hull(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """The corners of a point set's convex hull and its volume (m^3). Qhull joggles the
-    points ("QJ": by about 1e-11 of their extent) rather than merging coplanar facets,
-    which is three times faster on box-like pieces; a flat set (a plate, the pieces of a
-    stay) gets a volume of about nothing. Under four points are kept as they are."""
+def _hull(points: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The corners of a point set's convex hull, its volume (m^3) and its surface area
+    (m^2). Qhull joggles the points ("QJ": by about 1e-11 of their extent) rather than
+    merging coplanar facets, which is three times faster on box-like pieces; a flat set (a
+    plate, the pieces of a stay) gets a volume of about nothing and twice its area. Under
+    four points are kept as they are (no volume, no area)."""
     from scipy.spatial import ConvexHull, QhullError
 
     if len(points) < 4:
-        return points, 0.0
+        return points, 0.0, 0.0
     try:
         hull = ConvexHull(points, qhull_options="QJ")
     except (QhullError, ValueError):
-        return np.unique(points, axis=0), 0.0
-    return points[hull.vertices], float(hull.volume)
+        return np.unique(points, axis=0), 0.0, 0.0
+    return points[hull.vertices], float(hull.volume), float(hull.area)
 
 
 def _corners(points: np.ndarray) -> np.ndarray:
@@ -88,10 +98,11 @@ def _slab_range(levels: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[
 
 
 def _slab_pieces(vertices: np.ndarray, faces: np.ndarray, adjacency: np.ndarray,
-                 adjacency_edges: np.ndarray) -> list[tuple[int, np.ndarray]]:
-    """Each slab's connected pieces as ``(slab, points)``: the points are the pieces' face
-    corners in the slab and the crossings ``p + t (q - p)``, ``t = (l - h_p) / (h_q - h_p)``
-    of their edges with the slab's planes ``l``.
+                 adjacency_edges: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """Each slab's connected pieces as ``(slab, part, points)``: ``part`` is the connected
+    part of the mesh the piece belongs to; the points are the piece's face corners in the
+    slab and the crossings ``p + t (q - p)``, ``t = (l - h_p) / (h_q - h_p)`` of their
+    edges with the slab's planes ``l``.
 
     A node is one face in one slab; two nodes are joined when their faces share an edge
     that reaches into that slab; the pieces are the graph's connected components."""
@@ -120,6 +131,9 @@ def _slab_pieces(vertices: np.ndarray, faces: np.ndarray, adjacency: np.ndarray,
     a, b = start[fa] + slab - first[fa], start[fb] + slab - first[fb]
     graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n_nodes, n_nodes))
     _, piece_of_node = connected_components(graph, directed=False)
+    faces_graph = coo_matrix((np.ones(len(adjacency), np.int8), (adjacency[:, 0], adjacency[:, 1])),
+                             shape=(len(faces), len(faces)))
+    _, part_of_face = connected_components(faces_graph, directed=False)
 
     points, owners = [], []
     corners_all = vertices[faces]                                  # (F, 3, 3)
@@ -143,143 +157,202 @@ def _slab_pieces(vertices: np.ndarray, faces: np.ndarray, adjacency: np.ndarray,
     points, owners = points[order], owners[order]
     piece_slab = np.zeros(int(piece_of_node.max()) + 1, int)
     piece_slab[piece_of_node] = node_slab
+    piece_part = np.zeros_like(piece_slab)
+    piece_part[piece_of_node] = part_of_face[node_face]
     cuts = np.flatnonzero(np.diff(owners)) + 1
-    return [(int(piece_slab[group[0]]), pts)
+    return [(int(piece_slab[group[0]]), int(piece_part[group[0]]), pts)
             for group, pts in zip(np.split(owners, cuts), np.split(points, cuts), strict=True)]
 
 
 class _Layers:
-    """The pieces being joined: each a hull (corners, volume), the volume of the slab pieces
-    inside it (``content``), its box, and its neighbours (ids of live layers weighed
+    """The pieces being joined: each a hull (corners, volume, area), the volume of the slab
+    pieces inside it (``content``), its box, and its neighbours (ids of live layers weighed
     against it)."""
 
-    def __init__(self, pieces: list[tuple[int, np.ndarray]]):
-        self.corners, self.volume, self.content = [], [], []
-        for _, points in pieces:
-            corners, volume = _hull(points)
-            self.corners.append(corners)
-            self.volume.append(volume)
-            self.content.append(volume)
-        self.low = [c.min(axis=0) for c in self.corners]
-        self.high = [c.max(axis=0) for c in self.corners]
-        self.alive = [True] * len(pieces)
-        self.neighbours: list[set[int]] = [set() for _ in pieces]
-        slab = np.array([k for k, _ in pieces])
+    def __init__(self, pieces: list[tuple[int, int, np.ndarray]]):
+        self.corners, self.volume, self.area, self.content = [], [], [], []
+        self.low, self.high, self.alive, self.neighbours = [], [], [], []
+        self.count = 0
+        slabs: list[int] = []
+        by_part: dict[int, list[int]] = {}
+        for slab, part, points in pieces:
+            self._add(*_hull(points))
+            slabs.append(slab)
+            by_part.setdefault(part, []).append(len(slabs) - 1)
+        slab = np.array(slabs)
         low, high = np.array(self.low), np.array(self.high)
         for k in np.unique(slab):                  # touching, in the same or the next slab
             ids = np.flatnonzero(slab == k)
             others = np.flatnonzero((slab == k) | (slab == k + 1))
-            gap = np.maximum(low[ids, None] - high[None, others],
-                             low[None, others] - high[ids, None]).max(axis=2)
-            for i, j in zip(*np.nonzero(gap <= TOUCH_M), strict=True):
-                if ids[i] != others[j]:
-                    self.neighbours[ids[i]].add(int(others[j]))
-                    self.neighbours[others[j]].add(int(ids[i]))
+            for rows in np.array_split(ids, max(1, len(ids) * len(others) // 1_000_000 + 1)):
+                gap = np.maximum(low[rows, None] - high[None, others],
+                                 low[None, others] - high[rows, None]).max(axis=2)
+                for i, j in zip(*np.nonzero(gap <= TOUCH_M), strict=True):
+                    if rows[i] != others[j]:
+                        self.neighbours[rows[i]].add(int(others[j]))
+                        self.neighbours[others[j]].add(int(rows[i]))
+        for ids in by_part.values():   # a convex part (a post, a box) whole, at one hull's cost
+            if len(ids) > 1:
+                corners, volume, area = _hull(np.vstack([self.corners[i] for i in ids]))
+                if self.fits(volume, sum(self.content[i] for i in ids)):
+                    self.merge(ids, corners, volume, area)
 
-    @property
-    def count(self) -> int:
-        return sum(self.alive)
+    def _add(self, corners: np.ndarray, volume: float, area: float,
+             content: float | None = None) -> int:
+        self.corners.append(corners)
+        self.volume.append(volume)
+        self.area.append(area)
+        self.content.append(volume if content is None else content)
+        self.low.append(corners.min(axis=0))
+        self.high.append(corners.max(axis=0))
+        self.alive.append(True)
+        self.neighbours.append(set())
+        self.count += 1
+        return len(self.corners) - 1
+
+    @staticmethod
+    def fits(volume: float, content: float) -> bool:
+        """Whether a hull of ``volume`` over pieces of ``content`` holds nothing more
+        (within :data:`LAYER_GROWTH`)."""
+        return volume + _NO_VOLUME_M3 <= (1.0 + LAYER_GROWTH) * (content + _NO_VOLUME_M3)
 
     def gap(self, i: int, j: int) -> float:
         """The distance between two layers' boxes (m; 0 where they overlap)."""
         apart = np.maximum(self.low[i] - self.high[j], self.low[j] - self.high[i])
         return float(np.linalg.norm(np.maximum(apart, 0.0)))
 
-    def meet_nearest(self) -> None:
-        """Weigh each live layer against its :data:`NEIGHBOURS` nearest by centre (all of
-        them when there are few)."""
+    def live(self) -> list[int]:
+        return [i for i, alive in enumerate(self.alive) if alive]
+
+    def meet_nearest(self, k: int) -> None:
+        """Weigh each live layer against its ``k`` nearest by centre."""
         from scipy.spatial import cKDTree
 
-        live = [i for i, alive in enumerate(self.alive) if alive]
+        live = self.live()
+        if len(live) < 2:
+            return
         centres = [self.corners[i].mean(axis=0) for i in live]
-        k = min(len(live), NEIGHBOURS + 1 if len(live) > 4 * NEIGHBOURS else len(live))
-        _, near = cKDTree(centres).query(centres, k=k)
+        _, near = cKDTree(centres).query(centres, k=min(k + 1, len(live)))
         for i, row in zip(live, np.asarray(near).reshape(len(live), -1), strict=True):
             for j in (live[n] for n in row):
                 if j != i:
                     self.neighbours[i].add(j)
                     self.neighbours[j].add(i)
 
-    def joined(self, i: int, j: int) -> tuple[np.ndarray, float]:
+    def joined(self, i: int, j: int) -> tuple[np.ndarray, float, float]:
         return _hull(np.vstack((self.corners[i], self.corners[j])))
 
-    def join(self, i: int, j: int, corners: np.ndarray, volume: float) -> int:
-        """Join layers ``i`` and ``j`` into a new one; returns its id. It keeps the two's
-        neighbours, the nearest :data:`MAX_NEIGHBOURS` where there are more (each is
-        weighed after every join)."""
-        k = len(self.corners)
-        self.corners.append(corners)
-        self.volume.append(volume)
-        self.content.append(self.content[i] + self.content[j])
-        self.low.append(np.minimum(self.low[i], self.low[j]))
-        self.high.append(np.maximum(self.high[i], self.high[j]))
-        self.alive[i] = self.alive[j] = False
-        self.alive.append(True)
-        near = [n for n in (self.neighbours[i] | self.neighbours[j]) - {i, j} if self.alive[n]]
+    def merge(self, ids: list[int], corners: np.ndarray, volume: float, area: float) -> int:
+        """Join layers ``ids`` into a new one; returns its id. It keeps their neighbours,
+        the nearest :data:`MAX_NEIGHBOURS` (by box) where there are more (each is weighed
+        after every join)."""
+        k = self._add(corners, volume, area, sum(self.content[i] for i in ids))
+        for i in ids:
+            self.alive[i] = False
+        self.count -= len(ids)
+        gone = set(ids)
+        near = [n for n in set().union(*(self.neighbours[i] for i in ids)) - gone if self.alive[n]]
         near.sort(key=lambda n: self.gap(n, k))
-        for n in (*near[MAX_NEIGHBOURS:], i, j):
-            self.neighbours[n].difference_update((i, j))
-        self.neighbours.append(set(near[:MAX_NEIGHBOURS]))
+        for n in (*near[MAX_NEIGHBOURS:], *ids):
+            self.neighbours[n].difference_update(gone)
+        self.neighbours[k] = set(near[:MAX_NEIGHBOURS])
         for n in self.neighbours[k]:
-            self.neighbours[n].difference_update((i, j))
+            self.neighbours[n].difference_update(gone)
             self.neighbours[n].add(k)
         return k
 
 
 def _join(layers: _Layers, cost, limit: float | None) -> None:
-    """Join the cheapest pair of neighbours (by ``cost(i, j, corners, volume)``) while its
-    cost is at most ``limit`` (``None``: while more than :data:`MAX_LAYERS` remain)."""
+    """Join the cheapest pair of neighbours (by ``cost(i, j, volume, area)``) while its cost
+    is at most ``limit`` (``None``: while more than :data:`MAX_LAYERS` remain)."""
     heap: list = []
     order = itertools.count()               # ties go first come, first served
 
     def push(i: int, j: int) -> None:
-        corners, volume = layers.joined(i, j)
-        heapq.heappush(heap, (cost(i, j, volume), next(order), i, j, corners, volume))
+        corners, volume, area = layers.joined(i, j)
+        heapq.heappush(heap, (cost(i, j, volume, area), next(order), i, j, corners, volume, area))
 
-    for i in range(len(layers.corners)):
-        if layers.alive[i]:
-            for j in layers.neighbours[i]:
-                if j > i and layers.alive[j]:
+    for i in layers.live():
+        for j in layers.neighbours[i]:
+            if j > i and layers.alive[j]:
+                push(i, j)
+    k = NEIGHBOURS
+    while True:
+        while heap:
+            if limit is None and layers.count <= MAX_LAYERS:
+                return
+            value, _, i, j, corners, volume, area = heapq.heappop(heap)
+            if limit is not None and value > limit:
+                return
+            if not (layers.alive[i] and layers.alive[j]):
+                continue
+            new = layers.merge([i, j], corners, volume, area)
+            for n in layers.neighbours[new]:
+                push(n, new)
+        if limit is not None or layers.count <= MAX_LAYERS or layers.count < 2:
+            return
+        k *= 2                  # groups apart (an antenna over a gap): more neighbours each
+        before = {i: set(layers.neighbours[i]) for i in layers.live()}
+        layers.meet_nearest(k)
+        for i, near in before.items():
+            for j in layers.neighbours[i] - near:
+                if j > i:
                     push(i, j)
-    while heap:
-        if limit is None and layers.count <= MAX_LAYERS:
-            return
-        value, _, i, j, corners, volume = heapq.heappop(heap)
-        if limit is not None and value > limit:
-            return
-        if not (layers.alive[i] and layers.alive[j]):
-            continue
-        k = layers.join(i, j, corners, volume)
-        for n in layers.neighbours[k]:
-            push(n, k)
-    if limit is None and layers.count > MAX_LAYERS:    # apart (an antenna over a gap): all pairs
-        live = [i for i, alive in enumerate(layers.alive) if alive]
-        for i in live:
-            layers.neighbours[i].update(j for j in live if j != i)
-        _join(layers, cost, None)
 
 
-def join_pieces(pieces: list[tuple[int, np.ndarray]]) -> tuple[np.ndarray, ...]:
-    """Join slab pieces ``(slab, points)`` into layers (steps 2 and 3 of the module's
+def join_pieces(pieces: list[tuple[int, int, np.ndarray]]) -> tuple[np.ndarray, ...]:
+    """Join slab pieces ``(slab, part, points)`` into layers (steps 2 and 3 of the module's
     docstring); each returned as its convex hull's corners, lowest first."""
     layers = _Layers(pieces)
 
-    def excess(i: int, j: int, volume: float) -> float:
+    def excess(i: int, j: int, volume: float, area: float) -> float:
         """The joined hull's volume over the pieces' (1 when it holds nothing more)."""
         content = layers.content[i] + layers.content[j]
         return (volume + _NO_VOLUME_M3) / (content + _NO_VOLUME_M3)
 
-    def added(i: int, j: int, volume: float) -> float:
-        """The volume the joined hull holds beyond the two layers' own hulls (m^3)."""
-        return volume - layers.volume[i] - layers.volume[j]
+    def added(i: int, j: int, volume: float, area: float) -> float:
+        """The surface the joined hull has beyond the two layers' own hulls (m^2): a
+        convex body's mean projected area is a quarter of its surface (Cauchy), so this is
+        what the join hides of the water, on average over the views."""
+        return area - layers.area[i] - layers.area[j]
 
     _join(layers, excess, 1.0 + LAYER_GROWTH)
     if layers.count > MAX_LAYERS:
-        layers.meet_nearest()
+        layers.meet_nearest(NEIGHBOURS)
         _join(layers, added, None)
-    live = [i for i, alive in enumerate(layers.alive) if alive]
+    live = layers.live()
     live.sort(key=lambda i: (-float(layers.high[i][2]), -float(layers.low[i][2])))  # z down
     return tuple(_corners(layers.corners[i]) for i in live)
+
+
+def largest(layers: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """The :data:`MAX_ALIGNMENT_LAYERS` layers of the largest hull surface, in their order
+    (all of them when there are no more)."""
+    if len(layers) <= MAX_ALIGNMENT_LAYERS:
+        return layers
+    area = [_hull(np.asarray(layer, float))[2] for layer in layers]
+    keep = sorted(np.argsort(area)[::-1][:MAX_ALIGNMENT_LAYERS])
+    return tuple(layers[k] for k in keep)
+
+
+def _corners_shared(vertices: np.ndarray, faces: np.ndarray):
+    """The mesh with corners within :data:`MERGE_TOLERANCE_M` of each other made one (each
+    cluster of them becomes its first corner), and the faces that collapse dropped."""
+    import trimesh
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices).query_pairs(MERGE_TOLERANCE_M, output_type="ndarray")
+    n = len(vertices)
+    _, cluster = connected_components(
+        coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
+        directed=False)
+    first = np.full(cluster.max() + 1, n)
+    np.minimum.at(first, cluster, np.arange(n))
+    faces = cluster[faces]
+    whole = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    return trimesh.Trimesh(vertices[first], faces[whole], process=False)
 
 
 def above_water_layers(mesh_v) -> tuple[np.ndarray, ...]:
@@ -289,8 +362,7 @@ def above_water_layers(mesh_v) -> tuple[np.ndarray, ...]:
     above = mesh_v.slice_plane(plane_origin=[0.0, 0.0, 0.0], plane_normal=[0.0, 0.0, -1.0])
     if above is None or len(above.vertices) < 4:
         raise ValueError("no part of the hull mesh is above the waterline")
-    above = above.copy()
-    above.merge_vertices()                  # parts that share corners share edges
+    above = _corners_shared(np.asarray(above.vertices, float), np.asarray(above.faces))
     pieces = _slab_pieces(np.asarray(above.vertices, float), np.asarray(above.faces),
                           np.asarray(above.face_adjacency), np.asarray(above.face_adjacency_edges))
     return join_pieces(pieces)

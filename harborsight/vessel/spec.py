@@ -13,7 +13,7 @@ import trimesh
 
 from harborsight.errors import InputError, brief
 from harborsight.geometry.camera import load_yaml_text
-from harborsight.vessel.layers import above_water_layers
+from harborsight.vessel.layers import above_water_layers, largest
 from harborsight.vessel.outline import (
     BOW_SHAPES,
     bow_looks_aft,
@@ -57,16 +57,26 @@ class VesselSpec:
     #: mesh taken as exact), a systematic term of every distance's sigma
     outline_sigma_m: float = 0.0
     #: V-frame point sets, one per layer of the vessel above the waterline (a hull, a
-    #: deckhouse, a mast; at most 12), whose convex hulls together contain it
+    #: deckhouse, a mast; at most 48), whose convex hulls together contain it
     #: (:func:`harborsight.vessel.layers.above_water_layers`); empty: the convex hull
     #: of ``hull_points`` alone (a prism from dimensions, which is exact)
     silhouette_layers: tuple[np.ndarray, ...] = field(default=(), repr=False, compare=False)
     _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _alignment: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     @property
     def own_layers(self) -> tuple[np.ndarray, ...]:
         """The point sets whose projected convex hulls make the vessel's image region."""
         return self.silhouette_layers or (self.hull_points,)
+
+    @property
+    def alignment_layers(self) -> tuple[np.ndarray, ...]:
+        """The layers the pose alignment fits (:func:`harborsight.vessel.layers.largest`):
+        the hull, a deckhouse, a mast; not a railing's posts, which a mask does not show
+        and which would cost the alignment an outline each."""
+        if not self._alignment:
+            self._alignment.append(largest(self.own_layers))
+        return self._alignment[0]
 
     @property
     def length_m(self) -> float:
