@@ -231,3 +231,23 @@ def test_calibration_nested_too_deep_is_refused_before_opencv_crashes(tmp_path, 
     with pytest.raises(InputError, match=r"nested \d+ levels deep: more than 32") as info:
         load_camera_calibration(path)
     assert info.value.field.startswith("line ")
+
+
+def test_a_point_past_a_barrel_fold_is_not_projected_even_where_undistortion_finds_it():
+    """k1 = -0.26 folds at r = 1/sqrt(3 x 0.26) = 1.132. A point at r = 2.7-3.1 distorts to a
+    radius of the opposite sign, and the undistortion converges back to it (another root):
+    it was projected, 200 px above a 256 px image, and a tug's outline reached there. Points
+    at or past the fold radius are refused; the fold radius is the model's."""
+    from harborsight.geometry.camera import fold_radius
+
+    assert fold_radius((-0.26, 0.0, 0.0, 0.0, 0.0)) == pytest.approx(1 / math.sqrt(0.78), abs=2e-4)
+    assert fold_radius((0.05, 0.0, 0.0, 0.0, 0.0)) == math.inf
+    intr = CameraIntrinsics(256, 144, 64.0, 64.0, 127.5, 71.5, (-0.26, 0.0, 0.0, 0.0, 0.0))
+    cam = Camera(intr, np.zeros(3), world_from_camera_rotation(0.0, math.radians(-90), 0.0))
+    rays = np.array([[-1.15, 2.873, 1.0], [1.014, 2.498, 1.0], [0.5, 0.6, 1.0], [1.1, 0.0, 1.0]])
+    points = rays @ cam.world_from_camera.T + cam.position_enu
+    uv, ok = cam.project(points)
+    assert ok.tolist() == [False, False, True, True]
+    theirs, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K,
+                                  intr.dist_coeffs)
+    assert np.allclose(uv[2:], theirs.reshape(-1, 2)[2:], atol=1e-6)

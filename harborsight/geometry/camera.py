@@ -12,6 +12,8 @@ undistorted normalised coordinates; the ray meets the plane ``z = z_p`` at
 
 from __future__ import annotations
 
+import functools
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +31,29 @@ MAX_IMAGE_SIDE_PX = 100_000
 # a hull edge reaching far past the image (a point just in front of the camera plane) is cut
 # into at most this many steps; its distorted part beyond the fold is refused anyway
 _MAX_STEPS_PER_EDGE = 4096
+# a step of an outline that crosses a barrel fold is bisected this often (to 1/32 of a step)
+_FOLD_BISECTIONS = 5
 _NEWTON_STEPS = 6
 _NEWTON_SKIP_PX = 1e-7  # pixels that OpenCV's iteration already brought this close are left
+
+
+@functools.lru_cache(maxsize=64)
+def fold_radius(distortion: tuple[float, ...]) -> float:
+    """The undistorted radius ``r`` (normalised) at which an OpenCV model's distorted
+    radius ``r (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶)`` stops growing
+    (a barrel fold): a point there or beyond projects back inside, onto a point nearer the
+    centre. Found on a grid of 1e-4 out to r = 20 (inf when the model grows that far).
+    Projecting a point a little past the fold, the undistortion found it again (it converged
+    to that root): a tug's hull 2.7-3.1 past a fold at 1.13 was drawn 200 px above the image
+    and its outline reached there."""
+    k = (list(distortion) + [0.0] * 8)[:8]
+    k1, k2, _p1, _p2, k3, k4, k5, k6 = k
+    r = np.linspace(0.0, 20.0, 200_001)
+    r2 = r * r
+    with np.errstate(divide="ignore", invalid="ignore"):
+        grown = r * (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    stops = np.flatnonzero(~(np.diff(grown) > 0))
+    return float(r[stops[0]]) if len(stops) else math.inf
 
 
 @dataclass(frozen=True)
@@ -517,6 +540,9 @@ class Camera:
             with np.errstate(invalid="ignore"):
                 folded = ~(np.hypot(*(recovered - ideal).T)
                            <= 1e-6 * (1.0 + np.hypot(*ideal.T)))
+            # the undistortion can land back on a point past the fold (another root of
+            # the model): that the model still grows there is checked on its own
+            folded |= np.hypot(*ideal.T) >= fold_radius(intr.distortion)
             projected[folded] = np.nan
             uv[in_front] = projected
             in_front[np.flatnonzero(in_front)[folded]] = False
@@ -575,13 +601,35 @@ class Camera:
         t = np.arange(len(edge)) - np.repeat(np.cumsum(n_steps) - n_steps, n_steps)
         t = (t / n_steps[edge])[:, None]
         dense = corners[edge] * (1.0 - t) + following[edge] * t
-        rays_c = np.column_stack((dense, np.ones(len(dense))))
-        uv, front = self.project(rays_c @ self.world_from_camera.T + self.position_enu)
+        uv, front = self._project_ideal(dense)
         dense_owner = owner[edge]
+        # where an outline leaves the lens model (past a barrel fold), the steps would stop up
+        # to a step short of the edge of what projects: bisect each such step to its end
+        following_sample = np.concatenate((np.arange(1, len(dense)), [0]))
+        first_of_set = np.r_[0, np.flatnonzero(np.diff(dense_owner)) + 1]
+        last_of_set = np.r_[first_of_set[1:], len(dense)] - 1
+        following_sample[last_of_set] = first_of_set           # each set's outline is closed
+        change = np.flatnonzero(front != front[following_sample])
+        if len(change):
+            inside = np.where(front[change, None], dense[change], dense[following_sample[change]])
+            outside = np.where(front[change, None], dense[following_sample[change]], dense[change])
+            for _ in range(_FOLD_BISECTIONS):
+                middle = 0.5 * (inside + outside)
+                _, ok = self._project_ideal(middle)
+                inside[ok], outside[~ok] = middle[ok], middle[~ok]
+            end_uv, end_ok = self._project_ideal(inside)
+            uv = np.vstack((uv, end_uv))
+            front = np.concatenate((front, end_ok))
+            dense_owner = np.concatenate((dense_owner, dense_owner[change]))
         for k in np.unique(dense_owner):
             mine = (dense_owner == k) & front
             out[k] = uv[mine]
         return out
+
+    def _project_ideal(self, ideal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`project` of the rays through undistorted normalised coordinates ``(N, 2)``."""
+        rays_c = np.column_stack((ideal, np.ones(len(ideal))))
+        return self.project(rays_c @ self.world_from_camera.T + self.position_enu)
 
     def _undistorted(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates of pixels ``(N, 2)``: OpenCV's fixed-point
