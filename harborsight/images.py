@@ -31,6 +31,8 @@ import numpy as np
 from harborsight.errors import InputError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: OpenCV's limit on a decoded image (CV_IO_MAX_IMAGE_PIXELS' default, 2^30 pixels)
+MAX_DECODED_PIXELS = 1 << 30
 #: the EXIF tag of the picture's orientation (1: stored as the camera saw it)
 EXIF_ORIENTATION_TAG = 0x0112
 
@@ -44,13 +46,46 @@ def incomplete_reason(data: bytes) -> str | None:
 
 def _reason(data: bytes) -> str | None:
     if data[:3] == b"\xff\xd8\xff":
-        if not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
-            return "JPEG cut short: no End Of Image marker (FF D9) at the end of the file"
-        return None
+        if data.rstrip(b"\x00").endswith(b"\xff\xd9") or _jpeg_end(data) is not None:
+            return None         # whole (what follows its end: a phone's trailer, a motion clip)
+        return "JPEG cut short: no End Of Image marker (FF D9) at the end of its data"
     if data[:8] == PNG_SIGNATURE:
         return _png_reason(data)
     if data[:4] in (b"II*\x00", b"MM\x00*"):
         return _tiff_reason(data)
+    return None
+
+
+def _jpeg_end(data: bytes) -> int | None:
+    """Where a JPEG's End Of Image marker ends, found by walking its segments (each skipped
+    by its length; in entropy-coded data ``FF 00`` and the restart markers ``FF D0``-``D7``
+    are data): None when the data end first. A file may go on after it (a Samsung trailer,
+    a motion photo's clip)."""
+    pos = 2
+    while pos + 4 <= len(data):
+        if data[pos] != 0xFF:
+            return None
+        marker = data[pos + 1]
+        if marker == 0xFF:                       # fill byte
+            pos += 1
+            continue
+        if marker == 0xD9:
+            return pos + 2
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            pos += 2
+            continue
+        (length,) = struct.unpack(">H", data[pos + 2:pos + 4])
+        pos += 2 + length
+        if marker == 0xDA:                       # scan data up to the next real marker
+            while True:
+                pos = data.find(b"\xff", pos)
+                if pos < 0 or pos + 1 >= len(data):
+                    return None
+                following = data[pos + 1]
+                if following == 0x00 or 0xD0 <= following <= 0xD7:
+                    pos += 2
+                    continue
+                break
     return None
 
 
@@ -75,15 +110,25 @@ def _png_reason(data: bytes) -> str | None:
 def _tiff_reason(data: bytes) -> str | None:
     import io
 
-    from PIL import Image
+    from PIL import Image, UnidentifiedImageError
 
-    try:
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None       # a large orthomosaic is no decompression bomb: its
+    try:                                # size is checked against OpenCV's own limit instead
         with Image.open(io.BytesIO(data)) as image:
+            width, height = image.size
+            if width * height > MAX_DECODED_PIXELS:
+                return (f"{width}x{height} = {width * height} px, more than OpenCV decodes "
+                        f"({MAX_DECODED_PIXELS}): cut it into tiles first")
             for frame in range(getattr(image, "n_frames", 1)):
                 image.seek(frame)
                 image.load()
-    except (OSError, ValueError, SyntaxError, struct.error) as exc:
+    except UnidentifiedImageError:
+        return None             # a kind Pillow does not read (32-bit float): OpenCV decides
+    except (OSError, ValueError, SyntaxError, struct.error, MemoryError) as exc:
         return f"TIFF incomplete or corrupt: {exc}"
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
     return None
 
 

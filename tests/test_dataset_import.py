@@ -665,3 +665,67 @@ def test_an_imported_dataset_trains_evaluates_and_exports(tmp_path):
                                  str(tmp_path / "m.onnx"), "--calibration-data", str(tmp_path / "ds")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "m.onnx").is_file()
+
+
+def test_coco_annotations_that_would_give_a_wrong_mask_cost_their_frame(tmp_path):
+    """From a review of the importers: an empty segmentation list (how CVAT's and
+    Roboflow's COCO exports write a rectangle, its shape in bbox only) was dropped without a
+    word and the boat imported as water; a flat list of numbers gave eight misleading
+    messages; a polygon wholly outside the image (coordinates of another image) painted
+    nothing; ids that are lists stopped the import with a TypeError. Each now costs its frame,
+    named; a category id used twice with two names costs the file. The good frame is
+    imported."""
+    src = tmp_path / "src"
+    for name in ("good", "boxonly", "flat", "away", "oddid"):
+        write_image(src / f"{name}.png")
+    poly = [np.ravel(L_SHAPE).tolist()]
+    doc = coco_doc([(1, "good.png"), (2, "boxonly.png"), (3, "flat.png"), (4, "away.png"),
+                    (5, "oddid.png")], [
+        {"image_id": 1, "category_id": 1, "segmentation": poly},
+        {"image_id": 2, "category_id": 1, "segmentation": [], "bbox": [5, 5, 20, 10]},
+        {"image_id": 3, "category_id": 1, "segmentation": [5, 5, 30, 5, 30, 30, 5, 30]},
+        {"image_id": 4, "category_id": 1, "segmentation": [[500, 500, 600, 500, 600, 600]]},
+        {"image_id": 5, "category_id": [1], "segmentation": poly},
+    ], ["ship"])
+    doc["images"].append({"id": [6], "file_name": "good.png", "width": W, "height": H})
+    result = invoke(write_json(src / "instances.json", doc), "-f", "coco", "--out", tmp_path / "ds")
+    assert result.exit_code == 0, result.output
+    meta = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert meta["split"] == {"good": "train"}
+    skipped = {s["field"]: s["reason"] for s in meta["skipped"]}
+    assert "empty: a box-only annotation (bbox [5, 5, 20, 10])" in skipped["annotations[1].segmentation"]
+    assert "one flat list of numbers" in skipped["annotations[2].segmentation"]
+    assert "wholly outside the 60x40 image" in skipped["annotations[3].segmentation"]
+    assert "no category with id [1]" in skipped["annotations[4].category_id"]
+    assert "expected a whole number or a string" in skipped["images[5].id"]
+    doc["categories"].append({"id": 1, "name": "obstacle"})
+    result = invoke(write_json(src / "twice.json", doc), "-f", "coco", "--out", tmp_path / "ds2")
+    assert "categories[1].id: id 1 is used twice ('ship', 'obstacle')" in result.output
+
+
+def test_yolo_lines_in_pixels_and_a_far_vertex_cost_their_frame_not_the_import(tmp_path):
+    """A YOLO line written in pixels instead of fractions was imported as water with the
+    warning "cut off at the image edge"; it costs its frame, saying so. A LabelMe vertex at
+    x = 4e8 (a typo for 40) made pycocotools overflow and crash the process; the ring is
+    clipped to the image grown by a pixel first, which paints what the unclipped ring would
+    (against pycocotools on a moderate far vertex)."""
+    write_image(tmp_path / "images" / "train" / "pix.png")
+    write_image(tmp_path / "images" / "train" / "ok.png", seed=1)
+    (tmp_path / "data.yaml").write_text("names:\n  0: boat\n")
+    (tmp_path / "labels" / "train").mkdir(parents=True)
+    (tmp_path / "labels" / "train" / "pix.txt").write_text("0 10 5 30 5 30 20\n")
+    line = " ".join(f"{x / W:.6f} {y / H:.6f}" for x, y in TRIANGLE)
+    (tmp_path / "labels" / "train" / "ok.txt").write_text(f"0 {line}\n")
+    result = invoke(tmp_path / "labels", "--format", "yolo", "--out", tmp_path / "ds", "--map", "boat=ship")
+    assert result.exit_code == 0, result.output
+    meta = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert meta["split"] == {"ok": "train"}
+    assert "fractions of the image's size, and this shape goes up to 30 (pixels?)" in result.output
+    far = Polygons((np.array([[5.0, 5.0], [4e8, 8.0], [30.0, 30.0], [5.0, 30.0]]),))
+    assert far.rasterise(H, W).any()                          # no crash, something painted
+    moderate = [(5.0, 5.0), (2000.0, 8.0), (30.0, 30.0), (5.0, 30.0)]
+    clipped = Polygons((np.array(moderate),))
+    import harborsight.datasets.annotations as annotations_module
+
+    assert annotations_module.FAR_OUTSIDE * W < 2000.0          # this one is clipped too
+    assert np.array_equal(clipped.rasterise(H, W), coco_polygon(moderate))

@@ -128,3 +128,47 @@ def test_a_frame_stored_turned_is_refused_for_measuring_only(tmp_path, orientati
     else:
         assert read_image(path, camera_pixels=True).shape == (36, 64, 3)
 
+
+
+def test_a_whole_jpeg_with_bytes_after_its_end_is_accepted_and_a_cut_one_still_refused():
+    """A phone's trailer or a motion photo's clip follows the End Of Image marker: the JPEG
+    was refused as "cut short" (OpenCV decodes it as it is). Its segments are walked to the
+    marker; a stream that ends before it is still cut short, with a trailer or without."""
+    data = encoded(".jpg")
+    trailer = b"MotionPhoto_Data" + bytes(range(256)) * 40
+    assert incomplete_reason(data + trailer) is None
+    assert incomplete_reason(data[: len(data) // 2]) is not None
+    assert "cut short" in incomplete_reason(data[: len(data) - 40] + b"\xff\x00" * 3)
+
+
+def test_a_float_tiff_is_left_to_opencv_and_a_giant_one_is_named_not_raised(tmp_path):
+    """A 32-bit float TIFF, which Pillow cannot identify, was refused as "incomplete or
+    corrupt" with an object's repr in the message; OpenCV reads it. A valid TIFF of more
+    pixels than OpenCV decodes made Pillow raise its decompression-bomb error, which nothing
+    caught: `segment` stopped, the images after it lost. It is listed with its size; the
+    rest are segmented."""
+    import struct
+
+    assert cv2.imwrite(str(tmp_path / "float.tif"),
+                       np.random.default_rng(0).random((50, 70, 3)).astype(np.float32))
+    data = (tmp_path / "float.tif").read_bytes()
+    assert incomplete_reason(data) is None
+    assert cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR).shape == (50, 70, 3)
+    giant = tmp_path / "photos" / "b_giant.tif"
+    giant.parent.mkdir()
+    # a greyscale TIFF of 33000 x 33000 (one strip; its pixels are never read)
+    entries = [(256, 4, 33000), (257, 4, 33000), (258, 3, 8), (259, 3, 1), (262, 3, 1),
+               (273, 4, 8 + 2 + 12 * 8 + 4), (278, 4, 33000), (279, 4, 33000 * 33000)]
+    giant.write_bytes(b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", len(entries))
+                      + b"".join(struct.pack("<HHII", tag, kind, 1, value)
+                                 for tag, kind, value in entries)
+                      + struct.pack("<I", 0) + bytes(64))
+    for name in ("a.jpg", "c.jpg"):
+        (giant.parent / name).write_bytes(encoded(".jpg"))
+    reason = incomplete_reason(giant.read_bytes())
+    assert reason is not None and "33000x33000" in reason and "tiles" in reason
+    out = tmp_path / "masks"
+    result = runner.invoke(app, ["segment", str(giant.parent), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert (out / "a.png").is_file() and (out / "c.png").is_file()
+    assert "33000x33000" in json.dumps(json.loads((out / "segment.json").read_text()))

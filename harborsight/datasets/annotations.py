@@ -88,14 +88,59 @@ def _paint_runs(canvas: np.ndarray, counts: list[int], value: int) -> None:
         pos += n
 
 
+#: a ring reaching this many image sides beyond the image is clipped before pycocotools
+FAR_OUTSIDE = 4
+
+
+def _clipped(ring: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A ring ``(N, 2)`` clipped to ``[-1, width + 1] x [-1, height + 1]`` (Sutherland and
+    Hodgman: against each side in turn, keeping the points inside and each edge's crossing
+    of the side); the pixels it covers in the image are the same."""
+    for axis, bound, keep_below in ((0, -1.0, False), (0, width + 1.0, True),
+                                    (1, -1.0, False), (1, height + 1.0, True)):
+        if len(ring) == 0:
+            break
+        out = []
+        following = np.roll(ring, -1, axis=0)
+        for p, q in zip(ring, following, strict=True):
+            p_in = p[axis] <= bound if keep_below else p[axis] >= bound
+            q_in = q[axis] <= bound if keep_below else q[axis] >= bound
+            if p_in:
+                out.append(p)
+            if p_in != q_in:
+                t = (bound - p[axis]) / (q[axis] - p[axis])
+                out.append(p + t * (q - p))
+        ring = np.array(out, np.float64).reshape(-1, 2)
+    return ring
+
+
 class _Geometry:
     """What every geometry does: ``paint(canvas, value)`` into a Fortran-ordered uint8
-    canvas of the image's size, and ``rasterise(height, width)`` as a boolean mask."""
+    canvas of the image's size, and ``rasterise(height, width)`` as a boolean mask; its
+    ``box(height, width)`` (x0, y0, x1, y1 in pixels) tells whether it reaches outside the
+    image, lies wholly outside it, and how far it reaches (``reach``: in the shape's own
+    units, fractions for YOLO's)."""
 
     def rasterise(self, height: int, width: int) -> np.ndarray:
         canvas = np.zeros((height, width), np.uint8, order="F")
         self.paint(canvas, 1)
         return np.ascontiguousarray(canvas, dtype=bool)
+
+    def box(self, height: int, width: int) -> tuple[float, float, float, float]:
+        raise NotImplementedError
+
+    def outside(self, height: int, width: int) -> bool:
+        x0, y0, x1, y1 = self.box(height, width)
+        return x0 < 0 or y0 < 0 or x1 > width or y1 > height
+
+    def wholly_outside(self, height: int, width: int) -> bool:
+        x0, y0, x1, y1 = self.box(height, width)
+        return x1 <= 0 or y1 <= 0 or x0 >= width or y0 >= height
+
+    def reach(self, height: int, width: int) -> float:
+        """The farthest coordinate from the image's origin, as the shape gives it."""
+        x0, y0, x1, y1 = self.box(height, width)
+        return max(abs(x0), abs(y0), abs(x1), abs(y1))
 
 
 @dataclass(frozen=True)
@@ -110,19 +155,31 @@ class Polygons(_Geometry):
         scale = np.array([width, height], np.float64) if self.normalised else 1.0
         return [np.asarray(ring, np.float64) * scale for ring in self.rings]
 
-    def outside(self, height: int, width: int) -> bool:
+    def box(self, height: int, width: int) -> tuple[float, float, float, float]:
         pts = np.concatenate(self.pixels(height, width))
-        return bool((pts[:, 0] < 0).any() or (pts[:, 0] > width).any()
-                    or (pts[:, 1] < 0).any() or (pts[:, 1] > height).any())
+        return (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()),
+                float(pts[:, 1].max()))
+
+    def reach(self, height: int, width: int) -> float:
+        pts = np.concatenate(self.rings)
+        return float(np.abs(pts).max())
 
     def paint(self, canvas: np.ndarray, value: int) -> None:
         """COCO's rasterisation on the whole image (pycocotools' result depends on the
-        canvas: a crop around the shape would not give the same pixels), painted run by run."""
+        canvas: a crop around the shape would not give the same pixels), painted run by run.
+        A ring reaching far beyond the image (a typo of 4e8 for 40) is first clipped to the
+        image grown by a pixel, which leaves its pixels as they were: pycocotools sums
+        the edges' lengths in an int, and such a ring crashed the process."""
         from pycocotools import mask as coco_mask
 
         height, width = canvas.shape
-        rles = coco_mask.frPyObjects([ring.ravel().tolist() for ring in self.pixels(height, width)],
-                                     height, width)
+        far = FAR_OUTSIDE * max(height, width)
+        rings = [ring if np.abs(ring).max() < far else _clipped(ring, width, height)
+                 for ring in self.pixels(height, width)]
+        rings = [ring for ring in rings if len(ring) >= 3]
+        if not rings:
+            return
+        rles = coco_mask.frPyObjects([ring.ravel().tolist() for ring in rings], height, width)
         _paint_runs(canvas, compressed_rle_counts(coco_mask.merge(rles)["counts"]), value)
 
 
@@ -137,8 +194,8 @@ class CocoRle(_Geometry):
     def size_hw(self) -> tuple[int, int]:
         return int(self.rle["size"][0]), int(self.rle["size"][1])
 
-    def outside(self, height: int, width: int) -> bool:
-        return False
+    def box(self, height: int, width: int) -> tuple[float, float, float, float]:
+        return 0.0, 0.0, float(width), float(height)      # its size is the image's, checked
 
     def paint(self, canvas: np.ndarray, value: int) -> None:
         """Through pycocotools (``frPyObjects`` for a list of counts), run by run."""
@@ -158,9 +215,9 @@ class Bitmap(_Geometry):
     left: int
     top: int
 
-    def outside(self, height: int, width: int) -> bool:
+    def box(self, height: int, width: int) -> tuple[float, float, float, float]:
         h, w = self.mask.shape
-        return self.left < 0 or self.top < 0 or self.left + w > width or self.top + h > height
+        return float(self.left), float(self.top), float(self.left + w), float(self.top + h)
 
     def paint(self, canvas: np.ndarray, value: int) -> None:
         height, width = canvas.shape
@@ -183,9 +240,9 @@ class Ellipse(_Geometry):
     ry: float
     angle_deg: float = 0.0
 
-    def outside(self, height: int, width: int) -> bool:
+    def box(self, height: int, width: int) -> tuple[float, float, float, float]:
         r = max(self.rx, self.ry)
-        return self.cx - r < 0 or self.cy - r < 0 or self.cx + r > width or self.cy + r > height
+        return self.cx - r, self.cy - r, self.cx + r, self.cy + r
 
     def paint(self, canvas: np.ndarray, value: int) -> None:
         """The pixels whose centres lie inside (or on) the ellipse."""

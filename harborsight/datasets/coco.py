@@ -24,6 +24,7 @@ from harborsight.datasets.annotations import (
     load_json_file,
     ring_from_flat,
 )
+from harborsight.errors import brief
 
 
 def image_bases(annotation_file: Path, images_dir: Path | None) -> list[Path]:
@@ -62,6 +63,11 @@ def _rle_shape(seg: dict, size_hw: tuple[int, int] | None) -> CocoRle:
     return CocoRle({"size": list(size), "counts": counts})
 
 
+def _is_id(value: object) -> bool:
+    """COCO ids are whole numbers (some tools write strings); not lists, floats or bools."""
+    return isinstance(value, (int, str)) and not isinstance(value, bool)
+
+
 def read_coco(sources: list[Path], images_dir: Path | None = None) -> AnnotationSet:
     """Frames of one or more COCO instances files."""
     out = AnnotationSet("coco")
@@ -84,10 +90,16 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
     source = str(path)
     categories = {}
     for k, cat in enumerate(doc.get("categories") or []):
-        if isinstance(cat, dict) and "id" in cat and isinstance(cat.get("name"), str):
+        if isinstance(cat, dict) and _is_id(cat.get("id")) and isinstance(cat.get("name"), str):
+            if cat["id"] in categories and categories[cat["id"]] != cat["name"]:
+                # which name the annotations meant cannot be told: every shape of it is in doubt
+                out.issues.append(Issue(source, f"categories[{k}].id", f"id {cat['id']!r} is used "
+                                        f"twice ({categories[cat['id']]!r}, {cat['name']!r})"))
+                return
             categories[cat["id"]] = cat["name"]
         else:
-            out.warnings.append(Issue(source, f"categories[{k}]", "expected an id and a name; left out"))
+            out.warnings.append(Issue(source, f"categories[{k}]", "expected an id (a whole number "
+                                      "or a string) and a name; left out"))
     bases = image_bases(path, images_dir)
     by_id: dict[object, FrameAnnotation] = {}
     for i, image in enumerate(doc["images"]):
@@ -109,9 +121,13 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
         if found is None:
             frame.problem(f"{where}.file_name", f"image file not found: {name} (looked in "
                           + ", ".join(str(b) for b in bases) + ")")
-        if image.get("id") in by_id:
+        if not _is_id(image.get("id")):
+            frame.problem(f"{where}.id", f"expected a whole number or a string, got "
+                          f"{brief(image.get('id'))}")
+        elif image.get("id") in by_id:
             frame.problem(f"{where}.id", f"image id {image.get('id')!r} is used twice")
-        by_id.setdefault(image.get("id"), frame)
+        else:
+            by_id[image.get("id")] = frame
         out.frames.append(frame)
     annotations = doc.get("annotations")
     if not isinstance(annotations, list):
@@ -119,18 +135,27 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
         annotations = []
     for k, ann in enumerate(annotations):
         where = f"annotations[{k}]"
-        frame = by_id.get(ann.get("image_id")) if isinstance(ann, dict) else None
+        frame = (by_id.get(ann.get("image_id")) if isinstance(ann, dict) and _is_id(ann.get("image_id"))
+                 else None)
         if frame is None:
             out.warnings.append(Issue(source, f"{where}.image_id", "no image entry with id "
                                       f"{ann.get('image_id') if isinstance(ann, dict) else None!r}; "
                                       "annotation left out"))
             continue
-        label = categories.get(ann.get("category_id"))
+        label = categories.get(ann.get("category_id")) if _is_id(ann.get("category_id")) else None
         if label is None:
             frame.problem(f"{where}.category_id", f"no category with id {ann.get('category_id')!r}")
             continue
         seg = ann.get("segmentation")
-        if isinstance(seg, list):
+        if isinstance(seg, list) and seg and all(isinstance(v, (int, float)) for v in seg):
+            frame.problem(f"{where}.segmentation", "expected a list of polygons [[x0, y0, x1, y1, "
+                          "...], ...], got one flat list of numbers (wrap it in [ ])")
+        elif isinstance(seg, list) and not seg:
+            # CVAT's and Roboflow's COCO exports write a rectangle so, its shape in bbox only
+            frame.problem(f"{where}.segmentation", "empty: a box-only annotation (bbox "
+                          f"{brief(ann.get('bbox'))})? boxes are not masks (see harborsight "
+                          "dataset label-from-boxes)")
+        elif isinstance(seg, list):
             rings = []
             for r, ring in enumerate(seg):
                 try:

@@ -14,6 +14,7 @@ beside it (CVAT's export archive). Coordinates and drawing order:
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -162,7 +163,14 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
                 frame.problem(f"{at}.label", "missing")
                 continue
             try:
-                z_order = int(float(el.get("z_order") or 0))
+                z_order = float(el.get("z_order") or 0)
+                if not (math.isfinite(z_order) and z_order == int(z_order)):
+                    raise ValueError
+            except ValueError:
+                frame.problem(f"{at}.z_order", f"expected a whole number, got {el.get('z_order')!r}")
+                continue
+            try:
+                z_order = int(z_order)
                 geometry = _geometry(el)
             except ValueError as exc:
                 if "needs at least 3" in str(exc):

@@ -36,10 +36,17 @@ import cv2
 import numpy as np
 
 from harborsight import __version__
-from harborsight.datasets.annotations import AnnotationSet, CocoRle, FrameAnnotation, Issue, paint_labels
+from harborsight.datasets.annotations import (
+    AnnotationSet,
+    CocoRle,
+    FrameAnnotation,
+    Issue,
+    Polygons,
+    paint_labels,
+)
 from harborsight.datasets.classmap import TARGET_NAMES, class_of, splits_of
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
-from harborsight.errors import InputError
+from harborsight.errors import InputError, brief
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
 from harborsight.images import incomplete_reason
 from harborsight.perception.classes import IGNORE, WATER
@@ -228,7 +235,14 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
     incomplete = incomplete_reason(data) if data else None
     if incomplete:
         return Issue(frame.source, image_field, f"{incomplete} ({frame.image_path})"), [], None
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+    except (cv2.error, MemoryError) as exc:
+        return Issue(frame.source, image_field, f"cannot decode image {frame.image_path}: "
+                     f"{brief(str(exc).splitlines()[-1] if str(exc) else exc, 120)} (more pixels "
+                     "than OpenCV decodes?)"), [], None
+    if not data:
+        return Issue(frame.source, image_field, f"empty file (0 bytes): {frame.image_path}"), [], None
     if image is None:
         return Issue(frame.source, image_field, f"cannot decode image {frame.image_path} (corrupt "
                      "or not an image)"), [], None
@@ -242,9 +256,20 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
             h, w = shape.geometry.size_hw
             return Issue(frame.source, shape.field, f"RLE of {w}x{h} but the image "
                          f"{frame.image_path.name} is {width}x{height} (a mask of another size)"), [], None
-    warnings = [Issue(frame.source, s.field, f"{s.label!r} reaches outside the {width}x{height} "
-                      "image; cut off at the image edge")
-                for s in frame.shapes if s.geometry.outside(height, width)]
+    warnings = []
+    for s in frame.shapes:
+        if not s.geometry.outside(height, width):
+            continue
+        reach = s.geometry.reach(height, width)
+        if isinstance(s.geometry, Polygons) and s.geometry.normalised and reach > 1.05:
+            return Issue(frame.source, s.field, f"{s.label!r}: coordinates are fractions of the "
+                         f"image's size, and this shape goes up to {reach:.4g} (pixels?)"), [], None
+        if s.geometry.wholly_outside(height, width):
+            return Issue(frame.source, s.field, f"{s.label!r} lies wholly outside the "
+                         f"{width}x{height} image (coordinates of another image, or in other "
+                         "units?)"), [], None
+        warnings.append(Issue(frame.source, s.field, f"{s.label!r} reaches outside the "
+                              f"{width}x{height} image; cut off at the image edge"))
     class_ids = [class_of(s.label, options.class_map) for s in frame.shapes]
     labels = paint_labels(frame.shapes, class_ids, height, width, options.background)
     resized = options.max_side is not None and max(height, width) > options.max_side
