@@ -161,6 +161,26 @@ def turned_reason(data: bytes) -> str | None:
             "Orientation 1")
 
 
+def decode_as_displayed(data: bytes, flags: int) -> np.ndarray | None:
+    """``cv2.imdecode``, the picture turned by its EXIF Orientation as viewers and annotation
+    tools show it (LabelMe, Ultralytics): OpenCV does so for JPEG, PNG and TIFF but not for
+    WebP, whose masks then lay 180 degrees off (or were refused for their size)."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    if (image is None or data[:4] != b"RIFF" or data[8:12] != b"WEBP"
+            or flags & cv2.IMREAD_IGNORE_ORIENTATION):
+        return image
+    orientation = exif_orientation(data)
+    if orientation in (2, 4):
+        return cv2.flip(image, 1 if orientation == 2 else 0)
+    if orientation in (3, 6, 8):
+        return cv2.rotate(image, {3: cv2.ROTATE_180, 6: cv2.ROTATE_90_CLOCKWISE,
+                                  8: cv2.ROTATE_90_COUNTERCLOCKWISE}[orientation])
+    if orientation in (5, 7):           # across the main diagonal; 7: and half a turn
+        image = np.ascontiguousarray(np.swapaxes(image, 0, 1))
+        return cv2.rotate(image, cv2.ROTATE_180) if orientation == 7 else image
+    return image
+
+
 def decode_image_file(path: Path, flags: int, camera_pixels: bool = False
                       ) -> tuple[np.ndarray | None, str | None]:
     """The file at ``path`` read once, checked by :func:`incomplete_reason` (and with
@@ -175,8 +195,7 @@ def decode_image_file(path: Path, flags: int, camera_pixels: bool = False
     reason = incomplete_reason(data) or (turned_reason(data) if camera_pixels else None)
     if reason:
         return None, reason
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
-    return image, None
+    return decode_as_displayed(data, flags), None
 
 
 def read_image(path: Path, camera_pixels: bool = False) -> np.ndarray:

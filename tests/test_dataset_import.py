@@ -729,3 +729,21 @@ def test_yolo_lines_in_pixels_and_a_far_vertex_cost_their_frame_not_the_import(t
 
     assert annotations_module.FAR_OUTSIDE * W < 2000.0          # this one is clipped too
     assert np.array_equal(clipped.rasterise(H, W), coco_polygon(moderate))
+
+
+def test_labelme_paths_of_another_machine_and_folders_given_twice(tmp_path):
+    """An imagePath of the machine it was drawn on (C:\\Users\\...) with the image beside the
+    JSON was not found (and the message did not mention --images); a folder given with a
+    subfolder of it refused the whole import ("annotated twice, also in the same file").
+    The image is found by its name beside the JSON; each file is read once."""
+    src = tmp_path / "lm" / "sub"
+    write_image(src / "x.png")
+    shape = {"label": "boat", "points": [[5, 5], [30, 5], [30, 30]], "shape_type": "polygon"}
+    write_json(src / "x.json", labelme_doc("C:\\\\Users\\\\me\\\\survey\\\\x.png", [shape]))
+    result = invoke(tmp_path / "lm", src, "-f", "labelme", "--out", tmp_path / "ds", "--map", "boat=ship")
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "ds" / "dataset.json").read_text())["split"] == {"x": "train"}
+    assert labels_of(tmp_path / "ds", "x").max() == 1
+    write_json(src / "x.json", labelme_doc("C:/Users/me/survey/elsewhere.png", [shape]))
+    result = invoke(src, "-f", "labelme", "--out", tmp_path / "ds2", "--map", "boat=ship")
+    assert "give --images FOLDER to look it up there by its name" in result.output

@@ -172,3 +172,20 @@ def test_a_float_tiff_is_left_to_opencv_and_a_giant_one_is_named_not_raised(tmp_
     assert result.exit_code == 0, result.output
     assert (out / "a.png").is_file() and (out / "c.png").is_file()
     assert "33000x33000" in json.dumps(json.loads((out / "segment.json").read_text()))
+
+
+@pytest.mark.parametrize("orientation", [3, 6, 8, 5])
+def test_a_webp_is_read_turned_by_its_exif_orientation_as_a_jpeg_is(tmp_path, orientation):
+    """OpenCV turns a JPEG, PNG or TIFF by its EXIF Orientation as it reads it, not a WebP;
+    annotation tools (LabelMe, Ultralytics) show all of them turned, so a WebP's mask was
+    imported 180 degrees off (or refused for its size). Read as Pillow turns it for show."""
+    from PIL import ImageOps
+
+    stored = Image.fromarray(picture()[:, :150])          # 150 x 120, not square
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "turned.webp"
+    stored.save(path, format="WEBP", lossless=True, exif=exif)
+    with Image.open(path) as opened:
+        shown = np.asarray(ImageOps.exif_transpose(opened).convert("RGB"))[..., ::-1]
+    assert np.array_equal(read_image(path), shown)

@@ -5,8 +5,10 @@
 (the centre, then a point on the circle) and ``mask`` (``points[0]`` the patch's top-left
 pixel, ``mask`` a base64 PNG patch, as LabelMe 5 writes it) become regions; ``line``,
 ``linestrip``, ``point`` and ``points`` have no area and are left out with a warning.
-``imagePath`` is relative to the JSON (then looked up in ``--images``, by its path and by its
-bare name); where no such file exists, an embedded ``imageData`` is used. ``imageHeight`` and
+``imagePath`` is relative to the JSON (then looked up in ``--images``); where no file is
+there, its bare name is looked up beside the JSON and in ``--images`` (a path of the
+machine it was drawn on, ``C:/Users/...``); where no such file exists, an embedded
+``imageData`` is used. A file given twice (a folder and one inside it) is read once. ``imageHeight`` and
 ``imageWidth`` are checked against the image. Coordinates and drawing order:
 :mod:`harborsight.datasets.annotations`.
 """
@@ -52,7 +54,13 @@ def json_files(sources: list[Path], issues: list[Issue], suffix: str = ".json") 
             files.append(source)
         else:
             issues.append(Issue(str(source), None, "not found"))
-    return files
+    seen: set[Path] = set()
+    unique = []
+    for file in files:         # a folder and one inside it, both given: each file once
+        if file.resolve() not in seen:
+            seen.add(file.resolve())
+            unique.append(file)
+    return unique
 
 
 def _decode_b64(text: object) -> bytes:
@@ -129,8 +137,10 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> Frame
     name = name.replace("\\", "/") if isinstance(name, str) and name else None
     bases = [path.parent] + ([Path(images_dir)] if images_dir is not None else [])
     found = find_image(name, bases) if name else None
-    if found is None and name and images_dir is not None:
-        found = find_image(Path(name).name, [Path(images_dir)])
+    if found is None and name:
+        # a path of the machine it was drawn on (C:/Users/...): the file by its name, beside
+        # the JSON or in --images
+        found = find_image(Path(name).name, bases)
     nominal = found or (path.parent / name if name else path.with_suffix(".png"))
     frame = FrameAnnotation(source, "", nominal, size_field="imageWidth/imageHeight")
     if found is None:
@@ -141,8 +151,9 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> Frame
                 frame.problem("imageData", str(exc))
         else:
             frame.problem("imagePath", f"image file not found: {name} (relative to {path.parent}"
-                          + (f", or in {images_dir}" if images_dir is not None else "") + ")"
-                          if name else "missing, and no imageData")
+                          + (f", or in {images_dir}" if images_dir is not None
+                             else "; give --images FOLDER to look it up there by its name")
+                          + ")" if name else "missing, and no imageData")
     height, width = doc.get("imageHeight"), doc.get("imageWidth")
     if height is not None or width is not None:
         if isinstance(height, int) and isinstance(width, int) and height > 0 and width > 0:

@@ -48,7 +48,7 @@ from harborsight.datasets.classmap import TARGET_NAMES, class_of, splits_of
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
 from harborsight.errors import InputError, brief
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
-from harborsight.images import incomplete_reason
+from harborsight.images import decode_as_displayed, incomplete_reason
 from harborsight.perception.classes import IGNORE, WATER
 
 SCHEMA = "harborsight.dataset/1"
@@ -236,7 +236,7 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
     if incomplete:
         return Issue(frame.source, image_field, f"{incomplete} ({frame.image_path})"), [], None
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
+        image = decode_as_displayed(data, cv2.IMREAD_COLOR)
     except (cv2.error, MemoryError) as exc:
         return Issue(frame.source, image_field, f"cannot decode image {frame.image_path}: "
                      f"{brief(str(exc).splitlines()[-1] if str(exc) else exc, 120)} (more pixels "
