@@ -747,3 +747,23 @@ def test_labelme_paths_of_another_machine_and_folders_given_twice(tmp_path):
     write_json(src / "x.json", labelme_doc("C:/Users/me/survey/elsewhere.png", [shape]))
     result = invoke(src, "-f", "labelme", "--out", tmp_path / "ds2", "--map", "boat=ship")
     assert "give --images FOLDER to look it up there by its name" in result.output
+
+
+def test_a_shape_painted_over_whole_is_named(tmp_path):
+    """A YOLO file lists a boat, then the pier polygon around it: the boat, drawn first, has
+    no pixel left (the documented order: later over earlier). It was dropped without a word;
+    it is now a warning naming it. The mask is as before."""
+    write_image(tmp_path / "images" / "p.png")
+    (tmp_path / "data.yaml").write_text("names:\n  0: boat\n  1: pier\n")
+    (tmp_path / "labels").mkdir()
+    boat = [(20, 15), (30, 15), (30, 25), (20, 25)]
+    pier = [(5, 5), (55, 5), (55, 35), (5, 35)]
+    line = " ".join(f"{x / W:.6f} {y / H:.6f}" for x, y in boat)
+    pier_line = " ".join(f"{x / W:.6f} {y / H:.6f}" for x, y in pier)
+    (tmp_path / "labels" / "p.txt").write_text(f"0 {line}\n1 {pier_line}\n")
+    result = invoke(tmp_path / "labels", "--format", "yolo", "--out", tmp_path / "ds",
+                    "--map", "boat=ship", "--map", "pier=obstacle")
+    assert result.exit_code == 0, result.output
+    assert "'boat' has no pixel left: painted over whole by shapes drawn after it" in result.output
+    labels = labels_of(tmp_path / "ds", "p")
+    assert (labels == 1).sum() == 0 and (labels == 2).sum() > 0

@@ -322,14 +322,20 @@ class FrameAnnotation:
 
 
 def paint_labels(shapes: list[Shape], class_ids: list[int], height: int, width: int,
-                 background: int) -> np.ndarray:
+                 background: int) -> tuple[np.ndarray, list[int]]:
     """The uint8 class mask of ``shapes`` (``class_ids[k]`` the class of ``shapes[k]``) on a
-    ``height`` x ``width`` canvas of ``background``, in the drawing order of the module doc."""
-    canvas = np.full((height, width), background, np.uint8, order="F")
+    ``height`` x ``width`` canvas of ``background``, in the drawing order of the module doc,
+    and the indices of the shapes of which no pixel is left (painted over whole by later
+    ones, or smaller than a pixel). Each shape paints its index + 1; the classes are looked
+    up after."""
+    canvas = np.zeros((height, width), np.uint16 if len(shapes) < 65535 else np.int32, order="F")
     order = sorted(range(len(shapes)), key=lambda k: shapes[k].z_order)   # stable: file order
     for k in order:
-        shapes[k].geometry.paint(canvas, class_ids[k])
-    return np.ascontiguousarray(canvas)
+        shapes[k].geometry.paint(canvas, k + 1)
+    shown = np.zeros(len(shapes) + 1, bool)
+    shown[np.unique(canvas)] = True
+    lookup = np.array([background, *class_ids], np.uint8)
+    return np.ascontiguousarray(lookup[canvas]), [k for k in range(len(shapes)) if not shown[k + 1]]
 
 
 @dataclass

@@ -271,7 +271,12 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
         warnings.append(Issue(frame.source, s.field, f"{s.label!r} reaches outside the "
                               f"{width}x{height} image; cut off at the image edge"))
     class_ids = [class_of(s.label, options.class_map) for s in frame.shapes]
-    labels = paint_labels(frame.shapes, class_ids, height, width, options.background)
+    labels, unseen = paint_labels(frame.shapes, class_ids, height, width, options.background)
+    for k in unseen:
+        shape = frame.shapes[k]
+        warnings.append(Issue(frame.source, shape.field, f"{shape.label!r} has no pixel left: "
+                              "painted over whole by shapes drawn after it (later in the file, or "
+                              "of a higher z_order), or smaller than a pixel"))
     resized = options.max_side is not None and max(height, width) > options.max_side
     if resized:
         scale = options.max_side / max(height, width)
