@@ -581,3 +581,23 @@ def test_exact_int8_gives_the_graphs_labels_and_says_so(tmp_path):
         assert written["mode"]["int8_arithmetic"].startswith(arithmetic)
         # fused kernels too give the graph's labels (uint8 weights where int8 saturates)
         assert written["splits"]["test"]["miou"] == pytest.approx(1.0)
+
+
+def test_recursive_masks_mirror_the_subfolders(model_path, tmp_path):
+    """A drone restarts its numbering in each folder (100MEDIA/DJI_0001.JPG,
+    101MEDIA/DJI_0001.JPG): with --recursive the masks were named by file name alone, and all
+    but one of each name were left out. They now go in the same subfolders of --out; a file
+    of the folder itself keeps its plain name."""
+    rng = np.random.default_rng(3)
+    for where in ("100MEDIA/DJI_0001.JPG", "101MEDIA/DJI_0001.JPG", "top.png"):
+        path = tmp_path / "in" / where
+        path.parent.mkdir(parents=True, exist_ok=True)
+        assert cv2.imwrite(str(path), rng.integers(0, 256, (36, 64, 3), dtype=np.uint8))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["segment", str(tmp_path / "in"), "--out", str(out), "--recursive",
+                                 "--model", str(model_path), "--overlay"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    for mask in ("100MEDIA/DJI_0001.png", "101MEDIA/DJI_0001.png", "top.png"):
+        assert cv2.imread(str(out / mask), cv2.IMREAD_UNCHANGED).shape == (36, 64)
+    assert (out / "overlays" / "101MEDIA" / "DJI_0001.jpg").is_file()
+    assert json.loads((out / "segment.json").read_text())["skipped"] == []

@@ -62,7 +62,9 @@ def segment_command(
         min=0.01, max=16.0, show_default=False, help=TILE_SCALE_HELP)] = None,
     max_side: Annotated[int | None, typer.Option(min=1, show_default=False, help=MAX_SIDE_HELP)
                         ] = None,
-    recursive: Annotated[bool, typer.Option(help="Also search the folders' subfolders.")] = False,
+    recursive: Annotated[bool, typer.Option(
+        help="Also search the folders' subfolders; their masks go in the same subfolders of "
+             "--out (a drone restarts its numbering in each folder).")] = False,
     flips: Annotated[int, typer.Option(help=FLIPS_HELP)] = 1,
     exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
@@ -87,7 +89,8 @@ def segment_command(
 
     try:
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side, flips)
-        paths = collect_images(inputs, recursive)
+        names: dict = {}
+        paths = collect_images(inputs, recursive, names)
         segmenter = load_segmenter(model, exact_int8)
         arithmetic = segmenter.int8_arithmetic()
         if arithmetic == UINT8_WEIGHTS:
@@ -102,7 +105,7 @@ def segment_command(
                       highlight=False)
         with progress_report("segment", len(paths), console, unit="images") as progress:
             run = segment_images(paths, segmenter, out, options, overlay,
-                                 on_image=lambda _: progress.advance())
+                                 on_image=lambda _: progress.advance(), names=names)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None

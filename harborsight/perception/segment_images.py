@@ -142,11 +142,14 @@ class SegmentOptions:
 
 # --- finding images -------------------------------------------------------------------------
 
-def collect_images(inputs: Sequence[str | Path], recursive: bool = False) -> list[Path]:
+def collect_images(inputs: Sequence[str | Path], recursive: bool = False,
+                   names: dict[Path, str] | None = None) -> list[Path]:
     """The image files named or found in ``inputs``, in the order given; a folder adds its
     ``IMAGE_SUFFIXES`` files (any letter case; not hidden ones; with ``recursive`` those of its
     subfolders too) in natural order. A file named twice is taken once. A missing path, or
-    no image at all, is an :class:`InputError`."""
+    no image at all, is an :class:`InputError`. ``names`` (filled when given) maps a file
+    found in a subfolder to its mask's name there (``101MEDIA/DJI_0001``): a drone restarts
+    its numbering in each folder."""
     found: list[Path] = []
     seen: set[Path] = set()
     for given in inputs:
@@ -165,6 +168,8 @@ def collect_images(inputs: Sequence[str | Path], recursive: bool = False) -> lis
             if key not in seen:
                 seen.add(key)
                 found.append(file)
+                if names is not None and path.is_dir() and len(file.relative_to(path).parts) > 1:
+                    names[file] = file.relative_to(path).with_suffix("").as_posix()
     if not found:
         where = ", ".join(str(p) for p in inputs) or "(no input)"
         suffixes = ", ".join(sorted(IMAGE_SUFFIXES))
@@ -473,12 +478,15 @@ class SegmentRun:
 
 def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str | Path,
                    options: SegmentOptions | None = None, overlay: bool = False,
-                   on_image: Callable[[Path], None] | None = None) -> SegmentRun:
+                   on_image: Callable[[Path], None] | None = None,
+                   names: dict[Path, str] | None = None) -> SegmentRun:
     """Write ``out_dir/<stem>.png`` (uint8 labels at the image's size) for each image, with
     ``overlay`` also ``out_dir/overlays/<stem>.jpg``, and ``out_dir/segment.json``; all
-    atomically. An image that cannot be read or written, whose stem an earlier image's mask
-    already took, or whose mask or overlay would replace one of the input images, is left
-    out with the reason; the rest are still written. ``on_image(path)`` after each image."""
+    atomically; an image in ``names`` (:func:`collect_images`) is written under that name
+    (its subfolder mirrored). An image that cannot be read or written, whose name an earlier
+    image's mask already took, or whose mask or overlay would replace one of the input
+    images, is left out with the reason; the rest are still written. ``on_image(path)``
+    after each image."""
     from harborsight.images import read_image
 
     options = options or SegmentOptions()
@@ -498,7 +506,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
         try:
             run.images.append(_segment_one(path, segmenter, options, out_dir,
                                            overlay_dir if overlay else None, inputs, taken,
-                                           read_image))
+                                           read_image, (names or {}).get(path, path.stem)))
         except (HarborsightError, OSError, cv2.error) as exc:
             reason = exc.message if isinstance(exc, InputError) else " ".join(str(exc).split())
             run.skipped.append((str(path), reason))
@@ -521,8 +529,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
 
 def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, out_dir: Path,
                  overlay_dir: Path | None, inputs: set[Path], taken: dict[str, Path],
-                 read_image: Callable[[Path], np.ndarray]) -> SegmentedImage:
-    stem = path.stem
+                 read_image: Callable[[Path], np.ndarray], stem: str) -> SegmentedImage:
     mask_path = out_dir / f"{stem}.png"
     overlay_path = None if overlay_dir is None else overlay_dir / f"{stem}.jpg"
     if stem in taken:
@@ -534,6 +541,9 @@ def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, 
                              "choose another --out folder")
     image = read_image(path)
     height, width = image.shape[:2]
+    for output in (mask_path, overlay_path):
+        if output is not None:
+            output.parent.mkdir(parents=True, exist_ok=True)
     info: dict = {}
     start = time.perf_counter()
     labels = segment_labels(segmenter, image, options, info)
