@@ -162,6 +162,16 @@ class _Track:
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
     residuals: deque = field(default_factory=deque)
 
+    def took(self, time_s: float, reading: Reading, systematic_m: float) -> None:
+        """The bookkeeping of a reading taken (its state already updated)."""
+        self.time_s = time_s
+        self.updates += 1
+        self.misses_in_row = 0
+        self.systematic_m = systematic_m
+        if reading.sigma_m is not None:
+            self.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
+        self.remember(time_s, reading.distance_m)    # keeps no residual when noise_window is 0
+
     def remember(self, time_s: float, distance_m: float) -> None:
         """Keep a reading, and the residual of the one before it once three are in a row
         (module docstring): one residual a reading, so the noise is measured in constant
@@ -359,13 +369,7 @@ class SectionTracker:
         best.state = np.array([reading.distance_m, (reading.distance_m - best.state[0]) / dt])
         best.covariance = np.array([[variance, variance / dt],
                                     [variance / dt, (first + variance) / dt ** 2]])
-        best.time_s = time_s
-        best.updates += 1
-        best.misses_in_row = 0
-        best.systematic_m = systematic
-        if reading.sigma_m is not None:
-            best.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
-        best.remember(time_s, reading.distance_m)
+        best.took(time_s, reading, systematic)
         return best
 
     def _predicted(self, track: _Track, time_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -400,13 +404,7 @@ class SectionTracker:
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * innovation
         track.covariance = P - np.outer(gain, P[0, :])
-        track.time_s = time_s
-        track.updates += 1
-        track.misses_in_row = 0
-        track.systematic_m = systematic
-        if reading.sigma_m is not None:
-            track.last_sigmas = (reading.sigma_m, reading.sigma_random_m)
-        track.remember(time_s, reading.distance_m)     # keeps no residual when noise_window is 0
+        track.took(time_s, reading, systematic)
 
     def _estimate(self, time_s: float, state: str) -> SectionEstimate:
         track = self.current
