@@ -207,3 +207,38 @@ def test_the_pose_refinement_fits_the_layers_in_an_oblique_view(sign):
     assert abs(refinement["rotation_deg"] + np.degrees(error[2])) < 0.2
     truth_m = Polygon(spec.outline).distance(box(-20, 12, 30, 40))
     assert report.min_distance_m == pytest.approx(truth_m, abs=0.2)
+
+
+def test_a_layer_reaching_behind_the_camera_still_covers_the_vessel():
+    """A 10 m yacht with a 20 m mast, the drone 12 m up and 8 m off its side looking 60
+    degrees down: the masthead is behind the camera. The mast's layer was projected from
+    its points in front alone, and 615 of the vessel's 5,014 pixels in view lay outside its
+    region (each read as an obstacle at the hull). The layer is cut at a near plane instead:
+    every vessel pixel (300 random points on each face above water, projected by a plain
+    pinhole) lies in the region."""
+    from harborsight.clearance.obstacles import own_vessel_region
+
+    mesh = trimesh.util.concatenate([
+        _box([-5, -1.5, -0.5], [5, 1.5, 1.0]),
+        trimesh.creation.cylinder(radius=0.1, segment=np.array([[0.5, 0, 1.0], [0.5, 0, 20.0]]),
+                                  sections=8)])
+    mesh.vertices[:, 2] *= -1                       # (bow, starboard, down)
+    mesh.invert()
+    layers = above_water_layers(mesh)
+    geometry, _ = side_view(8.0, 12.0, 60.0)
+    camera = geometry.camera
+    above = mesh.slice_plane([0, 0, 0], [0, 0, -1])
+    weights = np.random.default_rng(0).dirichlet(np.ones(3), size=(len(above.faces), 300))
+    points_v = np.einsum("fkc,fcd->fkd", weights, above.vertices[above.faces]).reshape(-1, 3)
+    points_c = camera.to_camera_frame(geometry.vessel_to_enu(points_v))
+    assert (points_c[:, 2] <= 0).sum() > 1000                       # much of it is behind
+    ahead = points_c[points_c[:, 2] > 1e-6]
+    uv = (camera.intrinsics.K @ ahead.T).T
+    uv = uv[:, :2] / uv[:, 2:]
+    width, height = camera.intrinsics.width, camera.intrinsics.height
+    uv = uv[(uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)]
+    seen = np.unique(np.floor(uv).astype(int), axis=0)
+    assert len(seen) > 4000
+    own = own_vessel_region(camera.project_convex_outlines(
+        [geometry.vessel_to_enu(layer) for layer in layers]), (height, width), 2.0)
+    assert (own.mask[seen[:, 1], seen[:, 0]] > 0).all()

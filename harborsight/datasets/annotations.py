@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.files import is_existing_file
+from harborsight.geometry.polygons import clip_to_box
 
 
 @dataclass(frozen=True)
@@ -90,28 +91,6 @@ def _paint_runs(canvas: np.ndarray, counts: list[int], value: int) -> None:
 
 #: a ring reaching this many image sides beyond the image is clipped before pycocotools
 FAR_OUTSIDE = 4
-
-
-def _clipped(ring: np.ndarray, width: int, height: int) -> np.ndarray:
-    """A ring ``(N, 2)`` clipped to ``[-1, width + 1] x [-1, height + 1]`` (Sutherland and
-    Hodgman: against each side in turn, keeping the points inside and each edge's crossing
-    of the side); the pixels it covers in the image are the same."""
-    for axis, bound, keep_below in ((0, -1.0, False), (0, width + 1.0, True),
-                                    (1, -1.0, False), (1, height + 1.0, True)):
-        if len(ring) == 0:
-            break
-        out = []
-        following = np.roll(ring, -1, axis=0)
-        for p, q in zip(ring, following, strict=True):
-            p_in = p[axis] <= bound if keep_below else p[axis] >= bound
-            q_in = q[axis] <= bound if keep_below else q[axis] >= bound
-            if p_in:
-                out.append(p)
-            if p_in != q_in:
-                t = (bound - p[axis]) / (q[axis] - p[axis])
-                out.append(p + t * (q - p))
-        ring = np.array(out, np.float64).reshape(-1, 2)
-    return ring
 
 
 class _Geometry:
@@ -174,7 +153,7 @@ class Polygons(_Geometry):
 
         height, width = canvas.shape
         far = FAR_OUTSIDE * max(height, width)
-        rings = [ring if np.abs(ring).max() < far else _clipped(ring, width, height)
+        rings = [ring if np.abs(ring).max() < far else clip_to_box(ring, -1, -1, width + 1, height + 1)
                  for ring in self.pixels(height, width)]
         rings = [ring for ring in rings if len(ring) >= 3]
         if not rings:

@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from harborsight.errors import InputError, brief
+from harborsight.geometry.polygons import clip_to_box
 
 _VALID_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
 #: the longest image side a calibration or a frame may state (a 100 000 px side is already
@@ -35,6 +36,31 @@ _MAX_STEPS_PER_EDGE = 4096
 _FOLD_BISECTIONS = 5
 _NEWTON_STEPS = 6
 _NEWTON_SKIP_PX = 1e-7  # pixels that OpenCV's iteration already brought this close are left
+
+
+#: a convex set reaching behind the camera is cut at this depth (m, or this share of its
+#: farthest point's depth if more): what lies nearer projects beyond any image
+_NEAR_DEPTH_M = 1e-3
+_NEAR_DEPTH_SHARE = 1e-4
+
+
+def _ahead_of_camera(points_c: np.ndarray) -> np.ndarray:
+    """The part of a convex set (points in the camera frame, ``z`` along the optical axis) in
+    front of the near plane ``z = n``: its points beyond it and the crossings of the plane by
+    every segment from one of those to a point nearer, ``p + (n - z_p)/(z_q - z_p) (q - p)``
+    (the convex hull of the set cut by the plane has its new corners on such segments).
+    Dropping the points behind (as before) shrank the hull's image: a review's low, close
+    view of a yacht's 20 m mast left 615 of its 5,014 pixels outside the vessel's region."""
+    depth = points_c[:, 2]
+    if len(points_c) == 0 or depth.max() <= 0:
+        return points_c[depth > 1e-9]
+    near = max(_NEAR_DEPTH_M, _NEAR_DEPTH_SHARE * float(depth.max()))
+    ahead, behind = points_c[depth > near], points_c[depth <= near]
+    if len(behind) == 0 or len(ahead) == 0:
+        return ahead if len(ahead) else points_c[depth > 1e-9]
+    p, q = np.repeat(ahead, len(behind), axis=0), np.tile(behind, (len(ahead), 1))
+    t = (near - p[:, 2]) / (q[:, 2] - p[:, 2])
+    return np.vstack((ahead, p + t[:, None] * (q - p)))
 
 
 @functools.lru_cache(maxsize=64)
@@ -573,15 +599,19 @@ class Camera:
         """:meth:`project_convex_outline` of several point sets (a vessel's layers) at once:
         one projection for all of them, the edges of every set's hull cut into steps
         together."""
-        sizes = [len(np.atleast_2d(points)) for points in point_sets]
-        every = np.vstack([np.atleast_2d(points) for points in point_sets])
+        # each set's part in front of the camera (a mast above a low drone reaches behind it)
+        sets_c = [_ahead_of_camera(self.to_camera_frame(np.atleast_2d(points)))
+                  for points in point_sets]
         if not self.intrinsics.has_distortion:
-            uv, front = self.project(every)
-            return [u[f] for u, f in zip(np.split(uv, np.cumsum(sizes)[:-1]),
-                                         np.split(front, np.cumsum(sizes)[:-1]), strict=True)]
+            sizes = [len(pts_c) for pts_c in sets_c]
+            every_c = np.vstack(sets_c) if sets_c else np.zeros((0, 3))
+            uv, front = self.project(every_c @ self.world_from_camera.T + self.position_enu)
+            return [self._within_reach(u[f]) for u, f in zip(
+                np.split(uv, np.cumsum(sizes)[:-1]), np.split(front, np.cumsum(sizes)[:-1]),
+                strict=True)]
         step = max_step_px / max(self.intrinsics.fx, self.intrinsics.fy)
         corners, following, owner = [], [], []
-        for k, pts_c in enumerate(np.split(self.to_camera_frame(every), np.cumsum(sizes)[:-1])):
+        for k, pts_c in enumerate(sets_c):
             pts_c = pts_c[pts_c[:, 2] > 1e-9]
             if len(pts_c) == 0:
                 continue
@@ -623,8 +653,19 @@ class Camera:
             dense_owner = np.concatenate((dense_owner, dense_owner[change]))
         for k in np.unique(dense_owner):
             mine = (dense_owner == k) & front
-            out[k] = uv[mine]
+            out[k] = self._within_reach(uv[mine])
         return out
+
+    def _within_reach(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels of a convex outline, its hull clipped to the image grown by four times its
+        size on every side where it reaches farther (a part just in front of the camera
+        projects millions of pixels out): the image's part of it is the same."""
+        intr = self.intrinsics
+        w, h = intr.width, intr.height
+        if len(uv) < 3 or ((uv > [-4 * w, -4 * h]) & (uv < [5 * w, 5 * h])).all():
+            return uv
+        hull = uv[cv2.convexHull(uv.astype(np.float32), returnPoints=False).reshape(-1)]
+        return clip_to_box(hull, -4.0 * w, -4.0 * h, 5.0 * w, 5.0 * h)
 
     def _project_ideal(self, ideal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`project` of the rays through undistorted normalised coordinates ``(N, 2)``."""
