@@ -356,3 +356,31 @@ def test_cli_by_object_on_the_bundled_samples(tmp_path):
     assert kinds["all"]["n"] == sum(o["n"] for o in objects if o["kind"] != "all")
     assert kinds["quay"]["detected_share"] >= 0.9       # large and well lit: the model sees them
     assert "recall per object" in (tmp_path / "eval.md").read_text()
+
+
+def test_predictions_may_hold_255_where_the_labels_do(tmp_path):
+    """Scoring a dataset's labels against themselves (a sanity check) failed: every frame's
+    mask held 255 where its label did, and a frame with any 255 was left out. 255 where the
+    label is 255 is not scored; 255 on a labelled pixel still costs the frame, saying how
+    many pixels."""
+    import cv2
+
+    from tests.helpers import write_schematic_dataset
+
+    data = tmp_path / "data"
+    write_schematic_dataset(data, ["test", "test", "test"])
+    own = tmp_path / "own"
+    own.mkdir()
+    for k, path in enumerate(sorted((data / "labels").glob("*.png"))):
+        mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        mask[:2, :2] = 255                          # ignored in the label, copied
+        assert cv2.imwrite(str(path), mask)
+        if k == 2:
+            mask[10:12, 10] = 255                   # two labelled pixels without an answer
+        assert cv2.imwrite(str(own / path.name), mask)
+    result = CliRunner().invoke(app, ["evaluate", "segmentation", "--data", str(data),
+                                      "--predictions", str(own), "--fps-seconds", "0",
+                                      "--height-bin-m", "0"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "2 labelled pixel(s) predicted 255" in result.output
+    assert result.output.count("100.0") >= 5             # every column of the 2 frames scored

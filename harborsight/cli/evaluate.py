@@ -90,8 +90,9 @@ def evaluate_segmentation_command(
         help="tiles: and at most this many pixels on the scaled frame's longer side.")] = None,
     predictions: Annotated[Path | None, typer.Option(
         help="Score the masks in this folder (<stem>.png, e.g. from harborsight segment) "
-        "instead of running a model; a frame whose mask is missing or of another size is "
-        "listed and skipped.")] = None,
+        "instead of running a model; a frame whose mask is missing, of another size, or "
+        "outside the class ids 0-2 on a labelled pixel is listed and skipped (255 where the "
+        "label is 255 is not scored).")] = None,
     flips: Annotated[int, typer.Option(help=FLIPS_HELP + " ONNX models only.")] = 1,
     exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:

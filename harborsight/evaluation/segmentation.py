@@ -404,7 +404,8 @@ def evaluate_segmentation(
 def _drop_missing_predictions(frames, folder: Path) -> list[tuple[str, str]]:
     """Leave out of ``frames`` (a SegmentationFrames) each frame without a usable
     ``folder/<stem>.png``: missing, unreadable, of another size than the frame, with values
-    outside the classes, or a stem that several datasets share (the file would be ambiguous).
+    outside the classes on labelled pixels (255 where the label is 255 is fine: not scored),
+    or a stem that several datasets share (the file would be ambiguous).
     Returns ``(path, reason)`` of each; none usable is an :class:`InputError`."""
     from harborsight.images import read_mask
     from harborsight.training.dataset import _image_size_hw
@@ -423,9 +424,19 @@ def _drop_missing_predictions(frames, folder: Path) -> list[tuple[str, str]]:
                 raise InputError(path, "mask", f"size {predicted.shape[1]}x{predicted.shape[0]} "
                                  f"differs from the frame's {frame_hw[1]}x{frame_hw[0]} "
                                  f"({record.image_path})")
-            if predicted.dtype != np.uint8 or predicted.max(initial=0) >= NUM_CLASSES:
+            if predicted.dtype != np.uint8:
                 raise InputError(path, "mask", f"expected uint8 class ids 0..{NUM_CLASSES - 1}, "
-                                 f"got {predicted.dtype} up to {predicted.max(initial=0)}")
+                                 f"got {predicted.dtype}")
+            if predicted.max(initial=0) >= NUM_CLASSES:
+                # a value outside the classes is no answer: where the label is ignored too
+                # it is not scored (a prediction may copy the labels' 255), elsewhere the
+                # frame cannot be scored honestly and is left out, saying where
+                labels = read_mask(record.label_path)
+                stray = (predicted >= NUM_CLASSES) & (labels != IGNORE)
+                if stray.any():
+                    raise InputError(path, "mask", f"{int(stray.sum())} labelled pixel(s) "
+                                     f"predicted {int(predicted[stray].max())}, not a class id "
+                                     f"0..{NUM_CLASSES - 1} (255 only where the label is 255)")
         except InputError as exc:
             dropped.append((str(path), str(exc)))
         else:
@@ -454,9 +465,13 @@ class _PredictedFrames(Sequence):
         return item
 
     def prediction(self, image: np.ndarray) -> np.ndarray:
+        """The frame's mask, values outside the classes (only where its label is ignored,
+        :func:`_drop_missing_predictions`) made 0: not scored."""
         from harborsight.images import read_mask
 
-        return read_mask(self.folder / f"{self.frames.records[self.index].stem}.png")
+        predicted = read_mask(self.folder / f"{self.frames.records[self.index].stem}.png")
+        predicted[predicted >= NUM_CLASSES] = 0
+        return predicted
 
 
 def _percent(x: float) -> str:
