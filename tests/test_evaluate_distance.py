@@ -351,3 +351,29 @@ def test_bad_frames_are_skipped_and_the_rest_evaluated(tmp_path):
     rows = list(csv.DictReader((out / "sections.csv").open()))
     assert {r["frame"] for r in rows} == {"000004"}
     assert (out / "summary.md").is_file() and (out / "distance_error_box.png").is_file()
+
+
+def test_a_truth_that_is_not_a_distance_or_out_of_order_costs_its_frame(tmp_path):
+    """A NaN truth (JSON's NaN) was taken: its altitude's MAE, median and p95 printed NaN
+    while its shares were still counted; sections listed out of order were paired with the
+    report's by place (14 of 16 wrong, no word). Each now costs its frame, naming the field."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLES, data)
+
+    def edit(stem, change):
+        path = data / "frames" / f"{stem}.json"
+        frame = json.loads(path.read_text())
+        change(frame)
+        path.write_text(json.dumps(frame))
+
+    edit("000000", lambda f: f["ground_truth"]["sections"][0].update(distance_m=float("nan")))
+    edit("000001", lambda f: f["ground_truth"].update(sections=f["ground_truth"]["sections"][::-1]))
+    problems = []
+    frames = load_frames(data, problems=problems)
+    assert "000000" not in [Path(f["image"]).stem for f in frames]
+    assert "000001" not in [Path(f["image"]).stem for f in frames]
+    reasons = dict((Path(p).stem, r) for p, r in problems)
+    assert "ground_truth.sections[0].distance_m" in reasons["000000"]
+    assert "ground_truth.sections[0].index" in reasons["000001"]

@@ -773,9 +773,16 @@ def _frame_with_truth(path: Path) -> dict:
         raise InputError(path, "ground_truth.sections", "missing: not a simulator frame")
     for n, section in enumerate(sections):
         value = section.get("distance_m", "missing") if isinstance(section, dict) else "missing"
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value) or value < 0):
             raise InputError(path, f"ground_truth.sections[{n}].distance_m",
-                             f"expected metres or null, got {value!r}")
+                             f"expected metres (finite, not negative) or null, got {value!r}")
+        if isinstance(section, dict) and section.get("index", n) != n:
+            # the truth is paired with the report's sections by place: out of order, every
+            # section would be scored against another's
+            raise InputError(path, f"ground_truth.sections[{n}].index",
+                             f"{section.get('index')!r} in place {n}: expected the sections in "
+                             "order")
     return frame
 
 
