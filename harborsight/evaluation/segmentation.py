@@ -435,7 +435,7 @@ def _drop_missing_predictions(frames, folder: Path) -> list[tuple[str, str]]:
                 stray = (predicted >= NUM_CLASSES) & (labels != IGNORE)
                 if stray.any():
                     raise InputError(path, "mask", f"{int(stray.sum())} labelled pixel(s) "
-                                     f"predicted {int(predicted[stray].max())}, not a class id "
+                                     f"predicted {int(predicted[stray].max())}, not among the class ids "
                                      f"0..{NUM_CLASSES - 1} (255 only where the label is 255)")
         except InputError as exc:
             dropped.append((str(path), str(exc)))
