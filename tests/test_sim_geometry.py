@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 from scipy.spatial import ConvexHull
-from shapely.geometry import MultiPoint
+from shapely.geometry import MultiPoint, Point
 
 from harborsight.geometry.camera import Camera, CameraIntrinsics
 from harborsight.geometry.rotations import world_from_camera_rotation
@@ -146,3 +146,26 @@ def test_a_ray_cast_with_nothing_in_view_is_all_sky():
         assert np.isinf(cast.range_m).all()
     near = np.array([[[-30.0, -30.0, 0.0], [30.0, -30.0, 0.0], [0.0, 30.0, 0.0]]])
     assert (ray_cast_ids(_geometry(camera), near, np.array([7])).instances == 7).any()
+
+
+@pytest.mark.parametrize("delta_m", [1e-9, 1e-5, 4e-5])
+def test_a_break_a_hair_past_a_corner_leaves_the_corner_s_wedge_to_the_section_before(delta_m):
+    """A section break a fraction of a millimetre past a hull corner: section 1's band was
+    started along the bisector (its normal was sampled across the corner), so it overlapped
+    the corner's wedge, which the nearest-point rule gives section 0 (as the measurement's
+    assignment does): a buoy there read 2.70 m in section 1 too (on AIS boxes of whole
+    metres, a truth 0.1 m short). The band starts square to its own edge."""
+    from harborsight.sim.ground_truth import section_distances
+    from harborsight.vessel.sections import SectionedOutline
+
+    verts = np.array([(10.0, 0.0), (4.0, 3.0), (-10.0, 3.0), (-10.0, -3.0), (4.0, -3.0)])
+    b1 = verts[1] + delta_m * (verts[2] - verts[1]) / np.linalg.norm(verts[2] - verts[1])
+    breaks = np.array([verts[0], b1, (-10.0, 0.0), verts[4] + 0.5 * (verts[0] - verts[4])])
+    outline = SectionedOutline(verts, breaks, np.array([0, 1, 2, 4]))
+    normal = 0.8 * np.array([3.0, 6.0]) / np.hypot(3, 6) + 0.2 * np.array([0.0, 1.0])
+    centre = verts[1] + 3.0 * normal / np.linalg.norm(normal)
+    buoy = Point(*centre).buffer(0.5, quad_segs=64)
+    truth = section_distances(outline, buoy, None)
+    assert int(outline.assign(np.array([centre])).section[0]) == 0
+    assert truth[0]["distance_all_m"] == pytest.approx(2.5, abs=1e-3)
+    assert truth[1]["distance_all_m"] is None

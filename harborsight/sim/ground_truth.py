@@ -35,14 +35,25 @@ def section_band_polygon(outline: SectionedOutline, k: int, reach: float = BAND_
     positive = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)) > 0
     seg_normals = [_outward_normal(b - a, positive) for a, b in pairwise(poly)
                    if np.linalg.norm(b - a) > 1e-12]
-    # normals of the outline just before the section's start and just after its end
+    # normals of the outline just before the section's start and just after its end, where
+    # the break is a corner (as section_polyline decides it); a break on an edge's inside,
+    # even a hair past a corner, starts its band square to that edge (the corner's wedge is
+    # the section before's: sampled across it, two bands overlapped, a truth 0.1 m short)
     eps = 1e-6 * outline.perimeter
     pos_a = outline.break_position[k]
     pos_b = outline.break_position[k + 1] if k + 1 < outline.n_sections else outline.perimeter
-    before = outline.points_at(np.array([pos_a - 2 * eps, pos_a - eps]))
-    after = outline.points_at(np.array([pos_b + eps, pos_b + 2 * eps]))
-    n_before = _outward_normal(before[1] - before[0], positive)
-    n_after = _outward_normal(after[1] - after[0], positive)
+
+    def at_corner(position: float) -> bool:
+        offsets = np.append(outline.edge_offset, outline.perimeter)
+        return bool((np.abs(offsets - position) <= 1e-12).any())
+
+    n_before, n_after = seg_normals[0], seg_normals[-1]
+    if at_corner(pos_a):
+        before = outline.points_at(np.array([pos_a - 2 * eps, pos_a - eps]))
+        n_before = _outward_normal(before[1] - before[0], positive)
+    if at_corner(pos_b):
+        after = outline.points_at(np.array([pos_b + eps, pos_b + 2 * eps]))
+        n_after = _outward_normal(after[1] - after[0], positive)
     start_ray = n_before + seg_normals[0]
     end_ray = seg_normals[-1] + n_after
     outer = [poly[0] + reach * start_ray / np.linalg.norm(start_ray)]

@@ -85,10 +85,14 @@ class SectionedOutline:
         )
         self.break_position[0] = 0.0
         # band boundary at each break: a ray along the edge normal, or along the bisector of
-        # the two normals when the break sits on a corner
-        eps = 1e-7 * self.perimeter
-        before = self._edge_at(self.break_position - eps)
-        after = self._edge_at(self.break_position + eps)
+        # the two normals when the break sits on a corner (within 1e-12 m, as
+        # section_polyline decides it; a break a hair past a corner is on its edge)
+        n_edges = len(self.edge_start)
+        into = self.break_position - self.edge_offset[self.break_edge]
+        at_start = into <= 1e-12
+        at_end = self.edge_length[self.break_edge] - into <= 1e-12
+        before = np.where(at_start, (self.break_edge - 1) % n_edges, self.break_edge)
+        after = np.where(at_end & ~at_start, (self.break_edge + 1) % n_edges, self.break_edge)
         ray = self.edge_normal[before] + self.edge_normal[after]
         self.break_ray = ray / np.linalg.norm(ray, axis=1, keepdims=True)
 
