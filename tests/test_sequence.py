@@ -196,3 +196,24 @@ def test_flight_frame_yaw_stays_within_a_turn(tug):
             for k in range(40)]
     assert all(0.0 <= y < 360.0 for y in yaws)
     assert any(y < 1.0 for y in yaws) and any(y > 359.0 for y in yaws)
+
+
+def test_boats_under_way_keep_their_course_in_a_flight(tmp_path):
+    """Each flight frame rebuilds the harbour's objects shifted; their course was dropped, so
+    a boat under way lost its wake in every flight frame. A lake shore planned as one frame
+    and as a flight's first frame has the same boats under way."""
+    from harborsight.sim.dataset import SimulationConfig, plan_frame, prepare_vessels
+    from harborsight.vessel.spec import load_vessel_spec
+
+    under_way = []
+    for seed in (4, 5, 6):
+        still = SimulationConfig(seed=seed, scenario="lakeshore", altitudes_m=(40.0,))
+        flight = SimulationConfig(seed=seed, scenario="lakeshore", altitudes_m=(40.0,),
+                                  sequence_frames=4)
+        vessels = {n: load_vessel_spec(p)
+                   for n, p in prepare_vessels(tmp_path / f"v{seed}", still).items()}
+        courses = [[o.course_deg for o in plan_frame(config, 0, vessels).objects]
+                   for config in (still, flight)]
+        assert courses[0] == courses[1]
+        under_way.append(sum(c is not None for c in courses[0]))
+    assert sum(under_way) >= 2

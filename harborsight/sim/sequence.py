@@ -34,7 +34,8 @@ def _translated(obj: SceneObject, shift_enu: np.ndarray) -> SceneObject:
         mesh = part.mesh.copy()
         mesh.apply_translation((shift_enu[0], shift_enu[1], 0.0))
         parts.append(Part(mesh, part.material))
-    return SceneObject(obj.name, obj.kind, obj.class_id, obj.instance_id, parts)
+    # its course kept: a boat under way has its wake in a flight too (it was dropped)
+    return SceneObject(obj.name, obj.kind, obj.class_id, obj.instance_id, parts, obj.course_deg)
 
 
 def approach_plan(scene: HarbourScene, stop_gap_m: float) -> tuple[np.ndarray, float, float]:
