@@ -601,3 +601,28 @@ def test_recursive_masks_mirror_the_subfolders(model_path, tmp_path):
         assert cv2.imread(str(out / mask), cv2.IMREAD_UNCHANGED).shape == (36, 64)
     assert (out / "overlays" / "101MEDIA" / "DJI_0001.jpg").is_file()
     assert json.loads((out / "segment.json").read_text())["skipped"] == []
+
+
+def test_a_model_of_another_number_of_classes_is_refused_when_loaded(tmp_path):
+    """A model with a fourth output class and no class names in its sidecar or metadata was
+    loaded, and its class ids 3 stopped `evaluate segmentation` half way with a traceback.
+    Its logits' channels are checked when it is loaded."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    nodes = [helper.make_node("Cast", ["image"], ["x"], to=TensorProto.FLOAT),
+             helper.make_node("Transpose", ["x"], ["chw"], perm=[0, 3, 1, 2]),
+             helper.make_node("Concat", ["chw", "extra"], ["logits"], axis=1),
+             helper.make_node("ArgMax", ["logits"], ["index"], axis=1, keepdims=0),
+             helper.make_node("Cast", ["index"], ["labels"], to=TensorProto.UINT8)]
+    graph = helper.make_graph(
+        nodes, "four", [helper.make_tensor_value_info("image", TensorProto.UINT8, [1, 36, 64, 3])],
+        [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 4, 36, 64]),
+         helper.make_tensor_value_info("labels", TensorProto.UINT8, [1, 36, 64])],
+        [numpy_helper.from_array(np.zeros((1, 1, 36, 64), np.float32), "extra")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    import onnx
+
+    onnx.save(model, str(tmp_path / "four.onnx"))
+    with pytest.raises(InputError, match="'logits' has 4 classes"):
+        load_onnx_segmenter(tmp_path / "four.onnx")

@@ -11,6 +11,7 @@ import numpy as np
 import onnxruntime as ort
 
 from harborsight.errors import InputError
+from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
 from harborsight.perception.confidence import SolidConfidence
 from harborsight.perception.flips import flip_views
 
@@ -252,6 +253,12 @@ class OnnxSegmenter:
         if missing:
             raise InputError(self.path, "outputs", "not a harborsight segmentation model: "
                              f"missing output(s) {sorted(missing)}, found {sorted(outputs)}")
+        logits = next(o for o in self.session.get_outputs() if o.name == "logits")
+        channels = logits.shape[1] if len(logits.shape) == 4 else None
+        if isinstance(channels, int) and channels != NUM_CLASSES:
+            # a class id beyond harborsight's would stop a scoring run half way
+            raise InputError(self.path, "outputs", f"'logits' has {channels} classes, "
+                             f"harborsight's {NUM_CLASSES} are {', '.join(CLASS_NAMES)}")
         return int(shape[1]), int(shape[2])
 
     def batch_logits(self, images: np.ndarray, flips: int = 1) -> np.ndarray:
