@@ -767,3 +767,24 @@ def test_a_shape_painted_over_whole_is_named(tmp_path):
     assert "'boat' has no pixel left: painted over whole by shapes drawn after it" in result.output
     labels = labels_of(tmp_path / "ds", "p")
     assert (labels == 1).sum() == 0 and (labels == 2).sum() > 0
+
+
+def test_an_annotation_of_a_turned_photo_s_stored_size_says_exif(tmp_path):
+    """A JPEG stored 40 wide and 60 high with EXIF Orientation 6 is shown (and read) 60x40;
+    a tool that ignores EXIF writes 40x60. The frame is skipped as of another size, and now
+    the message says why."""
+    from PIL import Image
+
+    src = tmp_path / "src"
+    src.mkdir()
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(np.zeros((60, 40, 3), np.uint8)).save(src / "j6.jpg", exif=exif)
+    write_image(src / "good.png")
+    poly = [np.ravel(L_SHAPE).tolist()]
+    doc = coco_doc([(1, "j6.jpg"), (2, "good.png")],
+                   [{"image_id": i, "category_id": 1, "segmentation": poly} for i in (1, 2)], ["ship"])
+    doc["images"][0].update(width=40, height=60)
+    result = invoke(write_json(src / "ann.json", doc), "-f", "coco", "--out", tmp_path / "ds")
+    assert result.exit_code == 0, result.output
+    assert "it has EXIF Orientation 6 and is 60x40 as shown" in " ".join(result.output.split())

@@ -48,7 +48,7 @@ from harborsight.datasets.classmap import TARGET_NAMES, class_of, splits_of
 from harborsight.datasets.importers import check_labels, normalise_format, read_annotations
 from harborsight.errors import InputError, brief
 from harborsight.files import strict_json, write_bytes_atomic, write_text_atomic
-from harborsight.images import decode_as_displayed, incomplete_reason
+from harborsight.images import decode_as_displayed, exif_orientation, incomplete_reason
 from harborsight.perception.classes import IGNORE, WATER
 
 SCHEMA = "harborsight.dataset/1"
@@ -248,9 +248,14 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
                      "or not an image)"), [], None
     height, width = image.shape[:2]
     if frame.size_hw is not None and frame.size_hw != (height, width):
+        orientation = exif_orientation(data)
+        turned = (f"; it has EXIF Orientation {orientation} and is {width}x{height} as shown: "
+                  f"the annotation's {frame.size_hw[1]}x{frame.size_hw[0]} is the stored size, "
+                  "so the tool that drew it did not turn the picture"
+                  if orientation in range(5, 9) and frame.size_hw == (width, height) else "")
         return Issue(frame.source, frame.size_field, f"{frame.size_hw[1]}x{frame.size_hw[0]} but "
                      f"the image {frame.image_path.name} is {width}x{height} (a mask of another "
-                     "size)"), [], None
+                     f"size){turned}"), [], None
     for shape in frame.shapes:
         if isinstance(shape.geometry, CocoRle) and shape.geometry.size_hw != (height, width):
             h, w = shape.geometry.size_hw
