@@ -412,3 +412,17 @@ def test_the_overlay_footer_names_only_sections_measured_this_frame():
     assert trend_footer({0: coasting, 1: measured}, True) == (
         "section 1 closing at 0.80 m/s, contact in 7.5 s")
     assert trend_footer({0: coasting}, True) == "no section closing"
+
+
+def test_a_frame_delivered_twice_is_one_reading():
+    """A feed that repeats a frame (same time, same distance) gave the tracker two readings:
+    its speed's sigma shrank as if from independent frames. The repeat changes nothing."""
+    once, twice = SectionTracker(), SectionTracker()
+    rng = np.random.default_rng(2)
+    for t in np.arange(0.0, 10.0, 0.5):
+        reading = Reading(float(12.0 - 0.3 * t + rng.normal(0, 0.1)), 0.1, 0.1)
+        a = once.step(float(t), reading)
+        twice.step(float(t), reading)
+        b = twice.step(float(t), reading)
+    assert b.closing_speed_sigma_mps == pytest.approx(a.closing_speed_sigma_mps, rel=1e-9)
+    assert b.distance_m == pytest.approx(a.distance_m, rel=1e-9)

@@ -389,6 +389,12 @@ class SectionTracker:
         return track.misses_in_row == 0 and current.misses_in_row >= confirm
 
     def _update(self, track: _Track, time_s: float, reading: Reading) -> None:
+        if track.recent and track.recent[-1] == (time_s, reading.distance_m):
+            # the same frame delivered twice (a feed that repeats): one reading, not two
+            # (taken twice, the speed's sigma shrank as if from independent frames: 67 %
+            # within 2 sigma on such frames)
+            track.misses_in_row = 0
+            return
         # a reading a little older than the track's last (a live feed's frames out of order)
         # is taken at the track's own time: its clock never goes back, or the next
         # prediction would cover that stretch twice and bend the closing speed
