@@ -97,8 +97,7 @@ class _Geometry:
     """What every geometry does: ``paint(canvas, value)`` into a Fortran-ordered uint8
     canvas of the image's size, and ``rasterise(height, width)`` as a boolean mask; its
     ``box(height, width)`` (x0, y0, x1, y1 in pixels) tells whether it reaches outside the
-    image, lies wholly outside it, and how far it reaches (``reach``: in the shape's own
-    units, fractions for YOLO's)."""
+    image or lies wholly outside it."""
 
     def rasterise(self, height: int, width: int) -> np.ndarray:
         canvas = np.zeros((height, width), np.uint8, order="F")
@@ -115,11 +114,6 @@ class _Geometry:
     def wholly_outside(self, height: int, width: int) -> bool:
         x0, y0, x1, y1 = self.box(height, width)
         return x1 <= 0 or y1 <= 0 or x0 >= width or y0 >= height
-
-    def reach(self, height: int, width: int) -> float:
-        """The farthest coordinate from the image's origin, as the shape gives it."""
-        x0, y0, x1, y1 = self.box(height, width)
-        return max(abs(x0), abs(y0), abs(x1), abs(y1))
 
 
 @dataclass(frozen=True)
@@ -139,9 +133,10 @@ class Polygons(_Geometry):
         return (float(pts[:, 0].min()), float(pts[:, 1].min()), float(pts[:, 0].max()),
                 float(pts[:, 1].max()))
 
-    def reach(self, height: int, width: int) -> float:
-        pts = np.concatenate(self.rings)
-        return float(np.abs(pts).max())
+    def reach(self) -> float:
+        """The farthest coordinate from the image's origin, as the shape gives it (fractions
+        of the image's size for YOLO's)."""
+        return float(np.abs(np.concatenate(self.rings)).max())
 
     def paint(self, canvas: np.ndarray, value: int) -> None:
         """COCO's rasterisation on the whole image (pycocotools' result depends on the

@@ -265,10 +265,10 @@ def import_frame(frame: FrameAnnotation, plan: ImportPlan, out_dir: Path
     for s in frame.shapes:
         if not s.geometry.outside(height, width):
             continue
-        reach = s.geometry.reach(height, width)
-        if isinstance(s.geometry, Polygons) and s.geometry.normalised and reach > 1.05:
+        if isinstance(s.geometry, Polygons) and s.geometry.normalised and s.geometry.reach() > 1.05:
             return Issue(frame.source, s.field, f"{s.label!r}: coordinates are fractions of the "
-                         f"image's size, and this shape goes up to {reach:.4g} (pixels?)"), [], None
+                         f"image's size, and this shape goes up to {s.geometry.reach():.4g} "
+                         "(pixels?)"), [], None
         if s.geometry.wholly_outside(height, width):
             return Issue(frame.source, s.field, f"{s.label!r} lies wholly outside the "
                          f"{width}x{height} image (coordinates of another image, or in other "

@@ -42,16 +42,11 @@ def section_band_polygon(outline: SectionedOutline, k: int, reach: float = BAND_
     eps = 1e-6 * outline.perimeter
     pos_a = outline.break_position[k]
     pos_b = outline.break_position[k + 1] if k + 1 < outline.n_sections else outline.perimeter
-
-    def at_corner(position: float) -> bool:
-        offsets = np.append(outline.edge_offset, outline.perimeter)
-        return bool((np.abs(offsets - position) <= 1e-12).any())
-
     n_before, n_after = seg_normals[0], seg_normals[-1]
-    if at_corner(pos_a):
+    if outline.break_on_corner[k]:
         before = outline.points_at(np.array([pos_a - 2 * eps, pos_a - eps]))
         n_before = _outward_normal(before[1] - before[0], positive)
-    if at_corner(pos_b):
+    if outline.break_on_corner[(k + 1) % outline.n_sections]:
         after = outline.points_at(np.array([pos_b + eps, pos_b + 2 * eps]))
         n_after = _outward_normal(after[1] - after[0], positive)
     start_ray = n_before + seg_normals[0]

@@ -91,6 +91,8 @@ class SectionedOutline:
         into = self.break_position - self.edge_offset[self.break_edge]
         at_start = into <= 1e-12
         at_end = self.edge_length[self.break_edge] - into <= 1e-12
+        #: whether each break sits on a corner of the outline (else inside an edge)
+        self.break_on_corner = at_start | at_end
         before = np.where(at_start, (self.break_edge - 1) % n_edges, self.break_edge)
         after = np.where(at_end & ~at_start, (self.break_edge + 1) % n_edges, self.break_edge)
         ray = self.edge_normal[before] + self.edge_normal[after]

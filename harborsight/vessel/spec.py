@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field
@@ -62,21 +63,18 @@ class VesselSpec:
     #: of ``hull_points`` alone (a prism from dimensions, which is exact)
     silhouette_layers: tuple[np.ndarray, ...] = field(default=(), repr=False, compare=False)
     _sections: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-    _alignment: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     @property
     def own_layers(self) -> tuple[np.ndarray, ...]:
         """The point sets whose projected convex hulls make the vessel's image region."""
         return self.silhouette_layers or (self.hull_points,)
 
-    @property
+    @functools.cached_property
     def alignment_layers(self) -> tuple[np.ndarray, ...]:
         """The layers the pose alignment fits (:func:`harborsight.vessel.layers.largest`):
         the hull, a deckhouse, a mast; not a railing's posts, which a mask does not show
         and which would cost the alignment an outline each."""
-        if not self._alignment:
-            self._alignment.append(largest(self.own_layers))
-        return self._alignment[0]
+        return largest(self.own_layers)
 
     @property
     def length_m(self) -> float:
