@@ -42,8 +42,9 @@ def band_stats(results, low: float, high: float) -> tuple[float, ...]:
     if not band:
         return (float("nan"),) * 6 + (0,)
     errors = np.array([r.abs_error_m for r in band])
-    within = [r.within_sigmas(2.0) for r in band if r.sigma_m is not None]
-    above = [r.lower_bound_holds for r in band if r.sigma_m is not None]
+    # frames whose pose the image contradicts are left out of the calibration shares
+    within = [w for r in band if (w := r.within_sigmas(2.0)) is not None]
+    above = [a for r in band if (a := r.lower_bound_holds) is not None]
     return (float(np.median(errors)), float(np.mean(errors)), float(np.percentile(errors, 95)),
             float(100.0 * np.mean(errors <= 0.5)),
             float(100.0 * np.mean(within)) if within else float("nan"),

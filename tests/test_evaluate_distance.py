@@ -127,6 +127,58 @@ def test_sections_csv_reads_back(tmp_path):
     assert summarise(again)[0].missed == 1
 
 
+def test_flagged_frames_stay_out_of_the_calibration_shares_and_blind_bands_are_unseen(tmp_path):
+    """A frame whose pose the image contradicts has its bound at 0 by construction: its
+    sections count in the error figures and apart, not in the calibration shares; a clear
+    section that saw none of its band (clear_to_m 0) claims nothing and is not missed."""
+    from harborsight.evaluation.distance import SectionResult, read_csv, summarise, write_csv
+
+    def row(frame, status, estimate, truth, sigma=None, lower=None, clear_to=None,
+            flagged=False):
+        return SectionResult(frame, 40.0, "oracle", "ground_plane", 0, status, estimate, truth,
+                             0.05, False, False, sigma_m=sigma, lower_m=lower,
+                             clear_to_m=clear_to, flagged=flagged)
+
+    results = [row("a", "ok", 2.0, 2.1, 0.2, 1.7),        # holds, within 2 sigma
+               row("a", "ok", 3.0, 2.0, 0.2, 2.7),        # neither
+               row("b", "ok", 9.0, 2.0, 9.0, 0.0, flagged=True),
+               row("b", "clear", None, 5.0, clear_to=0.0, flagged=True),
+               row("a", "clear", None, 6.0, clear_to=0.0),   # hidden in full: unseen
+               row("a", "clear", None, 7.0, clear_to=12.0)]  # saw the water: missed
+    (summary,) = summarise(results)
+    assert (summary.n, summary.missed, summary.unseen, summary.flagged) == (3, 1, 2, 2)
+    assert summary.mae_m == pytest.approx((0.1 + 1.0 + 7.0) / 3)  # every estimate is scored
+    assert summary.lower_bound_share == 0.5 and summary.within_2_sigma_share == 0.5
+    write_csv(results, tmp_path / "s.csv")
+    again = read_csv(tmp_path / "s.csv")
+    assert [r.kind for r in again] == ["estimate", "estimate", "estimate", "unseen", "unseen",
+                                       "missed"]
+    assert [r.flagged for r in again] == [False, False, True, True, False, False]
+    assert summarise(again) == [summary]
+
+
+def test_a_frame_whose_pose_the_image_contradicts_is_counted_apart(tmp_path):
+    """The bundled frames with the vessel's fix 20 m east: the image cannot bear the pose
+    out, every section of those frames is counted as flagged, none is called missed, and the
+    calibration shares have nothing left to score."""
+    import math
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(SAMPLES, data, ignore=shutil.ignore_patterns("flight"))
+    for path in sorted((data / "frames").glob("*.json")):
+        frame = json.loads(path.read_text())
+        frame["vessel"]["lon"] += 20.0 / (111_320 * math.cos(math.radians(frame["vessel"]["lat"])))
+        path.write_text(json.dumps(frame))
+    results = evaluate_frames(data, load_frames(data), "oracle", oracle_masks, "ground_plane")
+    assert results and all(r.flagged for r in results)
+    assert not [r for r in results if r.kind == "missed"]
+    rows = summarise(results)
+    assert sum(r.flagged for r in rows) == len(results)
+    assert sum(r.unseen for r in rows) >= 1
+    assert all(r.lower_bound_share is None and r.within_2_sigma_share is None for r in rows)
+
+
 def test_altitude_summary_statistics_match_the_statistics_module():
     import statistics
 

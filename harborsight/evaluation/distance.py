@@ -5,11 +5,19 @@ Each configuration (masks: ``oracle`` = the simulator's labels or a segmentation
 
 * an **estimate** (report ``ok``, truth has a visible obstacle): absolute error in metres and in
   GSD pixels;
-* a **missed obstacle** (truth has one in view, the report says ``clear``);
+* a **missed obstacle** (truth has one in view, the report says ``clear`` and saw some of
+  the band's water: ``clear_to_m`` above 0);
+* an **unseen** section (truth has one in view, the report says ``clear`` but saw none of
+  the band: ``clear_to_m`` 0, a band the vessel hides in full or a frame whose pose the image
+  contradicts): the report claims nothing there, so it is not counted as missed;
 * a **false obstacle** (the report says ``ok``, the truth has nothing in view in that band).
 
 Sections out of view are not counted. Summaries are per altitude (drone height above water,
-rounded to whole metres): n, MAE, median, p95, share off by more than 1 m, missed, false.
+rounded to whole metres): n, MAE, median, p95, share off by more than 1 m, missed, unseen,
+false. Every estimate counts in the error figures; the calibration shares (within one and two
+sigma, truth at or above the lower bound) leave out the sections of frames flagged
+``sensors_contradicted``, whose bars are widened to the reading by construction (their lower
+bound is 0), and the summary counts those sections apart.
 
 With the obstacle attribution (:func:`truth_obstacle_kinds`), each estimate also carries the
 kind of scene object its true distance is measured to (quay, pier, ship, boat, ...), and the
@@ -172,17 +180,24 @@ class SectionResult:
     point_truth: str | None = None   # what the reported obstacle point really is (POINT_TRUTHS)
     sigma_m: float | None = None     # the report's one sigma and 95 % lower bound
     lower_m: float | None = None
+    #: how far out a ``clear`` section saw its band's water (the report's ``clear_to_m``;
+    #: None where the band does not leave the picture)
+    clear_to_m: float | None = None
+    #: the frame's pose is one the image contradicts (``sensors_contradicted``)
+    flagged: bool = False
 
     def within_sigmas(self, count: float) -> bool | None:
-        """Whether the estimate is within ``count`` reported sigmas of the truth."""
-        if self.kind != "estimate" or self.sigma_m is None:
+        """Whether the estimate is within ``count`` reported sigmas of the truth (None for a
+        flagged frame, whose sigma is raised to the reading by construction)."""
+        if self.kind != "estimate" or self.sigma_m is None or self.flagged:
             return None
         return abs(self.estimate_m - self.truth_m) <= count * self.sigma_m
 
     @property
     def lower_bound_holds(self) -> bool | None:
-        """Whether the true distance is at least the reported lower bound."""
-        if self.kind != "estimate" or self.lower_m is None:
+        """Whether the true distance is at least the reported lower bound (None for a flagged
+        frame, whose bound is 0 by construction)."""
+        if self.kind != "estimate" or self.lower_m is None or self.flagged:
             return None
         return self.truth_m >= self.lower_m
 
@@ -191,7 +206,7 @@ class SectionResult:
         if self.status == STATUS_OK and self.truth_m is not None:
             return "estimate"
         if self.status == STATUS_CLEAR and self.truth_m is not None:
-            return "missed"
+            return "unseen" if self.clear_to_m == 0.0 else "missed"
         if self.status == STATUS_OK and self.truth_m is None:
             return "false"
         return "none"
@@ -318,7 +333,8 @@ def evaluate_frames(
             results.append(SectionResult(
                 stem, altitude, masks_name, method, s.index, s.status, s.distance_m,
                 t["distance_m"], report.gsd_m_per_px, bool(s.contact), bool(s.truncated),
-                point_truth=point_truth, sigma_m=s.sigma_m, lower_m=s.distance_lower_m))
+                point_truth=point_truth, sigma_m=s.sigma_m, lower_m=s.distance_lower_m,
+                clear_to_m=s.clear_to_m, flagged=report.sensors_contradicted))
         if on_frame:
             on_frame(stem, None)
     return results
@@ -356,6 +372,11 @@ class AltitudeSummary:
     within_2_sigma_share: float | None = None
     lower_bound_share: float | None = None
     median_sigma_m: float | None = None
+    #: sections with an obstacle in view whose band the report saw none of (``unseen``)
+    unseen: int = 0
+    #: sections (ok or clear) of frames whose pose the image contradicts: in the error
+    #: figures, left out of the calibration shares
+    flagged: int = 0
 
 
 def _share(flags: list[bool | None]) -> float | None:
@@ -384,7 +405,8 @@ def summarise(results: list[SectionResult]) -> list[AltitudeSummary]:
             sum(r.kind == "missed" for r in group), sum(r.kind == "false" for r in group),
             _share([r.within_sigmas(1) for r in group]), _share([r.within_sigmas(2) for r in group]),
             _share([r.lower_bound_holds for r in group]),
-            _median([r.sigma_m for r in group if r.kind == "estimate"])))
+            _median([r.sigma_m for r in group if r.kind == "estimate"]),
+            sum(r.kind == "unseen" for r in group), sum(r.flagged for r in group)))
     return rows
 
 
@@ -564,7 +586,8 @@ def write_csv(results: list[SectionResult], path: Path) -> None:
         writer = csv.writer(f)
         writer.writerow(["frame", "altitude_m", "masks", "method", "section", "status", "kind",
                          "estimate_m", "truth_m", "abs_error_m", "gsd_m_per_px", "contact",
-                         "truncated", "obstacle", "point_truth", "sigma_m", "lower_m"])
+                         "truncated", "obstacle", "point_truth", "sigma_m", "lower_m",
+                         "clear_to_m", "flagged"])
         for r in results:
             err = r.abs_error_m
             writer.writerow([r.frame, r.altitude_m, r.masks, r.method, r.section, r.status, r.kind,
@@ -574,7 +597,9 @@ def write_csv(results: list[SectionResult], path: Path) -> None:
                              int(r.contact), int(r.truncated), r.obstacle or "",
                              r.point_truth or "",
                              "" if r.sigma_m is None else f"{r.sigma_m:.4f}",
-                             "" if r.lower_m is None else f"{r.lower_m:.4f}"])
+                             "" if r.lower_m is None else f"{r.lower_m:.4f}",
+                             "" if r.clear_to_m is None else f"{r.clear_to_m:.4f}",
+                             int(r.flagged)])
 
 
 def read_csv(path: Path) -> list[SectionResult]:
@@ -588,7 +613,9 @@ def read_csv(path: Path) -> list[SectionResult]:
                               number(row["truth_m"]), float(row["gsd_m_per_px"]),
                               bool(int(row["contact"])), bool(int(row["truncated"])),
                               row.get("obstacle") or None, row.get("point_truth") or None,
-                              number(row.get("sigma_m", "")), number(row.get("lower_m", "")))
+                              number(row.get("sigma_m", "")), number(row.get("lower_m", "")),
+                              number(row.get("clear_to_m", "")),
+                              bool(int(row.get("flagged") or 0)))
                 for row in csv.DictReader(f)]
 
 
@@ -602,16 +629,17 @@ def _percent(share: float | None) -> str:
 
 def markdown_table(rows: list[AltitudeSummary]) -> str:
     lines = ["| masks | method | altitude m | n | MAE m (± std) | median m | median px | p95 m "
-             "| > 1 m | missed | false | median sigma m | within 1 sigma | within 2 sigma "
-             "| truth >= lower |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| > 1 m | missed | unseen | false | flagged | median sigma m | within 1 sigma "
+             "| within 2 sigma | truth >= lower |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         share = "—" if r.over_1m_share is None else f"{100 * r.over_1m_share:.1f} %"
         mae = "—" if r.mae_m is None else f"{r.mae_m:.2f}" + (
             "" if r.std_m is None else f" ± {r.std_m:.2f}")
         lines.append(f"| {r.masks} | {r.method} | {r.altitude_m:.0f} | {r.n} | {mae} | "
                      f"{_fmt(r.median_m)} | {_fmt(r.median_px)} | {_fmt(r.p95_m)} | {share} | "
-                     f"{r.missed} | {r.false} | {_fmt(r.median_sigma_m)} | "
+                     f"{r.missed} | {r.unseen} | {r.false} | {r.flagged} | "
+                     f"{_fmt(r.median_sigma_m)} | "
                      f"{_percent(r.within_sigma_share)} | {_percent(r.within_2_sigma_share)} | "
                      f"{_percent(r.lower_bound_share)} |")
     return "\n".join(lines) + "\n"
