@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import math
 import shutil
 import threading
 import time
@@ -45,7 +46,7 @@ def _frames_that_play(path) -> int:
 
 def test_an_alarm_rises_at_once_and_falls_only_past_the_margin():
     alarm = SectionAlarm(AlarmSettings(caution_m=5.0, danger_m=2.0, ttc_s=30.0,
-                                       hysteresis_m=0.5, hysteresis_s=5.0))
+                                       hysteresis_m=0.5, hysteresis_s=5.0, fall_readings=1))
     steps = [(5.2, None, "ok"), (4.9, None, "caution"), (5.3, None, "caution"),   # within 0.5
              (4.95, None, "caution"), (5.6, None, "ok"), (1.9, None, "danger"),   # straight up
              (2.3, None, "danger"), (2.6, None, "caution"), (4.0, 20.0, "danger"),  # near, closing
@@ -56,11 +57,29 @@ def test_an_alarm_rises_at_once_and_falls_only_past_the_margin():
     assert alarm.since == 12.0
 
 
+def test_a_level_falls_only_on_readings_in_a_row_that_let_it():
+    """One frame whose mask missed the quay (measured clear, or far) must not silence a
+    danger for a frame: the level falls on the third reading in a row that lets it, to the
+    highest level any of them holds; a reading that holds the level starts the count again."""
+    alarm = SectionAlarm(AlarmSettings(caution_m=5.0, danger_m=2.0))
+    steps = [(1.4, "danger"), (None, "danger"), (1.3, "danger"),       # one clear frame
+             (None, "danger"), (9.0, "danger"), (4.0, "caution"),      # clear, far, caution
+             (None, "caution"), (None, "caution"), (None, "ok"),
+             (1.0, "danger")]                                          # rises at once
+    for k, (distance, expected) in enumerate(steps):
+        assert alarm.update(float(k), distance, None) == expected, (k, distance)
+    assert alarm.since == 9.0
+
+
 def test_alarm_settings_are_checked():
     with pytest.raises(ValueError, match="danger_m"):
         AlarmSettings(caution_m=2.0, danger_m=3.0)
     with pytest.raises(ValueError, match="hysteresis_m"):
         AlarmSettings(hysteresis_m=-1.0)
+    with pytest.raises(ValueError, match="fall_readings"):
+        AlarmSettings(fall_readings=0)
+    with pytest.raises(ValueError, match="measurement_stale_s"):
+        AlarmSettings(measurement_stale_s=float("nan"))
 
 
 def test_a_source_turns_stale_after_its_limit_and_recovers_when_it_returns():
@@ -187,10 +206,77 @@ def test_a_pose_the_image_contradicts_shows_no_distance_and_raises_its_own_alarm
     deltas = SignalKPublisher("ws://127.0.0.1:1").deltas(state, now + 1.0)
     values = {v["path"]: v["value"] for d in deltas for u in d["updates"] for v in u["values"]}
     assert values["harborsight.clearance.minimum"] is None
-    assert values["notifications.harborsight.section0"]["state"] == "alert"
+    # each section's notification: the graver of its held level and the contradiction
+    for section in state["sections"]:
+        expected = {"danger": "alarm", "caution": "warn", "ok": "alert"}[section["level"]]
+        assert values[f"notifications.harborsight.section{section['index']}"]["state"] == expected
+    assert {s["level"] for s in state["sections"]} >= {"ok", "caution"}
     again = engine.process(32, image, meta, FLIGHT / "frames" / "000030.json", 16.0, now + 1.0)
     assert [a["kind"] for a in again["alarms"]] == held
     assert any(s["distance_m"] is not None for s in again["sections"])
+
+
+def test_frames_that_keep_coming_but_cannot_be_measured_make_the_distances_stale():
+    """The camera attitude stops while positions and video go on: every frame fails, the
+    inputs all look current, and the distances of the last measured frame must not be shown
+    as current. Once no frame was measured for 2 s the state is stale, says why, and Signal K
+    gets no distances."""
+    from harborsight.live.signalk import SignalKPublisher
+
+    mask = cv2.imread(str(FLIGHT / "labels" / "000030.png"), cv2.IMREAD_UNCHANGED)
+    engine = LiveEngine(_MaskSegmenter(mask), VesselCache(load_vessel_spec(TUG)))
+    meta, image, now = _frame_30_with_every_source_current(engine)
+    engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
+    assert not engine.refresh(now + 0.1)["stale"]
+    for k in range(1, 6):                              # 2 Hz: video and poses arrive
+        t = now + 0.5 * k
+        for name in ("video", "drone", "vessel"):
+            engine.source_arrived(name, t)
+        engine.frame_failed(30 + k, "no camera attitude: none within reach of the frame")
+    state = engine.refresh(now + 1.5)
+    assert not state["stale"] and state["sources"]["measurement"]["age_s"] == pytest.approx(1.5)
+    state = engine.refresh(now + 2.5)
+    assert state["stale"] and all(s["stale"] for s in state["sections"])
+    (alarm,) = [a for a in state["alarms"] if a["kind"] == "stale_measurement"]
+    assert "no frame measured for 2.5 s" in alarm["message"] and "no camera attitude" in alarm["message"]
+    assert not [a for a in state["alarms"] if a["kind"] in ("stale_video", "stale_drone", "stale_vessel")]
+    deltas = SignalKPublisher("ws://127.0.0.1:1").deltas(state, now + 3.0)
+    values = {v["path"]: v["value"] for d in deltas for u in d["updates"] for v in u["values"]}
+    assert values["harborsight.clearance.minimum"] is None
+    assert values["notifications.harborsight.stale"]["state"] == "alert"
+    # a frame measured again: current at once
+    engine.process(36, image, meta, FLIGHT / "frames" / "000030.json", 18.0, now + 3.0)
+    assert not engine.refresh(now + 3.1)["stale"]
+
+
+def test_a_section_in_danger_that_leaves_the_view_keeps_its_alarm_on_signal_k():
+    """The engine holds a section's level while it has no measurement (out of view); the
+    chart plotter must not be told ``normal`` meanwhile, nor the dashboard draw it grey."""
+    from harborsight.clearance.report import ClearanceReport, SectionClearance
+    from harborsight.live.signalk import SignalKPublisher
+
+    engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)))
+    publisher = SignalKPublisher("ws://127.0.0.1:1")
+
+    def measured(status: str, distance_m: float | None, time_s: float) -> dict:
+        section = SectionClearance(0, status, [[0.0, 0.0]], 1.0, distance_m=distance_m,
+                                   sigma_m=None if distance_m is None else 0.1,
+                                   distance_lower_m=None if distance_m is None else distance_m - 0.2)
+        engine._update_sections(ClearanceReport("frame", None, 40.0, 0.01, "ground_plane", [section],
+                                                pose_refinement={"sensors_contradicted": False}), time_s)
+        state = engine.refresh()
+        deltas = publisher.deltas(state, math.inf)
+        sent = {v["path"]: v["value"] for d in deltas for u in d["updates"] for v in u["values"]}
+        return state["sections"][0], sent.get("notifications.harborsight.section0")
+
+    section, note = measured("ok", 1.5, 0.0)
+    assert section["level"] == "danger" and note["state"] == "alarm"
+    section, note = measured("out_of_view", None, 0.5)
+    assert (section["status"], section["level"], section["alarm"]) == ("out_of_view", "danger", True)
+    assert note is None                                # nothing new to say: still "alarm"
+    assert publisher._sent_states["notifications.harborsight.section0"] == "alarm"
+    section, note = measured("ok", 1.3, 1.0)
+    assert section["level"] == "danger" and note is None
 
 
 def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
@@ -202,7 +288,7 @@ def test_a_bound_set_where_the_band_leaves_the_picture_holds_the_alarm():
     from harborsight.clearance.report import ClearanceReport, SectionClearance
 
     engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)),
-                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0))
+                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0, fall_readings=1))
 
     def level_after(distance_m: float, lower_m: float, clear_to_m: float | None, time_s: float) -> str:
         section = SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=distance_m, sigma_m=0.3,
@@ -279,7 +365,8 @@ def test_a_replayed_flight_is_served_and_matches_its_truth(replay):
     assert len(measured) >= 5 and len([s for s in pushed if s["frame_index"] is not None]) >= 5
     errors = []
     for state in measured:
-        assert state["schema"] == SCHEMA and set(state["sources"]) == {"video", "drone", "vessel"}
+        assert state["schema"] == SCHEMA
+        assert set(state["sources"]) == {"video", "drone", "vessel", "measurement"}
         for section in state["sections"]:
             assert {"index", "status", "distance_m", "closing_speed_mps", "time_to_contact_s",
                     "alarm", "stale"} <= set(section)
@@ -481,7 +568,7 @@ def test_a_clear_band_the_vessel_hides_past_the_danger_distance_holds_the_alarm(
     from harborsight.clearance.report import ClearanceReport, SectionClearance
 
     engine = LiveEngine(_MaskSegmenter(np.zeros((2, 2), np.uint8)), VesselCache(load_vessel_spec(TUG)),
-                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0))
+                        alarm_settings=AlarmSettings(caution_m=5.0, danger_m=2.0, fall_readings=1))
 
     def level_after(status: str, hidden_to_m: float | None, time_s: float) -> str:
         section = (SectionClearance(0, "ok", [[0.0, 0.0]], 1.0, distance_m=1.0, sigma_m=0.1,

@@ -60,6 +60,29 @@ def test_the_decoder_turns_lines_into_fixes_and_headings():
     assert decoder.skipped["RMC status V (no fix)"] == 1
 
 
+def test_fixes_of_a_second_position_sensor_on_the_feed_are_left_out_until_the_first_stops():
+    """The ship's GPS (GP) on whole seconds and an AIS transponder's own receiver (AI) half
+    a second later, 12 m north, on one multiplexed feed: mixed, the vessel jumped 12 m every
+    half second. Fixes come from the first sensor (a receiver's GP and GN talkers are one);
+    the other's are counted and said, and take over once the first has been silent 5 s."""
+    decoder = NmeaDecoder()
+    north_12m = 12.0 / 1852.0            # minutes of latitude
+
+    def rmc(talker: str, second: float, minutes: float) -> str:
+        return _nmea(f"{talker}RMC,1200{second:05.2f},A,56{minutes:08.5f},N,01013.69800,E,0.8,117.7,010526,,")
+
+    lines = []
+    for k in range(4):
+        lines += [rmc("GP" if k % 2 else "GN", k, 9.102), rmc("AI", k + 0.5, 9.102 + north_12m)]
+    lines += [rmc("AI", second, 9.102 + north_12m) for second in (4.5, 6.5, 9.5, 10.5)]
+    fixes = [e for line in lines for e in decoder.feed(line, 1) if isinstance(e, Fix)]
+    assert [f.utc.second + f.utc.microsecond / 1e6 for f in fixes] == [0, 1, 2, 3, 9.5, 10.5]
+    assert [round(f.lat_deg, 6) for f in fixes[:4]] == [round(56 + 9.102 / 60, 6)] * 4
+    assert fixes[-1].lat_deg == pytest.approx(56 + (9.102 + north_12m) / 60)
+    assert any("6 sentence(s) skipped: fixes from a second position sensor (AI) while GNSS" in n
+               for n in decoder.notes())
+
+
 def test_the_clock_map_takes_the_least_delayed_sample_and_restarts_after_a_jump():
     clock = ClockMap(window=16, jump_s=2.0)
     rng = np.random.default_rng(3)
@@ -216,6 +239,86 @@ def test_a_second_vehicle_on_the_mavlink_link_is_left_out():
     assert len(drone_track) == 1 and drone_track.lat_deg[0] == pytest.approx(56.1516256)
     assert np.allclose(drone_track.yaw_deg, 30.0)
     assert any("system 2 left out" in w for w in warnings)
+
+
+def test_unusable_mavlink_values_are_left_out_and_the_reader_goes_on():
+    """A zero quaternion (a gimbal not yet ready) raised in scipy and ended the reader thread
+    for the session; a latitude past 90 deg was taken as the drone's; a gimbal yaw relative to
+    the airframe was turned by the last ATTITUDE however old. Each is left out and said, and a
+    message that raises for any other reason does not stop the reader."""
+    import threading
+
+    ready = _mavlink_bytes(lambda mav: (
+        mav.attitude_send(5000, 0.0, 0.0, math.radians(30.0), 0, 0, 0),
+        mav.gimbal_device_attitude_status_send(0, 0, 5000, 32, [0.0, 0.0, 0.0, 0.0], 0, 0, 0, 0),
+        mav.global_position_int_send(5000, 2_147_483_647, 102282340, 75000, 60000, 0, 0, 0, 65535),
+        mav.global_position_int_send(5000, 561516256, 102282340, 75000, 60000, 0, 0, 0, 65535)))
+    reader, track, warnings = _read_mavlink(ready)
+    assert reader.bad_values == 2 and len(track.track()) == 1
+    assert track.track().lat_deg[0] == pytest.approx(56.1516256)
+    assert any("unusable values left out" in w for w in warnings)
+    # ATTITUDE stops; the drone turns; a vehicle-frame gimbal attitude 3 s later is left out
+    later = _decoded(_mavlink_bytes(lambda mav: mav.gimbal_device_attitude_status_send(
+        0, 0, 8000, 32, [1.0, 0.0, 0.0, 0.0], 0, 0, 0, 0)))[0]
+    reader.handle(later, 100.5)                          # within 1 s of ATTITUDE: taken
+    reader.handle(later, 103.0)                          # 3 s after it: left out
+    assert track.attitude_of == "gimbal" and list(track.track().attitude_t_s) == [100.5]
+    assert reader.gimbal_without_vehicle_yaw == 1 and any("no ATTITUDE for 3.0 s" in w for w in warnings)
+
+    class Connection:
+        """Hands out a message that raises when read, then a good position, then stops."""
+
+        def __init__(self, messages, stop):
+            self.messages, self.stop = list(messages), stop
+
+        def recv_match(self, blocking, timeout):
+            if not self.messages:
+                self.stop.set()
+                return None
+            return self.messages.pop(0)
+
+        def close(self):
+            pass
+
+    class Broken:
+        def get_type(self):
+            return "GLOBAL_POSITION_INT"
+
+        def get_srcSystem(self):
+            raise RuntimeError("a dialect mismatch")
+
+    stop = threading.Event()
+    good = _decoded(_mavlink_bytes(lambda mav: mav.global_position_int_send(
+        5200, 561516300, 102282340, 75000, 60000, 0, 0, 0, 65535)))
+    reader.connection = Connection([Broken(), *good], stop)
+    reader.run(stop)
+    assert reader.failed == 1 and track.track().lat_deg[-1] == pytest.approx(56.15163)
+    assert any("could not be read" in w and "a dialect mismatch" in w for w in warnings)
+
+
+def test_a_second_lagging_mavlink_link_does_not_wipe_the_drone_track():
+    """Every position arrives twice: on the live link, and 1.5 s later on a second link with
+    a queue (a redundant radio; mavlink-router forwards both). The late copies map to their
+    own, older times; they were taken for a clock going back and cleared the track, so no
+    frame could be measured while the drone looked current. Now they are left out and said,
+    and the track holds its 5 Hz samples."""
+    track = LiveTrack("drone", "mavlink")
+    warnings: list[str] = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    reader = MavlinkDrone(None, track, altitude="relative")
+    arrivals = []
+    for k in range(25):
+        boot_ms = 5000 + 200 * k
+        lat_e7 = 561516256 + 100 * k
+        message = _decoded(_mavlink_bytes(lambda mav, boot_ms=boot_ms, lat_e7=lat_e7: (
+            mav.global_position_int_send(boot_ms, lat_e7, 102282340, 75000, 60000, 0, 0, 0, 65535))))[0]
+        arrivals += [(100.0 + 0.2 * k, message), (101.5 + 0.2 * k, message)]
+    for now_s, message in sorted(arrivals, key=lambda pair: pair[0]):
+        reader.handle(message, now_s)
+    drone = track.track()
+    assert len(drone) == 25 and np.allclose(np.diff(drone.t_s), 0.2)
+    assert track.late_samples >= 18 and any("1.4 s late: a second link?" in w for w in warnings)
+    assert drone.yaw_deg is None                         # positions and no attitude yet
 
 
 def test_the_nmea_listener_times_headings_by_the_fix_before_them():

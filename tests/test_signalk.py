@@ -128,6 +128,30 @@ def test_a_clock_jump_on_the_bus_is_said():
     assert any("clock of source 'gps' jumped (1 time(s))" in w for w in warnings)
 
 
+def test_the_cached_values_a_server_sends_on_subscribing_do_not_make_the_vessel_current():
+    """On (re)subscribing a Signal K server sends each path's last value, stamped when it
+    was last updated: a GPS that stopped a minute ago. Mapped to now, it made the vessel
+    current for the stale limit; now what comes within half a second of subscribing is left
+    out and said, and live updates after it are read."""
+    track = LiveTrack("vessel", "signalk")
+    warnings = []
+    track.on_warning = lambda source, message: warnings.append(message)
+    fixes = []
+    reader = SignalKVessel("ws://127.0.0.1:1/signalk/v1/stream", track, on_fix=fixes.append)
+    reader.subscribed_s = 100.0
+
+    def update(stamp: str) -> str:
+        position = {"path": "navigation.position", "value": {"latitude": 56.1517, "longitude": 10.2283}}
+        return json.dumps({"context": "vessels.self", "updates": [{
+            "$source": "gps", "timestamp": stamp, "values": [position]}]})
+
+    reader.handle(update("2026-05-01T11:59:00Z"), 100.05)      # the cache: a minute old
+    assert track.track() is None and not fixes and reader.replayed == 1
+    assert any("cached value(s)" in w for w in warnings)
+    reader.handle(update("2026-05-01T12:00:00Z"), 101.0)       # live
+    assert fixes == [101.0] and len(track.track()) == 1
+
+
 def test_each_source_on_the_bus_keeps_its_own_clock():
     """A server stamps an NMEA 0183 position with its RMC's time and an NMEA 2000 heading
     with its own clock, here 1.5 s ahead (within the 2 s a jump needs): both arrive together.

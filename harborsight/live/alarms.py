@@ -8,7 +8,10 @@ distance hovering at a threshold does not make the display and the sound flicker
   ``d <= caution_m`` (fast and already near);
 * **caution** when ``d <= caution_m`` or ``ttc <= ttc_s``;
 * a level is left only when ``d > threshold + hysteresis_m`` and ``ttc > ttc_s +
-  hysteresis_s`` (or the gap is not closing) for every condition that raised it.
+  hysteresis_s`` (or the gap is not closing) for every condition that raised it, on
+  ``fall_readings`` readings in a row (3 by default): one frame whose mask missed the quay,
+  measured clear or far, must not silence a danger for a frame. It then falls to the highest
+  level any of those readings holds.
 
 ``d`` is the section's conservative distance: the 95 % lower bound ``distance_lower_m`` when
 the measurement has one, else the distance. A section measured clear (nothing solid in its
@@ -43,9 +46,17 @@ class AlarmSettings:
     #: a source older than this is stale (issue #28: video 1 s, drone and vessel 2 s)
     video_stale_s: float = 1.0
     telemetry_stale_s: float = 2.0
+    #: the distances shown are stale when no frame was measured for this long (frames keep
+    #: arriving but cannot be measured: a camera attitude or a heading that stopped)
+    measurement_stale_s: float = 2.0
+    #: a level falls only on this many readings in a row that let it
+    fall_readings: int = 3
 
     def __post_init__(self) -> None:
-        require_positive(self, ("caution_m", "danger_m", "ttc_s", "video_stale_s", "telemetry_stale_s"))
+        require_positive(self, ("caution_m", "danger_m", "ttc_s", "video_stale_s", "telemetry_stale_s",
+                                "measurement_stale_s"))
+        if not isinstance(self.fall_readings, int) or self.fall_readings < 1:
+            raise ValueError(f"fall_readings must be a whole number at least 1, got {self.fall_readings!r}")
         for name in ("hysteresis_m", "hysteresis_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -73,6 +84,9 @@ class SectionAlarm:
     settings: AlarmSettings = field(default_factory=AlarmSettings)
     level: int = 0
     since: float | None = None
+    #: readings in a row that let the level fall, and the highest level they hold
+    _falling: int = field(default=0, repr=False)
+    _falling_to: int = field(default=0, repr=False)
 
     @property
     def status(self) -> str:
@@ -87,7 +101,16 @@ class SectionAlarm:
         # alarm falls only to that
         holding = _level(distance_m, ttc_s, s.caution_m + s.hysteresis_m,
                          s.danger_m + s.hysteresis_m, s.ttc_s + s.hysteresis_s)
-        new = entering if entering > self.level else min(self.level, holding)
+        new = self.level
+        if entering > self.level:
+            new = entering
+        elif holding < self.level:
+            self._falling_to = holding if self._falling == 0 else max(self._falling_to, holding)
+            self._falling += 1
+            if self._falling >= s.fall_readings:
+                new = self._falling_to
+        if new != self.level or holding >= self.level:
+            self._falling = 0
         if new != self.level or self.since is None:
             self.level, self.since = new, time_s
         return self.status

@@ -12,17 +12,20 @@ counts), ``vessel``, ``min_distance_m``, ``sections`` (each ``index``, ``status`
 ``ok``/``caution``/``danger``, or the measurement's status when it has no distance to
 judge, e.g. ``out_of_view``; ``measured``, the measurement's own status; ``distance_m``,
 ``distance_lower_m``, ``sigma_m``, ``filtered_distance_m``, ``closing_speed_mps``,
-``time_to_contact_s`` (these two only beside a current distance), ``alarm`` (bool) and
-``stale``), ``alarms`` (each ``kind``,
+``time_to_contact_s`` (these two only beside a current distance), ``level``, the alarm
+level the section holds (``ok``/``caution``/``danger``, also while it has no measurement to
+judge), ``alarm`` (bool) and ``stale``), ``alarms`` (each ``kind``,
 ``message``, ``since``), ``warnings`` (recent trouble with an input: each ``source``,
-``message``, ``since``), ``sources`` (``video``, ``drone``, ``vessel``: ``age_s``, ``rate_hz``,
-``stale``, ``count``) and ``pose_refinement``.
+``message``, ``since``), ``sources`` (``video``, ``drone``, ``vessel`` and ``measurement``,
+the frames measured: ``age_s``, ``rate_hz``, ``stale``, ``count``) and ``pose_refinement``.
 
 When a source is stale (video older than 1 s, drone or vessel data older than 2 s by
-default) every section is marked ``stale`` and a ``stale_*`` alarm is raised: the distances
-shown are the last ones, never current. :meth:`LiveEngine.refresh` re-evaluates that between
-frames, so a stopped stream raises its alarm without a new frame. Times: ``now_s`` is the
-process's monotonic clock; ``time_s`` a frame's time on the flight's clock (for the tracker).
+default), or no frame was measured for 2 s (frames that arrive but cannot be measured, e.g.
+a camera attitude that stopped while positions go on), every section is marked ``stale`` and
+a ``stale_*`` alarm is raised: the distances shown are the last ones, never current.
+:meth:`LiveEngine.refresh` re-evaluates that between frames, so a stopped stream raises its
+alarm without a new frame. Times: ``now_s`` is the process's monotonic clock; ``time_s`` a
+frame's time on the flight's clock (for the tracker).
 """
 
 from __future__ import annotations
@@ -50,7 +53,8 @@ from harborsight.live.health import SourceHealth
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
 
 SCHEMA = "harborsight.live/1"
-SOURCES = ("video", "drone", "vessel")
+#: the inputs, and the frames measured from them, whose age the state shows
+SOURCES = ("video", "drone", "vessel", "measurement")
 #: how long an input's warning stays in the state, and how many are kept
 WARNING_SHOWN_S, WARNINGS_KEPT = 30.0, 8
 #: a section's state, and an alarm's kind, when the image contradicts the sensors' pose
@@ -77,7 +81,10 @@ class LiveEngine:
         s = self.alarm_settings
         self.health = {"video": SourceHealth("video", s.video_stale_s),
                        "drone": SourceHealth("drone", s.telemetry_stale_s),
-                       "vessel": SourceHealth("vessel", s.telemetry_stale_s)}
+                       "vessel": SourceHealth("vessel", s.telemetry_stale_s),
+                       "measurement": SourceHealth("measurement", s.measurement_stale_s)}
+        #: why the newest frame that came could not be measured (None once one is)
+        self._last_failure: str | None = None
         self._trackers: dict[int, SectionTracker] = {}
         self._alarms: dict[int, SectionAlarm] = {}
         self._report: ClearanceReport | None = None
@@ -110,7 +117,8 @@ class LiveEngine:
                 time_s: float | None, arrived_s: float, mask_path: Path | None = None) -> dict:
         """Measure one frame that arrived at ``arrived_s`` (monotonic) and return the new
         state. A frame that cannot be measured leaves the sections as they were (they turn
-        stale as the video ages) and adds a warning alarm; it never raises."""
+        stale once no frame was measured for ``measurement_stale_s``) and adds a warning
+        alarm; it never raises."""
         try:
             mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path)
             report = measure_mask(mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance)
@@ -123,6 +131,8 @@ class LiveEngine:
             self._report, self._frame_index, self._image = report, frame_index, image
             self._frame_time = meta.timestamp
             self.frames_measured += 1
+            self.health["measurement"].arrived(arrived_s)
+            self._last_failure = None
             now = time.monotonic()
             self._latency_ms = 1000.0 * (now - arrived_s)
             self._state = self._build(now)
@@ -172,6 +182,7 @@ class LiveEngine:
         with self._lock:
             self.frames_failed += 1
             self._errors = [{"frame_index": frame_index, "message": message}]
+            self._last_failure = message
             self._state = self._build(time.monotonic())
             return self._state
 
@@ -216,7 +227,8 @@ class LiveEngine:
                     # vessel hides nearer (behind its deckhouse): it raises no alarm, nor lowers one
                     value = None
                 if value is not None:
-                    alarm.update(time.monotonic(), value, ttc)
+                    # a bound that is not a number says nothing: the safe side, 0 m
+                    alarm.update(time.monotonic(), value if math.isfinite(value) else 0.0, ttc)
             elif section.status == STATUS_CLEAR and (
                     section.clear_to_m is None or section.clear_to_m >= alarm.settings.caution_m) and (
                     section.hidden_to_m is None or section.hidden_to_m < alarm.settings.danger_m):
@@ -248,7 +260,7 @@ class LiveEngine:
             level = alarm.status if alarm is not None else "ok"
             status = level if entry["measured"] in (STATUS_OK, STATUS_CLEAR) else entry["measured"]
             sections.append({**{k: v for k, v in entry.items() if k != "measured"},
-                             "status": status, "measured": entry["measured"],
+                             "status": status, "measured": entry["measured"], "level": level,
                              "alarm": level in (CAUTION, DANGER), "stale": stale})
             if alarm is not None and level in (CAUTION, DANGER):
                 distance = entry["distance_m"]
@@ -261,10 +273,15 @@ class LiveEngine:
         for name in stale_sources:
             since = self.health[name].stale_since(now_s)
             age = self.health[name].age_s(now_s)
-            alarms.append({"kind": f"stale_{name}", "message": (
-                f"no {name} data yet" if age is None else
-                f"{name} data is {age:.1f} s old: distances are not current"),
-                "since": _wall_iso(now_s, since)})
+            if name == "measurement":
+                why = f" (the newest frame: {self._last_failure})" if self._last_failure else ""
+                message = ("no frame measured yet" if age is None else
+                           f"no frame measured for {age:.1f} s: distances are not current") + why
+            else:
+                message = (f"no {name} data yet" if age is None else
+                           f"{name} data is {age:.1f} s old: distances are not current")
+            alarms.append({"kind": f"stale_{name}", "message": message,
+                           "since": _wall_iso(now_s, since)})
         for error in self._errors:
             alarms.append({"kind": "frame_error", "message": error["message"],
                            "since": _wall_iso(now_s, now_s)})

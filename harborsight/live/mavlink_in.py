@@ -15,7 +15,10 @@ Messages read (MAVLink common and ArduPilot dialects, v1 and v2 frames):
   is in the vehicle frame when the flags say ``YAW_IN_VEHICLE_FRAME`` (or neither frame flag and
   no ``YAW_LOCK``): the camera's rotation is then ``Rz(vehicle yaw) · R(q)``. ``MOUNT_STATUS``
   (ArduPilot's older message: pitch, roll, yaw in centidegrees, yaw relative to the vehicle)
-  likewise.
+  likewise. The vehicle's yaw is the newest ``ATTITUDE``'s only while it arrived within
+  :data:`VEHICLE_YAW_MAX_AGE_S`: a vehicle-frame gimbal attitude is left out (counted and
+  said) when ATTITUDE has stopped, rather than turned by a yaw of any age. A quaternion whose
+  norm is not 1 (all zeros, as some gimbals send before they are ready) is left out too.
 * ``SYSTEM_TIME``: UTC of the boot clock (the frames' timestamps).
 
 Every message's boot time goes through :class:`harborsight.live.telemetry.ClockMap`, one
@@ -24,9 +27,11 @@ map per component: a gimbal that speaks MAVLink itself (its own component id) st
 autopilot's restarted at every message (clocks booted seconds apart) or, under 2 s apart,
 put the camera's attitude that much off its position. A message without a boot time
 (``MOUNT_STATUS``) takes its arrival time. Frames that fail their CRC are
-counted and warned about, never read. The drone is the first system (MAVLink system id) that
+counted and warned about, never read, and a position outside ±90° / ±180° is left out. The
+drone is the first system (MAVLink system id) that
 sends its position; these messages from any other system (a second vehicle on the link) are
-counted, said and left out: mixed in, its position would be the drone's.
+counted, said and left out: mixed in, its position would be the drone's. A message that
+cannot be read for any other reason is counted and said; the reader goes on.
 """
 
 from __future__ import annotations
@@ -47,6 +52,11 @@ ALTITUDES = ("relative", "amsl")
 _BOOT_STAMPED = frozenset({"GLOBAL_POSITION_INT", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS"})
 #: GIMBAL_DEVICE_FLAGS bits
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
+#: a gimbal's yaw relative to the airframe is turned by the vehicle's yaw only while the
+#: newest ATTITUDE arrived at most this long before it (seconds)
+VEHICLE_YAW_MAX_AGE_S = 1.0
+#: a gimbal quaternion whose norm is further than this from 1 is not an attitude
+QUATERNION_NORM_TOLERANCE = 0.1
 
 
 def mavlink2():
@@ -98,8 +108,14 @@ class MavlinkDrone:
         self.on_position = on_position
         self.track.utc_clock = None
         self._vehicle_yaw_deg: float | None = None
+        self._vehicle_yaw_arrived_s = -math.inf
         self._sigma_m = math.nan
         self.bad_frames = 0
+        #: messages left out: unreadable values (a zero quaternion, a position out of range),
+        #: vehicle-frame gimbal attitudes with no recent ATTITUDE, and ones that raised
+        self.bad_values = 0
+        self.gimbal_without_vehicle_yaw = 0
+        self.failed = 0
         self.messages = 0
         #: the drone's MAVLink system id: the first to send its position
         self.system_id: int | None = None
@@ -110,6 +126,25 @@ class MavlinkDrone:
 
     def _warn(self, message: str) -> None:
         self.track.warn(message)
+
+    def _bad_value(self, what: str) -> None:
+        self.bad_values += 1
+        if worth_saying(self.bad_values):
+            self._warn(f"{self.bad_values} MAVLink message(s) with unusable values left out "
+                       f"(the latest: {what})")
+
+    def _vehicle_yaw_at(self, now_s: float) -> float | None:
+        """The vehicle's yaw for a gimbal attitude arriving at ``now_s``: the newest
+        ATTITUDE's if it arrived within :data:`VEHICLE_YAW_MAX_AGE_S`, else None (said)."""
+        if now_s - self._vehicle_yaw_arrived_s <= VEHICLE_YAW_MAX_AGE_S:
+            return self._vehicle_yaw_deg
+        if self._vehicle_yaw_deg is not None:
+            self.gimbal_without_vehicle_yaw += 1
+            if worth_saying(self.gimbal_without_vehicle_yaw):
+                self._warn(f"{self.gimbal_without_vehicle_yaw} gimbal attitude(s) relative to the "
+                           f"airframe left out: no ATTITUDE for {now_s - self._vehicle_yaw_arrived_s:.1f} s "
+                           "to turn them by")
+        return None
 
     def handle(self, message, now_s: float) -> None:
         kind = message.get_type()
@@ -138,6 +173,9 @@ class MavlinkDrone:
         if kind == "GLOBAL_POSITION_INT":
             if message.lat == 0 and message.lon == 0:
                 return                                   # no position yet
+            if abs(message.lat) > 90e7 or abs(message.lon) > 180e7:
+                self._bad_value(f"GLOBAL_POSITION_INT lat {message.lat / 1e7:g}, lon {message.lon / 1e7:g}")
+                return
             t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
             alt_m = (message.relative_alt if self.altitude == "relative" else message.alt) / 1000.0
             track.add_position(t_s, message.lat / 1e7, message.lon / 1e7, alt_m, self._sigma_m)
@@ -149,23 +187,28 @@ class MavlinkDrone:
         elif kind == "ATTITUDE":
             t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
             self._vehicle_yaw_deg = math.degrees(message.yaw) % 360.0
+            self._vehicle_yaw_arrived_s = now_s
             track.add_attitude(t_s, self._vehicle_yaw_deg, math.degrees(message.pitch),
                                math.degrees(message.roll), "vehicle")
         elif kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
             flags = int(message.flags)
             in_vehicle = bool(flags & _YAW_IN_VEHICLE_FRAME) or (
                 not flags & (_YAW_IN_VEHICLE_FRAME | _YAW_IN_EARTH_FRAME) and not flags & _YAW_LOCK)
-            if in_vehicle and self._vehicle_yaw_deg is None:
+            vehicle_yaw = self._vehicle_yaw_at(now_s) if in_vehicle else None
+            if in_vehicle and vehicle_yaw is None:
                 return                   # its yaw is relative to the airframe's: wait for ATTITUDE
             if any(not math.isfinite(v) for v in message.q):
                 return
-            t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
-            track.add_attitude(t_s, *_euler_deg(message.q, self._vehicle_yaw_deg if in_vehicle else None),
-                               "gimbal")
-        elif kind == "MOUNT_STATUS":
-            if self._vehicle_yaw_deg is None:
+            if abs(math.sqrt(sum(float(v) ** 2 for v in message.q)) - 1.0) > QUATERNION_NORM_TOLERANCE:
+                self._bad_value(f"GIMBAL_DEVICE_ATTITUDE_STATUS q {list(message.q)}")
                 return
-            track.add_attitude(now_s, (self._vehicle_yaw_deg + message.pointing_c / 100.0) % 360.0,
+            t_s = clock.observe(message.time_boot_ms / 1000.0, now_s)
+            track.add_attitude(t_s, *_euler_deg(message.q, vehicle_yaw), "gimbal")
+        elif kind == "MOUNT_STATUS":
+            vehicle_yaw = self._vehicle_yaw_at(now_s)
+            if vehicle_yaw is None:
+                return
+            track.add_attitude(now_s, (vehicle_yaw + message.pointing_c / 100.0) % 360.0,
                                message.pointing_a / 100.0, message.pointing_b / 100.0, "gimbal")
         elif kind == "SYSTEM_TIME" and message.time_unix_usec > 0 and self.clocks.primary_or_unknown(sender):
             if track.utc_clock is None:
@@ -184,7 +227,14 @@ class MavlinkDrone:
                 self._warn(f"MAVLink read failed: {exc}")
                 stop.wait(0.5)
                 continue
-            if message is not None:
+            if message is None:
+                continue
+            try:
                 self.handle(message, time.monotonic())
+            except Exception as exc:     # one message must not end the drone's telemetry
+                self.failed += 1
+                if worth_saying(self.failed):
+                    self._warn(f"{self.failed} MAVLink message(s) could not be read (the latest, "
+                               f"{message.get_type()}: {type(exc).__name__}: {exc})")
         with contextlib.suppress(Exception):     # closing a dead transport may raise anything
             self.connection.close()

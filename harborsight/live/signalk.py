@@ -13,7 +13,10 @@ with its own clock, and one map shared by both read the heading as old as the cl
 self vessel's deltas count (the server's hello names it), and each path keeps the first source
 it is heard from (``$source``, else ``source.label``): a chart plotter's GPS and the AIS
 transponder's 12 m apart, mixed, made the vessel jump between them. Other vessels' deltas
-and other sources' values are counted, with a warning, and left out.
+and other sources' values are counted, with a warning, and left out. What the server sends
+within :data:`REPLAY_WINDOW_S` of a (re)subscription is its cache of the paths' last values,
+stamped when they were last updated, which may be long ago (a GPS that stopped): it is left
+out, so that only live updates make the vessel current.
 
 Out, as deltas from source ``harborsight`` to the self vessel:
 
@@ -40,9 +43,13 @@ from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack, SenderClocks, worth_saying
 
 STREAM_PATH = "/signalk/v1/stream"
+#: updates that arrive this soon after subscribing are the server's cached values (s)
+REPLAY_WINDOW_S = 0.5
 #: a section's status as a Signal K notification state
 NOTIFICATION_STATES = {"ok": "normal", "caution": "warn", "danger": "alarm",
                        "pose_contradicted": "alert"}
+#: Signal K's notification states, least grave first
+SEVERITY = ("normal", "alert", "warn", "alarm")
 
 
 def stream_url(text: str, option: str) -> str:
@@ -86,12 +93,22 @@ class SignalKVessel:
         self.clocks = SenderClocks(track)
         self.other_vessels = 0
         self.other_sources = 0
+        #: when the last subscription was sent (monotonic), and the cached values left out
+        self.subscribed_s = -math.inf
+        self.replayed = 0
 
     def handle(self, message: str, now_s: float) -> None:
         try:
             delta = json.loads(message)
         except ValueError:
             self.unreadable += 1
+            return
+        if (now_s - self.subscribed_s <= REPLAY_WINDOW_S and isinstance(delta, dict)
+                and isinstance(delta.get("updates"), list)):
+            self.replayed += len(delta["updates"])
+            if worth_saying(self.replayed, every=None):
+                self.track.warn(f"Signal K: {self.replayed} cached value(s) the server sent on "
+                                "subscribing left out (stamped when last updated, not now)")
             return
         if isinstance(delta, dict) and isinstance(delta.get("self"), str):
             self.self_context = delta["self"]       # the hello
@@ -156,6 +173,7 @@ class SignalKVessel:
             try:
                 with _connect(self.url, self.token) as socket:
                     socket.send(subscribe)
+                    self.subscribed_s = time.monotonic()
                     while not stop.is_set():
                         try:
                             message = socket.recv(timeout=0.2)
@@ -196,11 +214,17 @@ class SignalKPublisher:
         """The deltas for ``state``: changed notifications, and the values when due."""
         values = []
         for section in state["sections"]:
-            level = NOTIFICATION_STATES.get(section["status"], "normal")
+            held = section.get("level", "ok")
+            # the graver of the level the section holds and its status: a section in danger
+            # that goes out of view keeps its alarm on the chart plotter too
+            level = max(NOTIFICATION_STATES[held], NOTIFICATION_STATES.get(section["status"], "normal"),
+                        key=SEVERITY.index)
             path = f"notifications.harborsight.section{section['index']}"
             if self._sent_states.get(path) != level:
                 distance = section.get("distance_m")
-                message = (f"harborsight section {section['index']}: {section['status']}"
+                status = section["status"]
+                said = status if held in (status, "ok") else f"{held} held ({status})"
+                message = (f"harborsight section {section['index']}: {said}"
                            + ("" if distance is None else f", {distance:.1f} m"))
                 values.append({"path": path, "value": {
                     "state": level, "message": message,

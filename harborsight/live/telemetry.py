@@ -40,6 +40,8 @@ from harborsight.telemetry.track import Track
 
 #: seconds of samples a live track keeps (interpolation needs the last few only)
 HORIZON_S = 30.0
+#: a sample this much older than the newest held is said when left out (less is jitter)
+LATE_SAID_S = 1.0
 
 
 @dataclass
@@ -118,6 +120,8 @@ class LiveTrack:
         self._positions: deque = deque()           # (t, lat, lon, alt, sigma)
         self._orientation: deque = deque()         # (t, yaw, pitch, roll) or (t, heading)
         self._lock = threading.Lock()
+        #: samples left out for coming more than LATE_SAID_S after newer ones
+        self.late_samples = 0
         #: called with (source name, message) for every warning (the dashboard and the log)
         self.on_warning: Callable[[str, str], None] | None = None
 
@@ -136,17 +140,25 @@ class LiveTrack:
             samples.popleft()
 
     def _append(self, samples: deque, row: tuple) -> None:
+        """Add a sample in time order. One older than the newest held is left out (jitter
+        past a sample, or a late copy from a second, lagging link), counted and said when
+        it is more than :data:`LATE_SAID_S` late; it never clears what is held: a source
+        whose clock jumps is restarted by its :class:`ClockMap`, whose mapped times then
+        follow on."""
+        late_s = 0.0
         with self._lock:
-            if samples and row[0] < samples[-1][0]:      # out of order: jitter past a sample
-                if samples[-1][0] - row[0] > 1.0:          # or the clock went back: start again
-                    samples.clear()
-                else:
-                    return
-            if samples and row[0] == samples[-1][0]:
+            if samples and row[0] < samples[-1][0]:
+                late_s = samples[-1][0] - row[0]
+                if late_s > LATE_SAID_S:
+                    self.late_samples += 1
+            elif samples and row[0] == samples[-1][0]:
                 samples[-1] = row
             else:
                 samples.append(row)
-            self._trim(samples, row[0])
+                self._trim(samples, row[0])
+        if late_s > LATE_SAID_S and worth_saying(self.late_samples):
+            self.warn(f"{self.late_samples} sample(s) that came more than {LATE_SAID_S:g} s after "
+                      f"newer ones left out (the latest {late_s:.1f} s late: a second link?)")
 
     def add_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float = math.nan,
                      sigma_m: float = math.nan) -> None:
@@ -184,7 +196,8 @@ class LiveTrack:
         if not positions:
             return None
         p = np.array(positions, dtype=float)
-        o = np.array(orientation, dtype=float).reshape(len(orientation), -1)
+        o = (np.array(orientation, dtype=float) if orientation   # positions, no attitude yet
+             else np.zeros((0, 0)))
         extra: dict = {}
         if len(o) and o.shape[1] == 4:
             extra = {"yaw_deg": o[:, 1], "pitch_deg": o[:, 2], "roll_deg": o[:, 3],

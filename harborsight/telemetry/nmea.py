@@ -8,7 +8,12 @@ time) and turns each line into events:
 * :class:`Fix`: a measured position at a UTC time. ``RMC`` and ``GGA`` of one epoch give one
   fix (``new`` is False for the second); a ``GGA`` also carries its quality and HDOP. A fix
   whose time of day is over 12 h before the previous one's is in the next day (a ``GGA`` after
-  midnight, before the next ``RMC``/``ZDA`` brings the date).
+  midnight, before the next ``RMC``/``ZDA`` brings the date). Fixes come from one position
+  sensor: the first talker family to give one (the satellite talkers ``GP``, ``GN``, ``GL``,
+  ``GA``, ``GB``, ``BD``, ``GQ``, ``GI`` are one receiver's; ``AI``, an AIS transponder's own
+  receiver, ``II``, ``IN`` and the rest each their own). Another sensor's fixes are counted
+  in ``skipped`` and left out: two receivers metres apart mixed make the vessel jump between
+  them. It takes over when the first has given no fix for :data:`POSITION_SENSOR_HOLD_S`.
 * :class:`Heading`: ``HDT``/``THS`` (true), ``HDG`` with variation (made true with its deviation
   and variation), ``HDM`` and ``HDG`` without variation (``true`` False: magnetic, deviation
   applied). Headings before the first fix are counted, not emitted.
@@ -38,6 +43,16 @@ THS_MODES_NOT_MEASURED = {"E": "THS mode E (estimated heading)", "M": "THS mode 
                           "S": "THS mode S (simulator)", "V": "THS mode V (heading not valid)"}
 #: how many unreadable lines are named one by one
 BAD_LINES_KEPT = 5
+#: talkers of one satellite receiver (GPS, GNSS, GLONASS, Galileo, BeiDou, QZSS, NavIC)
+SATELLITE_TALKERS = frozenset({"GP", "GN", "GL", "GA", "GB", "BD", "GQ", "GI"})
+#: a second position sensor takes over after the first gave no fix for this long (s, UTC)
+POSITION_SENSOR_HOLD_S = 5.0
+
+
+def position_sensor(talker: str) -> str:
+    """The position sensor a fix's talker stands for: ``GNSS`` for a satellite receiver's
+    talkers, else the talker itself."""
+    return "GNSS" if talker in SATELLITE_TALKERS else talker
 
 
 @dataclass(frozen=True)
@@ -124,6 +139,9 @@ class NmeaDecoder:
     bad_lines: list[int] = field(default_factory=list)
     undated: int = 0                 # GGA fixes before the first date
     unusable_gst: int = 0
+    #: the position sensor fixes are taken from, and when it gave its last one
+    position_sensor: str | None = None
+    position_sensor_last: datetime | None = None
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
         ["RMC status V (no fix)", *RMC_MODES_NOT_MEASURED.values(),
          *GGA_QUALITIES_NOT_MEASURED.values(), *THS_MODES_NOT_MEASURED.values(),
@@ -158,16 +176,30 @@ class NmeaDecoder:
             return []
 
     def _fix(self, clock: time, lat: float, lon: float, quality: int | None = None,
-             hdop: float = math.nan) -> Fix:
+             hdop: float = math.nan, talker: str = "") -> list[Fix]:
         if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
             raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
         when = utc_of(self.day, clock)
         last = self.last_fix_utc
         if last is not None and when < last - timedelta(hours=12):
             when += timedelta(days=1)          # past midnight, before the next date arrives
+        if not self._from_position_sensor(position_sensor(talker), when):
+            return []
         new = last is None or last != when     # RMC and GGA of one fix count once
         self.last_fix_utc = when
-        return Fix(when, lat, lon, new, quality, hdop)
+        return [Fix(when, lat, lon, new, quality, hdop)]
+
+    def _from_position_sensor(self, sensor: str, when: datetime) -> bool:
+        """Whether a fix of ``sensor`` at ``when`` is taken (module docstring); one that is
+        not is counted in ``skipped``."""
+        chosen, last = self.position_sensor, self.position_sensor_last
+        if chosen is not None and sensor != chosen and last is not None and (
+                abs((when - last).total_seconds()) <= POSITION_SENSOR_HOLD_S):
+            key = f"fixes from a second position sensor ({sensor}) while {chosen} gives them"
+            self.skipped[key] = self.skipped.get(key, 0) + 1
+            return False
+        self.position_sensor, self.position_sensor_last = sensor, when
+        return True
 
     def _events(self, sentence) -> list[Event]:
         kind = sentence.sentence_type
@@ -183,7 +215,8 @@ class NmeaDecoder:
             elif mode in RMC_MODES_NOT_MEASURED:
                 skipped[RMC_MODES_NOT_MEASURED[mode]] += 1
             elif sentence.timestamp is not None and self.day is not None:
-                return [self._fix(sentence.timestamp, sentence.latitude, sentence.longitude)]
+                return self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
+                                 talker=sentence.talker)
         elif kind == "GGA":
             quality = int(sentence.gps_qual or 0)
             if quality in GGA_QUALITIES_NOT_MEASURED:
@@ -194,8 +227,8 @@ class NmeaDecoder:
                 if self.day is None:
                     self.undated += 1
                     return []
-                return [self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
-                                  quality, number(sentence.horizontal_dil))]
+                return self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
+                                 quality, number(sentence.horizontal_dil), sentence.talker)
         elif kind == "GST":
             sigma_m = per_axis_from_gst_m(number(sentence.std_dev_latitude),
                                           number(sentence.std_dev_longitude))
