@@ -30,17 +30,39 @@ def _labels_by_east(geometry, classes_of_east) -> np.ndarray:
 
 
 def _contact(geometry, labels, refinement=NOT_REFINED, confidence=None,
-             vessel_points=None) -> SectionClearance:
-    """A contact reading at the hull point (5, 0), measured and given its uncertainty."""
+             vessel_points=None, distance_m: float = 0.0, margin_px: float = 0.0,
+             rim_px: float = 0.0) -> SectionClearance:
+    """A contact reading ``distance_m`` east of the hull point (5, 0), measured and given
+    its uncertainty."""
     camera = geometry.camera
     hull_px = camera.project(np.array([[HULL_E, 0.0, 0.0]]))[0][0].tolist()
-    section = SectionClearance(0, "ok", [[0, 0], [1, 1]], 1.0, distance_m=0.0, contact=True,
-                               hull_point_enu=[HULL_E, 0.0], obstacle_point_enu=[HULL_E, 0.0],
-                               hull_point_px=hull_px, obstacle_point_px=hull_px)
+    obstacle_px = camera.project(np.array([[HULL_E + distance_m, 0.0, 0.0]]))[0][0].tolist()
+    section = SectionClearance(0, "ok", [[0, 0], [1, 1]], 1.0, distance_m=distance_m, contact=True,
+                               hull_point_enu=[HULL_E, 0.0],
+                               obstacle_point_enu=[HULL_E + distance_m, 0.0],
+                               hull_point_px=hull_px, obstacle_point_px=obstacle_px)
     add_section_uncertainty([section], geometry, np.column_stack((BOX, np.zeros(len(BOX)))),
                             refinement, ZERO, confidence=confidence, labels=labels,
-                            vessel_points_enu=vessel_points)
+                            vessel_points_enu=vessel_points, own_margin_px=margin_px,
+                            own_rim_px=rim_px)
     return section
+
+
+def test_a_contact_s_bound_reaches_past_what_the_own_region_may_hide():
+    """The own region is the hull grown by its margin (2 px), and by a rim (4 px) of ship
+    pixels: a neighbour moored against the hull, or a quay's face seen under the hull's
+    skirt, is cut there, and its reading lies up to that many pixels beyond the true edge.
+    At 10 cm a pixel: a ship contact 0.6 m out (truth 0) gets sigma + 0.6 / 1.645 and a
+    bound of 0; an obstacle contact the margin's 0.2 m."""
+    geometry = _nadir()
+    neighbour = _labels_by_east(geometry, lambda e: np.where(e < 9.0, SHIP, WATER))
+    section = _contact(geometry, neighbour, REFINED, distance_m=0.6, margin_px=2, rim_px=4)
+    assert section.sigma_m == pytest.approx(GRID_M + 0.6 / 1.645, rel=1e-3)
+    assert section.distance_lower_m == 0.0
+    quay = _labels_by_east(geometry, lambda e: np.where(e < 9.0, OBSTACLE, WATER))
+    section = _contact(geometry, quay, REFINED, distance_m=0.6, margin_px=2, rim_px=4)
+    assert section.sigma_m == pytest.approx(GRID_M + 0.2 / 1.645, rel=1e-3)
+    assert section.distance_lower_m == pytest.approx(0.6 - 0.2 - 1.645 * GRID_M, rel=1e-3)
 
 
 def _own_spill_scene(e):

@@ -412,6 +412,33 @@ def test_shared_back_projections_give_the_sigmas_of_one_camera_at_a_time(refinem
         np.testing.assert_allclose([s.sigma_random_m for s in sections], expected[1], rtol=1e-12)
 
 
+def test_a_correction_found_and_not_applied_leaves_the_sensors_bar():
+    """The alignment kept the sensors' pose as fitting the mask as well, but the correction
+    it found is a height 1.2 m off, six of its own (scaled) sigmas: that error stays in the
+    distances, so the bar is the sensors' (height, GPS, compasses), not the alignment's. A
+    correction within its 99 % ellipse of zero places the hull, as before."""
+    from harborsight.clearance.uncertainty import image_confirms_sensors
+
+    covariance = np.diag([0.02, 0.01, 4e-4, 0.0016])      # height: 0.04 m, 0.2 m scaled
+    found = PoseRefinement(applied=False, reason=SENSORS_FIT, height_change_m=-1.2,
+                           covariance=covariance)
+    near_zero = PoseRefinement(applied=False, reason=SENSORS_FIT, shift_m=(0.3, -0.2),
+                               height_change_m=0.3, covariance=covariance)
+    assert not image_confirms_sensors(found) and image_confirms_sensors(near_zero)
+    assert not image_confirms_sensors(PoseRefinement(applied=True, covariance=covariance))
+    geometry = _oblique()
+    outline_enu = _box_outline(geometry)
+    sigmas = SensorSigmas(camera_tilt_deg=1.0, height_m=1.0)
+
+    def bars(refinement):
+        sections = _sections_around(geometry, outline_enu)
+        add_section_uncertainty(sections, geometry, outline_enu, refinement, sigmas)
+        return np.array([s.sigma_m for s in sections])
+
+    np.testing.assert_allclose(bars(found), bars(OFF), rtol=1e-12)
+    assert (bars(near_zero) < bars(OFF)).all()
+
+
 def test_rigid_fits_leave_out_what_a_perturbed_camera_puts_past_the_horizon():
     """The hull 53-73 m ahead of a camera 10 m up (10.7 to 7.8 degrees below the horizon): a
     9 degree tilt error puts the far part of the outline past the horizon for the camera
@@ -577,5 +604,7 @@ def test_a_hull_drawn_from_dimensions_widens_every_bar_by_its_outline_sigma(tmp_
     assert len(pairs) >= 4
     for a, b in pairs:
         assert b.distance_m == a.distance_m and b.sigma_random_m == pytest.approx(a.sigma_random_m)
-        assert b.sigma_m ** 2 - a.sigma_m ** 2 == pytest.approx(0.36, abs=1e-9)
-        assert b.distance_lower_m <= a.distance_lower_m
+        if not a.contact:        # a contact's cut is added to the sigma, not in quadrature
+            assert b.sigma_m ** 2 - a.sigma_m ** 2 == pytest.approx(0.36, abs=1e-9)
+        assert b.sigma_m > a.sigma_m and b.distance_lower_m <= a.distance_lower_m
+    assert sum(not a.contact for a, _ in pairs) >= 4

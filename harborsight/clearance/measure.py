@@ -656,7 +656,8 @@ def measure_clearance(
         velocities, outline_px=in_image.vertices_px, confidence=confidence, labels=labels,
         vessel_points_enu=geometry.vessel_to_enu(vessel.hull_points),
         vessel_layers_enu=[geometry.vessel_to_enu(layer) for layer in vessel.alignment_layers],
-        outline_sigma_m=vessel.outline_sigma_m)
+        outline_sigma_m=vessel.outline_sigma_m, own_margin_px=settings.pose_margin_px,
+        own_rim_px=settings.own_rim_px)
     if settings.method == "gsd":
         add_nadir_approximation(results)
     _bound_by_what_was_seen(results)

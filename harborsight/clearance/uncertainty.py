@@ -54,7 +54,10 @@ with each ``δ`` the displacement caused by a one-sigma error of source ``s``
   a model paints that shadow ship, and the alignment leaves it outside the hull.
 
 When the pose refinement was applied (or found the sensors' pose fitting the mask as well as
-any correction), the hull is placed by the image, not by the vessel's
+any correction, and that correction itself within its own 99 % ellipse of zero,
+:func:`image_confirms_sensors`: a height error the alignment found but did not apply stays
+in the distances, and the bar keeps the sensors' terms then), the hull is placed by the
+image, not by the vessel's
 sensors. Then each camera error moves the hull as well: by the rigid motion (shift and
 turn) that best fits that error's displacement of the silhouette's points the alignment
 fits, each at its own height (a tilt ``δ`` moves a deck edge ``z`` above the water by
@@ -73,6 +76,15 @@ well: a gimbal given as straight down that looks 7 degrees off shows the hull 7 
 fix at 60 m, which the alignment takes for a vessel shift. The distances that tilt would
 give differ (the parallax above, and the tilted view's scale), and the difference enters
 the bar in full (:func:`_unexplained_shift`; the report's ``uncertainty.unexplained_shift``).
+
+A contact (the obstacle touches the vessel's own region) reads long by up to the region's
+margin: the own region is the projected hull grown by ``pose_margin_px``, and by
+``own_rim_px`` more of ship pixels, and an obstacle's pixels under it are not seen. Where
+the obstacle truly ends nearer (seen obliquely, a quay's face under the hull's skirt; a
+neighbour moored against the hull), the reading lies up to ``m = k · (|u·J_u| + |u·J_v|)``
+beyond it, ``k`` the pixels cut (the margin, and the rim where the contact is ship), one
+sided. The bar takes it as ``sigma += m / 1.645`` (systematic), so that the lower bound
+reaches ``m`` further in.
 
 Parts: ``sigma_random_m`` holds what changes from frame to frame (pixel grid, mask edge,
 the alignment); the rest (GPS, compasses, height, tilt, clock) drifts slowly and is not
@@ -108,6 +120,9 @@ LOWER_BOUND_QUANTILE = 0.05
 #: the alignment's Gauss-Newton covariance treats outline points as independent, which
 #: they are not (a mask's edge errors run along the edge): inflate its variance by this
 REFINEMENT_COVARIANCE_SCALE = 25.0
+#: chi-square's 99th percentile with 3 and 4 degrees of freedom: a correction the alignment
+#: found within this of zero (its covariance scaled as above) confirms the sensors' pose
+_CHI2_99 = {3: 11.345, 4: 13.277}
 #: the solid probability at which the model counts as sure of an obstacle (calibrated on
 #: the seed-7 bench's frames 0-259, validated on 260-519: docs/results.md)
 CONFIDENT_SOLID_P = 0.9
@@ -483,6 +498,25 @@ def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
     return polygons[0], polygons[1]
 
 
+def image_confirms_sensors(refinement: PoseRefinement) -> bool:
+    """Whether an alignment that kept the sensors' pose (``SENSORS_FIT``) places the hull:
+    the correction it found, ``p = (de, dn, dpsi[, dh])``, lies within the 99 % ellipse of
+    zero under its covariance scaled by :data:`REFINEMENT_COVARIANCE_SCALE`,
+    ``pᵀ C⁻¹ p <= chi²₉₉``. A correction beyond it (a height error found and not applied)
+    stays in the distances."""
+    covariance = refinement.covariance
+    if refinement.reason != SENSORS_FIT or covariance is None:
+        return False
+    covariance = REFINEMENT_COVARIANCE_SCALE * np.asarray(covariance, float)
+    found = [*refinement.shift_m, math.radians(refinement.rotation_deg), refinement.height_change_m]
+    found = np.array(found[:len(covariance)], float)
+    try:
+        chi2 = float(found @ np.linalg.solve(covariance, found))
+    except np.linalg.LinAlgError:
+        return False
+    return math.isfinite(chi2) and chi2 <= _CHI2_99.get(len(found), math.inf)
+
+
 def add_section_uncertainty(
     sections: list[SectionClearance], geometry: FrameGeometry, outline_enu: np.ndarray,
     refinement: PoseRefinement, sigmas: SensorSigmas,
@@ -490,6 +524,7 @@ def add_section_uncertainty(
     confidence: SolidConfidence | None = None, labels: np.ndarray | None = None,
     vessel_points_enu: np.ndarray | None = None, outline_sigma_m: float = 0.0,
     vessel_layers_enu: list[np.ndarray] | None = None,
+    own_margin_px: float = 0.0, own_rim_px: float = 0.0,
 ) -> dict | None:
     """Set ``sigma_m``, ``sigma_random_m`` and ``distance_lower_m`` of every ``ok`` section
     with a finite distance (module docstring). ``geometry`` is the one the distances were
@@ -500,7 +535,8 @@ def add_section_uncertainty(
     vessel's hull points (above the waterline), for its shadow when the sun is known, and
     ``vessel_layers_enu`` its layers' points, for the silhouette the alignment fits (the
     hull points' hull when not given); ``outline_sigma_m`` the hull outline's own one
-    sigma against the real hull (a hull drawn from AIS dimensions). Returns what
+    sigma against the real hull (a hull drawn from AIS dimensions); ``own_margin_px`` and
+    ``own_rim_px`` the own region's margin and ship rim (the contacts' cut). Returns what
     :func:`_unexplained_shift` found
     (``shift_sigmas``, ``tilt_deg``, ``height_m``) when it widened the bars, else None."""
     ok = [s for s in sections if s.status == STATUS_OK and s.distance_m is not None
@@ -523,9 +559,8 @@ def add_section_uncertainty(
     systematic = np.zeros(len(ok))
     random = np.zeros(len(ok))
     # the hull is placed by the image when the alignment moved it, and also when it found
-    # the sensors' pose fitting as well as any correction would
-    refined = refinement.applied or (refinement.reason == SENSORS_FIT
-                                     and refinement.covariance is not None)
+    # the sensors' pose fitting as well as any correction would, that correction near zero
+    refined = refinement.applied or image_confirms_sensors(refinement)
     if refined:
         if outline_px is None:
             outline = np.asarray(outline_enu, float)[:, :2]
@@ -626,6 +661,15 @@ def add_section_uncertainty(
         random += (spill / _CONFIDENT_Z) ** 2
 
     total = np.sqrt(systematic + random)
+    if contact.any() and own_margin_px + own_rim_px > 0:
+        # the own region's margin (and, for a ship, its rim) may hide the contact's nearer
+        # edge: the bound reaches that far further in (module docstring)
+        cut_px = np.full(len(ok), float(own_margin_px))
+        if labels is not None and own_rim_px > 0:
+            u_px = np.clip(np.rint(obstacle_px[:, 0]).astype(int), 0, labels.shape[1] - 1)
+            v_px = np.clip(np.rint(obstacle_px[:, 1]).astype(int), 0, labels.shape[0] - 1)
+            cut_px += np.where(labels[v_px, u_px] == SHIP, float(own_rim_px), 0.0)
+        total = total + np.where(contact, np.nan_to_num(cut_px * (along_u + along_v)), 0.0) / LOWER_BOUND_Z
     for section, sigma, sigma_random in zip(ok, total, np.sqrt(random), strict=True):
         if not math.isfinite(sigma):
             continue
