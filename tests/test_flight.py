@@ -426,34 +426,91 @@ def test_frames_naming_one_image_do_not_overwrite_each_other(tmp_path):
         "000003.json", "000004.json", "flight-000001.json", "flight-000002.json", "flight.json"]
 
 
-def test_a_video_its_container_turns_is_refused(monkeypatch, tmp_path):
-    """A container's rotation (a phone video held upside down: 180 degrees) is applied by
-    OpenCV as it reads the frames: same size, pixels turned, the metadata no longer theirs.
-    No video with such a tag can be written here (FFmpeg's muxer drops PyAV's `rotate`), so
-    the capture is a stand-in that reports it, as OpenCV's does."""
+def _write_timed_video(path: Path, times_s: list[float], size=(64, 36)) -> None:
+    """An H.264 MP4 (PyAV) whose frames are shown at ``times_s``, each frame k a grey level
+    of 8 k with a white block in its top-left corner (the stored picture's own corner)."""
+    from fractions import Fraction
+
+    import av
+
+    base = Fraction(1, 90000)
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=30)
+        stream.width, stream.height, stream.pix_fmt = size[0], size[1], "yuv420p"
+        stream.time_base = stream.codec_context.time_base = base
+        stream.options = {"bf": "0"}
+        for k, t in enumerate(times_s):
+            picture = np.full((size[1], size[0], 3), 8 * k, np.uint8)
+            picture[:8, :8] = 255
+            frame = av.VideoFrame.from_ndarray(picture, format="bgr24")
+            frame.pts, frame.time_base = round(t / base), base
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+def _turn_video(path: Path, size=(64, 36)) -> None:
+    """Set the MP4 track header's display matrix to a 180 degree turn, as a phone held upside
+    down writes it (tkhd: version, flags, then 20 or 32 bytes of times and ids, 16 of
+    layer, group and volume, then the 3x3 matrix in 16.16 and 2.30 fixed point)."""
+    import struct
+
+    data = bytearray(path.read_bytes())
+    tkhd = data.find(b"tkhd")
+    matrix_at = tkhd + 8 + (20 if data[tkhd + 4] == 0 else 32) + 16
+    one = 1 << 16
+    data[matrix_at:matrix_at + 36] = struct.pack(">9i", -one, 0, 0, 0, -one, 0, size[0] * one,
+                                                 size[1] * one, 1 << 30)
+    path.write_bytes(bytes(data))
+
+
+def _one_metadata_line(path: Path) -> None:
+    """A metadata file with one line (the bundled flight's first frame, for video frame 0)."""
+    record = json.loads((SAMPLES / "flight" / "frames" / "000000.json").read_text())
+    path.write_text(json.dumps({**record, "frame_index": 0}) + "\n")
+
+
+def test_a_video_its_container_turns_is_read_as_stored(tmp_path):
+    """A container asking players to turn the picture (a phone video held upside down: 180
+    degrees) is read with OpenCV's auto-rotation off: the frames are the camera's pixels as
+    stored, which the metadata describes (the white block stays top-left), and the run
+    records the rotation asked for. It was refused as if OpenCV turned the frames."""
     from harborsight.flight import sources
 
-    class Turned:
-        def __init__(self, path):
-            self.path = path
-
-        def isOpened(self):
-            return True
-
-        def get(self, prop):
-            return 180.0 if prop == cv2.CAP_PROP_ORIENTATION_META else 0.0
-
-        def release(self):
-            pass
-
-    (tmp_path / "flight.mp4").write_bytes(b"x")
-    (tmp_path / "flight.jsonl").write_text("")
-    monkeypatch.setattr(sources.cv2, "VideoCapture", Turned)
-    with pytest.raises(InputError, match=r"flight\.mp4: rotation: .*turn the picture 180 degrees"):
-        sources.VideoSource(tmp_path / "flight.mp4", tmp_path / "flight.jsonl")
-    monkeypatch.undo()
+    video = tmp_path / "flight.mp4"
+    _write_timed_video(video, [k / 30 for k in range(3)])
+    _turn_video(video)
+    _one_metadata_line(tmp_path / "flight.jsonl")
+    capture = cv2.VideoCapture(str(video))
+    assert sources.video_rotation_deg(capture) == 180.0
+    capture.release()
+    source = sources.VideoSource(video, tmp_path / "flight.jsonl")
+    frames = [f for f in source.frames() if f.is_frame]
+    assert source.rotation_deg == 180.0 and len(frames) == 3
+    for frame in frames:
+        assert frame.image.shape == (36, 64, 3)
+        assert frame.image[:8, :8].mean() > 240 and frame.image[-8:, -8:].mean() < 40
     real = cv2.VideoCapture(str(SAMPLES / "flight" / "logs" / "flight.mp4"))
     assert sources.video_rotation_deg(real) == 0.0          # the bundled flight has none
+
+
+def test_a_video_frame_s_time_is_its_presentation_time_not_its_index_over_the_mean_rate(tmp_path):
+    """A variable-frame-rate video (15 frames at 30 fps, then 15 at 10 fps, as a phone or a
+    drone in low light records): the container's mean rate is 15 fps, and frame 14 shown at
+    0.467 s was taken as 0.933 s. Each frame's time is now its presentation time, in `run`
+    and in the frame times `telemetry video` pairs with the logs."""
+    from harborsight.flight import sources
+
+    times = [k / 30 for k in range(15)] + [14 / 30 + (k + 1) / 10 for k in range(15)]
+    video = tmp_path / "vfr.mp4"
+    _write_timed_video(video, times)
+    _one_metadata_line(tmp_path / "vfr.jsonl")
+    source = sources.VideoSource(video, tmp_path / "vfr.jsonl")
+    read = [f.video_time_s for f in source.frames() if f.is_frame]
+    np.testing.assert_allclose(read, times, atol=1e-3)
+    np.testing.assert_allclose(sources.video_frame_times_s(video), times, atol=1e-3)
+    assert abs(14 / source.container_fps - times[14]) > 0.4       # what the index gave
 
 
 def test_overlay_labels_do_not_cover_each_other(monkeypatch):
@@ -532,6 +589,35 @@ def test_flight_clock_is_fixed_by_the_first_frame():
     assert clock.seconds(FlightFrame(2, "f2", meta=later)) == 1.5
     clock = FlightClock()      # video positions count from the video's start
     assert clock.seconds(FlightFrame(90, "f90", meta=untimed, video_time_s=3.0)) == 3.0
+
+
+def test_timestamps_that_drift_from_the_video_are_said_once():
+    """Metadata lines at the telemetry's 1 Hz paired one to one with a 2 fps video's frames:
+    the timestamps run twice as fast as the video (closing speeds halved). A constant offset
+    between the two clocks is fine; a drift past a quarter second is said, once."""
+    from harborsight.flight.runner import FlightClock
+    from harborsight.flight.sources import FlightFrame
+    from harborsight.frame import load_frame_metadata
+
+    meta = load_frame_metadata(SAMPLES / "frames" / "000000.json")
+
+    def at(k: int, stamp_s: float, video_s: float) -> FlightFrame:
+        stamp = f"2026-05-01T12:00:{stamp_s:06.3f}Z"
+        return FlightFrame(k, f"f{k}", meta=dataclasses.replace(meta, timestamp=stamp),
+                           video_time_s=video_s)
+
+    clock = FlightClock()      # offset by 7 s, in step
+    for k in range(6):
+        clock.seconds(at(k, 7.0 + 0.5 * k, 0.5 * k))
+    assert clock.drift_warning is None
+    clock = FlightClock()      # 1 Hz lines on 2 fps frames
+    said = []
+    for k in range(6):
+        clock.seconds(at(k, 1.0 * k, 0.5 * k))
+        said.append(clock.drift_warning)
+        clock.drift_warning = None
+    assert said[0] is None and "drift apart" in said[1] and "frame_index" in said[1]
+    assert not any(said[2:])
 
 
 def _write_video(path: Path, images: list[Path], fps: float) -> None:

@@ -638,6 +638,54 @@ def test_the_readmes_telemetry_example_runs_on_the_bundled_logs(tmp_path):
     assert len(out.read_text().splitlines()) == 48
 
 
+def test_telemetry_video_places_each_frame_at_its_own_time_in_the_video(tmp_path):
+    """The bundled flight recorded with dropped frames (frames 4 and 5 missing: the video's
+    mean rate is below 2 fps): each frame's pose is the logs' at its presentation time, not
+    at n / fps. `--fps` against the video's own rate, or `--image-size` against its frames,
+    is refused: they would silently replace what the video says."""
+    from fractions import Fraction
+
+    import av
+    import cv2
+
+    logs = FLIGHT / "logs"
+    times = [0.0, 0.5, 1.0, 1.5, 3.0, 3.5, 4.0, 4.5]
+    base = Fraction(1, 1000)
+    video = tmp_path / "dropped.mp4"
+    capture = cv2.VideoCapture(str(logs / "flight.mp4"))
+    pictures = [capture.read()[1] for _ in range(10)]
+    capture.release()
+    with av.open(str(video), "w") as out:
+        stream = out.add_stream("libx264", rate=2)
+        stream.width, stream.height, stream.pix_fmt = 640, 360, "yuv420p"
+        stream.time_base = stream.codec_context.time_base = base
+        stream.options = {"bf": "0"}
+        for t in times:
+            frame = av.VideoFrame.from_ndarray(pictures[round(2 * t)], format="bgr24")
+            frame.pts, frame.time_base = round(t / base), base
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    common = ["telemetry", "video", str(logs / "flight.SRT"), "--vessel-track",
+              str(logs / "ship.nmea"), "--video", str(video), "--camera", "dji-mavic3",
+              "--video-start", "2026-05-01T12:00:00Z", "--water-level-m", "0"]
+    out = tmp_path / "dropped.jsonl"
+    result = runner.invoke(app, [*common, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    written = [json.loads(line) for line in out.read_text().splitlines()]
+    stamps = [datetime.fromisoformat(f["timestamp"].replace("Z", "+00:00")) for f in written]
+    seconds = [(t - stamps[0]).total_seconds() for t in stamps]
+    np.testing.assert_allclose(seconds, times, atol=2e-3)
+    truth = [json.loads((FLIGHT / "frames" / f"{round(2 * t):06d}.json").read_text()) for t in times]
+    for frame, true in zip(written, truth, strict=True):
+        assert abs(frame["uav"]["lat"] - true["uav"]["lat"]) < 2e-6          # 0.2 m
+        assert abs(frame["vessel"]["lat"] - true["vessel"]["lat"]) < 2e-6
+    for extra, option in ((["--fps", "25"], "--fps"), (["--image-size", "1280x720"], "--image-size")):
+        result = runner.invoke(app, [*common, *extra, "--out", str(tmp_path / "x.jsonl")])
+        assert result.exit_code == 2 and option in result.output, result.output
+
+
 def test_srt_damage_is_noted_not_fatal(tmp_path):
     text = (DJI / "p4_rtk.SRT").read_text(encoding="utf-8")
     cut = tmp_path / "cut.SRT"                    # recording stopped inside the last block

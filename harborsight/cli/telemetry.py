@@ -158,13 +158,14 @@ def telemetry_video(
         "`telemetry show`): e.g. -3.5 for a DJI take-off from a deck 3.5 m above the water.")],
     out: Annotated[Path, typer.Option(help="JSON lines to write, one object per frame.")],
     video: Annotated[Path | None, typer.Option(
-        help="The video: its frame count, rate and size.")] = None,
+        help="The video: its size, its frame count and each frame's own presentation time "
+        "(a variable-frame-rate video's frames are not n / fps).")] = None,
     frames: Annotated[int | None, typer.Option(
         min=1, max=MAX_VIDEO_FRAMES,
-        help="Frame count, without --video.")] = None,
+        help="Frame count; with --video, write only its first this many frames.")] = None,
     fps: Annotated[float | None, typer.Option(
         min=0.1, max=MAX_VIDEO_FPS,
-        help="Frame rate, without --video.")] = None,
+        help="Frame rate, without --video (with it, the video's own frame times are used).")] = None,
     image_size: Annotated[str | None, typer.Option(
         help="WIDTHxHEIGHT of the frames, without --video.")] = None,
     video_start: Annotated[str | None, typer.Option(
@@ -207,22 +208,39 @@ def telemetry_video(
         prepare_output_file(out, "--out")
         if mount not in MOUNTS:
             raise InputError(None, "--mount", f"{mount!r}: expected one of {', '.join(MOUNTS)}")
-        width = height = None
+        width = height = frame_times_s = None
         if video is not None:
-            capture = cv2.VideoCapture(str(video))
-            if not capture.isOpened():
-                raise InputError(video, None, "cannot open the video")
-            frames = frames or int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-            fps = fps or float(capture.get(cv2.CAP_PROP_FPS))
+            from harborsight.flight.sources import open_video, video_frame_times_s
+
+            capture = open_video(video)
+            container_fps = float(capture.get(cv2.CAP_PROP_FPS))
             width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
             height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+            count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
             capture.release()
-            if frames <= 0 or not fps or fps <= 0:
+            if fps is not None and container_fps > 0 and abs(fps / container_fps - 1) > 1e-3:
+                raise InputError(None, "--fps", f"{fps:g} with --video, whose container says "
+                                 f"{container_fps:g} fps: each frame is placed at its own time "
+                                 "in the video; leave --fps out")
+            if image_size:
+                raise InputError(None, "--image-size", f"with --video, whose frames are "
+                                 f"{width}x{height}: leave it out (the camera block takes the "
+                                 "video's size)")
+            # each frame at its presentation time: a variable-frame-rate video (a phone, a
+            # drone in low light) or one with dropped frames is not n / fps
+            frame_times_s = video_frame_times_s(video)
+            if frame_times_s is not None:
+                count = len(frame_times_s)
+            fps = fps or container_fps
+            frames = min(frames or count, count) if count > 0 else frames
+            if not frames or frames <= 0 or not fps or fps <= 0:
                 raise InputError(video, None, "could not read the frame count and rate: give "
                                  "--frames and --fps")
             if frames > MAX_VIDEO_FRAMES or fps > MAX_VIDEO_FPS:
                 raise InputError(video, None, f"implausible frame count {frames} or rate "
                                  f"{fps:g}/s in the container: give --frames and --fps")
+            if frame_times_s is not None:
+                frame_times_s = frame_times_s[:frames]
         if image_size:
             size = re.fullmatch(r"(\d{1,6})x(\d{1,6})", image_size.strip().lower())
             if size is None or not 1 <= min(int(size[1]), int(size[2])) <= max(
@@ -237,7 +255,8 @@ def telemetry_video(
         vessel = read_vessel_track(vessel_track, mmsi=mmsi, allow_cog_heading=allow_cog_heading)
         camera_block = camera_block_for(camera, width, height, drone_log)
         result = build_video_metadata(
-            drone, vessel, camera_block, frames, fps, water_level_m=water_level_m,
+            drone, vessel, camera_block, frames, fps, frame_times_s=frame_times_s,
+            water_level_m=water_level_m,
             mount=CameraMount(mount, camera_pitch_deg, camera_yaw_deg), video_start_utc=start,
             vessel_offset_s=vessel_offset_s, max_gap_s=max_gap_s)
     except HarborsightError as exc:

@@ -121,6 +121,11 @@ class _VideoWriter:
             self.writer.release()
 
 
+#: a frame's timestamp and its position in the video may drift apart this much before
+#: the run says so (seconds; a constant offset between the clocks is fine)
+DRIFT_SAID_S = 0.25
+
+
 class FlightClock:
     """One time base for a run, fixed by the first frame that has a time: ``timestamp`` when
     that frame has one (a later frame without one raises: mixing clocks would corrupt the
@@ -128,14 +133,41 @@ class FlightClock:
     cannot be read), else the video position. Until then every time is None.
 
     Timestamps count from the first timestamped frame; video positions from the video's
-    start, so that ``time_s`` of a video run is the time in the video."""
+    start, so that ``time_s`` of a video run is the time in the video.
+
+    Where frames have both, the two must keep step: a constant offset is a clock's, but
+    a drift of more than :data:`DRIFT_SAID_S` means metadata lines paired with the wrong
+    frames (lines written at the telemetry's rate without ``frame_index``, a video with
+    dropped frames): :attr:`drift_warning` says so, once."""
 
     def __init__(self) -> None:
         self.base: str | None = None        # "timestamp" or "video"; None until a frame has one
         self.start_s: float | None = None
+        self._pair_start: tuple[float, float] | None = None   # (timestamp, video time)
+        #: set once, when a frame's timestamp and video position drift apart (for run.json)
+        self.drift_warning: str | None = None
+        self._drift_said = False
+
+    def _check_drift(self, frame: FlightFrame, stamp: float) -> None:
+        if frame.video_time_s is None or self._drift_said:
+            return
+        if self._pair_start is None:
+            self._pair_start = (stamp, frame.video_time_s)
+            return
+        drift = (stamp - self._pair_start[0]) - (frame.video_time_s - self._pair_start[1])
+        if abs(drift) > DRIFT_SAID_S:
+            self._drift_said = True
+            self.drift_warning = (
+                f"timestamp: {stamp - self._pair_start[0]:.2f} s after the first timed frame, "
+                f"but {frame.video_time_s - self._pair_start[1]:.2f} s later in the video: the "
+                "metadata lines and the video frames drift apart (lines at the telemetry's "
+                "rate paired one to one with frames? give each line its frame_index); the "
+                "timestamps are used")
 
     def seconds(self, frame: FlightFrame) -> float | None:
         stamp = timestamp_seconds(frame.meta)
+        if stamp is not None:
+            self._check_drift(frame, stamp)
         if self.base is None:
             if stamp is not None:
                 self.base, self.start_s = "timestamp", stamp
@@ -269,6 +301,9 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
             except InputError as exc:
                 time_s = None
                 warnings.append(f"{exc}: measured, but left out of the closing speeds")
+            if clock.drift_warning is not None:
+                warnings.append(f"{frame.source}: {clock.drift_warning}")
+                clock.drift_warning = None
         mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source)
         report = measure_mask(mask, frame.meta, vessels.for_frame(frame.meta, frame.meta_path),
                               options.settings)

@@ -11,6 +11,13 @@ non-blank line belongs to the n-th frame. ``image`` may be omitted (it names the
 the default is ``<video stem>-<index>.png``). Video frames without a metadata line are
 written to the annotated video unmeasured and counted, not reported as errors: telemetry is
 often slower than the camera.
+
+A video frame's position in the video is its presentation time (OpenCV's
+``CAP_PROP_POS_MSEC`` after reading it, from the first frame's), not its index over the
+container's mean rate: a variable-frame-rate video (phones, drones in low light) or one
+with dropped frames has frames far from ``n / fps``. Videos are opened with OpenCV's
+auto-rotation off (:func:`open_video`): the frames are the camera's pixels as stored, which
+the metadata describes, whatever display rotation the container asks for.
 """
 
 from __future__ import annotations
@@ -213,23 +220,51 @@ def read_metadata_lines(path: Path, video_stem: str, camera: CameraIntrinsics | 
 
 
 def video_rotation_deg(capture) -> float:
-    """The rotation a video's container asks for (a phone's display matrix or ``rotate``
-    tag), which OpenCV's FFmpeg reader applies to every frame; 0 when none. A picture turned
-    by 180 degrees keeps its size, so nothing else would notice it."""
+    """The rotation a video's container asks players for (a phone's display matrix or
+    ``rotate`` tag); 0 when none."""
     value = capture.get(cv2.CAP_PROP_ORIENTATION_META)
     return float(value) % 360.0 if math.isfinite(value) else 0.0
 
 
-def refuse_turned_video(capture, video: Path) -> None:
-    """:class:`InputError` naming ``rotation`` for a video its container turns (the capture
-    is released first)."""
+def open_video(video: Path) -> cv2.VideoCapture:
+    """An opened capture of ``video`` that reads its frames as stored: OpenCV's
+    auto-rotation is turned off, so that a container asking players to turn the picture
+    does not turn the camera's pixels away from what the metadata describes (a picture
+    turned by 180 degrees keeps its size, so nothing else would notice). :class:`InputError`
+    when it cannot be opened, or where this OpenCV keeps turning such a video."""
+    capture = cv2.VideoCapture(str(video))
+    if not capture.isOpened():
+        raise InputError(video, None, "cannot open the video (unknown format or corrupt)")
     turned = video_rotation_deg(capture)
     if turned:
-        capture.release()
-        raise InputError(video, "rotation", f"the container asks players to turn the picture "
-                         f"{turned:g} degrees, and OpenCV does as it reads it, so the frames "
-                         "are not the camera's pixels that the metadata describes; re-mux "
-                         "the video without its rotation")
+        capture.set(cv2.CAP_PROP_ORIENTATION_AUTO, 0)
+        if capture.get(cv2.CAP_PROP_ORIENTATION_AUTO) != 0:
+            capture.release()
+            raise InputError(video, "rotation", f"the container asks players to turn the "
+                             f"picture {turned:g} degrees, and this OpenCV turns it as it reads "
+                             "it, so the frames are not the camera's pixels that the metadata "
+                             "describes; re-mux the video without its rotation")
+    return capture
+
+
+def video_frame_times_s(video: Path) -> np.ndarray | None:
+    """Each frame's presentation time (s from the first) in display order, from the
+    container's packets (PyAV, no decoding); None when the stream's packets carry no times
+    (a raw elementary stream) or it cannot be read."""
+    import av
+
+    try:
+        with av.open(str(video)) as container:
+            stream = container.streams.video[0]
+            base = stream.time_base
+            pts = [packet.pts for packet in container.demux(stream)
+                   if packet.pts is not None and packet.size > 0]
+    except (av.error.FFmpegError, IndexError, OSError, ValueError):
+        return None
+    if not pts or base is None:
+        return None
+    times = np.sort(np.array(pts, float)) * float(base)
+    return times - times[0]
 
 
 class VideoSource:
@@ -240,10 +275,9 @@ class VideoSource:
         self.metadata = metadata
         if not video.is_file():
             raise InputError(video, None, "video file not found")
-        capture = cv2.VideoCapture(str(video))
-        if not capture.isOpened():
-            raise InputError(video, None, "cannot open the video (unknown format or corrupt)")
-        refuse_turned_video(capture, video)
+        capture = open_video(video)
+        #: the display rotation the container asks for (the frames are read as stored)
+        self.rotation_deg = video_rotation_deg(capture)
         self.container_fps = plausible_fps(capture.get(cv2.CAP_PROP_FPS))
         count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0
@@ -260,15 +294,24 @@ class VideoSource:
         for message in self.orphans:
             yield FlightFrame(-1, str(self.metadata), meta_path=self.metadata, error=message,
                               is_frame=False)
-        capture = cv2.VideoCapture(str(self.video))
+        capture = open_video(self.video)
         index = -1
+        first_ms = previous_s = None
         try:
             while True:
                 ok, image = capture.read()
                 if not ok:
                     break
                 index += 1
-                video_time_s = index / self.container_fps if self.container_fps else None
+                # the frame's presentation time; the index over the mean rate only where
+                # the container gives no increasing times
+                position_ms = capture.get(cv2.CAP_PROP_POS_MSEC)
+                first_ms = position_ms if first_ms is None else first_ms
+                video_time_s = ((position_ms - first_ms) / 1000.0
+                                if math.isfinite(position_ms) else None)
+                if video_time_s is None or (previous_s is not None and video_time_s <= previous_s):
+                    video_time_s = index / self.container_fps if self.container_fps else None
+                previous_s = video_time_s
                 entry = self.by_frame.get(index)
                 frame = FlightFrame(index, f"{self.video} frame {index}", image=image,
                                     meta_path=self.metadata, video_time_s=video_time_s)

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import cv2
 
-from harborsight.errors import InputError
-from harborsight.flight.sources import FlightFrame, VideoSource, refuse_turned_video
+from harborsight.flight.sources import FlightFrame, VideoSource, open_video
 
 
 @dataclass
@@ -75,15 +74,12 @@ class VideoFrames:
     source for :func:`replay_video`, to rehearse a stream from a file."""
 
     def __init__(self, video: Path) -> None:
-        capture = cv2.VideoCapture(str(video))
-        if not capture.isOpened():
-            raise InputError(video, None, "cannot open the video")
-        refuse_turned_video(capture, video)
+        capture = open_video(video)
         self.video, self.fps = video, capture.get(cv2.CAP_PROP_FPS) or None
         capture.release()
 
     def frames(self) -> Iterator[FlightFrame]:
-        capture = cv2.VideoCapture(str(self.video))
+        capture = open_video(self.video)
         try:
             index = 0
             while True:

@@ -158,19 +158,23 @@ def build_video_metadata(
     drone: Track, vessel: Track, camera: dict, n_frames: int, fps: float, *,
     water_level_m: float, mount: CameraMount = CameraMount(),
     video_start_utc: datetime | None = None, vessel_offset_s: float = 0.0,
-    max_gap_s: float = 1.0,
+    max_gap_s: float = 1.0, frame_times_s: np.ndarray | None = None,
 ) -> FrameMetadataResult:
     """One ``harborsight.frame/1`` dict per frame of the video (``frame_index`` keyed), with
-    the drone and vessel sampled at the frame's time. A frame whose time falls outside a track
-    or in a gap (:meth:`Track.sample`) is skipped with the reason. A naive
-    ``video_start_utc`` is taken as UTC."""
+    the drone and vessel sampled at the frame's time: ``frame_times_s[n]`` (its presentation
+    time in the video, from the first frame's) when given, else ``n / fps``. A frame whose
+    time falls outside a track or in a gap (:meth:`Track.sample`) is skipped with the
+    reason. A naive ``video_start_utc`` is taken as UTC."""
     if n_frames < 1 or not (fps > 0):
         raise ValueError("need at least one frame and a positive frame rate")
+    if frame_times_s is not None and len(frame_times_s) < n_frames:
+        raise ValueError(f"{len(frame_times_s)} frame times for {n_frames} frames")
     if video_start_utc is not None and video_start_utc.tzinfo is None:
         video_start_utc = video_start_utc.replace(tzinfo=UTC)     # naive: taken as UTC
     if drone.alt_m is None:
         raise InputError(drone.source, "altitude", "the log has no altitude")
-    video_s = np.arange(n_frames) / fps
+    video_s = (np.asarray(frame_times_s[:n_frames], float) if frame_times_s is not None
+               else np.arange(n_frames) / fps)
     if drone.kind == "dji-srt":
         drone_t = video_s
         start_utc = video_start_utc or drone.utc_at(0.0)
