@@ -439,6 +439,52 @@ def test_a_correction_found_and_not_applied_leaves_the_sensors_bar():
     assert (bars(near_zero) < bars(OFF)).all()
 
 
+def test_a_nearest_point_where_an_oblique_quay_leaves_its_band_slides_with_the_hull(tmp_path):
+    """A quay whose edge runs 22 degrees off the hull's side (e = 9 + 0.4 n): in every band
+    beside it the nearest point is where the edge leaves the band, on its boundary ray, and
+    a turn of the hull turns the ray and slides that point along the edge. Read with the
+    point held fixed, the bar's heading part was 0.00-0.10 m a degree where the distances
+    move 0.36-1.33 m a degree; read along the slide, each section's heading part is within
+    10 % of the finite difference over +-1 degree (or above it, never below)."""
+    import dataclasses
+
+    import yaml
+
+    from harborsight.clearance.measure import measure_clearance
+    from harborsight.perception.classes import OBSTACLE, SHIP, WATER
+
+    (tmp_path / "box.yaml").write_text(yaml.safe_dump({"dimensions": {
+        "to_bow": 10, "to_stern": 10, "to_port": 3, "to_starboard": 3}}))
+    vessel = load_vessel_spec(tmp_path / "box.yaml")
+    geometry = _nadir()
+    u, v = np.meshgrid(np.arange(1000.0), np.arange(1000.0))
+    ground, _ = geometry.camera.back_project_to_plane(np.column_stack((u.ravel(), v.ravel())))
+    east, north = ground[:, 0].reshape(1000, 1000), ground[:, 1].reshape(1000, 1000)
+    labels = np.full((1000, 1000), WATER, np.uint8)
+    labels[east >= 9.0 + 0.4 * north] = OBSTACLE
+    hull_enu = geometry.vessel_to_enu(vessel.outline)[:, :2]
+    hull_px = geometry.camera.project(np.column_stack((hull_enu, np.zeros(len(hull_enu)))))[0]
+    cv2.fillPoly(labels, [np.rint(hull_px).astype(np.int32)], SHIP)
+    settings = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+
+    def measured(heading_deg: float, sigmas: SensorSigmas) -> dict[int, SectionClearance]:
+        turned = dataclasses.replace(
+            geometry, vessel_heading_rad=geometry.vessel_heading_rad + math.radians(heading_deg))
+        report = measure_clearance(labels, turned, vessel, settings, sigmas=sigmas)
+        return {s.index: s for s in report.sections if s.status == "ok"}
+
+    with_heading = measured(0.0, dataclasses.replace(ZERO, vessel_heading_deg=1.0))
+    without = measured(0.0, ZERO)
+    left, right = measured(-1.0, ZERO), measured(1.0, ZERO)
+    sliding = 0
+    for k, section in with_heading.items():
+        slope = abs(right[k].distance_m - left[k].distance_m) / 2.0
+        heading_part = math.sqrt(max(section.sigma_m ** 2 - without[k].sigma_m ** 2, 0.0))
+        assert 0.9 * slope <= heading_part <= 1.6 * slope + 0.05, (k, slope, heading_part)
+        sliding += section.crossing_edge_px is not None and slope > 0.3
+    assert sliding >= 4
+
+
 def test_rigid_fits_leave_out_what_a_perturbed_camera_puts_past_the_horizon():
     """The hull 53-73 m ahead of a camera 10 m up (10.7 to 7.8 degrees below the horizon): a
     9 degree tilt error puts the far part of the outline past the horizon for the camera

@@ -189,7 +189,9 @@ def _sections_in_image(sections_v: SectionedOutline, geometry: FrameGeometry) ->
 
 @dataclass(frozen=True)
 class _Candidates:
-    """Obstacle points with their section, distance and nearest hull point."""
+    """Obstacle points with their section, distance and nearest hull point; a crossing
+    of a band's boundary ray also carries the obstacle edge's direction there (pixels; zero
+    for any other point), which decides how far the crossing slides when the hull turns."""
 
     section: np.ndarray
     distance: np.ndarray
@@ -197,12 +199,13 @@ class _Candidates:
     points_px: np.ndarray
     contact: np.ndarray
     on_border: np.ndarray
+    edge_px: np.ndarray
 
     @classmethod
     def empty(cls) -> _Candidates:
         none = np.zeros(0)
         return cls(none.astype(int), none, np.zeros((0, 2)), np.zeros((0, 2)),
-                   none.astype(bool), none.astype(bool))
+                   none.astype(bool), none.astype(bool), np.zeros((0, 2)))
 
     @classmethod
     def joined(cls, *parts: _Candidates) -> _Candidates:
@@ -251,7 +254,67 @@ def _band_crossings(
     return _Candidates(
         section=twice(a[pair], b[pair]), distance=twice(dist), nearest=twice(origin),
         points_px=twice(cross_px), contact=twice(contact), on_border=twice(border),
+        edge_px=twice(_contour_direction_px(contours, pair, nxt[pair])),
     )
+
+
+#: contour steps each way over which an obstacle edge's direction is taken (a pixel
+#: staircase's single step is off by up to 45 degrees; over ten, by about 6)
+_EDGE_STEPS = 10
+
+
+def _contour_direction_px(contours, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """The contour's direction (pixels) over the stretch from :data:`_EDGE_STEPS` points
+    before ``first`` to as many after ``last`` (``first == last`` for one point)."""
+    nxt = contours.next_index
+    previous = np.empty_like(nxt)
+    previous[nxt] = np.arange(len(nxt))
+    ahead, behind = np.asarray(last).copy(), np.asarray(first).copy()
+    for _ in range(_EDGE_STEPS):
+        ahead, behind = nxt[ahead], previous[behind]
+    points_px = contours.points_px.astype(float)
+    return points_px[ahead] - points_px[behind]
+
+
+#: how many contour steps from a band's boundary ray a section's nearest point may lie and
+#: still be where the obstacle edge leaves the band
+_ON_RAY_STEPS = 3.0
+
+
+def _beside_a_boundary_ray(outline: SectionedOutline, points: np.ndarray, idx: np.ndarray,
+                           section: np.ndarray, distance: np.ndarray, contours
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the contour points ``idx`` (each its band's nearest) are where the obstacle
+    edge leaves the band across a boundary ray, as a crossing is, and the contour's
+    direction there (pixels, from the point before to the one after): within
+    :data:`_ON_RAY_STEPS` contour steps of one of the band's two boundary rays, with the
+    contour going on nearer to the hull across it (a pixel staircase puts the band's
+    nearest pixel up to a few pixels short of the ray). A turn of the hull slides such a
+    point along the edge; a nearest point the edge curves away from on both sides (a
+    corner, a bend) stays. ``section`` and ``distance``: every contour point's band and
+    distance to its own nearest hull point."""
+    if len(idx) == 0 or outline.n_sections < 2:
+        return np.zeros(len(idx), bool), np.zeros((0, 2))
+    nxt = contours.next_index
+    previous = np.empty_like(nxt)
+    previous[nxt] = np.arange(len(nxt))
+    ahead, behind = nxt[idx], previous[idx]
+    step = np.maximum(np.hypot(*(points[ahead] - points[idx]).T),
+                      np.hypot(*(points[idx] - points[behind]).T))
+    own = section[idx]
+    near = np.zeros(len(idx), bool)
+    for k in (own, (own + 1) % outline.n_sections):
+        near |= _near_ray(points[idx], outline.break_points[k], outline.break_ray[k],
+                          _ON_RAY_STEPS * step)
+    # the contour, a few steps each way: nearer to the hull in another band
+    nearer_across = np.zeros(len(idx), bool)
+    for walk in (nxt, previous):
+        at = idx.copy()
+        for _ in range(int(2 * _ON_RAY_STEPS) + 2):
+            at = walk[at]
+            nearer_across |= (section[at] >= 0) & (section[at] != own) & (distance[at] < distance[idx])
+    near &= nearer_across
+    return near, _contour_direction_px(contours, idx[near], idx[near])
 
 
 _BAND_EDGE_PENALTY_PX = 2.0
@@ -354,6 +417,7 @@ def _band_edge_pixels(
         section=b, distance=along + _BAND_EDGE_PENALTY_PX * pixel_size, nearest=origin,
         points_px=points_px[idx],
         contact=contours.contact[idx], on_border=contours.on_border[idx],
+        edge_px=np.zeros((len(idx), 2)),      # a corner's tip: it does not slide along an edge
     )
 
 
@@ -565,7 +629,8 @@ def measure_clearance(
     section = np.where(valid, assignment.section, -1)
     candidates = _Candidates.joined(
         _Candidates(section=section, distance=assignment.distance, nearest=assignment.nearest,
-                    points_px=points_px, contact=contours.contact, on_border=contours.on_border),
+                    points_px=points_px, contact=contours.contact, on_border=contours.on_border,
+                    edge_px=np.zeros((len(points_px), 2))),
         _band_crossings(outline, points, points_px, section, contours),
         _band_edge_pixels(outline, to_outline, points, points_px, section, contours))
 
@@ -577,6 +642,10 @@ def measure_clearance(
              else order.astype(bool))
     best = order[first]
     best_section = candidates.section[best]
+    crossing_edge_px = candidates.edge_px[best].copy()
+    on_ray = _beside_a_boundary_ray(outline, points, best[best < n_contour], section,
+                                    assignment.distance, contours)
+    crossing_edge_px[np.flatnonzero(best < n_contour)[on_ray[0]]] = on_ray[1]
 
     results = [
         SectionClearance(index=k, status=STATUS_OUT_OF_VIEW if fraction == 0 else STATUS_CLEAR,
@@ -623,11 +692,12 @@ def measure_clearance(
         # claim there is no obstacle
         finite = (np.isfinite(distance_m) & np.isfinite(distance_px)
                   & np.isfinite(hull_px).all(axis=1) & np.isfinite(moved_px).all(axis=1))
-        for k, ok, d_m, d_px, h_px, o_px, h_enu, o_enu, contact, truncated in zip(
+        for k, ok, d_m, d_px, h_px, o_px, h_enu, o_enu, contact, truncated, edge in zip(
                 best_section.tolist(), finite.tolist(), distance_m.tolist(), distance_px.tolist(),
                 hull_px.tolist(), moved_px.tolist(), hull_enu[:, :2].tolist(),
                 moved_enu[:, :2].tolist(), candidates.contact[best].tolist(),
-                candidates.on_border[best].tolist(), strict=True):
+                candidates.on_border[best].tolist(), crossing_edge_px.tolist(),
+                strict=True):
             result = results[k]
             if not ok:
                 result.status = STATUS_OUT_OF_VIEW
@@ -637,6 +707,7 @@ def measure_clearance(
             result.hull_point_px, result.obstacle_point_px = h_px, o_px
             result.hull_point_enu, result.obstacle_point_enu = h_enu, o_enu
             result.contact, result.truncated = contact, truncated
+            result.crossing_edge_px = edge if any(edge) else None
 
     metres_per_unit = 1.0 if outline is sections_v else gsd
     for result in results:

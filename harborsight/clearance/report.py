@@ -54,6 +54,9 @@ class SectionClearance:
     #: rounding is. An obstacle wholly inside it cannot be seen; a ``clear`` section all of
     #: whose band in the picture is hidden has ``clear_to_m`` 0
     hidden_to_m: float | None = None
+    #: where the obstacle point is the crossing of an obstacle edge with the band's boundary
+    #: ray: that edge's direction at it (pixels), for the uncertainty (not in the report)
+    crossing_edge_px: list[float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {

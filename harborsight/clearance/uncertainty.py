@@ -4,10 +4,17 @@ A section's clearance is ``d = |O - H|``: ``O`` the obstacle point, back-project
 pixel onto the water plane with the drone's pose, ``H`` the nearest hull point, placed by
 the vessel's pose. To first order a small error moves ``O`` by ``δO`` and ``H`` by ``δH``
 and changes the distance by ``u · (δO - δH)``, ``u = (O - H) / d`` (the nearest hull point
-may slide along the hull, which changes ``d`` only to second order). The sources are
-independent, so
+may slide along the hull, which changes ``d`` only to second order). Where ``O`` is the
+crossing of an obstacle edge (direction ``t`` on the water) with the band's boundary ray
+(from the section's end ``H`` along ``u``), the ray moves with the hull and the crossing
+slides along the edge: a relative motion ``Δ`` of the scene moves it to where the moved edge
+meets the ray, ``δd = u·Δ - c n·Δ``, ``n`` the ray's normal and ``c = (u·t) / (n·t)`` (a
+motion along the edge moves nothing; one across it, ``1 / sin`` of the angle between edge
+and ray). Every term below is then read along ``w = u - c n`` instead of ``u`` (``c = 0``
+elsewhere); a hull end's section, whose band is a wedge, is where this matters most (a
+2 degree turn slid one 0.9 m along a quay). The sources are independent, so
 
-    sigma² = Σ_s (u · (δO_s - δH_s))²
+    sigma² = Σ_s (w · (δO_s - δH_s))²
 
 with each ``δ`` the displacement caused by a one-sigma error of source ``s``
 (:class:`~harborsight.geometry.sensor_sigmas.SensorSigmas`):
@@ -120,6 +127,10 @@ LOWER_BOUND_QUANTILE = 0.05
 #: the alignment's Gauss-Newton covariance treats outline points as independent, which
 #: they are not (a mask's edge errors run along the edge): inflate its variance by this
 REFINEMENT_COVARIANCE_SCALE = 25.0
+#: how far a band's crossing may slide along its obstacle edge per unit of the edge's
+#: motion across the ray (the cotangent of the angle between edge and ray: edges within
+#: 11 degrees of the ray are taken at 11 degrees)
+MAX_SLIDE = 5.0
 #: chi-square's 99th percentile with 3 and 4 degrees of freedom: a correction the alignment
 #: found within this of zero (its covariance scaled as above) confirms the sensors' pose
 _CHI2_99 = {3: 11.345, 4: 13.277}
@@ -498,6 +509,29 @@ def _own_shadow_px(geometry: FrameGeometry, vessel_points_enu: np.ndarray | None
     return polygons[0], polygons[1]
 
 
+def _sliding_direction(u: np.ndarray, sections: list[SectionClearance], step_u: np.ndarray,
+                       step_v: np.ndarray) -> np.ndarray:
+    """The direction ``w`` each section's first-order terms are read along (module
+    docstring): ``u``, but where the obstacle point is the crossing of an obstacle edge with
+    the band's boundary ray, ``w = u - c n``, ``n`` the ray's normal and
+    ``c = (u·t) / (n·t)`` for the edge's direction ``t`` on the water (its pixel direction
+    through the Jacobian ``step_u``, ``step_v``), ``|c|`` at most :data:`MAX_SLIDE`."""
+    w = u.copy()
+    for k, section in enumerate(sections):
+        edge = section.crossing_edge_px
+        if edge is None or section.contact:
+            continue
+        t = edge[0] * step_u[k] + edge[1] * step_v[k]
+        normal = np.array([-u[k, 1], u[k, 0]])
+        across, along = float(normal @ t), float(u[k] @ t)
+        if not (math.isfinite(across) and math.isfinite(along)) or across == along == 0.0:
+            continue
+        slide = along / across if abs(across) * MAX_SLIDE > abs(along) else math.copysign(
+            MAX_SLIDE, along * (across or 1.0))
+        w[k] = u[k] - slide * normal
+    return w
+
+
 def image_confirms_sensors(refinement: PoseRefinement) -> bool:
     """Whether an alignment that kept the sensors' pose (``SENSORS_FIT``) places the hull:
     the correction it found, ``p = (de, dn, dpsi[, dh])``, lies within the 99 % ellipse of
@@ -585,6 +619,12 @@ def add_section_uncertainty(
         obstacle_px, outline_px, obstacle_px + du, obstacle_px - du, obstacle_px + dv,
         obstacle_px - dv)))
     here, outline_here = planes[0, :n_ok], planes[0, n_ok:n_ok + n_outline]
+    # the pixel-to-water Jacobian at each obstacle point, and the direction every first-order
+    # term is read along (u, or for a band's crossing the slide it makes: module docstring)
+    right, left, below, above = planes[0, n_ok + n_outline:].reshape(4, n_ok, 2)
+    step_u = (right - left) / (2 * _PIXEL_STEP)
+    step_v = (below - above) / (2 * _PIXEL_STEP)
+    w = _sliding_direction(u, ok, step_u, step_v)
     shift_o = planes[1:, :n_ok] - here                      # (cameras, sections, 2)
     shift_h = np.zeros_like(shift_o)
     # each camera error's shift of the hull at the antenna, as the alignment absorbs it
@@ -601,50 +641,74 @@ def add_section_uncertainty(
                                  np.vstack((hull, geometry.vessel_position_enu[None, :2])),
                                  height_refined)
         shift_h, at_antenna = np.nan_to_num(moved[:, :n_ok]), moved[:, n_ok]
-    # each camera error in turn (summed in order, as independent sources)
-    along_u = np.nan_to_num(np.einsum("ij,cij->ci", u, shift_o - shift_h))
-    for along in along_u:
-        systematic += along ** 2
+    # the scene turns about the antenna relative to the hull: at the obstacle point (for u the
+    # same as at the hull point, O - H being along u)
+    r = obstacle[:, :2] - geometry.vessel_position_enu[:2]
+    relative = None
+    if (velocities is not None and velocities.uav_en_mps is not None
+            and velocities.vessel_en_mps is not None):
+        relative = np.subtract(velocities.uav_en_mps, velocities.vessel_en_mps)
+    covariance = (REFINEMENT_COVARIANCE_SCALE * np.asarray(refinement.covariance)
+                  if refined and refinement.covariance is not None else None)
+
+    def read_along(d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first-order terms read along the directions ``d`` (sections, 2): their
+        systematic and random variances, and each camera error's change (cameras, sections)."""
+        sys_part, rand_part = np.zeros(len(ok)), np.zeros(len(ok))
+        # each camera error in turn (summed in order, as independent sources)
+        cameras_along = np.nan_to_num(np.einsum("ij,cij->ci", d, shift_o - shift_h))
+        for along in cameras_along:
+            sys_part += along ** 2
+        if not refined:
+            # drone shift moves O, vessel shift moves H: along d in full (|d| = 1 off crossings)
+            sys_part += ((sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2)
+                         * np.einsum("ij,ij->i", d, d))
+            turn = math.radians(sigmas.vessel_heading_deg) * np.column_stack((r[:, 1], -r[:, 0]))
+            sys_part += np.einsum("ij,ij->i", d, turn) ** 2
+            if relative is not None:
+                sys_part += (sigmas.clock_s * (d @ relative)) ** 2
+        elif covariance is not None:
+            columns = [d[:, 0], d[:, 1], d[:, 0] * r[:, 1] - d[:, 1] * r[:, 0]]
+            if height_refined:
+                # a height error dh moves each back-projected obstacle point away from the
+                # nadir by (O - n) dh / h, the hull staying where the alignment put it (the
+                # sign as the columns above: the change of the distance, negated)
+                height_m = max(float(camera.position_enu[2]), 1e-6)
+                columns.append(-np.einsum("ij,ij->i", d, obstacle[:, :2] - camera.position_enu[:2])
+                               / height_m)
+            gradient = np.column_stack(columns)
+            rand_part += np.einsum("ij,jk,ik->i", gradient, covariance, gradient)
+        # pixel grid and mask edge, through the local pixel-to-water Jacobian at the obstacle
+        by_u = np.abs(np.einsum("ij,ij->i", d, step_u))
+        by_v = np.abs(np.einsum("ij,ij->i", d, step_v))
+        rand_part += np.nan_to_num(((by_u + by_v) * _UNIFORM_SIGMA) ** 2
+                                   + sigmas.edge_px ** 2 * (by_u ** 2 + by_v ** 2))
+        return sys_part, rand_part, cameras_along
+
+    # read along u, and where a section's obstacle point may slide along its edge (w != u),
+    # along w too: the larger is kept (a pixel staircase's nearest pixel may stay put under
+    # a small turn, or slide with the edge under a larger one)
+    sys_u, rand_u, cameras_along = read_along(u)
+    sliding = np.flatnonzero((w != u).any(axis=1))
+    if len(sliding):
+        sys_w, rand_w, along_w = read_along(w)
+        wider = sliding[(sys_w + rand_w)[sliding] > (sys_u + rand_u)[sliding]]
+        sys_u[wider], rand_u[wider] = sys_w[wider], rand_w[wider]
+        cameras_along[:, wider] = along_w[:, wider]
+    systematic += sys_u
+    random += rand_u + sigmas.edge_m ** 2
     unexplained = None
     if refinement.applied:
         height_m = float(camera.position_enu[2])
         unexplained = _unexplained_shift(refinement, sigmas, _camera_errors(sigmas, height_m),
-                                         at_antenna, along_u, height_m)
+                                         at_antenna, cameras_along, height_m)
         if unexplained is not None:
             systematic += unexplained.pop("change_m") ** 2
     # the outline itself off the real hull moves the hull point along the section's normal
     systematic += outline_sigma_m ** 2
-    if not refined:
-        # drone shift moves O, vessel shift moves H: both along u in full (|u| = 1)
-        systematic += sigmas.uav_axis_m ** 2 + sigmas.vessel_axis_m ** 2
-        r = hull - geometry.vessel_position_enu
-        turn_h = math.radians(sigmas.vessel_heading_deg) * np.column_stack((r[:, 1], -r[:, 0]))
-        systematic += np.einsum("ij,ij->i", u, turn_h) ** 2
-        if (velocities is not None and velocities.uav_en_mps is not None
-                and velocities.vessel_en_mps is not None):
-            relative = np.subtract(velocities.uav_en_mps, velocities.vessel_en_mps)
-            systematic += (sigmas.clock_s * (u @ relative)) ** 2
-    elif refinement.covariance is not None:
-        r = hull - geometry.vessel_position_enu
-        columns = [u[:, 0], u[:, 1], u[:, 0] * r[:, 1] - u[:, 1] * r[:, 0]]
-        if height_refined:
-            # a height error dh moves each back-projected obstacle point away from the nadir
-            # by (O - n) dh / h, the hull staying where the alignment put it (the sign as
-            # the columns above: the change of the distance, negated)
-            height_m = max(float(camera.position_enu[2]), 1e-6)
-            columns.append(-np.einsum("ij,ij->i", u, obstacle[:, :2] - camera.position_enu[:2]) / height_m)
-        gradient = np.column_stack(columns)
-        covariance = REFINEMENT_COVARIANCE_SCALE * np.asarray(refinement.covariance)
-        random += np.einsum("ij,jk,ik->i", gradient, covariance, gradient)
-
-    # pixel grid and mask edge, through the local pixel-to-water Jacobian at the obstacle
-    right, left, below, above = planes[0, n_ok + n_outline:].reshape(4, n_ok, 2)
-    step_u = (right - left) / (2 * _PIXEL_STEP)
-    step_v = (below - above) / (2 * _PIXEL_STEP)
+    # a pixel's extent along u (the contact's cut is along the ray)
     along_u = np.abs(np.einsum("ij,ij->i", u, step_u))
     along_v = np.abs(np.einsum("ij,ij->i", u, step_v))
-    random += np.nan_to_num(((along_u + along_v) * _UNIFORM_SIGMA) ** 2
-                            + sigmas.edge_px ** 2 * (along_u ** 2 + along_v ** 2)) + sigmas.edge_m ** 2
     if confidence is not None:
         doubt = edge_doubt_m(hull_px, obstacle_px, hull[:, :2], distance_m, camera, confidence)
         random += (doubt / _CONFIDENT_Z) ** 2
