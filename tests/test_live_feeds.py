@@ -83,6 +83,29 @@ def test_fixes_of_a_second_position_sensor_on_the_feed_are_left_out_until_the_fi
                for n in decoder.notes())
 
 
+def test_a_live_gga_before_any_date_is_dated_by_this_machine_s_clock():
+    """A GNSS compass sending GGA, HDT and VTG only gave no vessel position live (GGA has no
+    date). Live, such a fix takes the UTC day that puts its time of day nearest to this
+    machine's clock (23:59:59 read just past midnight is yesterday's); a file still skips it."""
+    now = datetime(2026, 5, 2, 0, 0, 5, tzinfo=UTC)
+    live = NmeaDecoder(now_utc=lambda: now)
+    lines = [_nmea("GPGGA,235959.00,5609.10200,N,01013.69800,E,4,12,0.8,1.0,M,40.0,M,,"),
+             _nmea("HEHDT,117.7,T"),
+             _nmea("GPGGA,000004.00,5609.10210,N,01013.69800,E,4,12,0.8,1.0,M,40.0,M,,")]
+    fixes = [e for line in lines for e in live.feed(line, 1) if isinstance(e, Fix)]
+    assert [f.utc for f in fixes] == [datetime(2026, 5, 1, 23, 59, 59, tzinfo=UTC),
+                                      datetime(2026, 5, 2, 0, 0, 4, tzinfo=UTC)]
+    assert any("dated by this machine's UTC clock" in n for n in live.notes())
+    from_file = NmeaDecoder()
+    assert not [e for line in lines for e in from_file.feed(line, 1) if isinstance(e, Fix)]
+    assert from_file.undated == 2
+    track = LiveTrack("vessel", "nmea")
+    vessel = NmeaVessel(track)
+    for line in lines:
+        vessel.feed(line, 100.0)
+    assert len(track.track()) >= 1 and track.track().heading_deg is not None
+
+
 def test_the_clock_map_takes_the_least_delayed_sample_and_restarts_after_a_jump():
     clock = ClockMap(window=16, jump_s=2.0)
     rng = np.random.default_rng(3)

@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
 from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack
@@ -71,7 +72,9 @@ class NmeaVessel:
 
     def __init__(self, track: LiveTrack, *, on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.on_fix = track, on_fix
-        self.decoder = NmeaDecoder()
+        # live: a GGA before any date sentence is dated by this machine's clock (a GNSS
+        # compass may send GGA, HDT and VTG only)
+        self.decoder = NmeaDecoder(now_utc=lambda: datetime.now(UTC))
         track.source_clock_is_utc()
         self._fix_delay_s = 0.0                   # mapped time − arrival of the last fix
         self._last_fix: Fix | None = None

@@ -8,9 +8,12 @@ time) and turns each line into events:
 * :class:`Fix`: a measured position at a UTC time. ``RMC`` and ``GGA`` of one epoch give one
   fix (``new`` is False for the second); a ``GGA`` also carries its quality and HDOP. A fix
   whose time of day is over 12 h before the previous one's is in the next day (a ``GGA`` after
-  midnight, before the next ``RMC``/``ZDA`` brings the date). Fixes come from one position
-  sensor: the first talker family to give one (the satellite talkers ``GP``, ``GN``, ``GL``,
-  ``GA``, ``GB``, ``BD``, ``GQ``, ``GI`` are one receiver's; ``AI``, an AIS transponder's own
+  midnight, before the next ``RMC``/``ZDA`` brings the date). A ``GGA`` before any date is
+  skipped in a file; live (``now_utc``), it is dated by the machine's clock, the day that
+  puts it nearest to now (a GNSS compass may send ``GGA``, ``HDT`` and ``VTG`` only). Fixes
+  come from one position sensor: the first talker family to give one (the satellite
+  talkers ``GP``, ``GN``, ``GL``, ``GA``, ``GB``, ``BD``, ``GQ``, ``GI`` are one
+  receiver's; ``AI``, an AIS transponder's own
   receiver, ``II``, ``IN`` and the rest each their own). Another sensor's fixes are counted
   in ``skipped`` and left out: two receivers metres apart mixed make the vessel jump between
   them. It takes over when the first has given no fix for :data:`POSITION_SENSOR_HOLD_S`.
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 
@@ -135,6 +139,12 @@ class NmeaDecoder:
 
     day: date | None = None
     last_fix_utc: datetime | None = None
+    #: live: this machine's UTC clock, which dates a GGA before any RMC or ZDA gave the date
+    #: (a GNSS compass sending GGA, HDT and VTG only): the day that puts its time of day
+    #: nearest to now. None (files): such fixes are counted in ``undated`` and skipped
+    now_utc: Callable[[], datetime] | None = None
+    #: GGA fixes dated by this machine's clock
+    machine_dated: int = 0
     bad_count: int = 0
     bad_lines: list[int] = field(default_factory=list)
     undated: int = 0                 # GGA fixes before the first date
@@ -175,11 +185,19 @@ class NmeaDecoder:
             self._bad(line_number)
             return []
 
+    def _day_nearest_now(self, clock: time) -> date:
+        """The UTC day, yesterday, today or tomorrow by this machine's clock, that puts the
+        time of day ``clock`` nearest to now (a fix stamped 23:59:59 read just past midnight
+        is yesterday's)."""
+        now = self.now_utc()
+        days = [now.date() + timedelta(days=k) for k in (-1, 0, 1)]
+        return min(days, key=lambda day: abs((utc_of(day, clock) - now).total_seconds()))
+
     def _fix(self, clock: time, lat: float, lon: float, quality: int | None = None,
-             hdop: float = math.nan, talker: str = "") -> list[Fix]:
+             hdop: float = math.nan, talker: str = "", day: date | None = None) -> list[Fix]:
         if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
             raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
-        when = utc_of(self.day, clock)
+        when = utc_of(day or self.day, clock)
         last = self.last_fix_utc
         if last is not None and when < last - timedelta(hours=12):
             when += timedelta(days=1)          # past midnight, before the next date arrives
@@ -224,11 +242,14 @@ class NmeaDecoder:
             elif quality not in GGA_QUALITY_CLASSES:
                 skipped["GGA quality code the standard does not define"] += 1
             elif sentence.timestamp is not None:
-                if self.day is None:
+                if self.day is None and self.now_utc is None:
                     self.undated += 1
                     return []
+                day = self.day if self.day is not None else self._day_nearest_now(sentence.timestamp)
+                if self.day is None:
+                    self.machine_dated += 1
                 return self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
-                                 quality, number(sentence.horizontal_dil), sentence.talker)
+                                 quality, number(sentence.horizontal_dil), sentence.talker, day)
         elif kind == "GST":
             sigma_m = per_axis_from_gst_m(number(sentence.std_dev_latitude),
                                           number(sentence.std_dev_longitude))
@@ -265,5 +286,8 @@ class NmeaDecoder:
                        + (f"; line{'s' if self.bad_count > 1 else ''} {shown})" if shown else ")"))
         if self.undated:
             out.append(f"{self.undated} GGA fix(es) before the first date (RMC/ZDA) skipped")
+        if self.machine_dated:
+            out.append(f"{self.machine_dated} GGA fix(es) before the first date (RMC/ZDA) dated by "
+                       "this machine's UTC clock")
         out += [f"{count} sentence(s) skipped: {what}" for what, count in self.skipped.items() if count]
         return out
