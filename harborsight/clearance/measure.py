@@ -266,9 +266,7 @@ _EDGE_STEPS = 10
 def _contour_direction_px(contours, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     """The contour's direction (pixels) over the stretch from :data:`_EDGE_STEPS` points
     before ``first`` to as many after ``last`` (``first == last`` for one point)."""
-    nxt = contours.next_index
-    previous = np.empty_like(nxt)
-    previous[nxt] = np.arange(len(nxt))
+    nxt, previous = contours.next_index, contours.previous_index
     ahead, behind = np.asarray(last).copy(), np.asarray(first).copy()
     for _ in range(_EDGE_STEPS):
         ahead, behind = nxt[ahead], previous[behind]
@@ -295,9 +293,7 @@ def _beside_a_boundary_ray(outline: SectionedOutline, points: np.ndarray, idx: n
     distance to its own nearest hull point."""
     if len(idx) == 0 or outline.n_sections < 2:
         return np.zeros(len(idx), bool), np.zeros((0, 2))
-    nxt = contours.next_index
-    previous = np.empty_like(nxt)
-    previous[nxt] = np.arange(len(nxt))
+    nxt, previous = contours.next_index, contours.previous_index
     ahead, behind = nxt[idx], previous[idx]
     step = np.maximum(np.hypot(*(points[ahead] - points[idx]).T),
                       np.hypot(*(points[idx] - points[behind]).T))
@@ -364,8 +360,7 @@ def _band_edge_pixels(
     # cheap pre-filter before mapping corners: only points within about a pixel of one of
     # their section's two boundary rays can have a corner across it. A pixel's extent in the
     # outline's units is bounded from the steps to its contour neighbours (1 or 1.4 px each)
-    previous = np.empty_like(contours.next_index)
-    previous[contours.next_index] = np.arange(len(previous))
+    previous = contours.previous_index
     step_ahead = np.hypot(*(points[contours.next_index] - points).T)
     step_size = np.maximum(step_ahead, step_ahead[previous])   # the step back: previous's ahead
     own_all = np.maximum(section, 0)

@@ -26,6 +26,7 @@ solids (quays, piles) are never touched.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -141,6 +142,13 @@ class ObstacleContours:
     next_index: np.ndarray
     contact: np.ndarray
     on_border: np.ndarray
+
+    @functools.cached_property
+    def previous_index(self) -> np.ndarray:
+        """``previous_index[i]``: the point before i along its contour."""
+        previous = np.empty_like(self.next_index)
+        previous[self.next_index] = np.arange(len(previous))
+        return previous
 
 
 def own_rim(labels: np.ndarray, own: OwnRegion, rim_px: int) -> np.ndarray:
