@@ -207,6 +207,24 @@ def test_a_pose_the_image_contradicts_beyond_the_limits_leaves_no_lower_bound_st
     assert within.pose_refinement["applied"] and not within.sensors_contradicted
 
 
+def test_a_height_beyond_the_limit_that_the_image_measures_cleanly_is_flagged():
+    """A height 10 % off at 100 m (10 m; the limit is 4 sigma of 1 m and the frame's own
+    uncertainty): the alignment finds it to 0.8 m with every outline point on an edge, and
+    refuses it for its size. It was neither applied nor flagged, and the distances kept a
+    10 % scale error. A height change beyond the limit that fits the mask cleanly is the
+    image's own measure of the scale: the sensors are contradicted, as for the hull's size."""
+    scene, labels = scene_and_labels(2100, "open", 100, 4.65)
+    true = scene.geometry()
+    _, refinement = refine_vessel_pose(labels, corrected_geometry(true, np.array([0.66, -0.13, 0.0, 10.0])),
+                                       TUG)
+    assert not refinement.applied and refinement.reason.startswith("height change -9.")
+    assert refinement.inlier_fraction >= 0.95 and refinement.residual_px <= 0.5
+    assert refinement.sensors_contradicted and "hull's size in the image" in refinement.reason
+    _, within = refine_vessel_pose(labels, corrected_geometry(true, np.array([0.66, -0.13, 0.0, 2.0])),
+                                   TUG)
+    assert within.applied and within.height_change_m == pytest.approx(-2.0, abs=0.3)
+
+
 def test_a_focal_length_off_is_measured_by_the_hull_s_size_or_flagged():
     """A focal length off by k scales the scene as a height off by -k would (a video mode or
     stabilisation that crops the sensor: 5-15 %). With an RTK altitude (height sigma 0) the
