@@ -206,12 +206,30 @@ def read_image(path: Path, camera_pixels: bool = False) -> np.ndarray:
     if not path.is_file():
         raise InputError(path, None, "image file not found")
     # a cut JPEG decodes half grey
-    image, reason = decode_image_file(path, cv2.IMREAD_COLOR, camera_pixels)
+    image, reason = decode_image_file(path, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH, camera_pixels)
     if reason:
         raise InputError(path, "Orientation" if reason.startswith("EXIF") else None, reason)
     if image is None:
         raise InputError(path, None, "cannot decode image (corrupt or not an image)")
+    if image.dtype == np.uint16:
+        return eight_bit(image)
+    if image.dtype != np.uint8:       # floating-point samples: OpenCV's own conversion
+        image, _ = decode_image_file(path, cv2.IMREAD_COLOR)
+        if image is None:
+            raise InputError(path, None, "cannot decode image (corrupt or not an image)")
     return image
+
+
+def eight_bit(image: np.ndarray) -> np.ndarray:
+    """A 16-bit image as 8-bit by its own bit depth: the fewest bits that hold its largest
+    value (at least 8), scaled to 0-255. A camera's 10- or 12-bit samples stored in 16 bits
+    are 0-4095; OpenCV's 8-bit decoding divides by 256 and leaves them 0-15, near black (a
+    model then read 97 % of such a frame as water). A file does not say its samples'
+    depth: an image darker than its depth (its largest value needing fewer bits) comes out
+    brighter, the safer mistake for a segmentation."""
+    bits = max(8, int(image.max()).bit_length())
+    scale = 255.0 / ((1 << bits) - 1)
+    return cv2.convertScaleAbs(image, alpha=scale)
 
 
 def read_mask(path: Path) -> np.ndarray:

@@ -189,3 +189,19 @@ def test_a_webp_is_read_turned_by_its_exif_orientation_as_a_jpeg_is(tmp_path, or
     with Image.open(path) as opened:
         shown = np.asarray(ImageOps.exif_transpose(opened).convert("RGB"))[..., ::-1]
     assert np.array_equal(read_image(path), shown)
+
+
+@pytest.mark.parametrize("bits", [10, 12, 16])
+def test_a_16_bit_image_is_read_by_its_own_bit_depth(tmp_path, bits):
+    """A camera's 10- or 12-bit samples stored in a 16-bit PNG or TIFF were divided by 256 by
+    OpenCV's 8-bit decoding (0-15 for 12 bits: near black, and a model read 97 % of such a
+    frame as water). They are scaled by the image's own depth: within a grey level of the
+    8-bit original; a full 16-bit image as before."""
+    original = cv2.imread(str(SAMPLES / "images" / "000000.png"))
+    deep = (original.astype(np.uint32) * ((1 << bits) - 1) // 255).astype(np.uint16)
+    for suffix in (".png", ".tif"):
+        path = tmp_path / f"deep{bits}{suffix}"
+        assert cv2.imwrite(str(path), deep)
+        read = read_image(path)
+        assert read.dtype == np.uint8 and read.shape == original.shape
+        assert np.abs(read.astype(int) - original.astype(int)).max() <= 1
