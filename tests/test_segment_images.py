@@ -626,3 +626,23 @@ def test_a_model_of_another_number_of_classes_is_refused_when_loaded(tmp_path):
     onnx.save(model, str(tmp_path / "four.onnx"))
     with pytest.raises(InputError, match="'logits' has 4 classes"):
         load_onnx_segmenter(tmp_path / "four.onnx")
+
+
+def test_the_measuring_pipelines_segment_a_small_frame_as_segment_does(segmenter, tmp_path):
+    """`run`, `live` and `evaluate distance` stretched a frame no larger than the model
+    input into it, where `segment --mode auto` enlarges it without stretching and pads it
+    (a 256x256 marina tile: 62.3 against 65.4 % mIoU on the val split). The labels and the
+    probabilities the clearance reads now come from the same enlarged, padded window; a
+    frame of the input's size or larger is stretched as before."""
+    from harborsight.pipeline import frame_labels
+
+    tile = random_image(256, 256, seed=3)
+    mask = frame_labels(tile, None, segmenter, "tile")
+    auto = segment_labels(segmenter, tile, SegmentOptions(SegmentMode.auto))
+    np.testing.assert_array_equal(mask.labels, auto)
+    centres = np.array([[10.0, 20.0], [128.0, 128.0], [250.0, 3.0]])
+    solid = mask.confidence.solid_probability(centres)
+    assert solid.shape == (3,) and np.isfinite(solid).all()
+    frame = random_image(640, 360, seed=4)
+    whole = frame_labels(frame, None, segmenter, "frame")
+    np.testing.assert_array_equal(whole.labels, segmenter.segment(frame))

@@ -296,8 +296,17 @@ class OnnxSegmenter:
     def segment_with_confidence(self, image_bgr: np.ndarray, flips: int = 1
                                 ) -> tuple[np.ndarray, SolidConfidence]:
         """The labels of :meth:`segment` and, from the same model call, the model's solid
-        probability at any pixel (:class:`~harborsight.perception.confidence.SolidConfidence`)."""
+        probability at any pixel (:class:`~harborsight.perception.confidence.SolidConfidence`).
+        A frame no larger than the input (a 256x256 tile) is enlarged without stretching and
+        padded, as ``segment --mode auto`` does
+        (:func:`~harborsight.perception.segment_images.small_frame_logits`), so that the
+        measuring pipelines see the masks ``segment`` shows."""
+        from harborsight.perception.segment_images import labels_from_logits, small_frame_logits
+
         h, w = image_bgr.shape[:2]
+        small = small_frame_logits(self, image_bgr, flips)
+        if small is not None:
+            return labels_from_logits(small, w, h), SolidConfidence(small, w, h)
         image = self.fit(image_bgr)[None]
         if (h, w) == (self.input_height, self.input_width) and flips == 1:
             logits, labels = self.session.run(["logits", "labels"], {"image": image})

@@ -301,6 +301,25 @@ def _window_runner(segmenter: OnnxSegmenter, flips: int = 1) -> Callable[[np.nda
     return run
 
 
+def small_frame_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, flips: int = 1
+                       ) -> np.ndarray | None:
+    """Logits ``(C, h, w)`` over a frame no larger than the model input, as ``auto`` makes
+    them (:func:`auto_options`: enlarged without stretching, padded into one window), on a
+    grid that covers the frame exactly; None for any other frame (``auto`` stretches it).
+    The measuring pipelines read a small frame's labels and probabilities from these, so
+    that they segment it as ``segment`` does."""
+    options = auto_options(segmenter, image_bgr)
+    height, width = image_bgr.shape[:2]
+    if (options.mode is not SegmentMode.tiles
+            or (height, width) == (segmenter.input_height, segmenter.input_width)):
+        return None
+    pw, ph = processing_size(width, height, options.tile_scale, None)
+    scaled = cv2.resize(image_bgr, (pw, ph), interpolation=cv2.INTER_LINEAR)
+    return tiled_logits(scaled, _window_runner(segmenter, flips),
+                        (segmenter.input_height, segmenter.input_width), options.tile_overlap,
+                        model_batch(segmenter) or 1)
+
+
 def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
                   info: dict | None = None) -> np.ndarray:
     """uint8 labels (H, W) of a frame in ``tiles`` mode (module docstring). ``info``, if
