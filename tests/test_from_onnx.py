@@ -199,6 +199,11 @@ def test_fit_large_stretches_only_larger_frames(tiny_dataset, tmp_path):
     small_image, small_labels = fitted[0]
     assert image.shape == (72, 128, 3) and small_image.shape == (36, 64, 3)
     assert small_labels.shape == (36, 64) and set(np.unique(small_labels)) <= set(np.unique(labels))
+    # each label from the source pixel under the target pixel's centre, as the image's area
+    # average is centred (legacy nearest sampling took the pixel to its left and above)
+    rows = np.floor((np.arange(36) + 0.5) * 72 / 36).astype(int)
+    cols = np.floor((np.arange(64) + 0.5) * 128 / 64).astype(int)
+    np.testing.assert_array_equal(small_labels, labels[np.ix_(rows, cols)])
     assert np.array_equal(kept[0][1], labels)
     config = TrainConfig(model="ddrnet23_slim", data_dirs=[root], out_dir=tmp_path / "run",
                          iterations=1, batch_size=2, crop_hw=(32, 32), fit_large_hw=(36, 64),

@@ -184,7 +184,7 @@ class SegmentationFrames(Sequence):
             height, width = self.fit_large_hw
             if image.shape[0] > height or image.shape[1] > width:
                 image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
-                labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
+                labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST_EXACT)
         return image, labels
 
     def drop_unreadable(self, instances: bool = False) -> list[tuple[str, str]]:
@@ -224,7 +224,7 @@ class SegmentationFrames(Sequence):
         instances = read_instances(record, _image_size_hw(record.image_path))
         if instances.shape != labels_hw:
             instances = cv2.resize(instances, (labels_hw[1], labels_hw[0]),
-                                   interpolation=cv2.INTER_NEAREST)
+                                   interpolation=cv2.INTER_NEAREST_EXACT)
         return instances
 
     def common_size_hw(self) -> tuple[int, int]:
