@@ -81,6 +81,13 @@ def test_intrinsics_from_the_models_sensor_and_the_35mm_equivalent(tmp_path):
                                   exif={"FocalLength": 4.5, "FocalLengthIn35mmFilm": 24},
                                   rgb=np.zeros((480, 640, 3), np.uint8)))
     assert photo_intrinsics(other)[0].fx == pytest.approx(24 * 800 / math.hypot(36, 24))
+    # ... and a 16:9 photo of it crops that 4:3 sensor across its width: the same fx, where
+    # the photo's own diagonal (734 px) read it 8.9 % short
+    crop = read_dji_photo(_photo(tmp_path, model="FC9999", name="c.jpg",
+                                 exif={"FocalLength": 4.5, "FocalLengthIn35mmFilm": 24},
+                                 rgb=np.zeros((360, 640, 3), np.uint8)))
+    intrinsics, how = photo_intrinsics(crop)
+    assert intrinsics.fx == pytest.approx(24 * 800 / math.hypot(36, 24)) and "4:3 sensor" in how
     nothing = read_dji_photo(_photo(tmp_path, model="FC9999", name="n.jpg"))
     with pytest.raises(InputError, match="give --camera"):
         photo_intrinsics(nothing)
@@ -385,3 +392,18 @@ def test_a_camera_mounted_upside_down_is_not_made_a_frame(tmp_path, flags):
     with pytest.raises(InputError, match=f"{field}.*upside down"):
         photo_frame(read_dji_photo(turned), vessel, image="turned.jpg", water_level_m=0.0,
                     max_gap_s=1e6)
+
+
+def test_a_camera_preset_spans_the_sensor_side_the_frame_fills():
+    """A preset took fx from the frame's width whatever its shape: a Phantom 4 RTK 4:3 frame
+    (4864x3648 from its 3:2 sensor) spans the sensor's height, and its fx is 8.8 / 8.8 x 3648 =
+    3648 px, not 8.8 / 13.2 x 4864 = 3243 (distances 12.5 % long). 16:9 video spans the width."""
+    from harborsight.sim.cameras import CAMERA_PRESETS
+
+    p4rtk = CAMERA_PRESETS["dji-p4rtk"]
+    assert p4rtk.intrinsics(4864, 3648).fx == pytest.approx(3648.0)
+    assert p4rtk.intrinsics(1920, 1080).fx == pytest.approx(8.8 / 13.2 * 1920)
+    assert p4rtk.intrinsics(5472, 3648).fx == pytest.approx(8.8 / 13.2 * 5472)    # the whole 3:2
+    mavic3 = CAMERA_PRESETS["dji-mavic3"]
+    assert mavic3.intrinsics(1920, 1080).fx == pytest.approx(12.29 / 17.3 * 1920)
+    assert mavic3.intrinsics(1080, 1920).fx == pytest.approx(12.29 / 13.0 * 1920)  # portrait crop

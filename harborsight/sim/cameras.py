@@ -1,7 +1,12 @@
-"""Camera presets of real drone cameras (16:9 video, the frame spanning the sensor's width).
+"""Camera presets of real drone cameras.
 
-``fx = f / sensor_width · image_width`` with the principal point at the image centre; values
-are from the manufacturers' published specifications.
+A frame spans the sensor's width when it is at least as wide as the sensor (16:9 video from
+a 4:3 or 3:2 sensor): ``fx = f / sensor_width · image_width``; a narrower one (a 4:3 photo
+from a 3:2 sensor, a portrait crop) spans its height: ``fx = f / sensor_height ·
+image_height``. The principal point is at the image centre; values are from the
+manufacturers' published specifications (nominal: a unit's factory calibration, DJI's
+``CalibratedFocalLength``, may differ by about 1 %, and video modes that crop the sensor
+further are not modelled).
 """
 
 from __future__ import annotations
@@ -22,7 +27,10 @@ class CameraPreset:
     focal_35mm_mm: float = 24.0
 
     def intrinsics(self, width: int, height: int) -> CameraIntrinsics:
-        f_px = self.focal_length_mm / self.sensor_width_mm * width
+        if width * self.sensor_height_mm >= height * self.sensor_width_mm:
+            f_px = self.focal_length_mm / self.sensor_width_mm * width     # spans the width
+        else:
+            f_px = self.focal_length_mm / self.sensor_height_mm * height   # spans the height
         return CameraIntrinsics(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 

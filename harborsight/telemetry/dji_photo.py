@@ -422,11 +422,18 @@ def photo_intrinsics(photo: DjiPhoto) -> tuple[CameraIntrinsics, str]:
                         f"(the photo spans the sensor's {spans})")
     f35 = _to_float(photo.exif.get("FocalLengthIn35mmFilm"))
     if f35 is not None and f35 > 0:
-        f_px = f35 * math.hypot(width, height) / math.hypot(36.0, 24.0)
+        # the equivalent is the whole sensor's: a photo wider than 4:3 (16:9) is a crop of
+        # what DJI's small drones carry, a 4:3 sensor, spanning its width, whose diagonal is
+        # 5/4 of it (the photo's own diagonal read 8.9 % short); a 4:3 or 3:2 photo is the
+        # whole sensor
+        cropped = width / height > 1.6       # wider than 3:2: a 16:9 (or wider) crop
+        diagonal_px = 1.25 * width if cropped else math.hypot(width, height)
+        f_px = f35 * diagonal_px / math.hypot(36.0, 24.0)
         return _checked(photo, CameraIntrinsics(width, height, f_px, f_px, (width - 1) / 2.0,
                                                 (height - 1) / 2.0),
-                        f"EXIF 35 mm equivalent focal length {f35:g} mm (through the diagonal: "
-                        "good to a few per cent; give --camera for better)")
+                        f"EXIF 35 mm equivalent focal length {f35:g} mm (through the "
+                        + ("diagonal of a 4:3 sensor the photo crops" if cropped else "diagonal")
+                        + ": good to a few per cent; give --camera for better)")
     raise InputError(photo.source, "CalibratedFocalLength", "no calibrated focal length, no "
                      "known camera model with a focal length, no 35 mm equivalent: give --camera")
 
