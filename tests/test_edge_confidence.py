@@ -156,10 +156,14 @@ def test_the_default_model_gives_its_confidence_to_every_model_distance():
     mask = frame_labels(image, None, segmenter, "sample")
     assert mask.confidence is not None and not mask.from_file
     np.testing.assert_array_equal(mask.labels, segmenter.segment(image))
-    # a frame of another size than the model's: the labels and probabilities still agree
+    # a frame of another size than the model's (smaller: enlarged and padded, as `segment
+    # --mode auto` does): the labels and probabilities still agree
+    from harborsight.perception.segment_images import SegmentMode, SegmentOptions, segment_labels
+
     small = cv2.resize(image, (400, 300), interpolation=cv2.INTER_AREA)
     labels, confidence = segmenter.segment_with_confidence(small)
-    np.testing.assert_array_equal(labels, segmenter.segment(small))
+    np.testing.assert_array_equal(labels, segment_labels(segmenter, small,
+                                                         SegmentOptions(SegmentMode.auto)))
     v, u = np.nonzero(labels != 255)
     solid = confidence.solid_probability(np.column_stack((u, v)).astype(float)) > 0.5
     assert np.mean(solid == (labels[v, u] != 0)) > 0.99
