@@ -591,6 +591,41 @@ def test_flight_clock_is_fixed_by_the_first_frame():
     assert clock.seconds(FlightFrame(90, "f90", meta=untimed, video_time_s=3.0)) == 3.0
 
 
+def test_a_repeated_presentation_time_costs_that_frame_only(monkeypatch, tmp_path):
+    """A variable-frame-rate video (2 s at 30 fps, then 5 fps) whose frame 30 repeats frame
+    29's time: that frame is timed a frame interval after the previous one, and the next
+    frames by their own times again (the first version went on timing them by n / fps, up
+    to 2.5 s off)."""
+    from harborsight.flight import sources
+
+    times_ms = ([1000 / 30 * k for k in range(30)] + [1000 / 30 * 29]
+                + [1000 / 30 * k for k in range(30, 60)] + [2000 + 200 * k for k in range(20)])
+
+    class Capture:
+        def __init__(self):
+            self.k = -1
+
+        def read(self):
+            self.k += 1
+            return (True, np.zeros((4, 4, 3), np.uint8)) if self.k < len(times_ms) else (False, None)
+
+        def get(self, prop):
+            return {cv2.CAP_PROP_POS_MSEC: times_ms[max(self.k, 0)], cv2.CAP_PROP_FPS: 80 / 6,
+                    cv2.CAP_PROP_FRAME_COUNT: float(len(times_ms))}.get(prop, 0.0)
+
+        def release(self):
+            pass
+
+    monkeypatch.setattr(sources, "open_video", lambda video: Capture())
+    monkeypatch.setattr(sources, "read_metadata_lines", lambda *args, **kwargs: ({}, [], {}, {}))
+    (tmp_path / "v.mp4").write_bytes(b"x")
+    source = sources.VideoSource(tmp_path / "v.mp4", tmp_path / "v.jsonl")
+    read = [f.video_time_s for f in source.frames() if f.is_frame]
+    expected = [t / 1000 for t in times_ms]
+    expected[30] = expected[29] + 6 / 80                    # the repeat: one mean interval on
+    np.testing.assert_allclose(read, expected, atol=1e-9)
+
+
 def test_timestamps_that_drift_from_the_video_are_said_once():
     """Metadata lines at the telemetry's 1 Hz paired one to one with a 2 fps video's frames:
     the timestamps run twice as fast as the video (closing speeds halved). A constant offset

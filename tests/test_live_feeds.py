@@ -81,6 +81,14 @@ def test_fixes_of_a_second_position_sensor_on_the_feed_are_left_out_until_the_fi
     assert fixes[-1].lat_deg == pytest.approx(56 + (9.102 + north_12m) / 60)
     assert any("6 sentence(s) skipped: fixes from a second position sensor (AI) while GNSS" in n
                for n in decoder.notes())
+    # a second sensor whose clock lags 18 s (a repeater on an instrument bus) never takes
+    # over while the first gives fixes: its fixes are timed before the first's last
+    lagging = NmeaDecoder()
+    lines = []
+    for k in range(10):
+        lines += [rmc("GP", 20 + k, 9.102), rmc("II", 2 + k, 9.102 + north_12m)]
+    fixes = [e for line in lines for e in lagging.feed(line, 1) if isinstance(e, Fix)]
+    assert len(fixes) == 10 and all(f.lat_deg == pytest.approx(56 + 9.102 / 60) for f in fixes)
 
 
 def test_a_live_gga_before_any_date_is_dated_by_this_machine_s_clock():

@@ -296,21 +296,28 @@ class VideoSource:
                               is_frame=False)
         capture = open_video(self.video)
         index = -1
-        first_ms = previous_s = None
+        first_ms = last_raw_s = previous_s = None
+        step_s = 1.0 / self.container_fps if self.container_fps else None
         try:
             while True:
                 ok, image = capture.read()
                 if not ok:
                     break
                 index += 1
-                # the frame's presentation time; the index over the mean rate only where
-                # the container gives no increasing times
+                # the frame's presentation time; where the container gives none, or one that
+                # does not increase (a repeated time), a frame interval after the previous
+                # frame's (the index over the mean rate before any)
                 position_ms = capture.get(cv2.CAP_PROP_POS_MSEC)
-                first_ms = position_ms if first_ms is None else first_ms
-                video_time_s = ((position_ms - first_ms) / 1000.0
-                                if math.isfinite(position_ms) else None)
-                if video_time_s is None or (previous_s is not None and video_time_s <= previous_s):
-                    video_time_s = index / self.container_fps if self.container_fps else None
+                raw_s = None
+                if math.isfinite(position_ms):
+                    first_ms = position_ms if first_ms is None else first_ms
+                    raw_s = (position_ms - first_ms) / 1000.0
+                if raw_s is not None and (last_raw_s is None or raw_s > last_raw_s):
+                    video_time_s = last_raw_s = raw_s
+                elif previous_s is not None and step_s is not None:
+                    video_time_s = previous_s + step_s
+                else:
+                    video_time_s = index * step_s if step_s is not None else None
                 previous_s = video_time_s
                 entry = self.by_frame.get(index)
                 frame = FlightFrame(index, f"{self.video} frame {index}", image=image,

@@ -105,10 +105,10 @@ class SignalKVessel:
             return
         if (now_s - self.subscribed_s <= REPLAY_WINDOW_S and isinstance(delta, dict)
                 and isinstance(delta.get("updates"), list)):
-            self.replayed += len(delta["updates"])
+            self.replayed += 1
             if worth_saying(self.replayed, every=None):
-                self.track.warn(f"Signal K: {self.replayed} cached value(s) the server sent on "
-                                "subscribing left out (stamped when last updated, not now)")
+                self.track.warn(f"Signal K: {self.replayed} message(s) of cached values the server "
+                                "sent on subscribing left out (stamped when last updated, not now)")
             return
         if isinstance(delta, dict) and isinstance(delta.get("self"), str):
             self.self_context = delta["self"]       # the hello

@@ -211,8 +211,10 @@ class NmeaDecoder:
         """Whether a fix of ``sensor`` at ``when`` is taken (module docstring); one that is
         not is counted in ``skipped``."""
         chosen, last = self.position_sensor, self.position_sensor_last
+        # another sensor takes over only with a fix timed more than the hold after the
+        # chosen one's last (one whose clock lags, timed before it, never does)
         if chosen is not None and sensor != chosen and last is not None and (
-                abs((when - last).total_seconds()) <= POSITION_SENSOR_HOLD_S):
+                (when - last).total_seconds() <= POSITION_SENSOR_HOLD_S):
             key = f"fixes from a second position sensor ({sensor}) while {chosen} gives them"
             self.skipped[key] = self.skipped.get(key, 0) + 1
             return False
