@@ -342,7 +342,7 @@ def test_segment_and_evaluate_take_flips(model_path, tmp_path):
                                  "0", "--height-bin-m", "0"], terminal_width=200)
     assert result.exit_code == 0, result.output
     written = json.loads(report.read_text())
-    assert written["mode"] == {"mode": "resize", "flips": 2}
+    assert written["mode"] == {"mode": "auto", "flips": 2}     # an ONNX model's default
     assert written["splits"]["test"]["miou"] == pytest.approx(1.0)
     result = runner.invoke(app, ["evaluate", "segmentation", "--data", str(data), "--predictions",
                                  str(out), "--flips", "2"], terminal_width=200)
@@ -547,10 +547,16 @@ def test_evaluate_a_model_in_tiles_mode(model_path, tmp_path):
     assert report["splits"]["test"]["miou"] == pytest.approx(1.0)
     result = runner.invoke(app, ["evaluate", "segmentation", "--model", str(model_path),
                                  "--data", str(data), "--json", str(out), "--fps-seconds", "0",
-                                 "--height-bin-m", "0"])
+                                 "--height-bin-m", "0", "--mode", "resize"])
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     assert report["mode"] == {"mode": "resize"} and report["splits"]["test"]["miou"] < 1.0
+    # without --mode an ONNX model is scored as segment writes its masks: auto
+    result = runner.invoke(app, ["evaluate", "segmentation", "--model", str(model_path),
+                                 "--data", str(data), "--json", str(out), "--fps-seconds", "0",
+                                 "--height-bin-m", "0"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["mode"] == {"mode": "auto"}
 
 
 def test_exact_int8_gives_the_graphs_labels_and_says_so(tmp_path):

@@ -73,12 +73,14 @@ def evaluate_segmentation_command(
     by_object: Annotated[bool, typer.Option(
         help="Also score every object on its own (instances/ masks): the share of its pixels "
         "taken for solid, per kind (simulator datasets) and per size in pixels.")] = False,
-    mode: Annotated[SegmentMode, typer.Option(
+    mode: Annotated[SegmentMode | None, typer.Option(
+        show_default=False,
         help="How an ONNX model meets frames of another size than its input: resize (stretch "
         "into the input), tiles (overlapping windows blended) or auto (pad frames no larger "
-        "than the input, stretch larger ones: harborsight segment's default), as in "
-        "harborsight segment (see its --help); tiles and auto need an ONNX model.")
-    ] = SegmentMode.resize,
+        "than the input, stretch larger ones), as in harborsight segment (see its --help); "
+        "tiles and auto need an ONNX model. Default: auto for an ONNX model (what segment, "
+        "run and live do), resize for a checkpoint.")
+    ] = None,
     tile_overlap: Annotated[float | None, typer.Option(
         min=0.0, max=0.9, show_default=False,
         help="tiles: overlap of neighbouring windows, a fraction of a window [0.25].")] = None,
@@ -108,6 +110,9 @@ def evaluate_segmentation_command(
         for path, option in ((json_out, "--json"), (markdown, "--markdown")):
             if path is not None:
                 prepare_output_file(path, option)
+        if mode is None:      # as harborsight segment and the measuring pipelines do
+            onnx = model is not None and model.suffix.lower() == ".onnx"
+            mode = SegmentMode.auto if onnx else SegmentMode.resize
         options = SegmentOptions.from_options(mode, tile_overlap, tile_scale, max_side, flips)
         with progress_report("reading frames", None, console) as progress:
 
