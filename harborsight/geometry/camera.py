@@ -82,6 +82,17 @@ def fold_radius(distortion: tuple[float, ...]) -> float:
     return float(r[stops[0]]) if len(stops) else math.inf
 
 
+def sensor_focal_px(focal_mm: float, sensor_width_mm: float, sensor_height_mm: float,
+                    width: int, height: int) -> tuple[float, str]:
+    """A lens's focal length in pixels of a ``width`` x ``height`` frame of its sensor, and
+    the side (``"width"`` or ``"height"``) the frame spans: the width when the frame is at
+    least as wide as the sensor (16:9 video from a 4:3 or 3:2 sensor), else the height (a
+    4:3 photo from a 3:2 sensor, a portrait crop): ``f / side_mm · side_px``."""
+    if width * sensor_height_mm >= height * sensor_width_mm:
+        return focal_mm / sensor_width_mm * width, "width"
+    return focal_mm / sensor_height_mm * height, "height"
+
+
 @dataclass(frozen=True)
 class CameraIntrinsics:
     """Image size (px), focal lengths and principal point (px), OpenCV distortion."""

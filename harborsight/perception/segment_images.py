@@ -313,20 +313,14 @@ def small_frame_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, flips: i
     if (options.mode is not SegmentMode.tiles
             or (height, width) == (segmenter.input_height, segmenter.input_width)):
         return None
-    pw, ph = processing_size(width, height, options.tile_scale, None)
-    scaled = cv2.resize(image_bgr, (pw, ph), interpolation=cv2.INTER_LINEAR)
-    return tiled_logits(scaled, _window_runner(segmenter, flips),
-                        (segmenter.input_height, segmenter.input_width), options.tile_overlap,
-                        model_batch(segmenter) or 1)
+    return _scaled_tile_logits(segmenter, image_bgr, replace(options, flips=flips))
 
 
-def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
-                  info: dict | None = None) -> np.ndarray:
-    """uint8 labels (H, W) of a frame in ``tiles`` mode (module docstring). ``info``, if
-    given, receives ``windows`` and the ``processed`` (width, height)."""
-    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 BGR image (H, W, 3), got {image_bgr.shape} "
-                         f"{image_bgr.dtype}")
+def _scaled_tile_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
+                        info: dict | None = None) -> np.ndarray:
+    """Logits ``(C, h, w)`` of a frame in ``tiles`` mode, on the grid of the frame scaled by
+    ``options`` (module docstring); ``info``, if given, receives ``windows`` and the
+    ``processed`` (width, height)."""
     height, width = image_bgr.shape[:2]
     pw, ph = processing_size(width, height, options.tile_scale, options.max_side)
     scaled = image_bgr
@@ -341,7 +335,18 @@ def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: Segm
                           fixed or options.batch_size, counted.append)
     if info is not None:
         info.update(windows=counted[0], processed=[pw, ph])
-    return labels_from_logits(logits, width, height)
+    return logits
+
+
+def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
+                  info: dict | None = None) -> np.ndarray:
+    """uint8 labels (H, W) of a frame in ``tiles`` mode (module docstring). ``info``, if
+    given, receives ``windows`` and the ``processed`` (width, height)."""
+    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 BGR image (H, W, 3), got {image_bgr.shape} "
+                         f"{image_bgr.dtype}")
+    height, width = image_bgr.shape[:2]
+    return labels_from_logits(_scaled_tile_logits(segmenter, image_bgr, options, info), width, height)
 
 
 def segment_labels(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,

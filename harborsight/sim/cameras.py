@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.geometry.camera import CameraIntrinsics, sensor_focal_px
 
 
 @dataclass(frozen=True)
@@ -27,10 +27,8 @@ class CameraPreset:
     focal_35mm_mm: float = 24.0
 
     def intrinsics(self, width: int, height: int) -> CameraIntrinsics:
-        if width * self.sensor_height_mm >= height * self.sensor_width_mm:
-            f_px = self.focal_length_mm / self.sensor_width_mm * width     # spans the width
-        else:
-            f_px = self.focal_length_mm / self.sensor_height_mm * height   # spans the height
+        f_px, _ = sensor_focal_px(self.focal_length_mm, self.sensor_width_mm,
+                                  self.sensor_height_mm, width, height)
         return CameraIntrinsics(width, height, f_px, f_px, (width - 1) / 2, (height - 1) / 2)
 
 

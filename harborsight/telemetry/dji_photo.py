@@ -69,7 +69,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError, brief
-from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.geometry.camera import CameraIntrinsics, sensor_focal_px
 from harborsight.telemetry.accuracy import MAX_SIGMA_M, per_axis_from_class_m, per_axis_from_gst_m
 from harborsight.telemetry.track import Track
 
@@ -411,11 +411,7 @@ def photo_intrinsics(photo: DjiPhoto) -> tuple[CameraIntrinsics, str]:
     focal_mm = _to_float(photo.exif.get("FocalLength"))
     sensor = DJI_SENSORS.get((photo.model or "").upper())
     if sensor is not None and focal_mm is not None and focal_mm > 0:
-        if width / height >= sensor.width_mm / sensor.height_mm:
-            pitch_mm, spans = sensor.width_mm / width, "width"
-        else:
-            pitch_mm, spans = sensor.height_mm / height, "height"
-        f_px = focal_mm / pitch_mm
+        f_px, spans = sensor_focal_px(focal_mm, sensor.width_mm, sensor.height_mm, width, height)
         return _checked(photo, CameraIntrinsics(width, height, f_px, f_px, (width - 1) / 2.0,
                                                 (height - 1) / 2.0),
                         f"{photo.model}: {sensor.name}, EXIF focal length {focal_mm:g} mm "
