@@ -379,11 +379,13 @@ def filestorage_nesting_depth(text: str) -> tuple[int, int]:
             if len(indents) + flow > deepest:
                 deepest, where = len(indents) + flow, number
         quote = ""                      # YAML quotes do not span lines in these files
-    depth = 0
+    depth, deepest_at = 0, None
     for match in _XML_TAG.finditer(text):
         depth += -1 if match[1] else (0 if match[2] else 1)
         if depth > deepest:
-            deepest, where = depth, text.count("\n", 0, match.start()) + 1
+            deepest, deepest_at = depth, match.start()
+    if deepest_at is not None:          # the line counted once: per tag it was quadratic
+        where = text.count("\n", 0, deepest_at) + 1
     return deepest, where
 
 
