@@ -26,7 +26,8 @@ from harborsight.errors import HarborsightError, InputError, brief
 from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
-from harborsight.images import read_image, read_mask
+from harborsight.images import read_image_and_no_data, read_mask
+from harborsight.perception.classes import IGNORE
 from harborsight.perception.confidence import SolidConfidence
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 from harborsight.viz.overlay import draw_overlay
@@ -116,8 +117,33 @@ def check_image_size(image: np.ndarray, meta: FrameMetadata, source: str | Path)
 
 
 def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
-                 source: str | Path) -> FrameMask:
-    """The frame's class mask and where it came from: the mask file, else the model."""
+                 source: str | Path, no_data: np.ndarray | None = None) -> FrameMask:
+    """The frame's class mask and where it came from: the mask file, else the model. Pixels
+    in ``no_data`` (bool (H, W): no picture there, :func:`~harborsight.images.read_image_and_no_data`)
+    are labelled 255, ignore, which measuring counts as solid: a transparent corner is
+    not seen water."""
+    mask = _frame_labels(image, mask_path, segmenter, source)
+    if no_data is None or not no_data.any():
+        return mask
+    if mask.labels.shape != no_data.shape:
+        raise InputError(source, "mask", f"mask is {mask.labels.shape[1]}x{mask.labels.shape[0]} "
+                         f"but the image is {no_data.shape[1]}x{no_data.shape[0]}")
+    return mask._replace(labels=unseen_where_no_picture(mask.labels, mask.confidence, no_data))
+
+
+def unseen_where_no_picture(labels: np.ndarray, confidence: SolidConfidence | None,
+                            no_data: np.ndarray) -> np.ndarray:
+    """``labels`` with the pixels of ``no_data`` set to 255 (ignore: solid when measuring),
+    and ``confidence`` told they are solid."""
+    labels = labels.copy()
+    labels[no_data] = IGNORE
+    if confidence is not None:
+        confidence.no_picture = no_data
+    return labels
+
+
+def _frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
+                  source: str | Path) -> FrameMask:
     if mask_path is not None:
         return FrameMask(read_mask(mask_path), str(mask_path), from_file=True)
     if segmenter is not None:
@@ -162,9 +188,9 @@ def measure_job(
     ``segmenter``; raises :class:`InputError` on bad input."""
     meta = load_frame_metadata(job.meta_path, camera=camera)
     image_path = frame_image_path(job, meta)
-    image = read_image(image_path, camera_pixels=True)
+    image, no_data = read_image_and_no_data(image_path, camera_pixels=True)
     check_image_size(image, meta, image_path)
-    mask = frame_labels(image, job.mask_path, segmenter, job.meta_path)
+    mask = frame_labels(image, job.mask_path, segmenter, job.meta_path, no_data)
     report = measure_mask(mask, meta, vessels.for_frame(meta, job.meta_path), settings)
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:

@@ -69,11 +69,12 @@ def segment_command(
     exact_int8: Annotated[bool, typer.Option(help=EXACT_INT8_HELP)] = False,
 ) -> None:
     """Write a label mask for each image: OUT/<stem>.png, one channel, uint8, at the image's
-    own size; 0 water, 1 ship, 2 obstacle.
+    own size; 0 water, 1 ship, 2 obstacle; 255 where the image holds no picture (alpha 0, as
+    an orthophoto's area outside its footprint: filled black for the model, then unlabelled).
 
     OUT/segment.json records the model (file, network, held-out mIoU), the mode and its
-    parameters, and per image its path, size, mask, share of each class and segmentation
-    time; and the images left out, with the reason. An image that cannot be read (corrupt,
+    parameters, and per image its path, size, mask, share of each class, share without a
+    picture and segmentation time; and the images left out, with the reason. An image that cannot be read (corrupt,
     empty, not an image), or whose stem an earlier image already took (a.png and a.jpg),
     is listed and left out; the others are still written.
 

@@ -81,12 +81,17 @@ def model_masks(segment: Callable) -> MaskSource:
     """Masks from a segmenter: BGR uint8 image -> class labels, or -> (labels,
     :class:`~harborsight.perception.confidence.SolidConfidence`) as
     ``OnnxSegmenter.segment_with_confidence`` gives."""
+    from harborsight.images import read_image_and_no_data
+    from harborsight.pipeline import unseen_where_no_picture
+
     def source(dataset: Path, frame: dict) -> np.ndarray:
-        path = dataset / "images" / frame["image"]
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise HarborsightError(f"{path}: cannot read the image")
-        return segment(image)
+        image, no_data = read_image_and_no_data(dataset / "images" / frame["image"])
+        mask = segment(image)
+        if no_data is None:
+            return mask
+        labels, confidence = split_mask(mask)
+        labels = unseen_where_no_picture(labels, confidence, no_data)
+        return labels if confidence is None else (labels, confidence)
     return source
 
 

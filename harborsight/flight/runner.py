@@ -304,7 +304,7 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
             if clock.drift_warning is not None:
                 warnings.append(f"{frame.source}: {clock.drift_warning}")
                 clock.drift_warning = None
-        mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source)
+        mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data)
         report = measure_mask(mask, frame.meta, vessels.for_frame(frame.meta, frame.meta_path),
                               options.settings)
     except HarborsightError as exc:

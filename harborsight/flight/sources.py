@@ -41,7 +41,7 @@ from harborsight.frame import (
     read_frame_json,
 )
 from harborsight.geometry.camera import CameraIntrinsics, brief
-from harborsight.images import read_image
+from harborsight.images import read_image_and_no_data
 from harborsight.pipeline import (
     check_image_size,
     discover_jobs,
@@ -62,6 +62,7 @@ class FlightFrame:
     source: str                        # names the frame in messages: a path, or video + index
     meta: FrameMetadata | None = None
     image: np.ndarray | None = None    # BGR
+    no_data: np.ndarray | None = None  # bool (H, W): pixels without a picture (alpha 0)
     mask_path: Path | None = None      # None: segment with the model
     meta_path: Path | None = None      # the file vessel_spec paths are relative to
     video_time_s: float | None = None  # position in the video, when the source is one
@@ -99,7 +100,7 @@ class FolderSource:
                     read_frame_json(job.meta_path), job.meta_path, camera=self.camera,
                     base_dir=job.meta_path.parent)
                 image_path = frame_image_path(job, frame.meta)
-                frame.image = read_image(image_path, camera_pixels=True)
+                frame.image, frame.no_data = read_image_and_no_data(image_path, camera_pixels=True)
                 check_image_size(frame.image, frame.meta, image_path)
             except Exception as exc:  # one bad frame must not end the run
                 frame.error = (str(exc) if isinstance(exc, InputError)

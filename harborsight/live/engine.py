@@ -114,13 +114,15 @@ class LiveEngine:
             self.health[name].arrived(now_s)
 
     def process(self, frame_index: int, image: np.ndarray, meta: FrameMetadata, meta_path: Path,
-                time_s: float | None, arrived_s: float, mask_path: Path | None = None) -> dict:
+                time_s: float | None, arrived_s: float, mask_path: Path | None = None,
+                no_data: np.ndarray | None = None) -> dict:
         """Measure one frame that arrived at ``arrived_s`` (monotonic) and return the new
         state. A frame that cannot be measured leaves the sections as they were (they turn
         stale once no frame was measured for ``measurement_stale_s``) and adds a warning
         alarm; it never raises."""
         try:
-            mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path)
+            mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path,
+                                no_data)
             report = measure_mask(mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance)
         except HarborsightError as exc:
             return self.frame_failed(frame_index, str(exc))

@@ -138,7 +138,8 @@ def _measure(engine: LiveEngine, clock: FlightClock, frame: FlightFrame, arrived
         time_s = clock.seconds(frame)
     except InputError:      # off the run's clock: measured, not tracked
         time_s = None
-    state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path, time_s, arrived_s)
+    state = engine.process(frame.index, frame.image, frame.meta, frame.meta_path, time_s, arrived_s,
+                           no_data=frame.no_data)
     summary.frames_measured += 1
     if state.get("latency_ms") is not None and state.get("frame_index") == frame.index:
         summary.latencies_ms.append(state["latency_ms"])

@@ -40,6 +40,9 @@ class SolidConfidence:
                       for i in range(0, self.channels, 4)]
         self.grid_height, self.grid_width = logits.shape[1:]
         self.frame_width, self.frame_height = int(frame_width), int(frame_height)
+        #: bool (H, W) of frame pixels without a picture (alpha 0): labelled 255 and solid,
+        #: whatever the model made of their fill (set by :func:`harborsight.pipeline.frame_labels`)
+        self.no_picture: np.ndarray | None = None
 
     def logits_at(self, uv: np.ndarray) -> np.ndarray:
         """Bilinear logits ``(N, C)`` at frame pixels ``uv (N, 2)`` (module docstring)."""
@@ -70,4 +73,10 @@ class SolidConfidence:
             logits -= logits.max(axis=1, keepdims=True)
             weights = np.exp(logits)
             probability[finite] = 1.0 - weights[:, WATER_CLASS] / weights.sum(axis=1)
+        if self.no_picture is not None and finite.any():
+            pixel = np.rint(uv[finite]).astype(int)
+            inside = ((pixel >= 0) & (pixel < [self.frame_width, self.frame_height])).all(axis=1)
+            blank = np.zeros(len(pixel), bool)
+            blank[inside] = self.no_picture[pixel[inside, 1], pixel[inside, 0]]
+            probability[np.flatnonzero(finite)[blank]] = 1.0
         return probability

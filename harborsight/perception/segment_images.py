@@ -48,7 +48,14 @@ import numpy as np
 
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import natural_key, strict_json, write_bytes_atomic, write_text_atomic
-from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES, OBSTACLE, SHIP, WATER
+from harborsight.perception.classes import (
+    CLASS_NAMES,
+    IGNORE,
+    NUM_CLASSES,
+    OBSTACLE,
+    SHIP,
+    WATER,
+)
 from harborsight.perception.flips import flip_views
 
 if TYPE_CHECKING:  # onnxruntime is imported by the commands that run a model
@@ -483,12 +490,15 @@ class SegmentedImage:
     time_ms: float
     windows: int
     processed_wh: tuple[int, int]
+    #: share of the pixels without a picture (alpha 0), labelled 255
+    no_data_fraction: float = 0.0
 
     def to_dict(self) -> dict:
         return {"input": str(self.input), "width": self.width, "height": self.height,
                 "mask": str(self.mask), "overlay": None if self.overlay is None else str(self.overlay),
                 "fractions": self.fractions, "time_ms": round(self.time_ms, 3),
-                "windows": self.windows, "processed_wh": list(self.processed_wh)}
+                "windows": self.windows, "processed_wh": list(self.processed_wh),
+                "no_data_fraction": round(self.no_data_fraction, 6)}
 
 
 @dataclass
@@ -511,7 +521,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
     image's mask already took, or whose mask or overlay would replace one of the input
     images, is left out with the reason; the rest are still written. ``on_image(path)``
     after each image."""
-    from harborsight.images import read_image
+    from harborsight.images import read_image_and_no_data
 
     options = options or SegmentOptions()
     paths = list(paths)
@@ -530,7 +540,8 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
         try:
             run.images.append(_segment_one(path, segmenter, options, out_dir,
                                            overlay_dir if overlay else None, inputs, taken,
-                                           read_image, (names or {}).get(path, path.stem)))
+                                           read_image_and_no_data,
+                                           (names or {}).get(path, path.stem)))
         except (HarborsightError, OSError, cv2.error) as exc:
             reason = exc.message if isinstance(exc, InputError) else " ".join(str(exc).split())
             run.skipped.append((str(path), reason))
@@ -553,7 +564,8 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
 
 def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, out_dir: Path,
                  overlay_dir: Path | None, inputs: set[Path], taken: dict[str, Path],
-                 read_image: Callable[[Path], np.ndarray], stem: str) -> SegmentedImage:
+                 read_image: Callable[[Path], tuple[np.ndarray, np.ndarray | None]],
+                 stem: str) -> SegmentedImage:
     mask_path = out_dir / f"{stem}.png"
     overlay_path = None if overlay_dir is None else overlay_dir / f"{stem}.jpg"
     if stem in taken:
@@ -563,7 +575,7 @@ def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, 
         if output is not None and output.resolve() in inputs:
             raise InputError(path, None, f"its output {output} is one of the input images; "
                              "choose another --out folder")
-    image = read_image(path)
+    image, no_data = read_image(path)
     height, width = image.shape[:2]
     for output in (mask_path, overlay_path):
         if output is not None:
@@ -571,6 +583,8 @@ def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, 
     info: dict = {}
     start = time.perf_counter()
     labels = segment_labels(segmenter, image, options, info)
+    if no_data is not None:          # no picture there: not seen, whatever the model says
+        labels[no_data] = IGNORE
     elapsed_ms = 1000.0 * (time.perf_counter() - start)
     fractions = class_fractions(labels)
     write_bytes_atomic(mask_path, _encode(".png", labels))
@@ -584,4 +598,5 @@ def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, 
             raise InputError(path, None, f"mask written to {mask_path}, but not the overlay: "
                              + " ".join(str(exc).split())) from None
     return SegmentedImage(path, width, height, mask_path, overlay_path, fractions, elapsed_ms,
-                          info["windows"], tuple(info["processed"]))
+                          info["windows"], tuple(info["processed"]),
+                          0.0 if no_data is None else float(no_data.mean()))
