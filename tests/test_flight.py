@@ -601,22 +601,19 @@ def test_a_repeated_presentation_time_costs_that_frame_only(monkeypatch, tmp_pat
     times_ms = ([1000 / 30 * k for k in range(30)] + [1000 / 30 * 29]
                 + [1000 / 30 * k for k in range(30, 60)] + [2000 + 200 * k for k in range(20)])
 
+    from harborsight.flight.video_decode import DecodedPicture
+
     class Capture:
-        def __init__(self):
-            self.k = -1
-
-        def read(self):
-            self.k += 1
-            return (True, np.zeros((4, 4, 3), np.uint8)) if self.k < len(times_ms) else (False, None)
-
         def get(self, prop):
-            return {cv2.CAP_PROP_POS_MSEC: times_ms[max(self.k, 0)], cv2.CAP_PROP_FPS: 80 / 6,
+            return {cv2.CAP_PROP_FPS: 80 / 6,
                     cv2.CAP_PROP_FRAME_COUNT: float(len(times_ms))}.get(prop, 0.0)
 
         def release(self):
             pass
 
     monkeypatch.setattr(sources, "open_video", lambda video: Capture())
+    monkeypatch.setattr(sources, "read_video_frames", lambda video: (
+        DecodedPicture(k, t / 1000, np.zeros((4, 4, 3), np.uint8)) for k, t in enumerate(times_ms)))
     monkeypatch.setattr(sources, "read_metadata_lines", lambda *args, **kwargs: ({}, [], {}, {}))
     (tmp_path / "v.mp4").write_bytes(b"x")
     source = sources.VideoSource(tmp_path / "v.mp4", tmp_path / "v.jsonl")

@@ -543,6 +543,8 @@ def test_a_frame_s_time_is_its_timestamp_not_when_a_busy_decoder_returned_it(mon
             pass
 
     monkeypatch.setattr(video_in, "_open", lambda *args: Container())
+    monkeypatch.setattr(video_in, "decoded_frames",
+                        lambda container: ((frame, None) for frame in container.decode(video=0)))
     monkeypatch.setattr(video_in, "time", types.SimpleNamespace(monotonic=lambda: next(decoded_s)))
     video_in.read_stream("udp://127.0.0.1:1", LatestFrame(), stop,
                          on_arrival=lambda frame, now_s: arrivals.append(now_s))
@@ -581,6 +583,8 @@ def test_video_timestamps_that_jump_or_drift_move_a_frame_half_a_second_at_most(
             pass
 
     monkeypatch.setattr(video_in, "_open", lambda *args: Container())
+    monkeypatch.setattr(video_in, "decoded_frames",
+                        lambda container: ((frame, None) for frame in container.decode(video=0)))
     monkeypatch.setattr(video_in, "time", types.SimpleNamespace(monotonic=lambda: next(clock_s)))
     video_in.read_stream("udp://127.0.0.1:1", LatestFrame(), stop, warn=warnings.append,
                          on_arrival=lambda frame, now_s: arrivals.append(now_s))

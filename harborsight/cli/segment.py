@@ -74,9 +74,9 @@ def segment_command(
 
     OUT/segment.json records the model (file, network, held-out mIoU), the mode and its
     parameters, and per image its path, size, mask, share of each class, share without a
-    picture and segmentation time; and the images left out, with the reason. An image that cannot be read (corrupt,
-    empty, not an image), or whose stem an earlier image already took (a.png and a.jpg),
-    is listed and left out; the others are still written.
+    picture and segmentation time; and the images left out, with the reason. An image that
+    cannot be read (corrupt, empty, not an image), or whose stem an earlier image already
+    took (a.png and a.jpg), is listed and left out; the others are still written.
 
     Exit status: 0 when at least one mask was written (left-out images are listed);
     1 when none was; 2 for a usage error (missing input or model file, bad option).

@@ -12,12 +12,14 @@ the default is ``<video stem>-<index>.png``). Video frames without a metadata li
 written to the annotated video unmeasured and counted, not reported as errors: telemetry is
 often slower than the camera.
 
-A video frame's position in the video is its presentation time (OpenCV's
-``CAP_PROP_POS_MSEC`` after reading it, from the first frame's), not its index over the
-container's mean rate: a variable-frame-rate video (phones, drones in low light) or one
-with dropped frames has frames far from ``n / fps``. Videos are opened with OpenCV's
-auto-rotation off (:func:`open_video`): the frames are the camera's pixels as stored, which
-the metadata describes, whatever display rotation the container asks for.
+A video frame's position in the video is its presentation time (from the first frame's),
+not its index over the container's mean rate: a variable-frame-rate video (phones, drones
+in low light) or one with dropped frames has frames far from ``n / fps``. Frames are decoded
+by PyAV as stored (:mod:`harborsight.flight.video_decode`): the camera's pixels, which the
+metadata describes, whatever display rotation the container asks for; a frame decoded from
+damaged data is reported and not measured, and the frames after it keep their numbers
+(OpenCV's reader stopped at the first damaged packet). :func:`open_video` (OpenCV, its
+auto-rotation off) still reads the container's rate, size and rotation.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds, timestamp_seconds
+from harborsight.flight.video_decode import read_video_frames, video_packet_times
 from harborsight.frame import (
     FrameMetadata,
     parse_frame_metadata_untimed_on_error,
@@ -252,19 +255,11 @@ def video_frame_times_s(video: Path) -> np.ndarray | None:
     """Each frame's presentation time (s from the first) in display order, from the
     container's packets (PyAV, no decoding); None when the stream's packets carry no times
     (a raw elementary stream) or it cannot be read."""
-    import av
-
-    try:
-        with av.open(str(video)) as container:
-            stream = container.streams.video[0]
-            base = stream.time_base
-            pts = [packet.pts for packet in container.demux(stream)
-                   if packet.pts is not None and packet.size > 0]
-    except (av.error.FFmpegError, IndexError, OSError, ValueError):
+    found = video_packet_times(video)
+    if found is None:
         return None
-    if not pts or base is None:
-        return None
-    times = np.sort(np.array(pts, float)) * float(base)
+    pts, base_s = found
+    times = np.array(pts, float) * base_s
     return times - times[0]
 
 
@@ -295,48 +290,42 @@ class VideoSource:
         for message in self.orphans:
             yield FlightFrame(-1, str(self.metadata), meta_path=self.metadata, error=message,
                               is_frame=False)
-        capture = open_video(self.video)
-        index = -1
-        first_ms = last_raw_s = previous_s = None
+        last_index = -1
+        last_raw_s = previous_s = None
         step_s = 1.0 / self.container_fps if self.container_fps else None
-        try:
-            while True:
-                ok, image = capture.read()
-                if not ok:
-                    break
-                index += 1
-                # the frame's presentation time; where the container gives none, or one that
-                # does not increase (a repeated time), a frame interval after the previous
-                # frame's (the index over the mean rate before any)
-                position_ms = capture.get(cv2.CAP_PROP_POS_MSEC)
-                raw_s = None
-                if math.isfinite(position_ms):
-                    first_ms = position_ms if first_ms is None else first_ms
-                    raw_s = (position_ms - first_ms) / 1000.0
-                if raw_s is not None and (last_raw_s is None or raw_s > last_raw_s):
-                    video_time_s = last_raw_s = raw_s
-                elif previous_s is not None and step_s is not None:
-                    video_time_s = previous_s + step_s
+        for picture in read_video_frames(self.video):
+            index = last_index = picture.index
+            # the frame's presentation time; where the container gives none, or one that
+            # does not increase (a repeated time), a frame interval after the previous
+            # frame's (the index over the mean rate before any)
+            raw_s = picture.time_s
+            if raw_s is not None and (last_raw_s is None or raw_s > last_raw_s):
+                video_time_s = last_raw_s = raw_s
+            elif previous_s is not None and step_s is not None:
+                video_time_s = previous_s + step_s
+            else:
+                video_time_s = index * step_s if step_s is not None else None
+            previous_s = video_time_s
+            entry = self.by_frame.get(index)
+            frame = FlightFrame(index, f"{self.video} frame {index}", image=picture.image,
+                                meta_path=self.metadata, video_time_s=video_time_s)
+            if entry is None:
+                frame.error = NO_METADATA if picture.damaged is None else (
+                    f"{frame.source}: {picture.damaged}")
+            elif isinstance(entry, str):
+                frame.error = entry
+            else:
+                frame.meta, frame.time_error = entry, self.time_errors.get(index)
+                where = f"{self.metadata}:{self.line_of[index]} (video frame {index})"
+                if picture.damaged is not None:
+                    frame.error = f"{where}: {picture.damaged}"
                 else:
-                    video_time_s = index * step_s if step_s is not None else None
-                previous_s = video_time_s
-                entry = self.by_frame.get(index)
-                frame = FlightFrame(index, f"{self.video} frame {index}", image=image,
-                                    meta_path=self.metadata, video_time_s=video_time_s)
-                if entry is None:
-                    frame.error = NO_METADATA
-                elif isinstance(entry, str):
-                    frame.error = entry
-                else:
-                    frame.meta, frame.time_error = entry, self.time_errors.get(index)
                     try:
-                        check_image_size(image, entry, f"{self.metadata}:{self.line_of[index]} "
-                                                       f"(video frame {index})")
+                        check_image_size(picture.image, entry, where)
                     except InputError as exc:
                         frame.error = str(exc)
-                yield frame
-        finally:
-            capture.release()
+            yield frame
+        index = last_index
         decoded = index + 1
         end = (f"past the video's end ({decoded} frames)" if decoded >= self.frame_count else
                f"past the last frame that could be decoded ({decoded} of the {self.frame_count} "

@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 
 from harborsight.flight.sources import FlightFrame, VideoSource, open_video
+from harborsight.flight.video_decode import read_video_frames
 
 
 @dataclass
@@ -79,17 +80,13 @@ class VideoFrames:
         capture.release()
 
     def frames(self) -> Iterator[FlightFrame]:
-        capture = open_video(self.video)
-        try:
-            index = 0
-            while True:
-                ok, image = capture.read()
-                if not ok:
-                    break
-                yield FlightFrame(index=index, source=f"{self.video} frame {index}", image=image)
-                index += 1
-        finally:
-            capture.release()
+        """Every frame; one decoded from damaged data carries the reason in ``error`` and
+        one that gave no picture comes without an image (:mod:`harborsight.flight.video_decode`)."""
+        for picture in read_video_frames(self.video):
+            source = f"{self.video} frame {picture.index}"
+            yield FlightFrame(index=picture.index, source=source, image=picture.image,
+                              error=None if picture.damaged is None
+                              else f"{source}: {picture.damaged}")
 
 
 def replay_video(source: VideoSource | VideoFrames, box: LatestFrame, stop: threading.Event,

@@ -15,6 +15,11 @@ moment it was decoded. A frame whose offset differs from the least one by more t
 step back (a restarted encoder), or that do not keep time (FFmpeg's own at a frame rate the
 camera does not send), can then move a frame's time by that much at most.
 
+Packets lost or damaged on the link are decoded as the decoder can, and every frame decoded
+from damaged data, up to the next key frame decoded whole, is passed on with the reason in
+its ``error`` and not measured (:mod:`harborsight.flight.video_decode`; the frames stay on
+the dashboard); a packet that fails to decode no longer reopens the stream.
+
 A stream that cannot be opened, that drops, or that stops sending is warned about and opened
 again every ``retry_s`` until the live aid stops; a change of resolution is warned about (the
 frames are still passed on: the camera's intrinsics follow the size where they come from a
@@ -28,6 +33,7 @@ import time
 from collections.abc import Callable
 
 from harborsight.flight.sources import FlightFrame
+from harborsight.flight.video_decode import decoded_frames
 from harborsight.live.stream import Arrival, LatestFrame
 from harborsight.live.telemetry import ClockMap, worth_saying
 
@@ -72,7 +78,7 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
     """Read ``source`` into ``box`` until ``stop`` is set (module docstring). Frames are
     numbered from 0 over the whole session, across reconnections."""
     warn = warn or (lambda message: None)
-    index = 0
+    index = damaged_frames = 0
     size: tuple[int, int] | None = None
     try:
         while not stop.is_set():
@@ -84,7 +90,7 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 continue
             clock = ClockMap(jump_s=VIDEO_JUMP_S)   # a reopened stream numbers afresh
             try:
-                for picture in container.decode(video=0):
+                for picture, damaged in decoded_frames(container):
                     now = time.monotonic()
                     if picture.time is not None:
                         jumps = clock.jumps
@@ -100,6 +106,12 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                              f"{shape[0]}x{shape[1]}")
                     size = shape
                     frame = FlightFrame(index=index, source=f"{source} frame {index}", image=image)
+                    if damaged is not None:     # measured, it would show what is not there
+                        frame.error = f"{frame.source}: {damaged}"
+                        damaged_frames += 1
+                        if worth_saying(damaged_frames):
+                            warn(f"{damaged_frames} frame(s) decoded from damaged data, not "
+                                 f"measured (the last: {damaged})")
                     if on_arrival is not None:
                         on_arrival(frame, now)
                     box.put(Arrival(frame, now))

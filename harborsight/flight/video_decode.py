@@ -1,0 +1,231 @@
+"""Video frames decoded with PyAV (FFmpeg), each with whether its picture can be trusted.
+
+A video damaged in the middle (an SD card's bad block, a recording cut by a power loss and
+repaired, packets lost on a UDP or RTP link) still decodes: the decoder conceals what it
+could not read by copying and smearing blocks, and every later frame that predicts from the
+damaged one carries the damage on until the next key frame. Measured on a 320x180 H.264
+clip with one key frame's bytes scrambled in an MPEG-TS: 30 frames decoded without any
+error returned or flag set, their mean difference from the clean decode growing from 3 to
+30 grey levels; in an MP4 the same kind of damage made OpenCV's reader stop at the damaged
+packet (the rest of the flight never read) and PyAV's raise for it. Both are wrong for a
+measurement: a concealed frame shows water and quays where they are not, and a stop loses
+every frame after it.
+
+So frames are decoded one packet at a time and a frame is **damaged** when
+
+* a packet's decoding failed (FFmpeg's error for it), or the decoder logged an error
+  while decoding it ("error while decoding MB", "concealing ... errors", a missing
+  reference), or FFmpeg flagged the frame corrupt; or
+* a frame before it, in decoding order, was damaged or never came out (a packet the decoder
+  gave nothing for, seen as a gap in the presentation times of a file's packets),
+
+until a key frame decodes cleanly: from its presentation time on, frames are whole again.
+Every frame output from the damaged packet on counts as damaged until then, those of earlier
+presentation time too (a B-frame may predict from the damaged frame). Slice threading only,
+so that the decoder's messages belong to the packet being decoded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from harborsight.errors import InputError
+
+#: why a frame the file holds gave no picture
+NOT_DECODED = "not decoded: its data is damaged or missing"
+
+
+@dataclass
+class DecodedPicture:
+    """One decoded frame: its position in the video, the picture, and why it cannot be
+    trusted (None when it can)."""
+
+    index: int                       # the frame's rank among the video's presentation times
+    time_s: float | None             # presentation time from the video's first frame
+    image: np.ndarray | None         # BGR; None for a frame that never came out
+    damaged: str | None = None
+
+
+class DamageTracker:
+    """Which frames show damaged data (module docstring); fed in decoding order."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None      # why frames are damaged now; None: whole
+        self.damaged_packets = 0
+
+    def packet(self, is_key: bool, error: str | None) -> None:
+        """A packet was decoded (with ``error`` if it failed or the decoder complained)."""
+        if error is not None:
+            self.reason = error
+            self.damaged_packets += 1
+        elif is_key:
+            self.reason = None
+
+    def missing(self, reason: str) -> None:
+        """A frame never came out: those predicting from it are damaged."""
+        if self.reason is None:
+            self.reason = reason
+
+
+def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
+                   ) -> Iterator[tuple[object, str | None]]:
+    """``(av.VideoFrame, damaged reason or None)`` of ``container``'s video stream in the
+    order the decoder gives them (module docstring). Errors of reading the container (a
+    dropped connection) are raised as :class:`OSError`; a packet that fails to decode is
+    not. ``tracker`` (a new one if None) may be told of frames missed by the caller."""
+    import av
+    import av.logging as logging
+
+    stream = stream if stream is not None else container.streams.video[0]
+    codec = stream.codec_context
+    codec.thread_type = "SLICE"
+    tracker = tracker if tracker is not None else DamageTracker()
+    level, skip = logging.get_level(), logging.get_skip_repeated()
+    logging.set_level(logging.ERROR)
+    logging.set_skip_repeated(False)      # each damaged packet says so, even in the same words
+    try:
+        with logging.Capture(local=False) as logs:
+            for packet in container.demux(stream):
+                frames, error = _decode(packet)
+                complaints = [message.strip() for level_, name, message in logs
+                              if level_ <= logging.ERROR and name == codec.name]
+                del logs[:]
+                if packet.size == 0:               # the end: the decoder's last frames
+                    error = error or (complaints[0] if complaints else None)
+                else:
+                    tracker.packet(bool(packet.is_keyframe), None if error is None and not
+                                   complaints else f"decoded from damaged data (packet at "
+                                   f"{_time(packet, stream)}: {error or complaints[0]})")
+                for frame in frames:
+                    yield frame, _frame_damage(frame, tracker)
+    except av.error.FFmpegError as exc:
+        raise OSError(f"cannot read the video: {' '.join(str(exc).split())}") from None
+    finally:
+        logging.set_level(level)
+        logging.set_skip_repeated(skip)
+
+
+def _decode(packet) -> tuple[list, str | None]:
+    """The frames a packet gives, and FFmpeg's error if decoding it failed."""
+    import av
+
+    try:
+        return list(packet.decode()), None
+    except av.error.EOFError:
+        return [], None
+    except av.error.FFmpegError as exc:
+        return [], " ".join((exc.strerror or str(exc)).split())
+
+
+def _frame_damage(frame, tracker: DamageTracker) -> str | None:
+    if getattr(frame, "is_corrupt", False) and tracker.reason is None:
+        return "the decoder flagged the frame corrupt"
+    return tracker.reason
+
+
+def _time(packet, stream) -> str:
+    if packet.pts is None or stream.time_base is None:
+        return "unknown time"
+    return f"{float(packet.pts * stream.time_base):.3f} s"
+
+
+def video_packet_times(video: Path) -> tuple[list[int], float] | None:
+    """The presentation times of every frame in the file, ascending, in the stream's time
+    base, and that base in seconds; from the packets, without decoding. None when the
+    packets carry no times (a raw elementary stream) or the file cannot be read."""
+    import av
+
+    try:
+        with av.open(str(video)) as container:
+            stream = container.streams.video[0]
+            base = stream.time_base
+            pts = [packet.pts for packet in container.demux(stream)
+                   if packet.pts is not None and packet.size > 0]
+    except (av.error.FFmpegError, IndexError, OSError, ValueError):
+        return None
+    if not pts or base is None:
+        return None
+    return sorted(pts), float(base)
+
+
+#: a video is taken for one of constant frame rate when 90 % of its frame steps are within
+#: 5 % of their median; a step of n medians then says n - 1 frames went missing
+REGULAR_STEP_SHARE, REGULAR_STEP_TOLERANCE = 0.9, 0.05
+
+
+def frame_numbers(times: list[int]) -> list[int]:
+    """Each packet time's frame number: its rank, and in a constant-rate video one more for
+    each frame a longer step says is missing (a lost packet leaves no time of its own)."""
+    steps = np.diff(np.asarray(times, float))
+    step = float(np.median(steps)) if len(steps) >= 4 else 0.0
+    regular = step > 0 and np.mean(np.abs(steps - step) <= REGULAR_STEP_TOLERANCE * step
+                                   ) >= REGULAR_STEP_SHARE
+    numbers = [0]
+    for gap in steps:
+        numbers.append(numbers[-1] + (max(1, round(gap / step)) if regular else 1))
+    return numbers
+
+
+def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
+    """Every frame of a video file in presentation order (module docstring), numbered by
+    :func:`frame_numbers` of the file's packet times, so that a frame the decoder never
+    gives, or whose packet is lost, keeps its number (yielded with ``image`` None) and the
+    frames after it keep theirs. :class:`InputError` when the file cannot be opened."""
+    import av
+
+    times, base = video_packet_times(video) or ([], None)
+    numbers = frame_numbers(times) if times else []
+    number_of: dict[int, int] = {}
+    for pts, number in zip(times, numbers, strict=True):
+        number_of.setdefault(pts, number)      # a time given twice: its first frame's number
+    try:
+        container = av.open(str(video))
+    except (av.error.FFmpegError, OSError) as exc:
+        raise InputError(video, None, f"cannot open the video ({' '.join(str(exc).split())})"
+                         ) from None
+    try:
+        if not container.streams.video:
+            raise InputError(video, None, "no video stream")
+        stream = container.streams.video[0]
+        first_pts = times[0] if times else None
+        slot_s = (_seconds(times[-1], first_pts, base) / numbers[-1]
+                  if len(times) > 1 and numbers[-1] and base else None)
+
+        def lost(first: int, end: int) -> Iterator[DecodedPicture]:
+            for number in range(first, end):
+                yield DecodedPicture(number, None if slot_s is None else number * slot_s,
+                                     None, NOT_DECODED)
+
+        tracker = DamageTracker()
+        expected = 0                           # the next frame's number
+        for frame, damaged in decoded_frames(container, stream, tracker):
+            number = number_of.get(frame.pts, expected) if frame.pts is not None else expected
+            if number > expected:              # frames that gave no picture
+                yield from lost(expected, number)
+                if damaged is None and not frame.key_frame:
+                    missed = (f"frame {expected}" if number == expected + 1
+                              else f"frames {expected}-{number - 1}")
+                    damaged = (f"decoded after {missed}, which gave no picture (it may "
+                               "predict from them)")
+                    tracker.missing(damaged)
+            number = max(number, expected)     # a time seen twice: keep the numbering going
+            expected = number + 1
+            yield DecodedPicture(number, _seconds(frame.pts, first_pts, base),
+                                 frame.to_ndarray(format="bgr24"), damaged)
+        yield from lost(expected, numbers[-1] + 1 if numbers else 0)
+    except OSError as exc:
+        raise InputError(video, None, str(exc)) from None
+    finally:
+        container.close()
+
+
+def _seconds(pts: int | None, first_pts: int | None, base: float | None) -> float | None:
+    if pts is None or first_pts is None or base is None:
+        return None
+    value = (pts - first_pts) * base
+    return value if math.isfinite(value) else None

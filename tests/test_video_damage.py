@@ -1,0 +1,194 @@
+"""A video damaged in the middle: the frames decoded from damaged data are named and not
+measured, and the others keep their numbers and pictures. OpenCV's reader stopped at the
+first damaged packet of an MP4 (the rest of the flight unread), and in an MPEG-TS the
+decoder's concealed frames, up to 30 grey levels off, were measured as if whole."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from harborsight.cli import app
+from harborsight.flight.video_decode import NOT_DECODED, frame_numbers, read_video_frames
+
+SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
+runner = CliRunner()
+FRAMES, KEY_EVERY = 45, 15               # key frames at 0, 15 and 30
+
+
+def _picture(k: int, size=(96, 64)) -> np.ndarray:
+    picture = np.zeros((size[1], size[0], 3), np.uint8)
+    picture[..., 0], picture[..., 2] = 90, 40
+    picture[16:48, 4 + 2 * k:36 + 2 * k] = 200            # a block moving right
+    picture[::5] += 25
+    return picture
+
+
+def _write(path: Path, fmt: str | None = None) -> None:
+    import av
+
+    with av.open(str(path), "w", format=fmt) as out:
+        stream = out.add_stream("libx264", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 96, 64, "yuv420p"
+        stream.options = {"g": str(KEY_EVERY), "keyint_min": str(KEY_EVERY), "bf": "0",
+                          "sc_threshold": "0"}
+        for k in range(FRAMES):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(_picture(k), format="bgr24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+def _decoded(path: Path) -> list[np.ndarray]:
+    import av
+
+    with av.open(str(path)) as container:
+        return [f.to_ndarray(format="bgr24") for f in container.decode(video=0)]
+
+
+def _packet_spans(path: Path) -> list[tuple[int, int, bool]]:
+    """(byte offset, size, key) of each video packet in the file, in decoding order."""
+    import av
+
+    with av.open(str(path)) as container:
+        return [(p.pos, p.size, p.is_keyframe) for p in container.demux(video=0) if p.size]
+
+
+def _scramble(path: Path, start: int, size: int, seed: int = 0) -> None:
+    data = bytearray(path.read_bytes())
+    rng = np.random.default_rng(seed)
+    for offset in range(start, start + size, 3):
+        data[offset] = int(rng.integers(0, 256))
+    path.write_bytes(bytes(data))
+
+
+def _check(pictures, clean: list[np.ndarray], damaged: set[int]) -> None:
+    assert [p.index for p in pictures] == list(range(FRAMES))
+    for p in pictures:
+        if p.index in damaged:
+            assert p.damaged, p.index
+        else:
+            assert p.damaged is None, (p.index, p.damaged)
+            assert np.array_equal(p.image, clean[p.index]), p.index
+    assert [round(p.time_s, 6) for p in pictures if p.time_s is not None][:3] == [0.0, 0.1, 0.2]
+
+
+def test_a_damaged_packet_in_an_mp4_costs_its_frames_up_to_the_next_key_frame(tmp_path):
+    video = tmp_path / "flight.mp4"
+    _write(video)
+    clean = _decoded(video)
+    assert len(clean) == FRAMES
+    start, size, key = _packet_spans(video)[20]
+    assert not key
+    _scramble(video, start + 8, size - 12)
+    pictures = list(read_video_frames(video))
+    _check(pictures, clean, set(range(20, 30)))
+    assert pictures[20].image is None and pictures[20].damaged == NOT_DECODED
+    assert "decoded from damaged data (packet at 2.000 s" in pictures[21].damaged
+    import cv2
+
+    capture = cv2.VideoCapture(str(video))          # what `run` read before: 20 frames
+    read = 0
+    while capture.read()[0]:
+        read += 1
+    assert read == 20
+
+
+def test_a_damaged_key_frame_in_an_mpeg_ts_is_concealed_and_named(tmp_path):
+    """The decoder conceals the damaged key frame without an error returned or the frame
+    flagged corrupt; it says so in its log, and that names the frames until the next key."""
+    video = tmp_path / "flight.ts"
+    _write(video, "mpegts")
+    clean = _decoded(video)
+    start, _, key = _packet_spans(video)[15]
+    assert key
+    packet_at = start // 188 * 188                  # the TS packet holding the PES start
+    _scramble(video, packet_at + 120, 60, seed=1)   # within that TS packet's payload
+    pictures = list(read_video_frames(video))
+    concealed = [p.index for p in pictures if p.damaged]
+    assert concealed and concealed == list(range(concealed[0], 30))
+    assert concealed[0] <= 16
+    _check(pictures, clean, set(concealed))
+    differs = [p.index for p in pictures if p.damaged and p.image is not None
+               and np.abs(p.image.astype(int) - clean[p.index]).mean() > 1.0]
+    assert differs                                   # what was measured before
+
+
+def test_frame_numbers_say_where_a_lost_packet_was():
+    times = [10 * k for k in range(20) if k != 7]             # frame 7's packet lost
+    assert frame_numbers(times) == [k for k in range(20) if k != 7]
+    # not a constant rate (a phone's variable rate): ranks only
+    times = [10 * k for k in range(10)] + [100 + 25 * k for k in range(10)]
+    assert frame_numbers(times) == list(range(20))
+
+
+def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path, untrained_model):
+    video = tmp_path / "flight.mp4"
+    _write(video)
+    start, size, _ = _packet_spans(video)[20]
+    _scramble(video, start + 8, size - 12)
+    record = json.loads((SAMPLES / "flight" / "frames" / "000000.json").read_text())
+    record["camera"].update(width=96, height=64, fx=60.0, fy=60.0, cx=47.5, cy=31.5)
+    for key in ("image", "ground_truth", "simulation", "vessel_spec"):
+        record.pop(key, None)
+    (tmp_path / "flight.jsonl").write_text("".join(
+        json.dumps({**record, "frame_index": k}) + "\n" for k in range(FRAMES)))
+    vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(video), "--metadata", str(tmp_path / "flight.jsonl"),
+                                 "--model", str(untrained_model), "--vessel", str(vessel),
+                                 "--out", str(out), "--no-video", "--no-overlays"],
+                           terminal_width=200)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "run.json").read_text())
+    skipped = {item["frame"]: item["error"] for item in summary["skipped_frames"]}
+    assert sorted(skipped) == list(range(20, 30))
+    assert "damaged" in skipped[25] and "flight.jsonl:26" in skipped[25]
+    assert summary["measured"] == FRAMES - 10
+
+
+@pytest.mark.parametrize("fmt", ["mp4", "mpegts"])
+def test_a_whole_video_has_no_damaged_frame(tmp_path, fmt):
+    video = tmp_path / f"clean.{fmt}"
+    _write(video, None if fmt == "mp4" else fmt)
+    pictures = list(read_video_frames(video))
+    assert len(pictures) == FRAMES and not any(p.damaged for p in pictures)
+
+
+def test_the_live_reader_passes_damaged_frames_on_named_and_keeps_the_stream(tmp_path,
+                                                                            monkeypatch):
+    """A packet that failed to decode ended the live reader's stream ("stopped sending"),
+    which it then opened again; the frames concealed after it were measured. Now the stream
+    goes on and those frames carry the reason (the live aid does not measure them)."""
+    import threading
+
+    import av
+
+    from harborsight.live import video_in
+    from harborsight.live.stream import LatestFrame
+
+    video = tmp_path / "link.ts"
+    _write(video, "mpegts")
+    start, _, _ = _packet_spans(video)[15]
+    _scramble(video, start // 188 * 188 + 120, 60, seed=1)
+    opened, frames, warnings = [], [], []
+    stop = threading.Event()
+
+    def arrived(frame, now_s):
+        frames.append(frame)
+        if len(frames) == FRAMES:
+            stop.set()
+
+    def open_once(*args):
+        opened.append(1)
+        return av.open(str(video))
+
+    monkeypatch.setattr(video_in, "_open", open_once)
+    video_in.read_stream("udp://127.0.0.1:1", LatestFrame(), stop, on_arrival=arrived,
+                         warn=warnings.append)
+    assert len(opened) == 1
+    named = [f.index for f in frames if f.error]
+    assert named and named[-1] == 29 and all("damaged" in f.error for f in frames if f.error)
+    assert any("decoded from damaged data, not measured" in w for w in warnings)
