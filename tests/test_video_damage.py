@@ -116,6 +116,16 @@ def test_a_damaged_key_frame_in_an_mpeg_ts_is_concealed_and_named(tmp_path):
     assert differs                                   # what was measured before
 
 
+def test_errors_about_side_data_leave_the_picture_whole():
+    """Drones write their own records into SEI messages; FFmpeg logs an error for one it
+    cannot parse and decodes the picture on: not damage."""
+    from harborsight.flight.video_decode import _about_side_data
+
+    assert _about_side_data("SEI type 5 size 40 truncated at 16")
+    assert not _about_side_data("error while decoding MB 0 0, bytestream 319")
+    assert not _about_side_data("concealing 120 DC, 120 AC, 120 MV errors in P frame")
+
+
 def test_frame_numbers_say_where_a_lost_packet_was():
     times = [10 * k for k in range(20) if k != 7]             # frame 7's packet lost
     assert frame_numbers(times) == [k for k in range(20) if k != 7]

@@ -15,7 +15,8 @@ So frames are decoded one packet at a time and a frame is **damaged** when
 
 * a packet's decoding failed (FFmpeg's error for it), or the decoder logged an error
   while decoding it ("error while decoding MB", "concealing ... errors", a missing
-  reference), or FFmpeg flagged the frame corrupt; or
+  reference; not one about SEI side data, which leaves the picture whole), or FFmpeg
+  flagged the frame corrupt; or
 * a frame before it, in decoding order, was damaged or never came out (a packet the decoder
   gave nothing for, seen as a gap in the presentation times of a file's packets),
 
@@ -28,6 +29,7 @@ so that the decoder's messages belong to the packet being decoded.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,7 +95,8 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
             for packet in container.demux(stream):
                 frames, error = _decode(packet)
                 complaints = [message.strip() for level_, name, message in logs
-                              if level_ <= logging.ERROR and name == codec.name]
+                              if level_ <= logging.ERROR and name == codec.name
+                              and not _about_side_data(message)]
                 del logs[:]
                 if packet.size == 0:               # the end: the decoder's last frames
                     error = error or (complaints[0] if complaints else None)
@@ -108,6 +111,16 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
     finally:
         logging.set_level(level)
         logging.set_skip_repeated(skip)
+
+
+#: decoder messages about data beside the picture (H.264/HEVC SEI: user data, timecodes,
+#: which drones fill with their own records): an error there leaves the picture whole, as
+#: FFmpeg's decoders go on past it unless told to explode
+_SIDE_DATA = re.compile(r"\bSEI\b")
+
+
+def _about_side_data(message: str) -> bool:
+    return _SIDE_DATA.search(message) is not None
 
 
 def _decode(packet) -> tuple[list, str | None]:
