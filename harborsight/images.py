@@ -197,21 +197,50 @@ def may_hold_alpha(data: bytes) -> bool:
     return data[:4] in (b"II*\x00", b"MM\x00*") or (data[:4] == b"RIFF" and data[8:12] == b"WEBP")
 
 
+#: the TIFF tag in which GDAL writes a raster's no-data value (ASCII, e.g. "0" or "-9999")
+GDAL_NODATA_TAG = 42113
+
+
 def no_data_pixels(data: bytes, shape: tuple[int, int]) -> np.ndarray | None:
     """Where the encoded image ``data`` holds no picture: pixels of alpha 0, as an orthophoto
     or a rectified frame marks the area outside its footprint (stored black, white or
-    anything); bool (H, W) turned as the picture is displayed, or None where every pixel is
-    opaque or the file has no alpha. ``shape`` is the displayed picture's (H, W)."""
-    if not may_hold_alpha(data):
+    anything), and in a GeoTIFF pixels whose every band holds its ``GDAL_NODATA`` value;
+    bool (H, W) turned as the picture is displayed, or None where every pixel holds data.
+    ``shape`` is the displayed picture's (H, W)."""
+    nodata_value = _gdal_nodata(data)
+    if nodata_value is None and not may_hold_alpha(data):
         return None
     stored = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if stored is None or stored.ndim != 3 or stored.shape[2] != 4:
+    if stored is None:
         return None
-    no_data = (stored[..., 3] == 0).view(np.uint8)
+    bands = stored.reshape(stored.shape[0], stored.shape[1], -1)
+    no_data = np.zeros(bands.shape[:2], bool)
+    if bands.shape[2] == 4:
+        no_data |= bands[..., 3] == 0
+        bands = bands[..., :3]
+    if nodata_value is not None:
+        no_data |= np.all(bands == nodata_value, axis=2)
     if not no_data.any():
         return None
-    no_data = turned_as_displayed(no_data, exif_orientation(data)).view(bool)
+    no_data = turned_as_displayed(no_data.view(np.uint8), exif_orientation(data)).view(bool)
     return no_data if no_data.shape == tuple(shape) else None
+
+
+def _gdal_nodata(data: bytes) -> float | None:
+    """A GeoTIFF's no-data value (its ``GDAL_NODATA`` tag), or None."""
+    if data[:4] not in (b"II*\x00", b"MM\x00*"):
+        return None
+    import io
+
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            text = image.tag_v2.get(GDAL_NODATA_TAG)
+        value = float(str(text).strip().rstrip("\x00"))
+    except Exception:  # no tag, or one that is not a number ("nan" is one: never equal)
+        return None
+    return value if np.isfinite(value) else None
 
 
 def decode_image_file(path: Path, flags: int, camera_pixels: bool = False

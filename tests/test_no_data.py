@@ -151,3 +151,22 @@ def test_a_band_reaching_the_no_data_corner_stops_there(tmp_path, masks):
             and a["obstacle_point_px"][0] > 330]
     assert kept and all(a["distance_m"] == pytest.approx(b["distance_m"], abs=0.05)
                         for a, b in kept)
+
+
+@pytest.mark.parametrize("nodata, expected", [("0", 100), ("255\x00", 6), ("nan", None), ("", None)])
+def test_a_geotiff_s_no_data_value_marks_its_pixels(tmp_path, nodata, expected):
+    """GDAL writes a raster's no-data value in the TIFF tag 42113 (GDAL_NODATA); a pixel is
+    without data where every band holds it (a black pixel of a scene with 0 given is one, as
+    GDAL reads it)."""
+    from PIL import TiffImagePlugin
+
+    image = np.full((30, 40, 3), 120, np.uint8)
+    image[:10, :10] = 0
+    image[20, 10:16] = 255
+    image[25, 0] = (255, 0, 255)                      # one band off: data
+    info = TiffImagePlugin.ImageFileDirectory_v2()
+    info[42113] = nodata
+    info.tagtype[42113] = 2
+    Image.fromarray(image).save(tmp_path / "ortho.tif", tiffinfo=info)
+    _, found = read_image_and_no_data(tmp_path / "ortho.tif")
+    assert (None if found is None else int(found.sum())) == expected
