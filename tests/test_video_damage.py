@@ -149,7 +149,7 @@ def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path,
     out = tmp_path / "out"
     result = runner.invoke(app, ["run", str(video), "--metadata", str(tmp_path / "flight.jsonl"),
                                  "--model", str(untrained_model), "--vessel", str(vessel),
-                                 "--out", str(out), "--no-video", "--no-overlays"],
+                                 "--out", str(out), "--no-overlays"],
                            terminal_width=200)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "run.json").read_text())
@@ -157,6 +157,7 @@ def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path,
     assert sorted(skipped) == list(range(20, 30))
     assert "damaged" in skipped[25] and "flight.jsonl:26" in skipped[25]
     assert summary["measured"] == FRAMES - 10
+    assert len(_decoded(out / "annotated.mp4")) == FRAMES    # frame 20, not decoded, kept its place
 
 
 @pytest.mark.parametrize("fmt", ["mp4", "mpegts"])
