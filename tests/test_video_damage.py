@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from harborsight.cli import app
-from harborsight.flight.video_decode import NOT_DECODED, frame_numbers, read_video_frames
+from harborsight.flight.video_decode import NOT_DECODED, read_video_frames
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
 runner = CliRunner()
@@ -124,14 +124,6 @@ def test_errors_about_side_data_leave_the_picture_whole():
     assert _about_side_data("SEI type 5 size 40 truncated at 16")
     assert not _about_side_data("error while decoding MB 0 0, bytestream 319")
     assert not _about_side_data("concealing 120 DC, 120 AC, 120 MV errors in P frame")
-
-
-def test_frame_numbers_say_where_a_lost_packet_was():
-    times = [10 * k for k in range(20) if k != 7]             # frame 7's packet lost
-    assert frame_numbers(times) == [k for k in range(20) if k != 7]
-    # not a constant rate (a phone's variable rate): ranks only
-    times = [10 * k for k in range(10)] + [100 + 25 * k for k in range(10)]
-    assert frame_numbers(times) == list(range(20))
 
 
 def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path, untrained_model):

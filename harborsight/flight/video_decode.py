@@ -11,14 +11,19 @@ packet (the rest of the flight never read) and PyAV's raise for it. Both are wro
 measurement: a concealed frame shows water and quays where they are not, and a stop loses
 every frame after it.
 
+Frames are numbered by the rank of their presentation times among the file's packets, as
+``telemetry video`` numbers the metadata it samples at those times; a packet lost from the
+file altogether (an MPEG-TS packet holding a frame's header) leaves no time behind, and the
+metadata paired by time stays with its picture.
+
 So frames are decoded one packet at a time and a frame is **damaged** when
 
 * a packet's decoding failed (FFmpeg's error for it), or the decoder logged an error
   while decoding it ("error while decoding MB", "concealing ... errors", a missing
   reference; not one about SEI side data, which leaves the picture whole), or FFmpeg
   flagged the frame corrupt; or
-* a frame before it, in decoding order, was damaged or never came out (a packet the decoder
-  gave nothing for, seen as a gap in the presentation times of a file's packets),
+* a frame before it, in decoding order, was damaged or never came out (a packet of the
+  file the decoder gave no picture for: its presentation time is never seen),
 
 until a key frame decodes cleanly: from its presentation time on, frames are whole again.
 Every frame output from the damaged packet on counts as damaged until then, those of earlier
@@ -166,35 +171,17 @@ def video_packet_times(video: Path) -> tuple[list[int], float] | None:
     return sorted(pts), float(base)
 
 
-#: a video is taken for one of constant frame rate when 90 % of its frame steps are within
-#: 5 % of their median; a step of n medians then says n - 1 frames went missing
-REGULAR_STEP_SHARE, REGULAR_STEP_TOLERANCE = 0.9, 0.05
-
-
-def frame_numbers(times: list[int]) -> list[int]:
-    """Each packet time's frame number: its rank, and in a constant-rate video one more for
-    each frame a longer step says is missing (a lost packet leaves no time of its own)."""
-    steps = np.diff(np.asarray(times, float))
-    step = float(np.median(steps)) if len(steps) >= 4 else 0.0
-    regular = step > 0 and np.mean(np.abs(steps - step) <= REGULAR_STEP_TOLERANCE * step
-                                   ) >= REGULAR_STEP_SHARE
-    numbers = [0]
-    for gap in steps:
-        numbers.append(numbers[-1] + (max(1, round(gap / step)) if regular else 1))
-    return numbers
-
-
 def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
     """Every frame of a video file in presentation order (module docstring), numbered by
-    :func:`frame_numbers` of the file's packet times, so that a frame the decoder never
-    gives, or whose packet is lost, keeps its number (yielded with ``image`` None) and the
-    frames after it keep theirs. :class:`InputError` when the file cannot be opened."""
+    the rank of its presentation time among the file's packets, as ``telemetry video``
+    numbers the metadata it pairs by those times: a frame the decoder never gives keeps its
+    number (yielded with ``image`` None) and the frames after it keep theirs.
+    :class:`InputError` when the file cannot be opened."""
     import av
 
     times, base = video_packet_times(video) or ([], None)
-    numbers = frame_numbers(times) if times else []
     number_of: dict[int, int] = {}
-    for pts, number in zip(times, numbers, strict=True):
+    for number, pts in enumerate(times):
         number_of.setdefault(pts, number)      # a time given twice: its first frame's number
     try:
         container = av.open(str(video))
@@ -206,13 +193,11 @@ def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
             raise InputError(video, None, "no video stream")
         stream = container.streams.video[0]
         first_pts = times[0] if times else None
-        slot_s = (_seconds(times[-1], first_pts, base) / numbers[-1]
-                  if len(times) > 1 and numbers[-1] and base else None)
 
         def lost(first: int, end: int) -> Iterator[DecodedPicture]:
             for number in range(first, end):
-                yield DecodedPicture(number, None if slot_s is None else number * slot_s,
-                                     None, NOT_DECODED)
+                yield DecodedPicture(number, _seconds(times[number], first_pts, base), None,
+                                     NOT_DECODED)
 
         tracker = DamageTracker()
         expected = 0                           # the next frame's number
@@ -230,7 +215,7 @@ def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
             expected = number + 1
             yield DecodedPicture(number, _seconds(frame.pts, first_pts, base),
                                  frame.to_ndarray(format="bgr24"), damaged)
-        yield from lost(expected, numbers[-1] + 1 if numbers else 0)
+        yield from lost(expected, len(times))
     except OSError as exc:
         raise InputError(video, None, str(exc)) from None
     finally:
