@@ -112,6 +112,9 @@ class FrameMetadata:
     #: when the file gives it; else the geometry computes it from ``timestamp``
     sun_elevation_deg: float | None = None
     sun_azimuth_deg: float | None = None
+    #: how long (s) the vessel's pose was carried forward by its speed and course from its
+    #: last position report (``vessel.dead_reckoned_s``: AIS between reports), when it was
+    vessel_dead_reckoned_s: float | None = None
 
     @property
     def height_above_water_m(self) -> float:
@@ -140,6 +143,8 @@ class FrameMetadata:
         for (section, key), name in FRAME_SIGMA_FIELDS.items():
             if name in self.sensor_sigmas:
                 data[section][key] = self.sensor_sigmas[name]
+        if self.vessel_dead_reckoned_s is not None:
+            data["vessel"]["dead_reckoned_s"] = self.vessel_dead_reckoned_s
         for section, velocity in (("uav", self.uav_velocity_en_mps),
                                   ("vessel", self.vessel_velocity_en_mps)):
             if velocity is not None:
@@ -290,6 +295,8 @@ MAX_VESSEL_RANGE_M = 10_000.0
 
 #: bound on a velocity in frame metadata (m/s): faster than any drone or ship
 MAX_SPEED_MPS = 200.0
+#: bound on ``vessel.dead_reckoned_s`` (s): an hour
+MAX_DEAD_RECKONED_S = 3600.0
 
 
 def _frame_sigmas(reader: _Reader, sections: dict[str, dict]) -> dict[str, float]:
@@ -368,6 +375,8 @@ def parse_frame_metadata(
                                                     MAX_SPEED_MPS),
         sun_elevation_deg=sun_elevation_deg,
         sun_azimuth_deg=sun_azimuth_deg,
+        vessel_dead_reckoned_s=reader.optional_number(ves, "dead_reckoned_s", "vessel.",
+                                                      0.0, MAX_DEAD_RECKONED_S),
     )
     if meta.height_above_water_m <= 0:
         raise InputError(

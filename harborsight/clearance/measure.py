@@ -101,7 +101,8 @@ class ClearanceSettings:
         base = (SensorSigmas(edge_px=LABEL_FILE_EDGE_PX, edge_m=LABEL_FILE_EDGE_M)
                 if mask_from_file else SensorSigmas())
         base = base.with_values(dict(self.sigma_options))
-        return sigmas_for_frame(base, meta.sensor_sigmas) if meta is not None else base
+        return (sigmas_for_frame(base, meta.sensor_sigmas, meta.vessel_dead_reckoned_s)
+                if meta is not None else base)
 
 
 def check_label_mask(labels: np.ndarray, width: int, height: int, source: str | None) -> None:

@@ -159,11 +159,39 @@ FRAME_SIGMA_FIELDS = {
 }
 
 
-def sigmas_for_frame(base: SensorSigmas, frame_sigmas: dict[str, float]) -> SensorSigmas:
+#: how a vessel's pose carried forward by its speed and course (dead reckoning between AIS
+#: reports) drifts from the truth, one sigma: the speed and course it was carried with
+#: (m/s; AIS gives speed in 0.1 kn and a course that wanders at berthing speeds), its change
+#: of speed or course since (m/s², a vessel berthing under thrusters), and its turn (deg/s;
+#: the heading is held: AIS's rate of turn is coarse and often not available)
+DEAD_RECKONING_SPEED_MPS = 0.1
+DEAD_RECKONING_ACCEL_MPS2 = 0.05
+DEAD_RECKONING_TURN_DEG_S = 0.5
+
+
+def dead_reckoning_drift(seconds: float) -> tuple[float, float]:
+    """One sigma of a dead-reckoned vessel's horizontal position (DRMS, m) and heading (deg)
+    after ``seconds``: ``sqrt((σ_v t)² + (a t² / 2)²)`` and ``ω t`` (constants above); added
+    in quadrature to the receiver's and the compass's own."""
+    t = max(float(seconds), 0.0)
+    return (math.hypot(DEAD_RECKONING_SPEED_MPS * t, 0.5 * DEAD_RECKONING_ACCEL_MPS2 * t * t),
+            DEAD_RECKONING_TURN_DEG_S * t)
+
+
+def sigmas_for_frame(base: SensorSigmas, frame_sigmas: dict[str, float],
+                     vessel_dead_reckoned_s: float | None = None) -> SensorSigmas:
     """``base`` with the frame's own figures (``FrameMetadata.sensor_sigmas``: keys as
-    :data:`FRAME_SIGMA_FIELDS` values; positions per axis, turned into DRMS here)."""
+    :data:`FRAME_SIGMA_FIELDS` values; positions per axis, turned into DRMS here), and a
+    vessel pose dead-reckoned for ``vessel_dead_reckoned_s`` widened by
+    :func:`dead_reckoning_drift`."""
     values = dict(frame_sigmas)
     for name in ("uav_gps", "vessel_gps"):
         if name in values:
             values[name] = values[name] * math.sqrt(2.0)
-    return base.with_values(values) if values else base
+    sigmas = base.with_values(values) if values else base
+    if vessel_dead_reckoned_s:
+        position_m, heading_deg = dead_reckoning_drift(vessel_dead_reckoned_s)
+        sigmas = replace(sigmas, vessel_gps=min(math.hypot(sigmas.vessel_gps, position_m), 1000.0),
+                         vessel_heading_deg=min(math.hypot(sigmas.vessel_heading_deg,
+                                                           heading_deg), 1000.0))
+    return sigmas

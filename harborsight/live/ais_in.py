@@ -16,10 +16,12 @@ from datetime import UTC, datetime
 
 from harborsight.live.telemetry import LiveTrack, worth_saying
 from harborsight.telemetry.ais import (
+    AIS_DEAD_RECKON_S,
     POSITION_TYPES,
     fix_time,
     report_heading,
     report_identity,
+    report_motion,
     report_position,
     sentence_start,
     unmeasured_position,
@@ -33,6 +35,7 @@ class AisVessel:
                  on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.mmsi, self.allow_cog_heading, self.on_fix = track, mmsi, allow_cog_heading, on_fix
         track.source_clock_is_utc()
+        track.dead_reckon_s = AIS_DEAD_RECKON_S
         self.reports = 0
         self.others = 0
         self.unreadable = 0
@@ -79,6 +82,7 @@ class AisVessel:
                                 f"position fix skipped (the last: {unmeasured})")
             return
         heading, _ = report_heading(fields, self.allow_cog_heading)
+        sog, cog = report_motion(fields)
         if heading is None:
             self.no_heading += 1
             if worth_saying(self.no_heading, every=None):
@@ -88,7 +92,7 @@ class AisVessel:
         now_utc = datetime.fromtimestamp(time.time(), UTC)
         fix = fix_time(now_utc, fields.get("second"))
         t_s = self.track.clock.observe(fix.timestamp(), now_s)
-        self.track.add_position(t_s, *position)
+        self.track.add_position(t_s, *position, sog_mps=sog, cog_deg=cog)
         self.track.add_heading(t_s, heading % 360.0)
         self.reports += 1
         if self.on_fix is not None:

@@ -18,7 +18,9 @@ RTSP feed is 0.1-0.5 s behind). Drone and vessel are sampled there by
 unwrapped: :meth:`harborsight.telemetry.track.Track.sample`). The newest sample of a feed is
 usually older than the newest frame, so it is held for up to ``hold_s`` (default 1 s; the
 pose refinement absorbs the few decimetres a berthing ship moves in that time); a frame later
-than that is not measured and the reason is shown.
+than that is not measured and the reason is shown. A vessel from AIS, whose reports come
+every 10 s, is carried by each report's speed and course for up to 12 s instead
+(:mod:`harborsight.telemetry.track`, "Dead reckoning"), its error bars widened for the time.
 """
 
 from __future__ import annotations
@@ -117,7 +119,9 @@ class LiveTrack:
         self.clock = ClockMap()
         self.utc_clock: ClockMap | None = None     # source seconds -> UTC epoch, where known
         self.attitude_of: str | None = None
-        self._positions: deque = deque()           # (t, lat, lon, alt, sigma)
+        self._positions: deque = deque()           # (t, lat, lon, alt, sigma, sog, cog)
+        #: how long a position's speed and course may carry it (Track.dead_reckon_s; AIS)
+        self.dead_reckon_s = 0.0
         self._orientation: deque = deque()         # (t, yaw, pitch, roll) or (t, heading)
         self._lock = threading.Lock()
         #: samples left out for coming more than LATE_SAID_S after newer ones
@@ -161,8 +165,9 @@ class LiveTrack:
                       f"newer ones left out (the latest {late_s:.1f} s late: a second link?)")
 
     def add_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float = math.nan,
-                     sigma_m: float = math.nan) -> None:
-        self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m))
+                     sigma_m: float = math.nan, sog_mps: float = math.nan,
+                     cog_deg: float = math.nan) -> None:
+        self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m, sog_mps, cog_deg))
 
     def add_attitude(self, t_s: float, yaw_deg: float, pitch_deg: float, roll_deg: float,
                      of: str) -> None:
@@ -206,6 +211,8 @@ class LiveTrack:
             extra = {"heading_deg": o[:, 1], "attitude_t_s": o[:, 0]}
         alt = p[:, 3] if np.isfinite(p[:, 3]).any() else None
         sigma = p[:, 4] if np.isfinite(p[:, 4]).any() else None
+        if np.isfinite(p[:, 5]).any():
+            extra.update(sog_mps=p[:, 5], cog_deg=p[:, 6], dead_reckon_s=self.dead_reckon_s)
         return Track(source=Path(self.source), kind=self.kind, t_s=p[:, 0], lat_deg=p[:, 1],
                      lon_deg=p[:, 2], alt_m=alt, alt_reference=self.alt_reference,
                      position_sigma_m=sigma, clock="monotonic seconds of this process", **extra)

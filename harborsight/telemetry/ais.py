@@ -22,6 +22,12 @@ available); without one the report is refused, or, with ``allow_cog_heading``, t
 course over ground (3600 = none) with a note, since a vessel berthing moves sideways and its
 course is not its heading.
 
+Motion: each report's speed (0.1 kn; 102.3 = none) and course over ground (360 = none) go
+with its position, and the track carries the vessel between reports by them for up to
+``AIS_DEAD_RECKON_S`` (:mod:`harborsight.telemetry.track`, "Dead reckoning"): a class A
+transponder under way reports every 10 s, and without it every frame more than a second
+from a report had no vessel pose.
+
 Dimensions (types 5 and 24 part B, and 19): A to the bow, B to the stern, C to port, D to
 starboard, in metres from the position reference point: exactly the vessel frame's origin
 (design.md). 0 means not available; 511 (A, B) and 63 (C, D) mean that many metres or more.
@@ -29,6 +35,7 @@ starboard, in metres from the position reference point: exactly the vessel frame
 
 from __future__ import annotations
 
+import math
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -149,6 +156,24 @@ def unmeasured_position(fields: dict) -> str | None:
     repeats its last position), or None for a measured one (0-59, or 60 for no time)."""
     second = fields.get("second")
     return UNMEASURED_SECONDS.get(second) if isinstance(second, int) else None
+
+
+#: how long (s) a report's speed and course carry the vessel where no later report is in
+#: reach: a class A transponder reports every 10 s under way at up to 14 kn (2-6 s faster
+#: or turning); one report missed leaves a gap. 0 turns dead reckoning off
+AIS_DEAD_RECKON_S = 12.0
+#: 1 knot in m/s
+KNOT_MPS = 1852.0 / 3600.0
+
+
+def report_motion(fields: dict) -> tuple[float, float]:
+    """A report's speed over ground (m/s) and course over ground (deg true); NaN for what it
+    does not give (speed 102.3 kn, course 360)."""
+    speed, course = fields.get("speed"), fields.get("course")
+    sog = (float(speed) * KNOT_MPS if isinstance(speed, (int, float)) and 0 <= speed < 102.25
+           else math.nan)
+    cog = float(course) if isinstance(course, (int, float)) and 0 <= course < 360 else math.nan
+    return sog, cog
 
 
 def report_heading(fields: dict, allow_cog_heading: bool) -> tuple[float | None, bool]:
@@ -284,7 +309,7 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
             continue
         cog_used += from_course
         second = f.get("second")
-        rows.append((fix_time(report.received, second), *position, heading))
+        rows.append((fix_time(report.received, second), *position, heading, *report_motion(f)))
     if untimed and not rows:
         raise InputError(ais.path, None, "AIS position reports carry only the second of the "
                          "minute: the file needs receiver times (NMEA 4.10 tag blocks with c:, or "
@@ -314,7 +339,9 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
     start = rows[0][0]
     return Track(source=ais.path, kind="ais", t_s=np.array([(r[0] - start).total_seconds() for r in rows]),
                  lat_deg=np.array([r[1] for r in rows]), lon_deg=np.array([r[2] for r in rows]),
-                 heading_deg=np.array([r[3] for r in rows]), utc_start=start,
+                 heading_deg=np.array([r[3] for r in rows]), sog_mps=np.array([r[4] for r in rows]),
+                 cog_deg=np.array([r[5] for r in rows]), dead_reckon_s=AIS_DEAD_RECKON_S,
+                 utc_start=start,
                  clock="seconds since the first report (UTC, receiver time)", notes=notes)
 
 

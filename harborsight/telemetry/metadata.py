@@ -265,6 +265,9 @@ def frames_at_times(
         })
         if frame_camera["fx"] != camera["fx"]:
             frames[-1]["telemetry"]["digital_zoom"] = ratio
+        reckoned_s = ship.get("dead_reckoned_s")
+        if reckoned_s is not None and reckoned_s[i] > 0:   # between reports: the bars widen
+            frames[-1]["vessel"]["dead_reckoned_s"] = round(float(reckoned_s[i]), 3)
         for samples, fields in ((uav, UAV_SIGMA_FIELDS), (ship, VESSEL_SIGMA_FIELDS)):
             for section, key, name in fields:
                 value = _frame_sigma(samples.get(name), i)

@@ -13,6 +13,18 @@ half its end sample interval (or ``max_gap_s``, if less), has no value: NaN, and
 reports the frame instead of guessing. (Outside, the end sample's value is held, not
 extrapolated: GPS noise makes a slope from two samples worse than holding for half a step.)
 
+Dead reckoning. A vessel track whose positions come with speed and course over ground (AIS:
+a class A transponder reports every 10 s under way, 2-6 s when turning) sets
+``dead_reckon_s``; where no sample is within reach of a time, but a position with speed and
+course lies at most ``dead_reckon_s`` before it, the position is carried forward along the
+course, ``p0 + sog · (t - t0) · (sin cog, cos cog)`` on the local east-north plane (or back
+from the next one within ``dead_reckon_s`` after it), and where both are near, the two are
+blended, weighted by nearness: ``(1 - w) p0' + w p1'``, ``w = (t - t0) / (t1 - t0)``. The
+heading is turned the short way between the reports around it, or the last one's held
+where none follows yet (live). ``sample`` then says for how long in ``dead_reckoned_s``
+(for the blend, ``2 dt0 dt1 / (dt0 + dt1)``), which the error bars widen by
+(:func:`harborsight.geometry.sensor_sigmas.dead_reckoning_drift`).
+
 Accuracy figures the log states go with the samples and are sampled the same way (never
 unwrapped): ``position_sigma_m``, one sigma per horizontal axis (east, north) in metres;
 ``alt_sigma_m``, one sigma of ``alt_m`` in metres; ``heading_sigma_deg`` (vessel tracks). NaN
@@ -22,6 +34,7 @@ marks a sample without one; None, a log that states none. Where each comes from 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -31,10 +44,10 @@ import numpy as np
 #: The quantities a track may carry, each an array over samples or None.
 QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg",
               "position_sigma_m", "alt_sigma_m", "heading_sigma_deg", "focal_35mm_mm",
-              "digital_zoom")
+              "digital_zoom", "sog_mps", "cog_deg")
 #: the accuracy figures among them (one sigma; see the module docstring)
 SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
-ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg"})
+ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg", "cog_deg"})
 #: quantities that change in steps, sampled at the nearest sample rather than interpolated
 #: (a zoom between 24 and 48 mm is either, never 24.2 mm)
 STEPS = frozenset({"focal_35mm_mm", "digital_zoom"})
@@ -74,6 +87,13 @@ class Track:
     #: states it (a DJI SRT's ``dzoom_ratio`` or ``DZOOM``): the intrinsics scale with it
     #: (:func:`~harborsight.telemetry.metadata.digitally_zoomed`)
     digital_zoom: np.ndarray | None = None
+    #: speed (m/s) and course (deg true) over ground with each position, where the log
+    #: states them (AIS reports): what :meth:`sample` carries a position forward with
+    sog_mps: np.ndarray | None = None
+    cog_deg: np.ndarray | None = None
+    #: how long (s) past a position its speed and course may carry it where no sample is
+    #: within reach (module docstring, "Dead reckoning"); 0: never
+    dead_reckon_s: float = 0.0
     utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
     clock: str = ""                          # what t_s counts, in words
     notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
@@ -163,7 +183,72 @@ class Track:
             if wraps:
                 sampled = (sampled + 180.0) % 360.0 - 180.0
             out[name] = np.where(_reachable(t, times_s, max_gap_s, hold_s), sampled, np.nan)
+        if self.dead_reckon_s > 0 and self.sog_mps is not None and self.cog_deg is not None:
+            self._dead_reckon(times_s, out)
         return out
+
+    def _dead_reckon(self, times_s: np.ndarray, out: dict[str, np.ndarray]) -> None:
+        """Fill the positions ``sample`` found no sample within reach for, or held past the
+        track's ends, where a position with speed and course lies at most ``dead_reckon_s``
+        away (module docstring);
+        ``out["dead_reckoned_s"]`` says for how long (0 where not dead-reckoned)."""
+        import pymap3d
+
+        t = self.t_s
+        moving = (np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
+                  & np.isfinite(self.sog_mps) & np.isfinite(self.cog_deg))
+        age = np.zeros(times_s.shape)
+        # where nothing is within reach, and past the track's ends (where sample holds the
+        # end value: a moving vessel is better carried)
+        todo = ~np.isfinite(out["lat_deg"]) | (times_s > t[-1]) | (times_s < t[0])
+        for i in np.flatnonzero(todo):
+            x = times_s[i]
+            after = int(np.searchsorted(t, x, side="right"))
+            before = after - 1
+            ends = [(k, x - t[k]) for k in (before, after)      # carried forward, and back
+                    if 0 <= k < len(t) and moving[k] and abs(x - t[k]) <= self.dead_reckon_s]
+            if not ends:
+                continue
+            guesses = []
+            for k, dt in ends:
+                course = np.deg2rad(self.cog_deg[k])
+                step = self.sog_mps[k] * dt
+                guesses.append(pymap3d.enu2geodetic(step * np.sin(course), step * np.cos(course),
+                                                    0.0, self.lat_deg[k], self.lon_deg[k], 0.0)[:2])
+            if len(ends) == 1:
+                out["lat_deg"][i], out["lon_deg"][i] = guesses[0]
+                age[i] = abs(ends[0][1])
+            else:       # the two weighted by nearness; the estimate ages as the nearer one
+                w = (x - t[before]) / (t[after] - t[before])
+                east, north, _ = pymap3d.geodetic2enu(*guesses[1], 0.0, *guesses[0], 0.0)
+                out["lat_deg"][i], out["lon_deg"][i] = pymap3d.enu2geodetic(
+                    w * east, w * north, 0.0, *guesses[0], 0.0)[:2]
+                dt0, dt1 = x - t[before], t[after] - x
+                age[i] = 2.0 * dt0 * dt1 / (dt0 + dt1)
+            if "heading_deg" in out and not np.isfinite(out["heading_deg"][i]):
+                out["heading_deg"][i] = self._heading_near(x)
+            elif "heading_deg" in out and len(ends) == 1:
+                out["heading_deg"][i] = self._heading_near(x)     # held from the nearest
+        out["dead_reckoned_s"] = age
+
+    def _heading_near(self, x: float) -> float:
+        """The vessel's heading at ``x`` from the samples within ``dead_reckon_s``: between
+        the last before and the first after it, turned the short way, weighted by time;
+        the last before, held, where none follows; NaN where none is near."""
+        if self.heading_deg is None:
+            return math.nan
+        times = self._times_of("heading_deg")
+        near = np.isfinite(self.heading_deg) & (np.abs(times - x) <= self.dead_reckon_s)
+        before = np.flatnonzero(near & (times <= x))
+        after = np.flatnonzero(near & (times > x))
+        if not len(before):
+            return float(self.heading_deg[after[0]]) if len(after) else math.nan
+        h0, t0 = float(self.heading_deg[before[-1]]), float(times[before[-1]])
+        if not len(after):
+            return h0
+        h1, t1 = float(self.heading_deg[after[0]]), float(times[after[0]])
+        turn = (h1 - h0 + 180.0) % 360.0 - 180.0
+        return (h0 + turn * (x - t0) / (t1 - t0)) % 360.0
 
     def summary(self) -> dict:
         """What an operator checks first: extent in time and space, rate, attitude, and the

@@ -1,0 +1,147 @@
+"""A vessel known only from its AIS reports (every 10 s under way) between reports: carried by
+its speed and course, its heading turned between reports, its error bars widened for the
+time carried. Before, every frame more than a second from a report went unmeasured."""
+
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pyproj import Geod
+
+from harborsight.frame import parse_frame_metadata
+from harborsight.geometry.sensor_sigmas import SensorSigmas, dead_reckoning_drift, sigmas_for_frame
+from harborsight.telemetry.ais import AIS_DEAD_RECKON_S, KNOT_MPS, report_motion
+from harborsight.telemetry.track import Track
+
+GEOD = Geod(ellps="WGS84")
+LAT0, LON0 = 53.54, 9.98
+
+
+def _truth(t_s: np.ndarray, speed_mps: float, course_deg: float,
+           accel_mps2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Positions along a straight course (pyproj's geodesic: not the code's pymap3d)."""
+    distance = speed_mps * t_s + 0.5 * accel_mps2 * t_s ** 2
+    lon, lat, _ = GEOD.fwd(np.full(t_s.shape, LON0), np.full(t_s.shape, LAT0),
+                           np.full(t_s.shape, course_deg), distance)
+    return lat, lon
+
+
+def _ais_track(report_s: np.ndarray, speed_mps: float, course_deg: float,
+               accel_mps2: float = 0.0, heading_deg=None) -> Track:
+    lat, lon = _truth(report_s, speed_mps, course_deg, accel_mps2)
+    heading = np.full(report_s.shape, course_deg) if heading_deg is None else heading_deg
+    return Track(source=Path("ais.nmea"), kind="ais", t_s=report_s, lat_deg=lat, lon_deg=lon,
+                 heading_deg=heading, sog_mps=speed_mps + accel_mps2 * report_s,
+                 cog_deg=np.full(report_s.shape, course_deg), dead_reckon_s=AIS_DEAD_RECKON_S)
+
+
+def _error_m(lat_a, lon_a, lat_b, lon_b) -> np.ndarray:
+    return GEOD.inv(lon_a, lat_a, lon_b, lat_b)[2]
+
+
+def test_a_steady_vessel_between_reports_is_where_it_was_carried():
+    report_s = np.arange(0.0, 41.0, 10.0)
+    track = _ais_track(report_s, 1.5, 63.0)
+    times = np.arange(0.0, 52.0, 0.5)
+    samples = track.sample(times, max_gap_s=1.0)
+    lat, lon = _truth(times, 1.5, 63.0)
+    assert np.isfinite(samples["lat_deg"]).all() and np.isfinite(samples["heading_deg"]).all()
+    assert _error_m(samples["lat_deg"], samples["lon_deg"], lat, lon).max() < 0.01
+    age = samples["dead_reckoned_s"]
+    assert age[times == 5.0] == pytest.approx(5.0)          # 5 s from both reports
+    assert age[times == 12.0] == pytest.approx(2 * 2 * 8 / 10)
+    assert age[times == 46.0] == pytest.approx(6.0)          # past the last: carried forward
+    assert age[times == 20.0] == 0.0                          # a report's own time
+    assert age[times == 20.5] == pytest.approx(2 * 0.5 * 9.5 / 10)
+    without = Track(**{**track.__dict__, "dead_reckon_s": 0.0}).sample(times, max_gap_s=1.0)
+    assert np.isnan(without["lat_deg"]).sum() > 70           # what the frames had before
+
+
+def test_beyond_its_reach_a_report_carries_nothing():
+    track = _ais_track(np.array([0.0, 30.0]), 1.0, 90.0)
+    samples = track.sample(np.array([11.0, 13.0, 18.0, 29.5, 43.0]), max_gap_s=1.0)
+    assert np.isfinite(samples["lat_deg"]).tolist() == [True, False, True, True, False]
+
+
+def test_an_accelerating_turning_vessel_stays_within_the_widened_bars():
+    """0.04 m/s² and 0.4 deg/s (a berthing vessel under thrusters, inside the drift model's
+    0.05 m/s² and 0.5 deg/s): the truth between reports lies within two sigma of the
+    carried position, receiver error left out."""
+    report_s = np.arange(0.0, 61.0, 10.0)
+    heading = (20.0 + 0.4 * report_s) % 360.0
+    track = _ais_track(report_s, 0.6, 200.0, accel_mps2=0.04, heading_deg=heading)
+    times = np.arange(0.0, 70.0, 0.25)
+    samples = track.sample(times, max_gap_s=1.0)
+    lat, lon = _truth(times, 0.6, 200.0, 0.04)
+    error = _error_m(samples["lat_deg"], samples["lon_deg"], lat, lon)
+    heading_error = np.abs((samples["heading_deg"] - (20.0 + 0.4 * times) + 180.0) % 360.0 - 180.0)
+    drift = np.array([dead_reckoning_drift(a) for a in samples["dead_reckoned_s"]])
+    carried = samples["dead_reckoned_s"] > 0
+    assert carried.sum() > 200
+    assert (error[carried] <= 2 * drift[carried, 0] + 1e-6).all()
+    assert (heading_error[carried] <= 2 * drift[carried, 1] + 1e-6).all()
+    assert error[carried].max() > 0.3                        # the test can tell
+
+
+def test_ais_speed_and_course_and_what_they_are_not():
+    assert report_motion({"speed": 10.0, "course": 271.5}) == pytest.approx((10 * KNOT_MPS, 271.5))
+    sog, cog = report_motion({"speed": 102.3, "course": 360.0})
+    assert math.isnan(sog) and math.isnan(cog)
+    sog, cog = report_motion({})
+    assert math.isnan(sog) and math.isnan(cog)
+
+
+def test_a_dead_reckoned_frame_widens_the_vessel_bars():
+    position_m, heading_deg = dead_reckoning_drift(10.0)
+    assert position_m == pytest.approx(math.hypot(0.1 * 10, 0.5 * 0.05 * 100))
+    assert heading_deg == pytest.approx(5.0)
+    base = SensorSigmas()
+    wide = sigmas_for_frame(base, {}, 10.0)
+    assert wide.vessel_gps == pytest.approx(math.hypot(2.0, position_m))
+    assert wide.vessel_heading_deg == pytest.approx(math.hypot(2.0, 5.0))
+    assert sigmas_for_frame(base, {}, None) == base == sigmas_for_frame(base, {}, 0.0)
+
+
+def _frame(**vessel) -> dict:
+    return {"schema": "harborsight.frame/1", "image": "x.png",
+            "camera": {"width": 64, "height": 36, "fx": 50.0, "fy": 50.0, "cx": 31.5, "cy": 17.5},
+            "uav": {"lat": LAT0, "lon": LON0, "alt_m": 40.0},
+            "camera_attitude": {"yaw_deg": 0.0, "pitch_deg": -90.0},
+            "vessel": {"lat": LAT0, "lon": LON0, "heading_deg": 10.0, **vessel}}
+
+
+def test_the_frame_field_is_read_checked_and_written_back():
+    meta = parse_frame_metadata(_frame(dead_reckoned_s=4.5))
+    assert meta.vessel_dead_reckoned_s == 4.5
+    assert meta.to_dict()["vessel"]["dead_reckoned_s"] == 4.5
+    assert parse_frame_metadata(_frame()).vessel_dead_reckoned_s is None
+    from harborsight.errors import InputError
+
+    with pytest.raises(InputError, match=r"vessel\.dead_reckoned_s"):
+        parse_frame_metadata(_frame(dead_reckoned_s=-1.0))
+
+
+def test_the_live_ais_feed_carries_the_vessel_to_the_frame(monkeypatch):
+    """Reports 10 s apart: a frame 6 s after the last is composed, 9 m on along the course,
+    with ``vessel.dead_reckoned_s`` 6; the receiver feed held the last report only 1 s."""
+    from harborsight.live.ais_in import AisVessel
+    from harborsight.live.telemetry import LiveTrack
+    from harborsight.telemetry.ais import KNOT_MPS
+
+    track = LiveTrack("ais", "ais")
+    ais = AisVessel(track, None)
+    assert track.dead_reckon_s == AIS_DEAD_RECKON_S
+    t0 = datetime(2026, 11, 29, 12, 0, 0, tzinfo=UTC).timestamp()
+    fields = {"speed": 1.5 / KNOT_MPS, "course": 90.0, "heading": 88}
+    for k, (lat, lon) in enumerate(zip(*_truth(np.array([0.0, 10.0]), 1.5, 90.0), strict=True)):
+        track.add_position(t0 + 10 * k, float(lat), float(lon), *(math.nan, math.nan),
+                           *report_motion(fields))
+        track.add_heading(t0 + 10 * k, 88.0)
+    assert ais.reports == 0                                  # fed directly, not parsed
+    samples = track.track().sample(np.array([t0 + 16.0]), max_gap_s=1.0, hold_s=1.0)
+    lat, lon = _truth(np.array([16.0]), 1.5, 90.0)
+    assert _error_m(samples["lat_deg"], samples["lon_deg"], lat, lon)[0] < 0.01
+    assert samples["dead_reckoned_s"][0] == pytest.approx(6.0)
+    assert samples["heading_deg"][0] == 88.0
