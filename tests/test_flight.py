@@ -181,8 +181,9 @@ def test_run_on_a_folder_skips_bad_frames_and_keeps_the_rest(tmp_path):
         if section["distance_m"] is not None:
             assert float(row["distance_m"]) == pytest.approx(section["distance_m"], abs=1e-3)
     assert {r["time_s"] for r in rows} == {"0.0", "1.0", "2.0"}
-    # the video keeps every frame whose picture could be read, in flight order
-    assert _video_frame_count(out / "annotated.mp4") == 4
+    # the video keeps every frame in flight order: the unreadable one as a dark frame that
+    # says why, so that the video keeps the flight's timing
+    assert _video_frame_count(out / "annotated.mp4") == 5
     assert (out / "timeline.png").stat().st_size > 10_000
 
 

@@ -247,7 +247,7 @@ def run_flight(
                         else:
                             draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
                     elif frame.is_frame and video is not None and video.size is not None:
-                        # a video frame that gave no picture keeps its place in the video
+                        # a frame whose picture could not be read keeps its place in the video
                         annotated = np.full((video.size[1], video.size[0], 3), 40, np.uint8)
                         draw_banner(annotated, f"skipped: {_short(frame.error)}", RED)
                 if video is not None and annotated is not None:

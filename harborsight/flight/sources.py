@@ -2,8 +2,8 @@
 
 Both sources yield :class:`FlightFrame` objects in flight order. A frame whose inputs are bad
 carries the reason in ``error`` instead of raising, so that the run reports it, skips its
-measurement and goes on; its picture (when it could be read) still goes into the annotated
-video, so the video keeps the flight's timing.
+measurement and goes on; its picture still goes into the annotated video (a dark frame with
+the reason where none could be read), so the video keeps the flight's timing.
 
 Video metadata (``--metadata flight.jsonl``): one ``harborsight.frame/1`` object per line.
 A line's ``frame_index`` key (0-based) names its video frame; without that key, the n-th
