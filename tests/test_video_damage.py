@@ -26,16 +26,24 @@ def _picture(k: int, size=(96, 64)) -> np.ndarray:
     return picture
 
 
-def _write(path: Path, fmt: str | None = None) -> None:
+def _write(path: Path, fmt: str | None = None, codec: str = "libx264", b_frames: int = 0,
+           skip: int | None = None) -> None:
+    """A clip of FRAMES frames at 10 fps, a key frame every KEY_EVERY; ``skip``: a frame the
+    camera never sent (its time left empty)."""
     import av
 
     with av.open(str(path), "w", format=fmt) as out:
-        stream = out.add_stream("libx264", rate=10)
+        stream = out.add_stream(codec, rate=10)
         stream.width, stream.height, stream.pix_fmt = 96, 64, "yuv420p"
-        stream.options = {"g": str(KEY_EVERY), "keyint_min": str(KEY_EVERY), "bf": "0",
-                          "sc_threshold": "0"}
+        stream.options = ({"g": str(KEY_EVERY), "keyint_min": str(KEY_EVERY), "bf": str(b_frames),
+                           "sc_threshold": "0"} if codec == "libx264" else
+                          {"x265-params": f"keyint={KEY_EVERY}:min-keyint={KEY_EVERY}:log-level=0"})
         for k in range(FRAMES):
-            for packet in stream.encode(av.VideoFrame.from_ndarray(_picture(k), format="bgr24")):
+            if k == skip:
+                continue
+            frame = av.VideoFrame.from_ndarray(_picture(k), format="bgr24")
+            frame.pts = k
+            for packet in stream.encode(frame):
                 out.mux(packet)
         for packet in stream.encode():
             out.mux(packet)
@@ -195,3 +203,66 @@ def test_the_live_reader_passes_damaged_frames_on_named_and_keeps_the_stream(tmp
     named = [f.index for f in frames if f.error]
     assert named and named[-1] == 29 and all("damaged" in f.error for f in frames if f.error)
     assert any("decoded from damaged data, not measured" in w for w in warnings)
+
+
+def test_with_b_frames_the_damaged_group_s_last_pictures_are_named_too():
+    """The decoder outputs the last frames of a damaged group after the next key packet (the
+    B-frames' reorder delay): damage ends only when that key packet's own picture comes out.
+    The first version ended it at the packet and passed those frames on as whole."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        video = Path(folder) / "bframes.mp4"
+        _write(video, b_frames=2)
+        clean = _decoded(video)
+        start, size, key = _packet_spans(video)[20]
+        assert not key
+        _scramble(video, start + 8, size - 12)
+        pictures = list(read_video_frames(video))
+    assert [p.index for p in pictures] == list(range(FRAMES))
+    wrong = [p.index for p in pictures if p.image is None
+             or np.abs(p.image.astype(int) - clean[p.index]).mean() > 1.0]
+    named = [p.index for p in pictures if p.damaged]
+    assert wrong and set(wrong) <= set(named)
+    assert max(named) < 2 * KEY_EVERY and not any(p.damaged for p in pictures[2 * KEY_EVERY:])
+
+
+def test_a_transport_stream_packet_lost_on_the_way_is_named(tmp_path):
+    """188 bytes cut out of an MPEG-TS (a packet lost on a UDP link): the demuxer flags the
+    video packet corrupt, whether or not the decoder complains."""
+    video = tmp_path / "link.ts"
+    _write(video, "mpegts")
+    start, size, key = _packet_spans(video)[KEY_EVERY]
+    assert key and size > 188
+    data = video.read_bytes()
+    cut = (start // 188 + 1) * 188                      # the key frame's second TS packet
+    video.write_bytes(data[:cut] + data[cut + 188:])
+    pictures = list(read_video_frames(video))
+    named = [p.index for p in pictures if p.damaged]
+    assert KEY_EVERY in named and set(range(KEY_EVERY, 2 * KEY_EVERY)) <= set(named)
+    assert not any(p.damaged for p in pictures[2 * KEY_EVERY:])
+    assert any("container flagged" in p.damaged for p in pictures if p.damaged)
+
+
+def test_a_gap_in_a_steady_video_s_times_names_the_frames_up_to_the_next_key(tmp_path):
+    """A frame whose packet is gone leaves only a longer step between the times around it;
+    the frames after it may predict from it. Numbering stays by rank (as `telemetry video`
+    pairs its metadata), so nothing is renumbered."""
+    video = tmp_path / "skipped.mp4"
+    _write(video, skip=20)
+    pictures = list(read_video_frames(video))
+    assert [p.index for p in pictures] == list(range(FRAMES - 1))
+    assert pictures[20].time_s == pytest.approx(2.1)      # the frame shown at 2.1 s
+    next_key = next(k for k, (_, _, key) in enumerate(_packet_spans(video)) if key and k > 20)
+    assert [p.index for p in pictures if p.damaged] == list(range(20, next_key))
+
+
+def test_a_video_whose_decoder_hides_damage_is_said_once(tmp_path):
+    from harborsight.flight.video_decode import damage_detection_note
+
+    hevc, h264 = tmp_path / "drone.mp4", tmp_path / "other.mp4"
+    _write(hevc, codec="libx265")
+    _write(h264)
+    assert "HEVC (H.265)" in damage_detection_note(hevc)
+    assert damage_detection_note(h264) is None
+

@@ -89,8 +89,11 @@ def run_flight_with_progress(source, out: Path, vessels, segmenter, options, inp
             if stop.requested:          # between two frames: every output is whole
                 raise KeyboardInterrupt
 
+        for warning in getattr(source, "warnings", ()):
+            console.print(f"warning: {warning}")
         return run_flight(source.frames(), out, vessels, segmenter, options,
-                          source_fps=source.fps, inputs=inputs, on_frame=advance)
+                          source_fps=source.fps, inputs=inputs, on_frame=advance,
+                          source_warnings=getattr(source, "warnings", ()))
 
 
 def interrupted_line(out: Path) -> str:

@@ -203,11 +203,13 @@ def run_flight(
     segmenter: Segmenter | None, options: RunOptions | None = None, *,
     source_fps: float | None = None, inputs: dict | None = None,
     on_frame: Callable[[FlightFrame], None] | None = None,
+    source_warnings: Iterable[str] = (),
 ) -> RunSummary:
     """Measure every frame of a flight (module docstring). A frame with bad input, or one
     the measurement refuses, is recorded in the summary and skipped; the run goes on. A frame
     whose time is missing or out of order is measured, left out of the closing speeds and
-    listed in ``warnings``. ``run.json`` and the video are written however the run ends."""
+    listed in ``warnings``, as are ``source_warnings`` (about the input as a whole).
+    ``run.json`` and the video are written however the run ends."""
     options = options or RunOptions()
     out_dir.mkdir(parents=True, exist_ok=True)
     reports_dir, overlays_dir = out_dir / "reports", out_dir / "overlays"
@@ -216,6 +218,8 @@ def run_flight(
     if options.overlays:
         overlays_dir.mkdir(exist_ok=True)
     summary = RunSummary()
+    summary.warnings.extend({"frame": None, "source": "input", "warning": warning}
+                            for warning in source_warnings)
     timeline = ClearanceTimeline(window_s=options.window_s)
     fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
     video = _VideoWriter(out_dir / "annotated.mp4", fps) if options.video else None

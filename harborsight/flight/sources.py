@@ -36,7 +36,11 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.flight.timeline import iso_seconds, timestamp_seconds
-from harborsight.flight.video_decode import read_video_frames, video_packet_times
+from harborsight.flight.video_decode import (
+    damage_detection_note,
+    read_video_frames,
+    video_packet_times,
+)
 from harborsight.frame import (
     FrameMetadata,
     parse_frame_metadata_untimed_on_error,
@@ -280,6 +284,8 @@ class VideoSource:
         capture.release()
         self.by_frame, self.orphans, self.line_of, self.time_errors = read_metadata_lines(
             metadata, video.stem, camera)
+        #: run-level warnings about the video (its decoder cannot report damaged data)
+        self.warnings = [note for note in (damage_detection_note(video),) if note]
         # the annotated video's rate: the container's, else the metadata's timestamps
         self.fps = self.container_fps or fps_from_timestamps(
             _meta_timestamp_s(entry) for entry in self.by_frame.values())

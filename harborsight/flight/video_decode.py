@@ -18,17 +18,23 @@ metadata paired by time stays with its picture.
 
 So frames are decoded one packet at a time and a frame is **damaged** when
 
-* a packet's decoding failed (FFmpeg's error for it), or the decoder logged an error
-  while decoding it ("error while decoding MB", "concealing ... errors", a missing
-  reference; not one about SEI side data, which leaves the picture whole), or FFmpeg
-  flagged the frame corrupt; or
+* a packet's decoding failed (FFmpeg's error for it), the decoder logged an error while
+  decoding it ("error while decoding MB", "concealing ... errors", a missing reference, a
+  checksum the stream carries that disagrees; not one about SEI side data, which leaves the
+  picture whole), the container flagged the packet corrupt (an MPEG-TS packet lost on a
+  link), or FFmpeg flagged the frame corrupt; or
 * a frame before it, in decoding order, was damaged or never came out (a packet of the
-  file the decoder gave no picture for: its presentation time is never seen),
+  file the decoder gave no picture for, or a longer step in a constant-rate video's times:
+  a packet lost from the file leaves no time of its own),
 
-until a key frame decodes cleanly: from its presentation time on, frames are whole again.
-Every frame output from the damaged packet on counts as damaged until then, those of earlier
-presentation time too (a B-frame may predict from the damaged frame). Slice threading only,
+until a key packet decodes cleanly and its own picture comes out (:class:`DamageTracker`:
+frames of the damaged group a decoder with B-frames outputs after that packet stay named;
+an intra-refresh stream's recovery point counts at the second one). Slice threading only,
 so that the decoder's messages belong to the packet being decoded.
+
+FFmpeg's HEVC and VP9 decoders report nothing for damaged data (:data:`SILENT_DECODERS`):
+there damage is found only where the container flags it or a packet gives no picture, and
+:func:`damage_detection_note` says so for the run.
 """
 
 from __future__ import annotations
@@ -44,7 +50,13 @@ import numpy as np
 from harborsight.errors import InputError
 
 #: why a frame the file holds gave no picture
-NOT_DECODED = "not decoded: its data is damaged or missing"
+NOT_DECODED = ("not decoded: its data is damaged or missing (or it precedes the stream's "
+               "first key frame)")
+#: decoders that say nothing of damaged data (FFmpeg's HEVC and VP9 decoders log no error
+#: and return none for scrambled packets; AV1 for some): in such a video damage is found
+#: only where the container flags it, a packet gives no picture, or a stream's checksums
+#: (HEVC picture hash SEI) disagree
+SILENT_DECODERS = {"hevc": "HEVC (H.265)", "vp9": "VP9", "av1": "AV1", "libdav1d": "AV1"}
 
 
 @dataclass
@@ -59,24 +71,61 @@ class DecodedPicture:
 
 
 class DamageTracker:
-    """Which frames show damaged data (module docstring); fed in decoding order."""
+    """Which frames show damaged data (module docstring); told of packets in decoding order
+    and of frames as they come out.
+
+    Damage ends with a key packet decoded whole, but only when that packet's own picture
+    comes out: a decoder with B-frames still outputs the last frames of the damaged group
+    after it (reorder delay), and open-GOP leading pictures (earlier in time) predict from
+    before it. An intra-refresh stream's recovery points are key packets whose picture is a
+    P frame that does not yet refresh the whole picture: there, damage ends at the second
+    recovery point after it (one whole refresh period)."""
 
     def __init__(self) -> None:
         self.reason: str | None = None      # why frames are damaged now; None: whole
         self.damaged_packets = 0
+        self._packets = 0                   # packets so far (decoding order)
+        self._damaged_at = -1               # the packet the damage arose at
+        self._refresh_at = -1               # a recovery point seen since the damage
+        self._keys: dict[int, int] = {}     # clean key packets' times -> their packet number
+        self._whole_from_pts: int | None = None      # the picture damage last ended at
+        self._ended: str | None = None               # ... and why frames were damaged before
 
-    def packet(self, is_key: bool, error: str | None) -> None:
+    def packet(self, is_key: bool, error: str | None, pts: int | None = None) -> None:
         """A packet was decoded (with ``error`` if it failed or the decoder complained)."""
+        self._packets += 1
         if error is not None:
-            self.reason = error
+            self.reason, self._damaged_at = error, self._packets
             self.damaged_packets += 1
-        elif is_key:
-            self.reason = None
+            self._keys.clear()
+        elif is_key and pts is not None:
+            self._keys[pts] = self._packets
 
     def missing(self, reason: str) -> None:
         """A frame never came out: those predicting from it are damaged."""
         if self.reason is None:
-            self.reason = reason
+            self.reason, self._damaged_at = reason, self._packets
+            self._keys.clear()
+
+    def frame(self, pts: int | None, key_frame: bool, intra: bool, corrupt: bool
+              ) -> str | None:
+        """Why the frame that came out (its time, the decoder's key flag, whether it is an
+        I picture, FFmpeg's corrupt flag) is damaged, or None."""
+        number = self._keys.pop(pts, None) if pts is not None else None
+        if self.reason is not None and number is not None and number > self._damaged_at:
+            whole = key_frame and intra
+            if not whole and self._refresh_at > self._damaged_at:
+                whole = True            # a second recovery point: refreshed since
+            elif not whole:
+                self._refresh_at = number
+            if whole:
+                self._ended, self.reason, self._whole_from_pts = self.reason, None, pts
+        if self.reason is not None:
+            return self.reason
+        if (self._ended is not None and pts is not None and self._whole_from_pts is not None
+                and pts < self._whole_from_pts):
+            return self._ended          # a leading picture of the damaged group
+        return "the decoder flagged the frame corrupt" if corrupt else None
 
 
 def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
@@ -91,6 +140,8 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
     stream = stream if stream is not None else container.streams.video[0]
     codec = stream.codec_context
     codec.thread_type = "SLICE"
+    # checksums a stream carries (HEVC's picture hash SEI) checked: a mismatch is logged
+    codec.options = {**codec.options, "err_detect": "crccheck"}
     tracker = tracker if tracker is not None else DamageTracker()
     level, skip = logging.get_level(), logging.get_skip_repeated()
     logging.set_level(logging.ERROR)
@@ -103,19 +154,29 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
                               if level_ <= logging.ERROR and name == codec.name
                               and not _about_side_data(message)]
                 del logs[:]
-                if packet.size == 0:               # the end: the decoder's last frames
-                    error = error or (complaints[0] if complaints else None)
-                else:
-                    tracker.packet(bool(packet.is_keyframe), None if error is None and not
-                                   complaints else f"decoded from damaged data (packet at "
-                                   f"{_time(packet, stream)}: {error or complaints[0]})")
+                if error is None and complaints:
+                    error = complaints[0]
+                if error is None and packet.size and packet.is_corrupt:
+                    error = "the container flagged the packet corrupt"    # a TS packet lost
+                tracker.packet(bool(packet.is_keyframe) and packet.size > 0,
+                               None if error is None else
+                               f"decoded from damaged data (packet at {_time(packet, stream)}: "
+                               f"{error})", packet.pts)
                 for frame in frames:
-                    yield frame, _frame_damage(frame, tracker)
+                    yield frame, tracker.frame(frame.pts, bool(frame.key_frame),
+                                               _is_intra(frame), bool(frame.is_corrupt))
     except av.error.FFmpegError as exc:
         raise OSError(f"cannot read the video: {' '.join(str(exc).split())}") from None
     finally:
         logging.set_level(level)
         logging.set_skip_repeated(skip)
+
+
+def _is_intra(frame) -> bool:
+    try:
+        return int(frame.pict_type) == 1        # AV_PICTURE_TYPE_I
+    except (TypeError, ValueError):
+        return False
 
 
 #: decoder messages about data beside the picture (H.264/HEVC SEI: user data, timecodes,
@@ -138,12 +199,6 @@ def _decode(packet) -> tuple[list, str | None]:
         return [], None
     except av.error.FFmpegError as exc:
         return [], " ".join((exc.strerror or str(exc)).split())
-
-
-def _frame_damage(frame, tracker: DamageTracker) -> str | None:
-    if getattr(frame, "is_corrupt", False) and tracker.reason is None:
-        return "the decoder flagged the frame corrupt"
-    return tracker.reason
 
 
 def _time(packet, stream) -> str:
@@ -171,6 +226,42 @@ def video_packet_times(video: Path) -> tuple[list[int], float] | None:
     return sorted(pts), float(base)
 
 
+def damage_detection_note(video: Path) -> str | None:
+    """A warning for a video whose decoder does not report damaged data (:data:`SILENT_DECODERS`),
+    or None."""
+    import av
+
+    try:
+        with av.open(str(video)) as container:
+            name = container.streams.video[0].codec_context.name
+    except (av.error.FFmpegError, IndexError, OSError, ValueError):
+        return None
+    if name not in SILENT_DECODERS:
+        return None
+    return (f"{video}: {SILENT_DECODERS[name]} video: FFmpeg's decoder does not report damaged "
+            "data, so a frame decoded from a damaged part of the file (a bad block, a repaired "
+            "recording) is found only where the container flags it or a packet gives no "
+            "picture, and may be measured; H.264 reports it")
+
+
+#: a video is taken for one of constant frame rate when 90 % of its frame steps lie within
+#: 5 % of their median; a step of 1.5 medians or more is then a gap
+REGULAR_STEP_SHARE, REGULAR_STEP_TOLERANCE, GAP_STEPS = 0.9, 0.05, 1.5
+
+
+def times_after_a_gap(times: list[int]) -> set[int]:
+    """The packet times that follow a gap in a constant-rate video: a packet lost from the
+    file leaves no time of its own, only a longer step (a camera that skips a frame leaves
+    one too, and costs the frames up to the next key frame)."""
+    steps = np.diff(np.asarray(times, float))
+    if len(steps) < 4:
+        return set()
+    step = float(np.median(steps))
+    if step <= 0 or np.mean(np.abs(steps - step) <= REGULAR_STEP_TOLERANCE * step) < REGULAR_STEP_SHARE:
+        return set()
+    return {times[k + 1] for k in np.flatnonzero(steps >= GAP_STEPS * step)}
+
+
 def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
     """Every frame of a video file in presentation order (module docstring), numbered by
     the rank of its presentation time among the file's packets, as ``telemetry video``
@@ -183,6 +274,7 @@ def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
     number_of: dict[int, int] = {}
     for number, pts in enumerate(times):
         number_of.setdefault(pts, number)      # a time given twice: its first frame's number
+    after_gap = times_after_a_gap(times)
     try:
         container = av.open(str(video))
     except (av.error.FFmpegError, OSError) as exc:
@@ -211,6 +303,10 @@ def read_video_frames(video: Path) -> Iterator[DecodedPicture]:
                     damaged = (f"decoded after {missed}, which gave no picture (it may "
                                "predict from them)")
                     tracker.missing(damaged)
+            if damaged is None and frame.pts in after_gap and not frame.key_frame:
+                damaged = ("decoded after a gap in the video's frame times: a frame's packet "
+                           "may be lost from the file, and it may predict from that frame")
+                tracker.missing(damaged)
             number = max(number, expected)     # a time seen twice: keep the numbering going
             expected = number + 1
             yield DecodedPicture(number, _seconds(frame.pts, first_pts, base),

@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable
 
 from harborsight.flight.sources import FlightFrame
-from harborsight.flight.video_decode import decoded_frames
+from harborsight.flight.video_decode import SILENT_DECODERS, decoded_frames
 from harborsight.live.stream import Arrival, LatestFrame
 from harborsight.live.telemetry import ClockMap, worth_saying
 
@@ -70,6 +70,13 @@ def _open(source: str, open_timeout_s: float, read_timeout_s: float, rtsp_transp
                    options=options, timeout=(open_timeout_s, read_timeout_s))
 
 
+def _codec_name(container) -> str | None:
+    try:
+        return container.streams.video[0].codec_context.name
+    except (AttributeError, IndexError):
+        return None
+
+
 def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 on_arrival: Callable[[FlightFrame, float], None] | None = None,
                 warn: Callable[[str], None] | None = None, *, retry_s: float = 1.0,
@@ -79,6 +86,7 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
     numbered from 0 over the whole session, across reconnections."""
     warn = warn or (lambda message: None)
     index = damaged_frames = 0
+    said_silent = False
     size: tuple[int, int] | None = None
     try:
         while not stop.is_set():
@@ -89,6 +97,12 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 stop.wait(retry_s)
                 continue
             clock = ClockMap(jump_s=VIDEO_JUMP_S)   # a reopened stream numbers afresh
+            codec = _codec_name(container)
+            if codec in SILENT_DECODERS and not said_silent:
+                said_silent = True
+                warn(f"{source} is {SILENT_DECODERS[codec]}: its decoder does not report "
+                     "damaged data, so a frame concealed after a lost packet is found only "
+                     "where the stream flags it")
             try:
                 for picture, damaged in decoded_frames(container):
                     now = time.monotonic()
