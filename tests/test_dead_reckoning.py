@@ -145,3 +145,35 @@ def test_the_live_ais_feed_carries_the_vessel_to_the_frame(monkeypatch):
     assert _error_m(samples["lat_deg"], samples["lon_deg"], lat, lon)[0] < 0.01
     assert samples["dead_reckoned_s"][0] == pytest.approx(6.0)
     assert samples["heading_deg"][0] == 88.0
+
+
+def test_a_vessel_carried_between_ais_reports_is_not_stale_until_it_can_no_longer_be():
+    """With AIS the vessel's newest report is up to 10 s old while its pose is carried (bars
+    widened): the live aid's vessel source goes stale after the 12 s it may be carried, not
+    the 2 s of a GNSS feed (every distance was marked not current 8 s in 10)."""
+    from harborsight.live.alarms import AlarmSettings
+    from harborsight.live.engine import LiveEngine
+
+    for vessel_stale_s, stale_at_8 in ((None, True), (AIS_DEAD_RECKON_S, False)):
+        engine = LiveEngine(None, None, alarm_settings=AlarmSettings(vessel_stale_s=vessel_stale_s))
+        engine.source_arrived("vessel", 100.0)
+        assert engine.health["vessel"].stale(108.0) is stale_at_8
+        assert engine.health["vessel"].stale(112.5)
+    with pytest.raises(ValueError, match="vessel_stale_s"):
+        AlarmSettings(vessel_stale_s=-1.0)
+
+
+def test_the_live_ais_reader_keeps_each_report_s_speed_and_course():
+    from pyais.encode import encode_dict
+
+    from harborsight.live.ais_in import AisVessel
+    from harborsight.live.telemetry import LiveTrack
+
+    track = LiveTrack("vessel", "ais")
+    listener = AisVessel(track, mmsi=219000001)
+    report = {"type": 1, "mmsi": 219000001, "lat": 56.1517, "lon": 10.2283, "heading": 118,
+              "second": datetime.now(UTC).second, "speed": 3.0, "course": 121.5}
+    listener.feed(encode_dict(report, sentence_type="VDM")[0], 20.0)
+    vessel = track.track()
+    assert vessel.sog_mps[0] == pytest.approx(3.0 * KNOT_MPS)
+    assert vessel.cog_deg[0] == pytest.approx(121.5) and vessel.dead_reckon_s == AIS_DEAD_RECKON_S

@@ -193,6 +193,7 @@ def live_command(
     from harborsight.live.signalk import SignalKPublisher, stream_url
     from harborsight.live.stream import VideoFrames
     from harborsight.live.video_in import RTSP_TRANSPORTS, is_stream, read_stream
+    from harborsight.telemetry.ais import AIS_DEAD_RECKON_S
 
     server = None
     try:
@@ -200,7 +201,9 @@ def live_command(
         if rtsp_transport not in RTSP_TRANSPORTS:
             raise InputError(None, "--rtsp-transport", f"{rtsp_transport!r}: expected tcp or udp")
         try:
-            alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s)
+            # AIS reports every 10 s and carries the vessel between them (its bars widened)
+            alarms = AlarmSettings(caution_m=caution_m, danger_m=danger_m, ttc_s=ttc_s,
+                                   vessel_stale_s=AIS_DEAD_RECKON_S if ais is not None else None)
         except ValueError as exc:
             raise InputError(None, "--danger-m", str(exc)) from None
         signalk_out_url = stream_url(signalk_out, "--signalk-out") if signalk_out else None

@@ -46,6 +46,10 @@ class AlarmSettings:
     #: a source older than this is stale (issue #28: video 1 s, drone and vessel 2 s)
     video_stale_s: float = 1.0
     telemetry_stale_s: float = 2.0
+    #: the vessel's source, where its pose is carried between reports (AIS: 10 s apart, each
+    #: carrying the vessel up to 12 s with widened error bars), is stale only after this;
+    #: None: ``telemetry_stale_s``
+    vessel_stale_s: float | None = None
     #: the distances shown are stale when no frame was measured for this long (frames keep
     #: arriving but cannot be measured: a camera attitude or a heading that stopped)
     measurement_stale_s: float = 2.0
@@ -55,6 +59,8 @@ class AlarmSettings:
     def __post_init__(self) -> None:
         require_positive(self, ("caution_m", "danger_m", "ttc_s", "video_stale_s", "telemetry_stale_s",
                                 "measurement_stale_s"))
+        if self.vessel_stale_s is not None:
+            require_positive(self, ("vessel_stale_s",))
         if not isinstance(self.fall_readings, int) or self.fall_readings < 1:
             raise ValueError(f"fall_readings must be a whole number at least 1, got {self.fall_readings!r}")
         for name in ("hysteresis_m", "hysteresis_s"):

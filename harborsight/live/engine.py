@@ -81,7 +81,7 @@ class LiveEngine:
         s = self.alarm_settings
         self.health = {"video": SourceHealth("video", s.video_stale_s),
                        "drone": SourceHealth("drone", s.telemetry_stale_s),
-                       "vessel": SourceHealth("vessel", s.telemetry_stale_s),
+                       "vessel": SourceHealth("vessel", s.vessel_stale_s or s.telemetry_stale_s),
                        "measurement": SourceHealth("measurement", s.measurement_stale_s)}
         #: why the newest frame that came could not be measured (None once one is)
         self._last_failure: str | None = None
