@@ -170,3 +170,23 @@ def test_a_geotiff_s_no_data_value_marks_its_pixels(tmp_path, nodata, expected):
     Image.fromarray(image).save(tmp_path / "ortho.tif", tiffinfo=info)
     _, found = read_image_and_no_data(tmp_path / "ortho.tif")
     assert (None if found is None else int(found.sum())) == expected
+
+
+def test_training_and_evaluation_read_no_data_as_ignore(tmp_path):
+    """An imported orthophoto whose annotation's background (water) covers its transparent
+    corner: the frame is read black there and labelled 255, as segment and measuring see
+    it; training no longer teaches that black is water, and evaluation scores it as ignore."""
+    from harborsight.training.dataset import FrameRecord, read_labelled_frame
+
+    image, no_data = picture(), corner(60, 80)
+    (tmp_path / "images").mkdir()
+    (tmp_path / "labels").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "tile.png"), bgra(image, no_data))
+    labels = np.zeros((60, 80), np.uint8)
+    labels[40:, 60:] = 1
+    cv2.imwrite(str(tmp_path / "labels" / "tile.png"), labels)
+    record = FrameRecord(tmp_path, "tile", "train", tmp_path / "images" / "tile.png",
+                         tmp_path / "labels" / "tile.png")
+    read, read_labels = read_labelled_frame(record)
+    assert (read_labels[no_data] == 255).all() and (read[no_data] == 0).all()
+    assert np.array_equal(read_labels[~no_data], labels[~no_data])

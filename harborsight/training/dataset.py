@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.images import read_image, read_mask
+from harborsight.images import read_image, read_image_and_no_data, read_mask
 from harborsight.perception.classes import IGNORE, NUM_CLASSES
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -109,11 +109,14 @@ def list_frames(data_dirs: Iterable[str | Path], splits: Sequence[str] | None = 
 
 
 def read_labelled_frame(record: FrameRecord) -> tuple[np.ndarray, np.ndarray]:
-    """uint8 BGR image (H, W, 3) and uint8 labels (H, W) of one frame, validated."""
+    """uint8 BGR image (H, W, 3) and uint8 labels (H, W) of one frame, validated. Pixels the
+    image holds no picture for (alpha 0, a GeoTIFF's no-data value) are black and labelled
+    255, as ``segment`` and measuring see them: an annotation's background there is not
+    seen water, and a model must not learn that black is."""
     if not record.image_path.is_file():
         raise InputError(record.image_path, None, f"image file not found (frame "
                          f"{record.stem!r} is listed in dataset.json)")
-    image = read_image(record.image_path)
+    image, no_data = read_image_and_no_data(record.image_path)
     labels = read_mask(record.label_path)
     if labels.dtype != np.uint8:
         raise InputError(record.label_path, "mask", f"expected uint8 class ids, got {labels.dtype}")
@@ -124,6 +127,9 @@ def read_labelled_frame(record: FrameRecord) -> tuple[np.ndarray, np.ndarray]:
     unknown = sorted(set(np.unique(labels).tolist()) - VALID_LABELS)
     if unknown:
         raise InputError(record.label_path, "mask", f"unknown class values {unknown[:8]}")
+    if no_data is not None:
+        labels = labels.copy()
+        labels[no_data] = IGNORE
     return image, labels
 
 
