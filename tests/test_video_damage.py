@@ -266,3 +266,28 @@ def test_a_video_whose_decoder_hides_damage_is_said_once(tmp_path):
     assert "HEVC (H.265)" in damage_detection_note(hevc)
     assert damage_detection_note(h264) is None
 
+
+
+def test_the_damage_tracker_s_rules_one_by_one():
+    """Packets in decoding order, frames as the decoder gives them (times in frame steps)."""
+    from harborsight.flight.video_decode import DamageTracker
+
+    tracker = DamageTracker()
+    tracker.packet(False, "bad", 4)                    # a P frame's packet fails
+    assert tracker.frame(3, False, False, False) == "bad"
+    tracker.packet(True, None, 8)                      # the next key packet, clean
+    assert tracker.frame(6, False, False, False) == "bad"   # B-frames output after it
+    assert tracker.frame(8, True, True, False) is None       # its own I picture: whole
+    assert tracker.frame(7, False, False, False) == "bad"    # a leading picture from before
+    assert tracker.frame(9, False, False, False) is None
+    # an intra-refresh stream: recovery points are key packets of P pictures
+    tracker.packet(False, "lost", 20)
+    tracker.packet(True, None, 30)
+    assert tracker.frame(30, False, False, False) == "lost"  # the first: still refreshing
+    tracker.packet(True, None, 45)
+    assert tracker.frame(45, False, False, False) is None    # the second: refreshed
+    # a stream without times (raw H.264 over UDP)
+    tracker.packet(False, "bad", None)
+    tracker.packet(True, None, None)
+    assert tracker.frame(None, True, True, False) is None
+    assert tracker.frame(None, False, False, True) == "the decoder flagged the frame corrupt"

@@ -98,8 +98,8 @@ class DamageTracker:
             self.reason, self._damaged_at = error, self._packets
             self.damaged_packets += 1
             self._keys.clear()
-        elif is_key and pts is not None:
-            self._keys[pts] = self._packets
+        elif is_key:
+            self._keys[pts] = self._packets     # None: an untimed stream's (raw H.264)
 
     def missing(self, reason: str) -> None:
         """A frame never came out: those predicting from it are damaged."""
@@ -111,7 +111,7 @@ class DamageTracker:
               ) -> str | None:
         """Why the frame that came out (its time, the decoder's key flag, whether it is an
         I picture, FFmpeg's corrupt flag) is damaged, or None."""
-        number = self._keys.pop(pts, None) if pts is not None else None
+        number = self._keys.pop(pts, None)
         if self.reason is not None and number is not None and number > self._damaged_at:
             whole = key_frame and intra
             if not whole and self._refresh_at > self._damaged_at:
