@@ -185,6 +185,13 @@ def turned_as_displayed(image: np.ndarray, orientation: int | None) -> np.ndarra
     return image
 
 
+#: the first bytes of a TIFF or BigTIFF, in either byte order
+TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+#: Pillow modes with an alpha band (a TIFF's band 4 is one only where its ExtraSamples say so:
+#: Pillow opens an RGB+NIR TIFF as RGBX, not RGBA)
+_ALPHA_MODES = frozenset({"RGBA", "RGBa", "LA", "La", "PA"})
+
+
 def may_hold_alpha(data: bytes) -> bool:
     """Whether an encoded image can carry transparency: a PNG with an alpha channel (IHDR
     colour type 4 or 6) or a ``tRNS`` chunk before its image data, any TIFF or WebP; a JPEG
@@ -194,7 +201,7 @@ def may_hold_alpha(data: bytes) -> bool:
             return True
         image_data = data.find(b"IDAT")
         return b"tRNS" in data[:image_data if image_data > 0 else len(data)]
-    return data[:4] in (b"II*\x00", b"MM\x00*") or (data[:4] == b"RIFF" and data[8:12] == b"WEBP")
+    return data[:4] in TIFF_MAGIC or (data[:4] == b"RIFF" and data[8:12] == b"WEBP")
 
 
 #: the TIFF tag in which GDAL writes a raster's no-data value (ASCII, e.g. "0" or "-9999")
@@ -204,42 +211,78 @@ GDAL_NODATA_TAG = 42113
 def no_data_pixels(data: bytes, shape: tuple[int, int]) -> np.ndarray | None:
     """Where the encoded image ``data`` holds no picture: pixels of alpha 0, as an orthophoto
     or a rectified frame marks the area outside its footprint (stored black, white or
-    anything), and in a GeoTIFF pixels whose every band holds its ``GDAL_NODATA`` value;
+    anything), and in a GeoTIFF pixels whose every colour band holds its ``GDAL_NODATA``
+    value (as GDAL reads it: a pure black pixel of a raster whose no-data is 0 is one);
     bool (H, W) turned as the picture is displayed, or None where every pixel holds data.
-    ``shape`` is the displayed picture's (H, W)."""
+    ``shape`` is the displayed picture's (H, W); a mask of another shape raises
+    ``ValueError``.
+
+    The alpha band is Pillow's, turned by :func:`PIL.ImageOps.exif_transpose` as OpenCV
+    turns the colours: grey+alpha, palette and colour-key transparency (``tRNS``) come
+    through it, and a TIFF's fourth band counts as alpha only where its ExtraSamples say so
+    (an RGB+NIR TIFF's near-infrared, near 0 over water, is not). The no-data value is
+    compared on OpenCV's decoding of the bands, which its TIFF reader turns itself."""
+    no_data = _transparent(data)
     nodata_value = _gdal_nodata(data)
-    if nodata_value is None and not may_hold_alpha(data):
-        return None
-    stored = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if stored is None:
-        return None
-    bands = stored.reshape(stored.shape[0], stored.shape[1], -1)
-    no_data = np.zeros(bands.shape[:2], bool)
-    if bands.shape[2] == 4:
-        no_data |= bands[..., 3] == 0
-        bands = bands[..., :3]
     if nodata_value is not None:
-        no_data |= np.all(bands == nodata_value, axis=2)
-    if not no_data.any():
+        stored = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if stored is not None:
+            bands = stored.reshape(stored.shape[0], stored.shape[1], -1)
+            colour = bands[..., :3] if bands.shape[2] == 4 else bands
+            valueless = np.all(colour == nodata_value, axis=2)
+            if no_data is not None and no_data.shape != valueless.shape:
+                raise ValueError(f"its transparency is {no_data.shape[1]}x{no_data.shape[0]} "
+                                 f"but its bands {valueless.shape[1]}x{valueless.shape[0]}")
+            no_data = valueless if no_data is None else no_data | valueless
+    if no_data is None or not no_data.any():
         return None
-    no_data = turned_as_displayed(no_data.view(np.uint8), exif_orientation(data)).view(bool)
-    return no_data if no_data.shape == tuple(shape) else None
+    if no_data.shape != tuple(shape):
+        raise ValueError(f"its no-data mask is {no_data.shape[1]}x{no_data.shape[0]} but the "
+                         f"picture {shape[1]}x{shape[0]}")
+    return no_data
+
+
+def _transparent(data: bytes) -> np.ndarray | None:
+    """Pixels of alpha 0, turned as displayed (:func:`no_data_pixels`), or None."""
+    if not may_hold_alpha(data):
+        return None
+    import io
+
+    from PIL import Image, ImageOps
+
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None       # sizes are checked against OpenCV's limit instead
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            if image.mode not in _ALPHA_MODES and "transparency" not in image.info:
+                return None
+            shown = ImageOps.exif_transpose(image)
+            alpha = np.asarray(shown.convert("RGBA").getchannel("A"))
+    except Exception:  # Pillow raises many kinds on odd files; OpenCV decides on those
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+    return alpha == 0
 
 
 def _gdal_nodata(data: bytes) -> float | None:
     """A GeoTIFF's no-data value (its ``GDAL_NODATA`` tag), or None."""
-    if data[:4] not in (b"II*\x00", b"MM\x00*"):
+    if data[:4] not in TIFF_MAGIC:
         return None
     import io
 
     from PIL import Image
 
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None       # a large orthomosaic: only its header is read
     try:
         with Image.open(io.BytesIO(data)) as image:
             text = image.tag_v2.get(GDAL_NODATA_TAG)
         value = float(str(text).strip().rstrip("\x00"))
     except Exception:  # no tag, or one that is not a number ("nan" is one: never equal)
         return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
     return value if np.isfinite(value) else None
 
 
@@ -279,7 +322,10 @@ def read_image_and_no_data(path: Path, camera_pixels: bool = False
     colour and the nearest pixel's, measured with the default model on 12 marina and 12
     lake-shore val frames with a 21 % triangle blanked (docs/results.md, "No-data pixels")."""
     image, data = _read_image_data(path, camera_pixels)
-    no_data = no_data_pixels(data, image.shape[:2])
+    try:
+        no_data = no_data_pixels(data, image.shape[:2])
+    except ValueError as exc:
+        raise InputError(path, None, str(exc)) from None
     if no_data is not None:
         image = image.copy()
         image[no_data] = 0

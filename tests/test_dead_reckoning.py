@@ -51,10 +51,10 @@ def test_a_steady_vessel_between_reports_is_where_it_was_carried():
     assert _error_m(samples["lat_deg"], samples["lon_deg"], lat, lon).max() < 0.01
     age = samples["dead_reckoned_s"]
     assert age[times == 5.0] == pytest.approx(5.0)          # 5 s from both reports
-    assert age[times == 12.0] == pytest.approx(2 * 2 * 8 / 10)
+    assert age[times == 12.0] == pytest.approx(math.sqrt(2 * 8))   # a steady acceleration's
     assert age[times == 46.0] == pytest.approx(6.0)          # past the last: carried forward
     assert age[times == 20.0] == 0.0                          # a report's own time
-    assert age[times == 20.5] == pytest.approx(2 * 0.5 * 9.5 / 10)
+    assert age[times == 20.5] == pytest.approx(math.sqrt(0.5 * 9.5))
     without = Track(**{**track.__dict__, "dead_reckon_s": 0.0}).sample(times, max_gap_s=1.0)
     assert np.isnan(without["lat_deg"]).sum() > 70           # what the frames had before
 
@@ -177,3 +177,25 @@ def test_the_live_ais_reader_keeps_each_report_s_speed_and_course():
     vessel = track.track()
     assert vessel.sog_mps[0] == pytest.approx(3.0 * KNOT_MPS)
     assert vessel.cog_deg[0] == pytest.approx(121.5) and vessel.dead_reckon_s == AIS_DEAD_RECKON_S
+
+
+def test_a_missed_report_leaves_no_jump_and_a_vessel_at_rest_is_carried_in_place():
+    """Reports 20 s apart (one missed): the report after comes into reach at 8 s and the one
+    before leaves it at 12 s; the first version jumped 0.8 m there (a closing speed of
+    800 m/s between two frames). A moored vessel reports speed 0 and no course (AIS 360):
+    its frames were left without a pose."""
+    track = _ais_track(np.array([0.0, 20.0]), 1.0, 90.0, accel_mps2=0.05)
+    times = np.array([7.999, 8.0, 8.001, 11.999, 12.0, 12.001])
+    samples = track.sample(times, max_gap_s=1.0)
+    lat, lon = _truth(np.array([0.0]), 1.0, 90.0)
+    along = _error_m(np.full(6, lat[0]), np.full(6, lon[0]), samples["lat_deg"], samples["lon_deg"])
+    assert np.abs(np.diff(along)[[0, 1, 3, 4]]).max() < 0.01
+    assert np.abs(np.diff(samples["dead_reckoned_s"])).max() < 0.01
+    lat, lon = _truth(np.arange(0.0, 21.0, 10.0), 0.0, 0.0)
+    moored = Track(source=Path("ais.nmea"), kind="ais", t_s=np.arange(0.0, 21.0, 10.0),
+                   lat_deg=lat, lon_deg=lon, heading_deg=np.full(3, 45.0), sog_mps=np.zeros(3),
+                   cog_deg=np.full(3, np.nan), dead_reckon_s=AIS_DEAD_RECKON_S)
+    samples = moored.sample(np.array([2.0, 5.0, 15.0]), max_gap_s=1.0)
+    assert np.isfinite(samples["lat_deg"]).all()
+    assert _error_m(samples["lat_deg"], samples["lon_deg"], lat[:1].repeat(3), lon[:1].repeat(3)).max() < 1e-6
+

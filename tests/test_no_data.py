@@ -190,3 +190,38 @@ def test_training_and_evaluation_read_no_data_as_ignore(tmp_path):
     read, read_labels = read_labelled_frame(record)
     assert (read_labels[no_data] == 255).all() and (read[no_data] == 0).all()
     assert np.array_equal(read_labels[~no_data], labels[~no_data])
+
+
+@pytest.mark.parametrize("orientation", [2, 3, 6])
+def test_a_turned_tiff_s_transparency_lands_on_its_own_pixels(tmp_path, orientation):
+    """OpenCV turns a TIFF's bands (alpha too) by its Orientation as it decodes them: the
+    alpha was turned a second time (real pixels blacked and counted solid, the transparent
+    corner left as picture)."""
+    image, no_data = picture(), corner(60, 80)
+    rgba = bgra(image, no_data, stored=(0, 0, 0))[..., [2, 1, 0, 3]]
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "turned.tif"
+    Image.fromarray(rgba, "RGBA").save(path, exif=exif)
+    # as displayed, by hand: 2 mirrored, 3 half a turn, 6 a quarter turn clockwise
+    turn = {2: np.fliplr, 3: lambda a: np.rot90(a, 2), 6: lambda a: np.rot90(a, -1)}[orientation]
+    read, found = read_image_and_no_data(path)
+    assert np.array_equal(found, turn(no_data))
+    assert np.array_equal(read[~found], turn(image)[~found])
+
+
+def test_only_a_band_declared_alpha_is_transparency(tmp_path):
+    """An RGB + near-infrared TIFF (ExtraSamples 0: not alpha) has NIR near 0 over water: it
+    was read as alpha, and the water as a solid wall. Grey images with transparency (grey +
+    alpha TIFF, a grey PNG with a transparent key) were missed."""
+    rgb, nir = picture(), np.zeros((60, 80), np.uint8)
+    nir[:, 40:] = 180
+    Image.fromarray(np.dstack([rgb, nir]), "RGBX").save(tmp_path / "rgbn.tif")
+    assert read_image_and_no_data(tmp_path / "rgbn.tif")[1] is None
+    grey, no_data = picture()[..., 0], corner(60, 80)
+    alpha = np.where(no_data, 0, 255).astype(np.uint8)
+    Image.fromarray(np.dstack([grey, alpha]), "LA").save(tmp_path / "grey.tif")
+    assert np.array_equal(read_image_and_no_data(tmp_path / "grey.tif")[1], no_data)
+    keyed = np.where(no_data, 0, np.maximum(grey, 1)).astype(np.uint8)
+    Image.fromarray(keyed, "L").save(tmp_path / "keyed.png", transparency=0)
+    assert np.array_equal(read_image_and_no_data(tmp_path / "keyed.png")[1], no_data)

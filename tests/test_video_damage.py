@@ -291,3 +291,33 @@ def test_the_damage_tracker_s_rules_one_by_one():
     tracker.packet(True, None, None)
     assert tracker.frame(None, True, True, False) is None
     assert tracker.frame(None, False, False, True) == "the decoder flagged the frame corrupt"
+
+
+def test_a_video_trimmed_without_re_encoding_starts_at_its_first_shown_frame(tmp_path):
+    """A clip cut with `-c copy` keeps the packets before its edit list's start, flagged
+    discard: decoded as references, never shown. They were counted as frames: 10 frames
+    "not decoded" ahead of the first shown one, the rest of its group named damaged, and the
+    times offset by 0.4 s."""
+    import av
+
+    source, trimmed = tmp_path / "source.mp4", tmp_path / "trimmed.mp4"
+    _write(source, b_frames=2)
+    with av.open(str(source)) as given, av.open(str(trimmed), "w") as out:
+        stream = given.streams.video[0]
+        copy = out.add_stream_from_template(stream)
+        shift = round(0.4 / float(stream.time_base))      # 4 frames at 10 fps before the start
+        for packet in given.demux(stream):
+            if packet.dts is None:
+                continue
+            packet.pts -= shift
+            packet.dts -= shift
+            packet.stream = copy
+            out.mux(packet)
+    pictures = list(read_video_frames(trimmed))
+    import cv2
+
+    capture, shown = cv2.VideoCapture(str(trimmed)), 0
+    while capture.read()[0]:
+        shown += 1
+    assert len(pictures) == shown == FRAMES - 4
+    assert not any(p.damaged for p in pictures) and pictures[0].time_s == 0.0

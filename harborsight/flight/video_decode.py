@@ -217,8 +217,10 @@ def video_packet_times(video: Path) -> tuple[list[int], float] | None:
         with av.open(str(video)) as container:
             stream = container.streams.video[0]
             base = stream.time_base
+            # a packet before an edit list's start (a file trimmed without re-encoding) is
+            # decoded as a reference, its picture discarded: not a frame of the video
             pts = [packet.pts for packet in container.demux(stream)
-                   if packet.pts is not None and packet.size > 0]
+                   if packet.pts is not None and packet.size > 0 and not packet.is_discard]
     except (av.error.FFmpegError, IndexError, OSError, ValueError):
         return None
     if not pts or base is None:

@@ -19,11 +19,15 @@ a class A transponder reports every 10 s under way, 2-6 s when turning) sets
 course lies at most ``dead_reckon_s`` before it, the position is carried forward along the
 course, ``p0 + sog · (t - t0) · (sin cog, cos cog)`` on the local east-north plane (or back
 from the next one within ``dead_reckon_s`` after it), and where both are near, the two are
-blended, weighted by nearness: ``(1 - w) p0' + w p1'``, ``w = (t - t0) / (t1 - t0)``. The
-heading is turned the short way between the reports around it, or the last one's held
-where none follows yet (live). ``sample`` then says for how long in ``dead_reckoned_s``
-(for the blend, ``2 dt0 dt1 / (dt0 + dt1)``), which the error bars widen by
-(:func:`harborsight.geometry.sensor_sigmas.dead_reckoning_drift`).
+blended, weighted by nearness: ``(1 - w) p0' + w p1'``, ``w = (t - t0) / (t1 - t0)`` (where
+a report was missed and the two do not both reach the whole gap, ``w`` tapers to 0 and 1
+where each comes into and leaves reach, so the position does not jump: :func:`_blend_weight`).
+A report at rest (speed under :data:`AT_REST_MPS`) without a course (AIS 360) carries its
+position in place. The heading is turned the short way between the reports around it, or
+the last one's held where none follows yet (live). ``sample`` then says for how long in
+``dead_reckoned_s`` (for the blend, ``sqrt((1 - w) dt0² + w dt1²)``: ``sqrt(dt0 dt1)`` with
+the linear weight, exactly the blend's error under a steady acceleration), which the error
+bars widen by (:func:`harborsight.geometry.sensor_sigmas.dead_reckoning_drift`).
 
 Accuracy figures the log states go with the samples and are sampled the same way (never
 unwrapped): ``position_sigma_m``, one sigma per horizontal axis (east, north) in metres;
@@ -195,8 +199,12 @@ class Track:
         import pymap3d
 
         t = self.t_s
+        # a vessel at rest reports no course (AIS 360): its step is nil whatever the course
+        course_deg = np.where(~np.isfinite(self.cog_deg) & (self.sog_mps < AT_REST_MPS), 0.0,
+                              self.cog_deg)
         moving = (np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
-                  & np.isfinite(self.sog_mps) & np.isfinite(self.cog_deg))
+                  & np.isfinite(self.sog_mps) & np.isfinite(course_deg))
+        reach = self.dead_reckon_s
         age = np.zeros(times_s.shape)
         # where nothing is within reach, and past the track's ends (where sample holds the
         # end value: a moving vessel is better carried)
@@ -206,25 +214,25 @@ class Track:
             after = int(np.searchsorted(t, x, side="right"))
             before = after - 1
             ends = [(k, x - t[k]) for k in (before, after)      # carried forward, and back
-                    if 0 <= k < len(t) and moving[k] and abs(x - t[k]) <= self.dead_reckon_s]
+                    if 0 <= k < len(t) and moving[k] and abs(x - t[k]) <= reach]
             if not ends:
                 continue
             guesses = []
             for k, dt in ends:
-                course = np.deg2rad(self.cog_deg[k])
+                course = np.deg2rad(course_deg[k])
                 step = self.sog_mps[k] * dt
                 guesses.append(pymap3d.enu2geodetic(step * np.sin(course), step * np.cos(course),
                                                     0.0, self.lat_deg[k], self.lon_deg[k], 0.0)[:2])
             if len(ends) == 1:
                 out["lat_deg"][i], out["lon_deg"][i] = guesses[0]
                 age[i] = abs(ends[0][1])
-            else:       # the two weighted by nearness; the estimate ages as the nearer one
-                w = (x - t[before]) / (t[after] - t[before])
+            else:       # the two blended by nearness (module docstring)
+                dt0, dt1 = x - t[before], t[after] - x
+                w = _blend_weight(dt0, dt1, reach)
                 east, north, _ = pymap3d.geodetic2enu(*guesses[1], 0.0, *guesses[0], 0.0)
                 out["lat_deg"][i], out["lon_deg"][i] = pymap3d.enu2geodetic(
                     w * east, w * north, 0.0, *guesses[0], 0.0)[:2]
-                dt0, dt1 = x - t[before], t[after] - x
-                age[i] = 2.0 * dt0 * dt1 / (dt0 + dt1)
+                age[i] = math.sqrt((1.0 - w) * dt0 ** 2 + w * dt1 ** 2)
             if "heading_deg" in out and not np.isfinite(out["heading_deg"][i]):
                 out["heading_deg"][i] = self._heading_near(x)
             elif "heading_deg" in out and len(ends) == 1:
@@ -269,6 +277,21 @@ class Track:
             "heading": self.heading_deg is not None,
             **{name: span(getattr(self, name)) for name in SIGMAS}, "notes": list(self.notes),
         }
+
+
+#: a speed over ground (m/s) under which a position without a course is carried in place
+AT_REST_MPS = 0.05
+
+
+def _blend_weight(dt0: float, dt1: float, reach_s: float) -> float:
+    """The weight of the position carried back from the next report (module docstring):
+    ``dt0 / (dt0 + dt1)`` where both reports reach the whole gap; where they do not (a
+    report missed), ``dt0 (R - dt1) / (dt0 (R - dt1) + dt1 (R - dt0))``, which is 0 where
+    the next one comes into reach and 1 where the last one leaves it."""
+    if dt0 + dt1 <= reach_s:
+        return dt0 / (dt0 + dt1)
+    forward, back = dt1 * (reach_s - dt0), dt0 * (reach_s - dt1)
+    return back / (forward + back) if forward + back > 0 else 0.5
 
 
 def _reachable(t: np.ndarray, times_s: np.ndarray, max_gap_s: float,
