@@ -134,11 +134,9 @@ def test_errors_about_side_data_leave_the_picture_whole():
     assert not _about_side_data("concealing 120 DC, 120 AC, 120 MV errors in P frame")
 
 
-def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path, untrained_model):
-    video = tmp_path / "flight.mp4"
-    _write(video)
-    start, size, _ = _packet_spans(video)[20]
-    _scramble(video, start + 8, size - 12)
+def _run(tmp_path: Path, video: Path, model: Path) -> tuple[dict, Path]:
+    """``run`` on ``video`` with a metadata line per frame (the bundled flight's first pose,
+    its camera shrunk to the clip); run.json and the output folder."""
     record = json.loads((SAMPLES / "flight" / "frames" / "000000.json").read_text())
     record["camera"].update(width=96, height=64, fx=60.0, fy=60.0, cx=47.5, cy=31.5)
     for key in ("image", "ground_truth", "simulation", "vessel_spec"):
@@ -148,16 +146,32 @@ def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path,
     vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
     out = tmp_path / "out"
     result = runner.invoke(app, ["run", str(video), "--metadata", str(tmp_path / "flight.jsonl"),
-                                 "--model", str(untrained_model), "--vessel", str(vessel),
+                                 "--model", str(model), "--vessel", str(vessel),
                                  "--out", str(out), "--no-overlays"],
                            terminal_width=200)
     assert result.exit_code == 0, result.output
-    summary = json.loads((out / "run.json").read_text())
+    return json.loads((out / "run.json").read_text()), out
+
+
+@pytest.mark.parametrize("damaged_packet", [20, 0])
+def test_run_skips_the_damaged_frames_of_a_video_and_measures_the_rest(tmp_path, untrained_model,
+                                                                       damaged_packet):
+    """A damaged P frame (20) or the first key frame (0): the frames from it to the next key
+    frame are skipped with the reason, the rest measured, and every frame keeps its place in
+    the annotated video (a first frame without a picture too: the video's size comes from
+    the container)."""
+    video = tmp_path / "flight.mp4"
+    _write(video)
+    start, size, _ = _packet_spans(video)[damaged_packet]
+    _scramble(video, start + 8, size - 12)
+    summary, out = _run(tmp_path, video, untrained_model)
     skipped = {item["frame"]: item["error"] for item in summary["skipped_frames"]}
-    assert sorted(skipped) == list(range(20, 30))
-    assert "damaged" in skipped[25] and "flight.jsonl:26" in skipped[25]
-    assert summary["measured"] == FRAMES - 10
-    assert len(_decoded(out / "annotated.mp4")) == FRAMES    # frame 20, not decoded, kept its place
+    first = damaged_packet
+    last = (damaged_packet // KEY_EVERY + 1) * KEY_EVERY
+    assert sorted(skipped) == list(range(first, last))
+    assert "damaged" in skipped[first + 5] and f"flight.jsonl:{first + 6}" in skipped[first + 5]
+    assert summary["measured"] == FRAMES - (last - first)
+    assert len(_decoded(out / "annotated.mp4")) == FRAMES
 
 
 @pytest.mark.parametrize("fmt", ["mp4", "mpegts"])

@@ -93,7 +93,8 @@ def run_flight_with_progress(source, out: Path, vessels, segmenter, options, inp
             console.print(f"warning: {warning}")
         return run_flight(source.frames(), out, vessels, segmenter, options,
                           source_fps=source.fps, inputs=inputs, on_frame=advance,
-                          source_warnings=getattr(source, "warnings", ()))
+                          source_warnings=getattr(source, "warnings", ()),
+                          frame_size=getattr(source, "size", None))
 
 
 def interrupted_line(out: Path) -> str:

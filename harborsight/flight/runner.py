@@ -98,15 +98,16 @@ class _VideoWriter:
     """mp4 (MPEG-4 part 2, which every OpenCV build writes) opened at the first frame; later
     frames of another size are resized to the first one's."""
 
-    def __init__(self, path: Path, fps: float) -> None:
+    def __init__(self, path: Path, fps: float, size: tuple[int, int] | None = None) -> None:
         self.path, self.fps = path, fps
         self.writer: cv2.VideoWriter | None = None
-        self.size: tuple[int, int] | None = None
+        #: (width, height): the first frame's, or the source's where it says (a video)
+        self.size: tuple[int, int] | None = size
         self.frames = 0
 
     def write(self, image: np.ndarray) -> None:
         if self.writer is None:
-            self.size = (image.shape[1], image.shape[0])
+            self.size = self.size or (image.shape[1], image.shape[0])
             self.writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"),
                                           self.fps, self.size)
             if not self.writer.isOpened():
@@ -203,12 +204,14 @@ def run_flight(
     segmenter: Segmenter | None, options: RunOptions | None = None, *,
     source_fps: float | None = None, inputs: dict | None = None,
     on_frame: Callable[[FlightFrame], None] | None = None,
-    source_warnings: Iterable[str] = (),
+    source_warnings: Iterable[str] = (), frame_size: tuple[int, int] | None = None,
 ) -> RunSummary:
     """Measure every frame of a flight (module docstring). A frame with bad input, or one
     the measurement refuses, is recorded in the summary and skipped; the run goes on. A frame
     whose time is missing or out of order is measured, left out of the closing speeds and
     listed in ``warnings``, as are ``source_warnings`` (about the input as a whole).
+    ``frame_size`` (width, height), where the source says it (a video), sizes the annotated
+    video before its first picture (frames without one before it keep their places).
     ``run.json`` and the video are written however the run ends."""
     options = options or RunOptions()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -222,7 +225,7 @@ def run_flight(
                             for warning in source_warnings)
     timeline = ClearanceTimeline(window_s=options.window_s)
     fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
-    video = _VideoWriter(out_dir / "annotated.mp4", fps) if options.video else None
+    video = _VideoWriter(out_dir / "annotated.mp4", fps, frame_size) if options.video else None
     clock = FlightClock()
     stems = _OutputStems()
     started = time.perf_counter()

@@ -281,6 +281,10 @@ class VideoSource:
         self.container_fps = plausible_fps(capture.get(cv2.CAP_PROP_FPS))
         count = capture.get(cv2.CAP_PROP_FRAME_COUNT)
         self.frame_count = int(count) if math.isfinite(count) and count > 0 else 0
+        width, height = (capture.get(p) for p in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT))
+        #: (width, height) of the frames, where the container says it
+        self.size = ((int(width), int(height)) if all(math.isfinite(v) and v >= 1
+                                                      for v in (width, height)) else None)
         capture.release()
         self.by_frame, self.orphans, self.line_of, self.time_errors = read_metadata_lines(
             metadata, video.stem, camera)
