@@ -199,3 +199,13 @@ def test_a_missed_report_leaves_no_jump_and_a_vessel_at_rest_is_carried_in_place
     assert np.isfinite(samples["lat_deg"]).all()
     assert _error_m(samples["lat_deg"], samples["lon_deg"], lat[:1].repeat(3), lon[:1].repeat(3)).max() < 1e-6
 
+
+
+def test_an_ais_log_s_track_carries_its_reports_speed_and_course(tmp_path):
+    from harborsight.telemetry.vessel_track import read_vessel_track
+    from tests.test_ais import _own_log
+
+    track = read_vessel_track(_own_log(tmp_path))            # 10 reports, 0.8 kn at 117.7 deg
+    assert track.dead_reckon_s == AIS_DEAD_RECKON_S
+    assert np.allclose(track.sog_mps, 0.8 * KNOT_MPS) and np.allclose(track.cog_deg, 117.7)
+    assert any("10 of 10 report(s) give speed and course" in note for note in track.notes)
