@@ -294,6 +294,8 @@ def test_the_damage_tracker_s_rules_one_by_one():
     assert tracker.frame(8, True, True, False) is None       # its own I picture: whole
     assert tracker.frame(7, False, False, False) == "bad"    # a leading picture from before
     assert tracker.frame(9, False, False, False) is None
+    assert tracker.frame(2, False, False, False) is None     # times stepping back later
+                                                              # (an encoder restarted) are not
     # an intra-refresh stream: recovery points are key packets of P pictures
     tracker.packet(False, "lost", 20)
     tracker.packet(True, None, 30)

@@ -122,9 +122,11 @@ class DamageTracker:
                 self._ended, self.reason, self._whole_from_pts = self.reason, None, pts
         if self.reason is not None:
             return self.reason
-        if (self._ended is not None and pts is not None and self._whole_from_pts is not None
-                and pts < self._whole_from_pts):
-            return self._ended          # a leading picture of the damaged group
+        if self._ended is not None and pts is not None and self._whole_from_pts is not None:
+            if pts < self._whole_from_pts:
+                return self._ended      # a leading picture of the damaged group
+            if pts > self._whole_from_pts:
+                self._ended = None      # past them (times that later step back are not)
         return "the decoder flagged the frame corrupt" if corrupt else None
 
 
