@@ -209,3 +209,20 @@ def test_an_ais_log_s_track_carries_its_reports_speed_and_course(tmp_path):
     assert track.dead_reckon_s == AIS_DEAD_RECKON_S
     assert np.allclose(track.sog_mps, 0.8 * KNOT_MPS) and np.allclose(track.cog_deg, 117.7)
     assert any("10 of 10 report(s) give speed and course" in note for note in track.notes)
+
+
+def test_a_heading_held_past_the_last_report_turns_at_its_rate_of_turn():
+    """AIS gives a rate of turn (pyais: deg/min; -128 none, ±127 no rate): live, past the
+    last report, the heading turns with it instead of being held."""
+    from harborsight.telemetry.ais import report_turn
+
+    assert report_turn({"turn": 60.0}) == pytest.approx(1.0)
+    assert all(math.isnan(report_turn(fields)) for fields in
+               ({"turn": -128.0}, {"turn": 127.0}, {"turn": -127.0}, {}))
+    track = _ais_track(np.array([0.0, 10.0]), 1.0, 90.0, heading_deg=np.array([80.0, 90.0]))
+    track.rot_deg_s = np.array([1.0, 1.0])
+    samples = track.sample(np.array([5.0, 16.0]), max_gap_s=1.0, hold_s=1.0)
+    assert samples["heading_deg"][0] == pytest.approx(85.0)     # between reports: turned
+    assert samples["heading_deg"][1] == pytest.approx(96.0)     # past the last: at 1 deg/s
+    track.rot_deg_s = np.array([np.nan, np.nan])
+    assert track.sample(np.array([16.0]), max_gap_s=1.0, hold_s=1.0)["heading_deg"][0] == 90.0

@@ -23,6 +23,7 @@ from harborsight.telemetry.ais import (
     report_identity,
     report_motion,
     report_position,
+    report_turn,
     sentence_start,
     unmeasured_position,
 )
@@ -92,7 +93,8 @@ class AisVessel:
         now_utc = datetime.fromtimestamp(time.time(), UTC)
         fix = fix_time(now_utc, fields.get("second"))
         t_s = self.track.clock.observe(fix.timestamp(), now_s)
-        self.track.add_position(t_s, *position, sog_mps=sog, cog_deg=cog)
+        self.track.add_position(t_s, *position, sog_mps=sog, cog_deg=cog,
+                                rot_deg_s=report_turn(fields))
         self.track.add_heading(t_s, heading % 360.0)
         self.reports += 1
         if self.on_fix is not None:

@@ -119,7 +119,7 @@ class LiveTrack:
         self.clock = ClockMap()
         self.utc_clock: ClockMap | None = None     # source seconds -> UTC epoch, where known
         self.attitude_of: str | None = None
-        self._positions: deque = deque()           # (t, lat, lon, alt, sigma, sog, cog)
+        self._positions: deque = deque()           # (t, lat, lon, alt, sigma, sog, cog, rot)
         #: how long a position's speed and course may carry it (Track.dead_reckon_s; AIS)
         self.dead_reckon_s = 0.0
         self._orientation: deque = deque()         # (t, yaw, pitch, roll) or (t, heading)
@@ -166,8 +166,9 @@ class LiveTrack:
 
     def add_position(self, t_s: float, lat_deg: float, lon_deg: float, alt_m: float = math.nan,
                      sigma_m: float = math.nan, sog_mps: float = math.nan,
-                     cog_deg: float = math.nan) -> None:
-        self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m, sog_mps, cog_deg))
+                     cog_deg: float = math.nan, rot_deg_s: float = math.nan) -> None:
+        self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m, sog_mps, cog_deg,
+                                       rot_deg_s))
 
     def add_attitude(self, t_s: float, yaw_deg: float, pitch_deg: float, roll_deg: float,
                      of: str) -> None:
@@ -212,7 +213,8 @@ class LiveTrack:
         alt = p[:, 3] if np.isfinite(p[:, 3]).any() else None
         sigma = p[:, 4] if np.isfinite(p[:, 4]).any() else None
         if np.isfinite(p[:, 5]).any():
-            extra.update(sog_mps=p[:, 5], cog_deg=p[:, 6], dead_reckon_s=self.dead_reckon_s)
+            extra.update(sog_mps=p[:, 5], cog_deg=p[:, 6], dead_reckon_s=self.dead_reckon_s,
+                         rot_deg_s=p[:, 7] if np.isfinite(p[:, 7]).any() else None)
         return Track(source=Path(self.source), kind=self.kind, t_s=p[:, 0], lat_deg=p[:, 1],
                      lon_deg=p[:, 2], alt_m=alt, alt_reference=self.alt_reference,
                      position_sigma_m=sigma, clock="monotonic seconds of this process", **extra)

@@ -176,6 +176,15 @@ def report_motion(fields: dict) -> tuple[float, float]:
     return sog, cog
 
 
+def report_turn(fields: dict) -> float:
+    """A report's rate of turn (deg/s, clockwise) as pyais decodes it (deg/min); NaN where
+    it gives none: -128 (not available), ±127 (turning faster than 5° in 30 s, no rate)."""
+    turn = fields.get("turn")
+    if not isinstance(turn, (int, float)) or abs(turn) >= 127:
+        return math.nan
+    return float(turn) / 60.0
+
+
 def report_heading(fields: dict, allow_cog_heading: bool) -> tuple[float | None, bool]:
     """A report's true heading (module docstring), or with ``allow_cog_heading`` its course
     over ground where the heading is 511; and whether the course was used."""
@@ -309,7 +318,8 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
             continue
         cog_used += from_course
         second = f.get("second")
-        rows.append((fix_time(report.received, second), *position, heading, *report_motion(f)))
+        rows.append((fix_time(report.received, second), *position, heading, *report_motion(f),
+                     report_turn(f)))
     if untimed and not rows:
         raise InputError(ais.path, None, "AIS position reports carry only the second of the "
                          "minute: the file needs receiver times (NMEA 4.10 tag blocks with c:, or "
@@ -344,7 +354,8 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
     return Track(source=ais.path, kind="ais", t_s=np.array([(r[0] - start).total_seconds() for r in rows]),
                  lat_deg=np.array([r[1] for r in rows]), lon_deg=np.array([r[2] for r in rows]),
                  heading_deg=np.array([r[3] for r in rows]), sog_mps=np.array([r[4] for r in rows]),
-                 cog_deg=np.array([r[5] for r in rows]), dead_reckon_s=AIS_DEAD_RECKON_S,
+                 cog_deg=np.array([r[5] for r in rows]), rot_deg_s=np.array([r[6] for r in rows]),
+                 dead_reckon_s=AIS_DEAD_RECKON_S,
                  utc_start=start,
                  clock="seconds since the first report (UTC, receiver time)", notes=notes)
 

@@ -24,7 +24,8 @@ a report was missed and the two do not both reach the whole gap, ``w`` tapers to
 where each comes into and leaves reach, so the position does not jump: :func:`_blend_weight`).
 A report at rest (speed under :data:`AT_REST_MPS`) without a course (AIS 360) carries its
 position in place. The heading is turned the short way between the reports around it, or
-the last one's held where none follows yet (live). ``sample`` then says for how long in
+the last one's held where none follows yet (live), turned at its rate of turn where the
+report gives one. ``sample`` then says for how long in
 ``dead_reckoned_s`` (for the blend, ``sqrt((1 - w) dt0² + w dt1²)``: ``sqrt(dt0 dt1)`` with
 the linear weight, exactly the blend's error under a steady acceleration), which the error
 bars widen by (:func:`harborsight.geometry.sensor_sigmas.dead_reckoning_drift`).
@@ -48,7 +49,7 @@ import numpy as np
 #: The quantities a track may carry, each an array over samples or None.
 QUANTITIES = ("lat_deg", "lon_deg", "alt_m", "yaw_deg", "pitch_deg", "roll_deg", "heading_deg",
               "position_sigma_m", "alt_sigma_m", "heading_sigma_deg", "focal_35mm_mm",
-              "digital_zoom", "sog_mps", "cog_deg")
+              "digital_zoom", "sog_mps", "cog_deg", "rot_deg_s")
 #: the accuracy figures among them (one sigma; see the module docstring)
 SIGMAS = ("position_sigma_m", "alt_sigma_m", "heading_sigma_deg")
 ANGLES = frozenset({"yaw_deg", "pitch_deg", "roll_deg", "heading_deg", "cog_deg"})
@@ -95,6 +96,9 @@ class Track:
     #: states them (AIS reports): what :meth:`sample` carries a position forward with
     sog_mps: np.ndarray | None = None
     cog_deg: np.ndarray | None = None
+    #: rate of turn (deg/s, clockwise) with each position, where the log states it (an AIS
+    #: report's ROT): a heading held past the last report turns with it
+    rot_deg_s: np.ndarray | None = None
     #: how long (s) past a position its speed and course may carry it where no sample is
     #: within reach (module docstring, "Dead reckoning"); 0: never
     dead_reckon_s: float = 0.0
@@ -252,11 +256,19 @@ class Track:
         if not len(before):
             return float(self.heading_deg[after[0]]) if len(after) else math.nan
         h0, t0 = float(self.heading_deg[before[-1]]), float(times[before[-1]])
-        if not len(after):
-            return h0
+        if not len(after):                  # held, turned at the reported rate of turn
+            return (h0 + self._turn_rate_at(t0) * (x - t0)) % 360.0
         h1, t1 = float(self.heading_deg[after[0]]), float(times[after[0]])
         turn = (h1 - h0 + 180.0) % 360.0 - 180.0
         return (h0 + turn * (x - t0) / (t1 - t0)) % 360.0
+
+    def _turn_rate_at(self, t: float) -> float:
+        """The rate of turn (deg/s) the position sample at ``t`` states, else 0."""
+        if self.rot_deg_s is None:
+            return 0.0
+        at = np.flatnonzero(np.isclose(self.t_s, t, rtol=0.0, atol=1e-6))
+        rate = float(self.rot_deg_s[at[-1]]) if len(at) else math.nan
+        return rate if math.isfinite(rate) else 0.0
 
     def summary(self) -> dict:
         """What an operator checks first: extent in time and space, rate, attitude, and the
