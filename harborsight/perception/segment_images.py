@@ -564,7 +564,7 @@ def segment_images(paths: Iterable[Path], segmenter: OnnxSegmenter, out_dir: str
 
 def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, out_dir: Path,
                  overlay_dir: Path | None, inputs: set[Path], taken: dict[str, Path],
-                 read_image: Callable[[Path], tuple[np.ndarray, np.ndarray | None]],
+                 read_picture: Callable[[Path], tuple[np.ndarray, np.ndarray | None]],
                  stem: str) -> SegmentedImage:
     mask_path = out_dir / f"{stem}.png"
     overlay_path = None if overlay_dir is None else overlay_dir / f"{stem}.jpg"
@@ -575,7 +575,7 @@ def _segment_one(path: Path, segmenter: OnnxSegmenter, options: SegmentOptions, 
         if output is not None and output.resolve() in inputs:
             raise InputError(path, None, f"its output {output} is one of the input images; "
                              "choose another --out folder")
-    image, no_data = read_image(path)
+    image, no_data = read_picture(path)
     height, width = image.shape[:2]
     for output in (mask_path, overlay_path):
         if output is not None:
