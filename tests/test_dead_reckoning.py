@@ -226,3 +226,44 @@ def test_a_heading_held_past_the_last_report_turns_at_its_rate_of_turn():
     assert samples["heading_deg"][1] == pytest.approx(96.0)     # past the last: at 1 deg/s
     track.rot_deg_s = np.array([np.nan, np.nan])
     assert track.sample(np.array([16.0]), max_gap_s=1.0, hold_s=1.0)["heading_deg"][0] == 90.0
+
+
+def test_an_nmea_receiver_that_loses_its_fix_is_carried_by_its_last_rmc(tmp_path):
+    """A receiver under a crane loses its fix for 4 s: the frames in the gap had no vessel
+    pose (2 s of reach); the RMC's speed and course carry it up to 5 s, in files and live
+    (where an RMC after the epoch's GGA adds its motion to that fix)."""
+    from harborsight.live.nmea_in import NmeaVessel
+    from harborsight.live.telemetry import LiveTrack
+    from harborsight.telemetry.vessel_track import NMEA_DEAD_RECKON_S, read_vessel_track
+    from tests.helpers import nmea_checksum
+
+    def sentence(body: str) -> str:
+        return f"${body}*{nmea_checksum(body)}"
+
+    times = [0.0, 1.0, 2.0, 6.0, 7.0]                         # no fix from 2 to 6 s
+    lat, lon = _truth(np.array(times), 2.0, 90.0)
+    lines = []
+    for t, la, lo in zip(times, lat, lon, strict=True):
+        clock = f"1200{int(t):02d}.00"
+        lat_text = f"{int(la):02d}{(la - int(la)) * 60:08.5f},N"
+        lon_text = f"{int(lo):03d}{(lo - int(lo)) * 60:08.5f},E"
+        epoch = [sentence(f"GPGGA,{clock},{lat_text},{lon_text},1,08,0.9,1.0,M,40.0,M,,"),
+                 sentence(f"GPRMC,{clock},A,{lat_text},{lon_text},{2.0 / KNOT_MPS:.2f},90.0,"
+                          "010526,,")]
+        # the first epoch's RMC first (it brings the date), then each epoch's GGA first
+        lines += [*(epoch[::-1] if t == 0.0 else epoch), sentence("HEHDT,90.0,T")]
+    path = tmp_path / "ship.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    assert track.dead_reckon_s == NMEA_DEAD_RECKON_S and np.isfinite(track.sog_mps).all()
+    samples = track.sample(np.array([4.0]), max_gap_s=1.0)
+    truth_lat, truth_lon = _truth(np.array([4.0]), 2.0, 90.0)
+    assert _error_m(samples["lat_deg"], samples["lon_deg"], truth_lat, truth_lon)[0] < 0.05
+    assert samples["dead_reckoned_s"][0] == pytest.approx(2.0)
+    live = LiveTrack("vessel", "nmea")
+    feed = NmeaVessel(live)
+    for k, line in enumerate(lines):
+        feed.feed(line, 100.0 + k / 3)
+    held = live.track()
+    assert held.dead_reckon_s == NMEA_DEAD_RECKON_S and len(held) == len(times)
+    assert np.allclose(held.sog_mps, 2.0, atol=0.01) and np.allclose(held.cog_deg, 90.0)

@@ -326,7 +326,11 @@ def test_nmea_vessel_track(tmp_path):
                            "where it was silent",
                            "1 unreadable sentence(s) skipped (bad checksum or field; line 6)",
                            "position_sigma_m (per axis): the GGA quality class, widened by "
-                           "HDOP above 1, for 2 (GPS 2)"]
+                           "HDOP above 1, for 2 (GPS 2)",
+                           "1 of 3 fix(es) give speed and course (RMC): across a gap in the "
+                           "fixes the vessel is carried by them up to 5 s, its error bars "
+                           "widened for the time"]
+    assert track.dead_reckon_s == 5.0 and np.isfinite(track.sog_mps).tolist() == [True, False, False]
     # the RMC fix states no accuracy; the GGA fixes (quality 1, HDOP 0.9) are standalone GPS
     np.testing.assert_allclose(track.position_sigma_m, [np.nan, math.sqrt(2.0), math.sqrt(2.0)])
     no_heading = tmp_path / "no_heading.nmea"

@@ -26,6 +26,7 @@ from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_class_m
 from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder
+from harborsight.telemetry.vessel_track import NMEA_DEAD_RECKON_S
 
 #: a heading sensor heard within this many seconds keeps a worse one's headings out
 HEADING_SENSOR_HOLD_S = 2.0
@@ -78,6 +79,9 @@ class NmeaVessel:
         track.source_clock_is_utc()
         self._fix_delay_s = 0.0                   # mapped time − arrival of the last fix
         self._last_fix: Fix | None = None
+        self._last_fix_t_s: float | None = None   # its mapped time
+        # a receiver that loses its fix for a few seconds: the RMC's speed and course carry
+        track.dead_reckon_s = NMEA_DEAD_RECKON_S
         self._declination: tuple[tuple[float, float], float] | None = None
         self._warned: set[str] = set()
         #: heading sensors heard (talker: best rank, last heard), and those said left out
@@ -98,9 +102,12 @@ class NmeaVessel:
         bad_before = self.decoder.bad_count + sum(self.decoder.skipped.values())
         for event in self.decoder.feed(line, self.lines):
             if isinstance(event, Fix):
-                if not event.new:
+                if not event.new:            # the epoch's other sentence: its RMC's motion
+                    if math.isfinite(event.sog_mps) and self._last_fix_t_s is not None:
+                        self.track.add_motion(self._last_fix_t_s, event.sog_mps, event.cog_deg)
                     continue
                 t_s = self.track.clock.observe(event.utc.timestamp(), now_s)
+                self._last_fix_t_s = t_s
                 self._fix_delay_s = t_s - now_s
                 self._last_fix = event
                 sigma = math.nan
@@ -108,7 +115,8 @@ class NmeaVessel:
                     sigma = float(per_axis_from_class_m([event.quality], [event.hdop],
                                                         GGA_QUALITY_CLASSES)[0])
                 jumps = self.track.clock.jumps
-                self.track.add_position(t_s, event.lat_deg, event.lon_deg, sigma_m=sigma)
+                self.track.add_position(t_s, event.lat_deg, event.lon_deg, sigma_m=sigma,
+                                        sog_mps=event.sog_mps, cog_deg=event.cog_deg)
                 if self.track.clock.jumps != jumps:
                     self.track.warn("the vessel's clock jumped: its time alignment starts again")
                 if self.on_fix is not None:

@@ -170,6 +170,14 @@ class LiveTrack:
         self._append(self._positions, (t_s, lat_deg, lon_deg, alt_m, sigma_m, sog_mps, cog_deg,
                                        rot_deg_s))
 
+    def add_motion(self, t_s: float, sog_mps: float, cog_deg: float) -> None:
+        """The speed and course of the position held at ``t_s`` (an NMEA epoch's RMC after
+        its GGA); nothing where the newest position is of another time."""
+        with self._lock:
+            if self._positions and self._positions[-1][0] == t_s:
+                row = self._positions[-1]
+                self._positions[-1] = (*row[:5], sog_mps, cog_deg, *row[7:])
+
     def add_attitude(self, t_s: float, yaw_deg: float, pitch_deg: float, roll_deg: float,
                      of: str) -> None:
         """Camera (``gimbal``) or airframe (``vehicle``) attitude; a gimbal's replaces the

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.telemetry.track import AT_REST_MPS, Track
+from harborsight.telemetry.track import AT_REST_MPS, KNOT_MPS, Track
 
 POSITION_TYPES = frozenset({1, 2, 3, 18, 19})
 DIMENSION_TYPES = frozenset({5, 19, 24})
@@ -162,8 +162,6 @@ def unmeasured_position(fields: dict) -> str | None:
 #: reach: a class A transponder reports every 10 s under way at up to 14 kn (2-6 s faster
 #: or turning); one report missed leaves a gap. 0 turns dead reckoning off
 AIS_DEAD_RECKON_S = 12.0
-#: 1 knot in m/s
-KNOT_MPS = 1852.0 / 3600.0
 
 
 def report_motion(fields: dict) -> tuple[float, float]:

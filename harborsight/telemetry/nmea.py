@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, date, datetime, time, timedelta
 
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_gst_m
+from harborsight.telemetry.track import KNOT_MPS
 
 RMC_MODES_NOT_MEASURED = {"E": "RMC mode E (estimated, dead reckoning)", "M": "RMC mode M (manual input)",
                           "S": "RMC mode S (simulator)", "N": "RMC mode N (data not valid)"}
@@ -67,6 +68,9 @@ class Fix:
     new: bool                        # False: the same epoch as the previous fix (RMC + GGA)
     quality: int | None = None       # GGA fix quality
     hdop: float = math.nan
+    #: speed (m/s) and course (deg true) over ground: RMC's, NaN for a GGA
+    sog_mps: float = math.nan
+    cog_deg: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,15 @@ class Heading:
     #: talker and sentence ("HEHDT", "HCHDG"): a feed may carry two heading sensors (a gyro
     #: and a magnetic compass, two GNSS compasses), each read on its own (:func:`heading_rank`)
     source: str = ""
+
+
+def rmc_motion(sentence) -> tuple[float, float]:
+    """An RMC's speed (m/s) and course (deg true) over ground; NaN for an empty field (a
+    receiver at rest leaves the course empty)."""
+    speed, course = number(sentence.spd_over_grnd), number(sentence.true_course)
+    sog = speed * KNOT_MPS if math.isfinite(speed) and 0 <= speed < 1000 else math.nan
+    cog = course % 360.0 if math.isfinite(course) and -360 <= course <= 720 else math.nan
+    return sog, cog
 
 
 def heading_rank(source: str) -> int:
@@ -194,7 +207,8 @@ class NmeaDecoder:
         return min(days, key=lambda day: abs((utc_of(day, clock) - now).total_seconds()))
 
     def _fix(self, clock: time, lat: float, lon: float, quality: int | None = None,
-             hdop: float = math.nan, talker: str = "", day: date | None = None) -> list[Fix]:
+             hdop: float = math.nan, talker: str = "", day: date | None = None,
+             motion: tuple[float, float] = (math.nan, math.nan)) -> list[Fix]:
         if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
             raise ValueError(f"position {lat}, {lon} is off the globe")   # a bad field: skipped
         when = utc_of(day or self.day, clock)
@@ -205,7 +219,7 @@ class NmeaDecoder:
             return []
         new = last is None or last != when     # RMC and GGA of one fix count once
         self.last_fix_utc = when
-        return [Fix(when, lat, lon, new, quality, hdop)]
+        return [Fix(when, lat, lon, new, quality, hdop, *motion)]
 
     def _from_position_sensor(self, sensor: str, when: datetime) -> bool:
         """Whether a fix of ``sensor`` at ``when`` is taken (module docstring); one that is
@@ -236,7 +250,7 @@ class NmeaDecoder:
                 skipped[RMC_MODES_NOT_MEASURED[mode]] += 1
             elif sentence.timestamp is not None and self.day is not None:
                 return self._fix(sentence.timestamp, sentence.latitude, sentence.longitude,
-                                 talker=sentence.talker)
+                                 talker=sentence.talker, motion=rmc_motion(sentence))
         elif kind == "GGA":
             quality = int(sentence.gps_qual or 0)
             if quality in GGA_QUALITIES_NOT_MEASURED:

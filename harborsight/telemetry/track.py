@@ -293,6 +293,8 @@ class Track:
 
 #: a speed over ground (m/s) under which a position without a course is carried in place
 AT_REST_MPS = 0.05
+#: 1 knot in m/s (AIS and NMEA give speeds in knots)
+KNOT_MPS = 1852.0 / 3600.0
 
 
 def _blend_weight(dt0: float, dt1: float, reach_s: float) -> float:

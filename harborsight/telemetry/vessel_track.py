@@ -111,6 +111,11 @@ def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: li
                  notes=notes, **{name: none_if_missing(values) for name, values in sigmas.items()})
 
 
+#: how long (s) an NMEA fix's speed and course carry the vessel where the fixes stop (a
+#: receiver that loses its fix under a crane or a bridge for a few seconds)
+NMEA_DEAD_RECKON_S = 5.0
+
+
 def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     path = Path(path)
     try:
@@ -123,11 +128,14 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     magnetic: list[tuple[int, float, str]] = []           # HDM / HDG without variation
     qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
     errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
+    motion: dict[int, tuple[float, float]] = {}           # fix index: RMC speed, course
     for number, line in enumerate(lines, start=1):
         for event in decoder.feed(line, number):
             if isinstance(event, Fix):
                 if event.new:
                     fixes.append((event.utc, event.lat_deg, event.lon_deg))
+                if math.isfinite(event.sog_mps):             # the RMC of the epoch's fix
+                    motion[len(fixes) - 1] = (event.sog_mps, event.cog_deg)
                 if event.quality is not None:
                     qualities[len(fixes) - 1] = (event.quality, event.hdop)
             elif isinstance(event, Heading):
@@ -169,9 +177,17 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
         notes.append(f"{int(np.isnan(heading).sum())} fix(es) with no heading within "
                      f"{max_heading_gap_s:g} s")
     ordered = [fixes[i] for i in fix_order]
-    return _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
-                  [f[2] for f in ordered], heading, notes,
-                  position_sigma_m=position_sigma[fix_order])
+    sog, cog = (np.array([motion.get(i, (np.nan, np.nan))[k] for i in fix_order])
+                for k in (0, 1))
+    track = _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
+                   [f[2] for f in ordered], heading, notes,
+                   position_sigma_m=position_sigma[fix_order], sog_mps=sog, cog_deg=cog)
+    if track.sog_mps is not None:           # a fix dropped out: carried by the RMC before it
+        track.dead_reckon_s = NMEA_DEAD_RECKON_S
+        notes.append(f"{int(np.isfinite(sog).sum())} of {len(sog)} fix(es) give speed and "
+                     f"course (RMC): across a gap in the fixes the vessel is carried by them up "
+                     f"to {NMEA_DEAD_RECKON_S:g} s, its error bars widened for the time")
+    return track
 
 
 def _nmea_position_sigma(fixes: list[tuple[datetime, float, float]],
