@@ -293,3 +293,27 @@ def test_live_publishes_a_replayed_flight_to_signal_k(signalk, tmp_path):
     assert any(notes[f"section{s['index']}"]["value"]["state"] == "alarm" for s in last["sections"])
     assert _get(signalk, "harborsight/clearance/minimum")["value"] == pytest.approx(
         last["min_distance_m"], abs=1e-3)
+
+
+def test_the_vessel_s_speed_and_course_go_with_its_position():
+    """Speed and course over ground (m/s, radians) go with the position of their time,
+    whichever comes first in an update or in the next one of that time; they carry the
+    vessel when the position stops (tests/test_dead_reckoning.py)."""
+    track = LiveTrack("vessel", "signalk")
+    reader = SignalKVessel("ws://127.0.0.1:1/signalk/v1/stream", track)
+    assert track.dead_reckon_s > 0
+    for k, order in enumerate(("position first", "motion first", "apart")):
+        stamp = datetime.fromtimestamp(START_S + k, UTC).isoformat().replace("+00:00", "Z")
+        position = {"path": "navigation.position", "value": {"latitude": 56.15, "longitude": 10.2}}
+        motion = [{"path": "navigation.speedOverGround", "value": 1.5 + k},
+                  {"path": "navigation.courseOverGroundTrue", "value": math.radians(90.0)}]
+        values = [position, *motion] if order == "position first" else [*motion, position]
+        if order == "apart":
+            for part in ([position], motion):
+                reader.handle(json.dumps({"updates": [{"$source": "gps", "timestamp": stamp,
+                                                       "values": part}]}), 10.0 + k)
+        else:
+            reader.handle(json.dumps({"updates": [{"$source": "gps", "timestamp": stamp,
+                                                   "values": values}]}), 10.0 + k)
+    vessel = track.track()
+    assert np.allclose(vessel.sog_mps, [1.5, 2.5, 3.5]) and np.allclose(vessel.cog_deg, 90.0)

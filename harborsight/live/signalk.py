@@ -5,7 +5,10 @@ the vessel's pose in (``--signalk ws://HOST:3000``), the clearances and alarms o
 security on). Both reconnect when the server goes away and warn about it.
 
 In: the self vessel's ``navigation.position`` (``latitude``, ``longitude`` in degrees) and
-``navigation.headingTrue`` (radians), each at its update's ``timestamp`` (UTC, mapped to the
+``navigation.headingTrue`` (radians), and ``navigation.speedOverGround`` (m/s) and
+``navigation.courseOverGroundTrue`` (radians), which carry the vessel for up to 5 s when the
+position stops (:mod:`harborsight.telemetry.track`, "Dead reckoning"), each at its update's
+``timestamp`` (UTC, mapped to the
 monotonic clock as NMEA fixes are: :class:`~harborsight.live.telemetry.ClockMap`), one map per
 source: a server stamps an NMEA 0183 position with its RMC's time and an NMEA 2000 heading
 with its own clock, and one map shared by both read the heading as old as the clocks are apart
@@ -41,10 +44,15 @@ from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack, SenderClocks, worth_saying
+from harborsight.telemetry.track import AT_REST_MPS
+from harborsight.telemetry.vessel_track import NMEA_DEAD_RECKON_S
 
 STREAM_PATH = "/signalk/v1/stream"
 #: updates that arrive this soon after subscribing are the server's cached values (s)
 REPLAY_WINDOW_S = 0.5
+#: the Signal K paths of the vessel's motion over ground, and what each sets
+MOTION_PATHS = {"navigation.speedOverGround": "sog_mps",
+                "navigation.courseOverGroundTrue": "cog_deg"}
 #: a section's status as a Signal K notification state
 NOTIFICATION_STATES = {"ok": "normal", "caution": "warn", "danger": "alarm",
                        "pose_contradicted": "alert"}
@@ -82,6 +90,11 @@ class SignalKVessel:
                  on_fix=None) -> None:
         self.url, self.track, self.token, self.on_fix = url, track, token, on_fix
         track.source_clock_is_utc()
+        # a position source that stops for a few seconds: its speed and course carry the vessel
+        track.dead_reckon_s = NMEA_DEAD_RECKON_S
+        #: the newest speed (m/s) and course (deg) over ground and their time (an update's
+        #: values share it): they go with the position of that time, whichever comes first
+        self._motion: dict[str, float] = {}
         self.updates = 0
         self.unreadable = 0
         #: the self vessel's context, from the server's hello
@@ -156,6 +169,7 @@ class SignalKVessel:
             if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
                 raise ValueError(f"position {lat}, {lon} is off the globe")
             self.track.add_position(t_s, lat, lon)
+            self._motion_to_position(t_s)
             self.updates += 1
             if self.on_fix is not None:
                 self.on_fix(now_s)
@@ -164,11 +178,30 @@ class SignalKVessel:
             if not math.isfinite(heading):
                 raise ValueError(f"heading {value!r}")
             self.track.add_heading(t_s, heading % 360.0)
+        elif path in MOTION_PATHS and value is not None:
+            number = float(value)
+            if not math.isfinite(number):
+                raise ValueError(f"{path} {value!r}")
+            if self._motion.get("t_s") != t_s:
+                self._motion = {"t_s": t_s}
+            self._motion[MOTION_PATHS[path]] = (number if path.endswith("speedOverGround")
+                                                else math.degrees(number) % 360.0)
+            self._motion_to_position(t_s)
+
+    def _motion_to_position(self, t_s: float) -> None:
+        """The speed and course of ``t_s`` to the position of ``t_s`` (one at rest needs no
+        course)."""
+        motion = self._motion
+        if motion.get("t_s") == t_s and "sog_mps" in motion:
+            cog = motion.get("cog_deg", math.nan)
+            if math.isfinite(cog) or motion["sog_mps"] < AT_REST_MPS:
+                self.track.add_motion(t_s, motion["sog_mps"], cog)
 
     def run(self, stop: threading.Event) -> None:
         subscribe = json.dumps({"context": "vessels.self", "subscribe": [
             {"path": "navigation.position", "policy": "instant"},
-            {"path": "navigation.headingTrue", "policy": "instant"}]})
+            {"path": "navigation.headingTrue", "policy": "instant"},
+            *({"path": path, "policy": "instant"} for path in MOTION_PATHS)]})
         while not stop.is_set():
             try:
                 with _connect(self.url, self.token) as socket:
