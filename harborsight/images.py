@@ -21,6 +21,7 @@ a machine without the geodesy and mesh libraries needs none of the clearance sta
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import zlib
 from pathlib import Path
@@ -107,15 +108,28 @@ def _png_reason(data: bytes) -> str | None:
     return "PNG cut short: no IEND chunk"
 
 
-def _tiff_reason(data: bytes) -> str | None:
+@contextlib.contextmanager
+def _pillow_opened(data: bytes):
+    """Pillow's image of ``data``, without Pillow's pixel limit: a large orthomosaic is no
+    decompression bomb (its size is checked against OpenCV's own limit instead)."""
     import io
 
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
     limit = Image.MAX_IMAGE_PIXELS
-    Image.MAX_IMAGE_PIXELS = None       # a large orthomosaic is no decompression bomb: its
-    try:                                # size is checked against OpenCV's own limit instead
+    Image.MAX_IMAGE_PIXELS = None
+    try:
         with Image.open(io.BytesIO(data)) as image:
+            yield image
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
+
+
+def _tiff_reason(data: bytes) -> str | None:
+    from PIL import UnidentifiedImageError
+
+    try:
+        with _pillow_opened(data) as image:
             width, height = image.size
             if width * height > MAX_DECODED_PIXELS:
                 return (f"{width}x{height} = {width * height} px, more than OpenCV decodes "
@@ -127,8 +141,6 @@ def _tiff_reason(data: bytes) -> str | None:
         return None             # a kind Pillow does not read (32-bit float): OpenCV decides
     except (OSError, ValueError, SyntaxError, struct.error, MemoryError) as exc:
         return f"TIFF incomplete or corrupt: {exc}"
-    finally:
-        Image.MAX_IMAGE_PIXELS = limit
     return None
 
 
@@ -246,22 +258,16 @@ def _transparent(data: bytes) -> np.ndarray | None:
     """Pixels of alpha 0, turned as displayed (:func:`no_data_pixels`), or None."""
     if not may_hold_alpha(data):
         return None
-    import io
+    from PIL import ImageOps
 
-    from PIL import Image, ImageOps
-
-    limit = Image.MAX_IMAGE_PIXELS
-    Image.MAX_IMAGE_PIXELS = None       # sizes are checked against OpenCV's limit instead
     try:
-        with Image.open(io.BytesIO(data)) as image:
+        with _pillow_opened(data) as image:
             if image.mode not in _ALPHA_MODES and "transparency" not in image.info:
                 return None
             shown = ImageOps.exif_transpose(image)
             alpha = np.asarray(shown.convert("RGBA").getchannel("A"))
     except Exception:  # Pillow raises many kinds on odd files; OpenCV decides on those
         return None
-    finally:
-        Image.MAX_IMAGE_PIXELS = limit
     return alpha == 0
 
 
@@ -269,20 +275,12 @@ def _gdal_nodata(data: bytes) -> float | None:
     """A GeoTIFF's no-data value (its ``GDAL_NODATA`` tag), or None."""
     if data[:4] not in TIFF_MAGIC:
         return None
-    import io
-
-    from PIL import Image
-
-    limit = Image.MAX_IMAGE_PIXELS
-    Image.MAX_IMAGE_PIXELS = None       # a large orthomosaic: only its header is read
     try:
-        with Image.open(io.BytesIO(data)) as image:
+        with _pillow_opened(data) as image:           # only its header is read
             text = image.tag_v2.get(GDAL_NODATA_TAG)
         value = float(str(text).strip().rstrip("\x00"))
     except Exception:  # no tag, or one that is not a number ("nan" is one: never equal)
         return None
-    finally:
-        Image.MAX_IMAGE_PIXELS = limit
     return value if np.isfinite(value) else None
 
 
@@ -293,14 +291,20 @@ def decode_image_file(path: Path, flags: int, camera_pixels: bool = False
     orientation applied as ``cv2.imread`` does). Returns ``(image, None)``, ``(None,
     reason)`` for an incomplete or turned file, or ``(None, None)`` when it cannot be read
     or decoded."""
+    data, reason = _checked_bytes(path, camera_pixels)
+    if data is None or reason:
+        return None, reason
+    return decode_as_displayed(data, flags), None
+
+
+def _checked_bytes(path: Path, camera_pixels: bool) -> tuple[bytes | None, str | None]:
+    """The file's bytes (None where it cannot be read) and why they are not a whole image
+    as stored (:func:`incomplete_reason`, with ``camera_pixels`` :func:`turned_reason`)."""
     try:
         data = Path(path).read_bytes()
     except OSError:
         return None, None
-    reason = incomplete_reason(data) or (turned_reason(data) if camera_pixels else None)
-    if reason:
-        return None, reason
-    return decode_as_displayed(data, flags), None
+    return data, incomplete_reason(data) or (turned_reason(data) if camera_pixels else None)
 
 
 def read_image(path: Path, camera_pixels: bool = False) -> np.ndarray:
@@ -337,12 +341,9 @@ def _read_image_data(path: Path, camera_pixels: bool) -> tuple[np.ndarray, bytes
         raise InputError(path, None, "is a folder, not an image file")
     if not path.is_file():
         raise InputError(path, None, "image file not found")
-    try:
-        data = Path(path).read_bytes()
-    except OSError:
-        raise InputError(path, None, "cannot read image file") from None
-    # a cut JPEG decodes half grey
-    reason = incomplete_reason(data) or (turned_reason(data) if camera_pixels else None)
+    data, reason = _checked_bytes(path, camera_pixels)   # a cut JPEG decodes half grey
+    if data is None:
+        raise InputError(path, None, "cannot read image file")
     if reason:
         raise InputError(path, "Orientation" if reason.startswith("EXIF") else None, reason)
     image = decode_as_displayed(data, cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)

@@ -26,7 +26,7 @@ from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_class_m
 from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder
-from harborsight.telemetry.vessel_track import NMEA_DEAD_RECKON_S
+from harborsight.telemetry.track import POSITION_GAP_DEAD_RECKON_S
 
 #: a heading sensor heard within this many seconds keeps a worse one's headings out
 HEADING_SENSOR_HOLD_S = 2.0
@@ -81,7 +81,7 @@ class NmeaVessel:
         self._last_fix: Fix | None = None
         self._last_fix_t_s: float | None = None   # its mapped time
         # a receiver that loses its fix for a few seconds: the RMC's speed and course carry
-        track.dead_reckon_s = NMEA_DEAD_RECKON_S
+        track.dead_reckon_s = POSITION_GAP_DEAD_RECKON_S
         self._declination: tuple[tuple[float, float], float] | None = None
         self._warned: set[str] = set()
         #: heading sensors heard (talker: best rank, last heard), and those said left out

@@ -44,8 +44,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack, SenderClocks, worth_saying
-from harborsight.telemetry.track import AT_REST_MPS
-from harborsight.telemetry.vessel_track import NMEA_DEAD_RECKON_S
+from harborsight.telemetry.track import POSITION_GAP_DEAD_RECKON_S
 
 STREAM_PATH = "/signalk/v1/stream"
 #: updates that arrive this soon after subscribing are the server's cached values (s)
@@ -91,7 +90,7 @@ class SignalKVessel:
         self.url, self.track, self.token, self.on_fix = url, track, token, on_fix
         track.source_clock_is_utc()
         # a position source that stops for a few seconds: its speed and course carry the vessel
-        track.dead_reckon_s = NMEA_DEAD_RECKON_S
+        track.dead_reckon_s = POSITION_GAP_DEAD_RECKON_S
         #: the newest speed (m/s) and course (deg) over ground and their time (an update's
         #: values share it): they go with the position of that time, whichever comes first
         self._motion: dict[str, float] = {}
@@ -189,13 +188,11 @@ class SignalKVessel:
             self._motion_to_position(t_s)
 
     def _motion_to_position(self, t_s: float) -> None:
-        """The speed and course of ``t_s`` to the position of ``t_s`` (one at rest needs no
-        course)."""
+        """The speed and course of ``t_s`` to the position of ``t_s`` (whether they can carry
+        it is the track's to say: :func:`~harborsight.telemetry.track.carried_by_motion`)."""
         motion = self._motion
         if motion.get("t_s") == t_s and "sog_mps" in motion:
-            cog = motion.get("cog_deg", math.nan)
-            if math.isfinite(cog) or motion["sog_mps"] < AT_REST_MPS:
-                self.track.add_motion(t_s, motion["sog_mps"], cog)
+            self.track.add_motion(t_s, motion["sog_mps"], motion.get("cog_deg", math.nan))
 
     def run(self, stop: threading.Event) -> None:
         subscribe = json.dumps({"context": "vessels.self", "subscribe": [

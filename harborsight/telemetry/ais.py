@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.telemetry.track import AT_REST_MPS, KNOT_MPS, Track
+from harborsight.telemetry.track import KNOT_MPS, Track, carried_by_motion
 
 POSITION_TYPES = frozenset({1, 2, 3, 18, 19})
 DIMENSION_TYPES = frozenset({5, 19, 24})
@@ -344,7 +344,7 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
         notes.append(f"WARNING: {cog_used} report(s) without a true heading use the course over "
                      "ground instead (--allow-cog-heading): wrong wherever the vessel moves "
                      "sideways")
-    with_motion = sum(1 for r in rows if math.isfinite(r[4]) and (math.isfinite(r[5]) or r[4] < AT_REST_MPS))
+    with_motion = int(carried_by_motion([r[4] for r in rows], [r[5] for r in rows]).sum())
     notes.append(f"{with_motion} of {len(rows)} report(s) give speed and course: the vessel is "
                  f"carried by them up to {AIS_DEAD_RECKON_S:g} s between reports, its error bars "
                  "widened for the time (vessel.dead_reckoned_s)")

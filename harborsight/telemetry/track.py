@@ -204,10 +204,9 @@ class Track:
 
         t = self.t_s
         # a vessel at rest reports no course (AIS 360): its step is nil whatever the course
-        course_deg = np.where(~np.isfinite(self.cog_deg) & (self.sog_mps < AT_REST_MPS), 0.0,
-                              self.cog_deg)
+        course_deg = np.where(np.isfinite(self.cog_deg), self.cog_deg, 0.0)
         moving = (np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
-                  & np.isfinite(self.sog_mps) & np.isfinite(course_deg))
+                  & carried_by_motion(self.sog_mps, self.cog_deg))
         reach = self.dead_reckon_s
         age = np.zeros(times_s.shape)
         # where nothing is within reach, and past the track's ends (where sample holds the
@@ -293,8 +292,18 @@ class Track:
 
 #: a speed over ground (m/s) under which a position without a course is carried in place
 AT_REST_MPS = 0.05
+#: how long (s) a position's speed and course carry the vessel where the positions stop (an
+#: NMEA receiver or a Signal K source that loses its fix for a few seconds, under a crane)
+POSITION_GAP_DEAD_RECKON_S = 5.0
 #: 1 knot in m/s (AIS and NMEA give speeds in knots)
 KNOT_MPS = 1852.0 / 3600.0
+
+
+def carried_by_motion(sog_mps, cog_deg):
+    """Whether a position with this speed (m/s) and course (deg) can be carried: both given,
+    or a speed at rest (:data:`AT_REST_MPS`) without a course (AIS 360). Arrays or numbers."""
+    sog, cog = np.asarray(sog_mps, float), np.asarray(cog_deg, float)
+    return np.isfinite(sog) & (np.isfinite(cog) | (sog < AT_REST_MPS))
 
 
 def _blend_weight(dt0: float, dt1: float, reach_s: float) -> float:

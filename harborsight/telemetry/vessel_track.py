@@ -65,7 +65,7 @@ from harborsight.telemetry.declination import (
     wmm_model_name,
 )
 from harborsight.telemetry.nmea import Fix, Heading, NmeaDecoder
-from harborsight.telemetry.track import Track
+from harborsight.telemetry.track import POSITION_GAP_DEAD_RECKON_S, Track
 
 
 def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0, *, mmsi: int | None = None,
@@ -113,7 +113,7 @@ def _track(path: Path, kind: str, utc: list[datetime], lat: list[float], lon: li
 
 #: how long (s) an NMEA fix's speed and course carry the vessel where the fixes stop (a
 #: receiver that loses its fix under a crane or a bridge for a few seconds)
-NMEA_DEAD_RECKON_S = 5.0
+NMEA_DEAD_RECKON_S = POSITION_GAP_DEAD_RECKON_S
 
 
 def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
