@@ -267,3 +267,30 @@ def test_an_nmea_receiver_that_loses_its_fix_is_carried_by_its_last_rmc(tmp_path
     held = live.track()
     assert held.dead_reckon_s == NMEA_DEAD_RECKON_S and len(held) == len(times)
     assert np.allclose(held.sog_mps, 2.0, atol=0.01) and np.allclose(held.cog_deg, 90.0)
+
+
+def test_a_report_without_speed_or_course_still_anchors_the_position():
+    """A report whose speed and course are "not available" is a fix all the same: carried with
+    its neighbour's motion, it pulls the blend to where the vessel was seen. Before, only the
+    report 9.5 s earlier counted, and its speed (the vessel sped up after it) put the vessel
+    2.25 m short half a second before the fix."""
+    def along_m(t_s):          # 1.0 m/s to 5 s, then 1.5 m/s
+        t_s = np.asarray(t_s, float)
+        return np.where(t_s <= 5.0, t_s, 5.0 + 1.5 * (t_s - 5.0))
+
+    def at(t_s):
+        n = len(t_s)
+        lon, lat, _ = GEOD.fwd(np.full(n, LON0), np.full(n, LAT0), np.full(n, 63.0), along_m(t_s))
+        return lat, lon
+
+    report_s = np.array([0.0, 10.0, 20.0])
+    lat, lon = at(report_s)
+    track = Track(source=Path("ais.nmea"), kind="ais", t_s=report_s, lat_deg=lat, lon_deg=lon,
+                  heading_deg=np.full(3, 63.0), sog_mps=np.array([1.0, np.nan, 1.5]),
+                  cog_deg=np.array([63.0, np.nan, 63.0]), dead_reckon_s=AIS_DEAD_RECKON_S)
+    times = np.array([2.0, 9.5, 10.5, 15.0])
+    samples = track.sample(times, max_gap_s=1.0)
+    error = _error_m(samples["lat_deg"], samples["lon_deg"], *at(times))
+    assert error[1] < 0.5 and error[2] < 0.05       # beside the fix: near where it was seen
+    assert error[0] < 1.0 and error[3] < 0.05
+    assert samples["dead_reckoned_s"][1] < 2.5      # mostly the fix's half second

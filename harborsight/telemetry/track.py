@@ -23,9 +23,12 @@ blended, weighted by nearness: ``(1 - w) p0' + w p1'``, ``w = (t - t0) / (t1 - t
 a report was missed and the two do not both reach the whole gap, ``w`` tapers to 0 and 1
 where each comes into and leaves reach, so the position does not jump: :func:`_blend_weight`).
 A report at rest (speed under :data:`AT_REST_MPS`) without a course (AIS 360) carries its
-position in place. The heading is turned the short way between the reports around it, or
-the last one's held where none follows yet (live), turned at its rate of turn where the
-report gives one. ``sample`` then says for how long in
+position in place. A position reported without speed or course (an AIS report whose fields
+are "not available", an RMC without them) is still an anchor: it is carried with the speed
+and course of the report that has them nearest to the middle of the carry, within reach.
+The heading is turned the short way between the reports around it, or the last one's held
+where none follows yet (live), turned at its rate of turn where the report gives one.
+``sample`` then says for how long in
 ``dead_reckoned_s`` (for the blend, ``sqrt((1 - w) dt0² + w dt1²)``: ``sqrt(dt0 dt1)`` with
 the linear weight, exactly the blend's error under a steady acceleration), which the error
 bars widen by (:func:`harborsight.geometry.sensor_sigmas.dead_reckoning_drift`).
@@ -205,9 +208,22 @@ class Track:
         t = self.t_s
         # a vessel at rest reports no course (AIS 360): its step is nil whatever the course
         course_deg = np.where(np.isfinite(self.cog_deg), self.cog_deg, 0.0)
-        moving = (np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
-                  & carried_by_motion(self.sog_mps, self.cog_deg))
+        placed = np.isfinite(self.lat_deg) & np.isfinite(self.lon_deg)
+        moving = placed & carried_by_motion(self.sog_mps, self.cog_deg)
         reach = self.dead_reckon_s
+
+        def motion_of(k: int, x: float) -> tuple[float, float] | None:
+            """Speed and course (rad) to carry report ``k`` to ``x`` with: its own, or, for
+            a position reported without them, those of the report that has them nearest to
+            the middle of the carry, within reach of ``x`` (a fix is still an anchor)."""
+            if moving[k]:
+                return float(self.sog_mps[k]), float(np.deg2rad(course_deg[k]))
+            near = np.flatnonzero(moving & (np.abs(t - x) <= reach))
+            if not len(near):
+                return None
+            j = near[np.argmin(np.abs(t[near] - (t[k] + x) / 2.0))]
+            return float(self.sog_mps[j]), float(np.deg2rad(course_deg[j]))
+
         age = np.zeros(times_s.shape)
         # where nothing is within reach, and past the track's ends (where sample holds the
         # end value: a moving vessel is better carried)
@@ -216,14 +232,14 @@ class Track:
             x = times_s[i]
             after = int(np.searchsorted(t, x, side="right"))
             before = after - 1
-            ends = [(k, x - t[k]) for k in (before, after)      # carried forward, and back
-                    if 0 <= k < len(t) and moving[k] and abs(x - t[k]) <= reach]
+            ends = [(k, x - t[k], motion) for k in (before, after)   # carried forward, back
+                    if 0 <= k < len(t) and placed[k] and abs(x - t[k]) <= reach
+                    and (motion := motion_of(k, x)) is not None]
             if not ends:
                 continue
             guesses = []
-            for k, dt in ends:
-                course = np.deg2rad(course_deg[k])
-                step = self.sog_mps[k] * dt
+            for k, dt, (speed, course) in ends:
+                step = speed * dt
                 guesses.append(pymap3d.enu2geodetic(step * np.sin(course), step * np.cos(course),
                                                     0.0, self.lat_deg[k], self.lon_deg[k], 0.0)[:2])
             if len(ends) == 1:
