@@ -23,6 +23,8 @@ So frames are decoded one packet at a time and a frame is **damaged** when
   checksum the stream carries that disagrees; not one about SEI side data, which leaves the
   picture whole), the container flagged the packet corrupt (an MPEG-TS packet lost on a
   link), or FFmpeg flagged the frame corrupt; or
+* its picture changed suddenly against the frame before, in blocks that no motion explains
+  (:mod:`~harborsight.flight.sudden_change`: damage the decoder did not report); or
 * a frame before it, in decoding order, was damaged or never came out (a packet of the
   file the decoder gave no picture for, or a longer step in a constant-rate video's times:
   a packet lost from the file leaves no time of its own),
@@ -33,8 +35,8 @@ an intra-refresh stream's recovery point counts at the second one). Slice thread
 so that the decoder's messages belong to the packet being decoded.
 
 FFmpeg's HEVC and VP9 decoders report nothing for damaged data (:data:`SILENT_DECODERS`):
-there damage is found only where the container flags it or a packet gives no picture, and
-:func:`damage_detection_note` says so for the run.
+there damage is found only where the container flags it, a packet gives no picture or the
+picture changes suddenly, and :func:`damage_detection_note` says so for the run.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.flight.sudden_change import SuddenChange, reduced_grey
 
 #: why a frame the file holds gave no picture
 NOT_DECODED = ("not decoded: its data is damaged or missing (or it precedes the stream's "
@@ -101,6 +104,14 @@ class DamageTracker:
         elif is_key:
             self._keys[pts] = self._packets     # None: an untimed stream's (raw H.264)
 
+    def seen(self, reason: str) -> None:
+        """The frame that came out shows damage the decoder did not report
+        (:mod:`~harborsight.flight.sudden_change`): it and the frames after it are damaged
+        as from a damaged packet."""
+        self.reason, self._damaged_at = reason, self._packets
+        self.damaged_packets += 1
+        self._keys.clear()
+
     def missing(self, reason: str) -> None:
         """A frame never came out: those predicting from it are damaged."""
         if self.reason is None:
@@ -141,6 +152,8 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
 
     stream = stream if stream is not None else container.streams.video[0]
     codec = stream.codec_context
+    # the pictures are checked only where the decoder says nothing of damaged data
+    pictures = SuddenChange() if codec.name in SILENT_DECODERS else None
     codec.thread_type = "SLICE"
     # checksums a stream carries (HEVC's picture hash SEI) checked: a mismatch is logged
     codec.options = {**codec.options, "err_detect": "crccheck"}
@@ -165,8 +178,15 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
                                f"decoded from damaged data (packet at {_time(packet, stream)}: "
                                f"{error})", packet.pts)
                 for frame in frames:
-                    yield frame, tracker.frame(frame.pts, bool(frame.key_frame),
-                                               _is_intra(frame), bool(frame.is_corrupt))
+                    damaged = tracker.frame(frame.pts, bool(frame.key_frame),
+                                            _is_intra(frame), bool(frame.is_corrupt))
+                    if pictures is not None and damaged is None:
+                        damaged = pictures.check(reduced_grey(frame))
+                        if damaged is not None:
+                            tracker.seen(damaged)
+                    elif pictures is not None:
+                        pictures.forget_previous()
+                    yield frame, damaged
     except av.error.FFmpegError as exc:
         raise OSError(f"cannot read the video: {' '.join(str(exc).split())}") from None
     finally:
@@ -244,8 +264,10 @@ def damage_detection_note(video: Path) -> str | None:
         return None
     return (f"{video}: {SILENT_DECODERS[name]} video: FFmpeg's decoder does not report damaged "
             "data, so a frame decoded from a damaged part of the file (a bad block, a repaired "
-            "recording) is found only where the container flags it or a packet gives no "
-            "picture, and may be measured; H.264 reports it")
+            "recording) is found only where the container flags it, a packet gives no "
+            "picture or the picture changes suddenly where no motion explains it (gross "
+            "damage: blocks of garbage; blocks displaced by a few pixels pass), and may be "
+            "measured; H.264 reports it")
 
 
 #: a video is taken for one of constant frame rate when 90 % of its frame steps lie within

@@ -102,7 +102,8 @@ def read_stream(source: str, box: LatestFrame, stop: threading.Event,
                 said_silent = True
                 warn(f"{source} is {SILENT_DECODERS[codec]}: its decoder does not report "
                      "damaged data, so a frame concealed after a lost packet is found only "
-                     "where the stream flags it")
+                     "where the stream flags it or the picture changes suddenly (gross "
+                     "damage; blocks displaced by a few pixels pass)")
             try:
                 for picture, damaged in decoded_frames(container):
                     now = time.monotonic()
