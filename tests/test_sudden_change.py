@@ -83,31 +83,40 @@ def test_a_block_shifted_by_wrong_motion_far_beyond_the_scene_s_is_suspect():
     assert _suspects(frames) == [20]
 
 
-def _write_hevc(path: Path, n: int = 40) -> None:
-    """A drone drifting over a real lake-shore photo (320x180 at 25 fps, a key frame every
-    20, no B-frames), with sensor noise."""
+def _encode(path: Path, codec: str, options: dict, pictures, pixel_format: str) -> None:
+    """A 25 fps clip of ``pictures`` (arrays in ``pixel_format``), frame k at time k."""
     import av
 
-    photo = cv2.imread(str(SHARED_PHOTOS / "DJI_0262.jpg"))
-    photo = cv2.resize(photo, (1024, 768), interpolation=cv2.INTER_AREA)
-    rng = np.random.default_rng(1)
     with av.open(str(path), "w") as out:
-        stream = out.add_stream("libx265", rate=25)
+        stream = out.add_stream(codec, rate=25)
         stream.width, stream.height, stream.pix_fmt = WIDTH, HEIGHT, "yuv420p"
-        stream.options = {"x265-params": "keyint=20:min-keyint=20:bframes=0:log-level=0",
-                          "crf": "26"}
-        for k in range(n):
-            centre = (512 + 0.8 * k, 384 + 0.4 * k)
-            matrix = cv2.getRotationMatrix2D(centre, 0.05 * k, 0.5)
-            matrix[:, 2] += (WIDTH / 2 - centre[0], HEIGHT / 2 - centre[1])
-            picture = cv2.warpAffine(photo, matrix, (WIDTH, HEIGHT))
-            picture = np.clip(picture + rng.normal(0, 1.5, picture.shape), 0, 255)
-            frame = av.VideoFrame.from_ndarray(picture.astype(np.uint8), format="bgr24")
+        stream.options = options
+        for k, picture in enumerate(pictures):
+            frame = av.VideoFrame.from_ndarray(picture.astype(np.uint8), format=pixel_format)
             frame.pts = k
             for packet in stream.encode(frame):
                 out.mux(packet)
         for packet in stream.encode():
             out.mux(packet)
+
+
+def _write_hevc(path: Path, n: int = 40) -> None:
+    """A drone drifting over a real lake-shore photo (320x180 at 25 fps, a key frame every
+    20, no B-frames), with sensor noise."""
+    photo = cv2.imread(str(SHARED_PHOTOS / "DJI_0262.jpg"))
+    photo = cv2.resize(photo, (1024, 768), interpolation=cv2.INTER_AREA)
+    rng = np.random.default_rng(1)
+
+    def pictures():
+        for k in range(n):
+            centre = (512 + 0.8 * k, 384 + 0.4 * k)
+            matrix = cv2.getRotationMatrix2D(centre, 0.05 * k, 0.5)
+            matrix[:, 2] += (WIDTH / 2 - centre[0], HEIGHT / 2 - centre[1])
+            picture = cv2.warpAffine(photo, matrix, (WIDTH, HEIGHT))
+            yield np.clip(picture + rng.normal(0, 1.5, picture.shape), 0, 255)
+
+    _encode(path, "libx265", {"x265-params": "keyint=20:min-keyint=20:bframes=0:log-level=0",
+                              "crf": "26"}, pictures(), "bgr24")
 
 
 def test_an_hevc_frame_decoded_from_scrambled_data_is_named_up_to_the_next_key(tmp_path):
@@ -148,18 +157,7 @@ def test_the_check_runs_only_where_the_decoder_is_silent(tmp_path, monkeypatch):
     monkeypatch.setattr(sudden_change.SuddenChange, "check",
                         lambda self, grey: compared.append(grey.shape))
     h264 = tmp_path / "h264.mp4"
-    import av
-
-    with av.open(str(h264), "w") as out:
-        stream = out.add_stream("libx264", rate=25)
-        stream.width, stream.height, stream.pix_fmt = WIDTH, HEIGHT, "yuv420p"
-        for k, grey in enumerate(_frames(5)):
-            frame = av.VideoFrame.from_ndarray(grey.astype(np.uint8), format="gray")
-            frame.pts = k
-            for packet in stream.encode(frame):
-                out.mux(packet)
-        for packet in stream.encode():
-            out.mux(packet)
+    _encode(h264, "libx264", {}, _frames(5), "gray")
     assert len(list(read_video_frames(h264))) == 5 and compared == []
     hevc = tmp_path / "hevc.mp4"
     _write_hevc(hevc, n=5)
