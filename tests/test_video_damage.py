@@ -307,6 +307,19 @@ def test_the_damage_tracker_s_rules_one_by_one():
     tracker.packet(True, None, None)
     assert tracker.frame(None, True, True, False) is None
     assert tracker.frame(None, False, False, True) == "the decoder flagged the frame corrupt"
+    # damage seen in a picture output after the next key packet was decoded (B-frames): that
+    # key's own picture still ends it (before, the damage ran on to the key after it)
+    tracker = DamageTracker()
+    tracker.packet(False, None, 60)
+    tracker.packet(True, None, 64)
+    tracker.seen("changed suddenly")
+    assert tracker.frame(63, False, False, False) == "changed suddenly"
+    assert tracker.frame(64, True, True, False) is None
+    tracker.packet(False, None, 65)
+    tracker.seen("changed suddenly")                   # no key pending: from this packet on
+    tracker.packet(True, None, 70)
+    assert tracker.frame(69, False, False, False) == "changed suddenly"
+    assert tracker.frame(70, True, True, False) is None
 
 
 def test_a_video_trimmed_without_re_encoding_starts_at_its_first_shown_frame(tmp_path):

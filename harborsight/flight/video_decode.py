@@ -107,10 +107,13 @@ class DamageTracker:
     def seen(self, reason: str) -> None:
         """The frame that came out shows damage the decoder did not report
         (:mod:`~harborsight.flight.sudden_change`): it and the frames after it are damaged
-        as from a damaged packet."""
-        self.reason, self._damaged_at = reason, self._packets
+        as from a damaged packet decoded before any key packet whose picture has not come
+        out yet (a decoder with B-frames outputs a group's last frames after the next key
+        packet; that key picture still ends the damage)."""
+        pending = list(self._keys.values())
+        self.reason = reason
+        self._damaged_at = min(pending) - 1 if pending else self._packets
         self.damaged_packets += 1
-        self._keys.clear()
 
     def missing(self, reason: str) -> None:
         """A frame never came out: those predicting from it are damaged."""
