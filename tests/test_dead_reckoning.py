@@ -293,4 +293,23 @@ def test_a_report_without_speed_or_course_still_anchors_the_position():
     error = _error_m(samples["lat_deg"], samples["lon_deg"], *at(times))
     assert error[1] < 0.5 and error[2] < 0.05       # beside the fix: near where it was seen
     assert error[0] < 1.0 and error[3] < 0.05
-    assert samples["dead_reckoned_s"][1] < 2.5      # mostly the fix's half second
+    # the fix's half second, counted with the lag of the motion it borrows (10 s):
+    # sqrt(0.05 * 9.5² + 0.95 * 0.5 * (0.5 + 20)) = 3.77 s, against 9.5 s carried before
+    assert samples["dead_reckoned_s"][1] == pytest.approx(3.775, abs=0.01)
+
+
+def test_a_fix_without_speed_or_course_makes_no_jump_along_the_carry():
+    """Which neighbour lends its motion does not change along a carry (a second read found
+    6.5 m jumps between times 0.01 s apart where the choice followed the carry's middle)."""
+    north = GEOD.fwd(LON0, LAT0, 0.0, 50.0)        # 10 s north at 5 m/s, then east
+    east = GEOD.fwd(north[0], north[1], 90.0, 55.0)
+    track = Track(source=Path("ais.nmea"), kind="ais", t_s=np.array([0.0, 10.0, 21.0]),
+                  lat_deg=np.array([LAT0, north[1], east[1]]),
+                  lon_deg=np.array([LON0, north[0], east[0]]),
+                  heading_deg=np.array([0.0, np.nan, 90.0]), sog_mps=np.array([5.0, np.nan, 5.0]),
+                  cog_deg=np.array([0.0, np.nan, 90.0]), dead_reckon_s=AIS_DEAD_RECKON_S)
+    times = np.arange(0.0, 21.0, 0.01)
+    samples = track.sample(times, max_gap_s=1.0)
+    steps = _error_m(samples["lat_deg"][:-1], samples["lon_deg"][:-1], samples["lat_deg"][1:],
+                     samples["lon_deg"][1:])
+    assert np.isfinite(steps).all() and steps.max() < 0.1    # 5 m/s: 0.05 m a step

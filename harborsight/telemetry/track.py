@@ -25,7 +25,9 @@ where each comes into and leaves reach, so the position does not jump: :func:`_b
 A report at rest (speed under :data:`AT_REST_MPS`) without a course (AIS 360) carries its
 position in place. A position reported without speed or course (an AIS report whose fields
 are "not available", an RMC without them) is still an anchor: it is carried with the speed
-and course of the report that has them nearest to the middle of the carry, within reach.
+and course of the nearest report that has them on the side carried to (else the other),
+within reach, and its age counts that report's lag: ``sqrt(dt (dt + 2 lag))``, the time over
+which a steady acceleration would err as much.
 The heading is turned the short way between the reports around it, or the last one's held
 where none follows yet (live), turned at its rate of turn where the report gives one.
 ``sample`` then says for how long in
@@ -212,17 +214,23 @@ class Track:
         moving = placed & carried_by_motion(self.sog_mps, self.cog_deg)
         reach = self.dead_reckon_s
 
-        def motion_of(k: int, x: float) -> tuple[float, float] | None:
-            """Speed and course (rad) to carry report ``k`` to ``x`` with: its own, or, for
-            a position reported without them, those of the report that has them nearest to
-            the middle of the carry, within reach of ``x`` (a fix is still an anchor)."""
+        def motion_of(k: int, forward: bool) -> tuple[float, float, float] | None:
+            """Speed, course (rad) and their lag (s) to carry report ``k`` forward or back
+            with: its own (lag 0), or, for a position reported without them, those of the
+            nearest report with them on the side carried to (else the other side) within
+            reach of it: a fix is still an anchor, and the choice does not change along the
+            carry."""
             if moving[k]:
-                return float(self.sog_mps[k]), float(np.deg2rad(course_deg[k]))
-            near = np.flatnonzero(moving & (np.abs(t - x) <= reach))
-            if not len(near):
+                return float(self.sog_mps[k]), float(np.deg2rad(course_deg[k])), 0.0
+            near = moving & (np.abs(t - t[k]) <= reach)
+            ahead = np.flatnonzero(near & ((t > t[k]) if forward else (t < t[k])))
+            behind = np.flatnonzero(near & ((t < t[k]) if forward else (t > t[k])))
+            pool = ahead if len(ahead) else behind
+            if not len(pool):
                 return None
-            j = near[np.argmin(np.abs(t[near] - (t[k] + x) / 2.0))]
-            return float(self.sog_mps[j]), float(np.deg2rad(course_deg[j]))
+            j = pool[np.argmin(np.abs(t[pool] - t[k]))]
+            return (float(self.sog_mps[j]), float(np.deg2rad(course_deg[j])),
+                    float(abs(t[j] - t[k])))
 
         age = np.zeros(times_s.shape)
         # where nothing is within reach, and past the track's ends (where sample holds the
@@ -234,24 +242,27 @@ class Track:
             before = after - 1
             ends = [(k, x - t[k], motion) for k in (before, after)   # carried forward, back
                     if 0 <= k < len(t) and placed[k] and abs(x - t[k]) <= reach
-                    and (motion := motion_of(k, x)) is not None]
+                    and (motion := motion_of(k, x >= t[k])) is not None]
             if not ends:
                 continue
-            guesses = []
-            for k, dt, (speed, course) in ends:
+            guesses, ages = [], []
+            for k, dt, (speed, course, lag) in ends:
                 step = speed * dt
                 guesses.append(pymap3d.enu2geodetic(step * np.sin(course), step * np.cos(course),
                                                     0.0, self.lat_deg[k], self.lon_deg[k], 0.0)[:2])
+                # a motion from ``lag`` away: a steady acceleration's error grows as over a
+                # carry of sqrt(dt (dt + 2 lag)) (module docstring)
+                ages.append(math.sqrt(abs(dt) * (abs(dt) + 2.0 * lag)))
             if len(ends) == 1:
                 out["lat_deg"][i], out["lon_deg"][i] = guesses[0]
-                age[i] = abs(ends[0][1])
+                age[i] = ages[0]
             else:       # the two blended by nearness (module docstring)
                 dt0, dt1 = x - t[before], t[after] - x
                 w = _blend_weight(dt0, dt1, reach)
                 east, north, _ = pymap3d.geodetic2enu(*guesses[1], 0.0, *guesses[0], 0.0)
                 out["lat_deg"][i], out["lon_deg"][i] = pymap3d.enu2geodetic(
                     w * east, w * north, 0.0, *guesses[0], 0.0)[:2]
-                age[i] = math.sqrt((1.0 - w) * dt0 ** 2 + w * dt1 ** 2)
+                age[i] = math.sqrt((1.0 - w) * ages[0] ** 2 + w * ages[1] ** 2)
             if "heading_deg" in out and not np.isfinite(out["heading_deg"][i]):
                 out["heading_deg"][i] = self._heading_near(x)
             elif "heading_deg" in out and len(ends) == 1:
