@@ -162,3 +162,21 @@ def test_the_check_runs_only_where_the_decoder_is_silent(tmp_path, monkeypatch):
     hevc = tmp_path / "hevc.mp4"
     _write_hevc(hevc, n=5)
     assert len(list(read_video_frames(hevc))) == 5 and compared == [(HEIGHT, WIDTH)] * 5
+
+
+def test_frames_of_any_shape_and_format_are_checked_without_stopping_the_video():
+    """A frame 500 times taller than wide made a thumbnail OpenCV cannot shift (a second
+    read: `run` stopped, the live reader reopened the stream for ever)."""
+    import av
+
+    from harborsight.flight.sudden_change import reduced_grey
+
+    rng = np.random.default_rng(0)
+    for width, height, fmt in ((8, 4000, "gray"), (4000, 8, "gray"), (1, 1, "gray"),
+                               (64, 36, "yuv420p10le"), (64, 36, "nv12")):
+        frame = (av.VideoFrame.from_ndarray(rng.integers(0, 256, (height, width), np.uint8),
+                                            format="gray")
+                 if fmt == "gray" else av.VideoFrame(width, height, fmt))
+        assert max(reduced_grey(frame).shape) == 320
+        check = SuddenChange()
+        assert [check.check_frame(frame) for _ in range(8)] == [None] * 8

@@ -307,6 +307,13 @@ def test_the_damage_tracker_s_rules_one_by_one():
     tracker.packet(True, None, None)
     assert tracker.frame(None, True, True, False) is None
     assert tracker.frame(None, False, False, True) == "the decoder flagged the frame corrupt"
+    # an untimed stream with B-frames: a frame of the damaged group output after the key
+    # packet does not take the key's slot (before, the damage ran on a whole group more)
+    tracker = DamageTracker()
+    tracker.packet(False, "bad", None)
+    tracker.packet(True, None, None)
+    assert tracker.frame(None, False, False, False) == "bad"
+    assert tracker.frame(None, True, True, False) is None
     # damage seen in a picture output after the next key packet was decoded (B-frames): that
     # key's own picture still ends it (before, the damage ran on to the key after it)
     tracker = DamageTracker()

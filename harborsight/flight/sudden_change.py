@@ -61,10 +61,12 @@ MOVED_SHIFT_PX = 8
 
 
 def reduced_grey(frame) -> np.ndarray:
-    """A PyAV video frame as grey, ``THUMB_WIDTH_PX`` wide (FFmpeg's area scaling), float32."""
-    height = max(2 * BLOCK_PX, round(frame.height * THUMB_WIDTH_PX / max(frame.width, 1)))
-    small = frame.reformat(width=THUMB_WIDTH_PX, height=height, format="gray",
-                           interpolation="AREA")
+    """A PyAV video frame as grey, its longer side ``THUMB_WIDTH_PX`` (FFmpeg's area
+    scaling), float32."""
+    scale = THUMB_WIDTH_PX / max(frame.width, frame.height, 1)
+    width = max(2 * BLOCK_PX, round(frame.width * scale))
+    height = max(2 * BLOCK_PX, round(frame.height * scale))
+    small = frame.reformat(width=width, height=height, format="gray", interpolation="AREA")
     return small.to_ndarray().astype(np.float32)
 
 
@@ -79,6 +81,18 @@ class SuddenChange:
         """The frame before was damaged or missing: the next is not compared with it."""
         self._previous = None
 
+    def check_frame(self, frame) -> str | None:
+        """:meth:`check` for a PyAV video frame. A frame the check cannot read (a pixel
+        format FFmpeg cannot turn grey) is not compared, and the next is not compared with
+        it: the check never stops a video being read."""
+        import av
+
+        try:
+            return self.check(reduced_grey(frame))
+        except (av.error.FFmpegError, cv2.error, ValueError, ArithmeticError):
+            self._previous = None
+            return None
+
     def check(self, grey: np.ndarray) -> str | None:
         """Why the frame (:func:`reduced_grey`) is suspect, or None; it becomes the frame
         the next one is compared with."""
@@ -87,6 +101,8 @@ class SuddenChange:
             return None
         changes, shifted, box = block_changes(previous, grey)
         change = float(changes.max())
+        if not np.isfinite(change):
+            return None
         if len(self._history) >= MIN_HISTORY:
             level = float(np.median(self._history))
             limit = SUDDEN_CHANGE_RATIO * level

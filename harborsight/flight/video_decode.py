@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.flight.sudden_change import SuddenChange, reduced_grey
+from harborsight.flight.sudden_change import SuddenChange
 
 #: why a frame the file holds gave no picture
 NOT_DECODED = ("not decoded: its data is damaged or missing (or it precedes the stream's "
@@ -125,7 +125,9 @@ class DamageTracker:
               ) -> str | None:
         """Why the frame that came out (its time, the decoder's key flag, whether it is an
         I picture, FFmpeg's corrupt flag) is damaged, or None."""
-        number = self._keys.pop(pts, None)
+        # an untimed stream has one key slot: only a key picture may take it (a B-frame of
+        # the damaged group output after the key packet would otherwise)
+        number = self._keys.pop(pts, None) if pts is not None or key_frame else None
         if self.reason is not None and number is not None and number > self._damaged_at:
             whole = key_frame and intra
             if not whole and self._refresh_at > self._damaged_at:
@@ -184,7 +186,7 @@ def decoded_frames(container, stream=None, tracker: DamageTracker | None = None
                     damaged = tracker.frame(frame.pts, bool(frame.key_frame),
                                             _is_intra(frame), bool(frame.is_corrupt))
                     if pictures is not None and damaged is None:
-                        damaged = pictures.check(reduced_grey(frame))
+                        damaged = pictures.check_frame(frame)
                         if damaged is not None:
                             tracker.seen(damaged)
                     elif pictures is not None:
