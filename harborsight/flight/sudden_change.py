@@ -60,6 +60,8 @@ LOCAL_SHIFT_PX = 2
 #: how far (px of the reduced frame) a block that changed suddenly is searched for before it
 #: counts as unexplained by motion
 MOVED_SHIFT_PX = 8
+#: the top-left corner (px, both axes) of the blocks' grid in the reduced frame
+GRID_ORIGIN_PX = EDGE_PX + LOCAL_SHIFT_PX
 
 
 def reduced_grey(frame) -> np.ndarray:
@@ -99,9 +101,9 @@ class SuddenChange:
         """Why the frame (:func:`reduced_grey`) is suspect, or None; it becomes the frame
         the next one is compared with."""
         previous, self._previous = self._previous, grey
-        if previous is None or previous.shape != grey.shape:
-            return None
-        changes, shifted, box = block_changes(previous, grey)
+        if previous is None or previous.shape != grey.shape or min(grey.shape) < 2 * BLOCK_PX:
+            return None         # (reduced_grey's frames are at least 2 blocks on each side)
+        changes, shifted = block_changes(previous, grey)
         change = float(changes.max())
         if not np.isfinite(change):
             return None
@@ -110,7 +112,7 @@ class SuddenChange:
             limit = SUDDEN_CHANGE_RATIO * level
             if level > 0 and change > limit:
                 unexplained = [(row, col) for row, col in np.argwhere(changes > limit)
-                               if moved_block_change(shifted, grey, box, row, col) > limit]
+                               if moved_block_change(shifted, grey, row, col) > limit]
                 if unexplained:
                     self._previous = None
                     return (f"its picture changed suddenly against the frame before ("
@@ -121,13 +123,12 @@ class SuddenChange:
         return None
 
 
-def block_changes(earlier: np.ndarray, later: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+def block_changes(earlier: np.ndarray, later: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each block's change (grey levels) between two reduced frames (module docstring): the
     ``BLOCK_PX`` block mean of ``|later - earlier'|``, least over the shifts of up to
     ``LOCAL_SHIFT_PX`` around the global translation, with ``earlier'`` the earlier frame
-    shifted by it and scaled to the later one's mean brightness. Also ``earlier'`` and the
-    top-left corner of the blocks' grid."""
+    shifted by it and scaled to the later one's mean brightness (the grid from
+    ``GRID_ORIGIN_PX``). Also ``earlier'``."""
     (dx, dy), _ = cv2.phaseCorrelate(earlier, later)
     shift = np.float32([[1.0, 0.0, dx], [0.0, 1.0, dy]])
     shifted = cv2.warpAffine(earlier, shift, (later.shape[1], later.shape[0]),
@@ -135,13 +136,12 @@ def block_changes(earlier: np.ndarray, later: np.ndarray
     # the mean brightness matched (an exposure that moved); matching the spread too let a
     # clipped exposure step pass but named a third fewer damaged frames (docs/results.md)
     shifted *= (float(later.mean()) + 1e-3) / (float(shifted.mean()) + 1e-3)
-    margin = EDGE_PX + LOCAL_SHIFT_PX
+    margin = GRID_ORIGIN_PX
     height, width = later.shape
+    # at least one block, its shifts inside the frame, for frames of 2 blocks or more
     rows = max(1, (height - 2 * margin) // BLOCK_PX)
     cols = max(1, (width - 2 * margin) // BLOCK_PX)
     bottom, right = margin + rows * BLOCK_PX, margin + cols * BLOCK_PX
-    if bottom + LOCAL_SHIFT_PX > height or right + LOCAL_SHIFT_PX > width:
-        return np.array([[float(np.abs(later - shifted).mean())]]), shifted, (0, 0)
     target = later[margin:bottom, margin:right]
     least = None
     for sy in range(-LOCAL_SHIFT_PX, LOCAL_SHIFT_PX + 1):
@@ -151,15 +151,14 @@ def block_changes(earlier: np.ndarray, later: np.ndarray
             blocks = cv2.resize(cv2.absdiff(target, moved), (cols, rows),
                                 interpolation=cv2.INTER_AREA)
             least = blocks if least is None else np.minimum(least, blocks, out=least)
-    return least, shifted, (margin, margin)
+    return least, shifted
 
 
-def moved_block_change(shifted: np.ndarray, later: np.ndarray, box: tuple[int, int], row: int,
-                       col: int) -> float:
+def moved_block_change(shifted: np.ndarray, later: np.ndarray, row: int, col: int) -> float:
     """The least mean ``|later - shifted|`` of one block over every shift of up to
     ``MOVED_SHIFT_PX``: what is left of its change when it may have moved on its own (a boat
     crossing fast, an edge leaving the picture)."""
-    top, left = box[0] + row * BLOCK_PX, box[1] + col * BLOCK_PX
+    top, left = GRID_ORIGIN_PX + row * BLOCK_PX, GRID_ORIGIN_PX + col * BLOCK_PX
     block = later[top:top + BLOCK_PX, left:left + BLOCK_PX]
     height, width = shifted.shape
     y0, x0 = max(0, top - MOVED_SHIFT_PX), max(0, left - MOVED_SHIFT_PX)
