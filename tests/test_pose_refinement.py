@@ -554,7 +554,8 @@ def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):
         counts[data.name, flag] = json.loads((out / "run.json").read_text())["pose_refinement"]
     # exact poses fit their exact labels: nothing to correct
     assert counts["flight", "--refine-pose"] == {"applied": 0, "sensors_pose_fitted": 48,
-                                                 "kept_sensors_pose": 0, "off": 0}
+                                                 "kept_sensors_pose": 0, "off": 0,
+                                                 "carried": 0}
     noisy_counts = counts["noisy", "--refine-pose"]
     assert noisy_counts["applied"] >= 44 and noisy_counts["off"] == 0
     assert counts["noisy", "--no-refine-pose"]["off"] == 48

@@ -59,7 +59,9 @@ from harborsight.geometry.gsd import nadir_gsd_m_per_px
 from harborsight.geometry.sensor_sigmas import (
     LABEL_FILE_EDGE_M,
     LABEL_FILE_EDGE_PX,
+    MAX_DEAD_RECKONED_S,
     SensorSigmas,
+    dead_reckoning_drift,
     sigmas_for_frame,
 )
 from harborsight.perception.confidence import SolidConfidence
@@ -135,6 +137,7 @@ def measure_frame(
     the default edge sigma of the distances' uncertainty); ``confidence``: the model's
     probabilities behind ``labels``, which widen the sigma where it doubts an obstacle."""
     check_label_mask(labels, meta.camera.width, meta.camera.height, mask_source or meta.source)
+    check_dead_reckoning(meta)
     geometry = FrameGeometry.from_metadata(meta)
     velocities = FrameVelocities(meta.uav_velocity_en_mps, meta.vessel_velocity_en_mps)
     report = measure_clearance(labels, geometry, vessel, settings,
@@ -147,6 +150,20 @@ def measure_frame(
         report.uncertainty["velocities"] = (meta.uav_velocity_en_mps is not None
                                             and meta.vessel_velocity_en_mps is not None)
     return report
+
+
+def check_dead_reckoning(meta: FrameMetadata) -> None:
+    """Raise :class:`InputError` for a vessel pose dead-reckoned longer than
+    :data:`~harborsight.geometry.sensor_sigmas.MAX_DEAD_RECKONED_S`."""
+    age_s = meta.vessel_dead_reckoned_s
+    if age_s is not None and age_s > MAX_DEAD_RECKONED_S:
+        raise InputError(
+            meta.source, "vessel.dead_reckoned_s",
+            f"the vessel's pose was carried {age_s:.0f} s from its last position report, "
+            f"beyond the {MAX_DEAD_RECKONED_S:g} s it is measured with "
+            f"({dead_reckoning_drift(age_s)[0]:.0f} m of drift, one sigma); `run` and `live` "
+            "measure such a frame where the frames "
+            "before it placed the vessel in the image")
 
 
 @dataclass(frozen=True)

@@ -827,13 +827,16 @@ def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: floa
 
 def refinement_counts(refinements: list[dict[str, Any] | None]) -> dict[str, int]:
     """How a batch's frames came out: ``applied``, ``sensors_pose_fitted`` (kept, fitting as
-    well), ``kept_sensors_pose`` (kept, the alignment not trusted) and ``off``."""
+    well), ``kept_sensors_pose`` (kept, the alignment not trusted) and ``off``; and, of them
+    all, ``carried`` (the vessel's pose carried from earlier frames' images,
+    :mod:`harborsight.flight.pose_carry`)."""
     given = [r for r in refinements if r]
     off = sum(r.get("reason") == "off" for r in given)
     applied = sum(bool(r.get("applied")) for r in given)
     fitted = sum(r.get("reason") == SENSORS_FIT for r in given)
     return {"applied": applied, "sensors_pose_fitted": fitted,
-            "kept_sensors_pose": len(given) - off - applied - fitted, "off": off}
+            "kept_sensors_pose": len(given) - off - applied - fitted, "off": off,
+            "carried": sum(bool(r.get("carried_from")) for r in given)}
 
 
 def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
@@ -851,6 +854,9 @@ def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
                 "distances' lower bounds and clear reaches are 0; ") + line
     if counts["sensors_pose_fitted"]:
         line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
+    if counts["carried"]:
+        line += (f"; the vessel's pose carried from earlier frames' images on "
+                 f"{counts['carried']} (its reports too old)")
     kept = [str(r.get("reason") or "") for r in refinements
             if r and not r.get("applied") and r.get("reason") not in ("off", SENSORS_FIT)]
     if kept:

@@ -44,6 +44,7 @@ from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.pose_refinement import refinement_counts
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
+from harborsight.flight.pose_carry import VesselPoseCarry, note_carried
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.flight.tracking import MEASURED_STATES
@@ -227,6 +228,7 @@ def run_flight(
     fps = options.video_fps or source_fps or DEFAULT_VIDEO_FPS
     video = _VideoWriter(out_dir / "annotated.mp4", fps, frame_size) if options.video else None
     clock = FlightClock()
+    carry = VesselPoseCarry()
     stems = _OutputStems()
     started = time.perf_counter()
     csv_path = out_dir / "sections.csv"
@@ -236,9 +238,9 @@ def run_flight(
             for frame in frames:
                 annotated = None
                 if frame.error is None:
-                    annotated = _measure_one(frame, summary, timeline, clock, stems, csv_out,
-                                             csv_handle, reports_dir, overlays_dir, segmenter,
-                                             vessels, options)
+                    annotated = _measure_one(frame, summary, timeline, clock, carry, stems,
+                                             csv_out, csv_handle, reports_dir, overlays_dir,
+                                             segmenter, vessels, options)
                 if frame.error is not None:
                     if frame.error == NO_METADATA:
                         summary.without_metadata += 1
@@ -296,11 +298,13 @@ def _remove_earlier_outputs(out_dir: Path) -> None:
 
 
 def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTimeline,
-                 clock: FlightClock, stems: _OutputStems, csv_out, csv_handle, reports_dir: Path,
-                 overlays_dir: Path, segmenter: Segmenter | None, vessels: VesselCache,
-                 options: RunOptions) -> np.ndarray | None:
+                 clock: FlightClock, carry: VesselPoseCarry, stems: _OutputStems, csv_out,
+                 csv_handle, reports_dir: Path, overlays_dir: Path, segmenter: Segmenter | None,
+                 vessels: VesselCache, options: RunOptions) -> np.ndarray | None:
     """Measure one frame and write its outputs; sets ``frame.error`` when it cannot be
-    measured. Returns the annotated picture for the video."""
+    measured. A dead-reckoned vessel pose is replaced by the one the frames before placed
+    in their images, where that is better (:mod:`harborsight.flight.pose_carry`). Returns
+    the annotated picture for the video."""
     warnings = []
     try:
         if frame.time_error is not None:   # a bad time costs the closing speeds, not the frame
@@ -316,8 +320,11 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
                 warnings.append(f"{frame.source}: {clock.drift_warning}")
                 clock.drift_warning = None
         mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data)
-        report = measure_mask(mask, frame.meta, vessels.for_frame(frame.meta, frame.meta_path),
+        meta, carried = carry.prior_for(frame.meta, time_s, options.settings.sensor_sigmas(frame.meta))
+        report = measure_mask(mask, meta, vessels.for_frame(meta, frame.meta_path),
                               options.settings)
+        note_carried(report, carried)
+        carry.took(meta, report, time_s)
     except HarborsightError as exc:
         frame.error = str(exc)
         return None

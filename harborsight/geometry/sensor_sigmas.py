@@ -169,6 +169,14 @@ DEAD_RECKONING_ACCEL_MPS2 = 0.05
 DEAD_RECKONING_TURN_DEG_S = 0.5
 
 
+#: the longest dead reckoning (s) a vessel pose is measured with: 3.8 m and 6 degrees of
+#: drift (a class A AIS transponder under way reports every 10 s; one report missed leaves a
+#: gap). A frame carried longer (a class B transponder reports every 30 s, or every 3 min
+#: under 2 kn) is measured only where the frames before it placed the vessel in the image
+#: (:mod:`harborsight.flight.pose_carry`)
+MAX_DEAD_RECKONED_S = 12.0
+
+
 def dead_reckoning_drift(seconds: float) -> tuple[float, float]:
     """One sigma of a dead-reckoned vessel's horizontal position (DRMS, m) and heading (deg)
     after ``seconds``: ``sqrt((σ_v t)² + (a t² / 2)²)`` and ``ω t`` (constants above); added

@@ -6,6 +6,9 @@ fix time: the arrival, moved back to the report's second of the minute (this mac
 gives the minute; a transponder sends within a few seconds of its fix). Reports without a
 true heading (511) are skipped and warned about, or take the course over ground with
 ``--allow-cog-heading``. Other vessels' messages and unreadable lines are counted.
+Frames are given the newest report's position carried by its speed and course for up to
+``AIS_FRAME_REACH_S``; past ``AIS_DEAD_RECKON_S`` they are measured only where the frames
+before them placed the vessel in the image (:mod:`harborsight.flight.pose_carry`).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from datetime import UTC, datetime
 
 from harborsight.live.telemetry import LiveTrack, worth_saying
 from harborsight.telemetry.ais import (
-    AIS_DEAD_RECKON_S,
+    AIS_FRAME_REACH_S,
     POSITION_TYPES,
     fix_time,
     report_heading,
@@ -36,7 +39,7 @@ class AisVessel:
                  on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.mmsi, self.allow_cog_heading, self.on_fix = track, mmsi, allow_cog_heading, on_fix
         track.source_clock_is_utc()
-        track.dead_reckon_s = AIS_DEAD_RECKON_S
+        track.dead_reckon_s = AIS_FRAME_REACH_S     # frames past 12 s: the images carry them
         self.reports = 0
         self.others = 0
         self.unreadable = 0

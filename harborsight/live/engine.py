@@ -26,6 +26,12 @@ a ``stale_*`` alarm is raised: the distances shown are the last ones, never curr
 :meth:`LiveEngine.refresh` re-evaluates that between frames, so a stopped stream raises its
 alarm without a new frame. Times: ``now_s`` is the process's monotonic clock; ``time_s`` a
 frame's time on the flight's clock (for the tracker).
+
+A vessel known from AIS reports seldom (a class B transponder: every 3 min under 2 kn) is
+carried from frame to frame by the poses the images placed (:mod:`harborsight.flight.pose_carry`):
+while the newest measured frame's pose was carried so, and the measurements are current, the
+vessel's source is not stale however old its newest report (``sources.vessel`` says
+``placed_by_image``), and a frame that neither the reports nor the images place is not measured.
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
+from harborsight.flight.pose_carry import VesselPoseCarry, note_carried
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
@@ -95,6 +102,7 @@ class LiveEngine:
         self._latency_ms: float | None = None
         self._errors: list[dict] = []
         self._warnings: deque = deque(maxlen=WARNINGS_KEPT)
+        self._carry = VesselPoseCarry()
         self._lock = threading.Lock()
         self._state: dict = self._build(time.monotonic())
         self.frames_measured = 0
@@ -123,7 +131,10 @@ class LiveEngine:
         try:
             mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path,
                                 no_data)
+            meta, carried = self._carry.prior_for(meta, time_s, self.clearance.sensor_sigmas(meta))
             report = measure_mask(mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance)
+            note_carried(report, carried)
+            self._carry.took(meta, report, time_s)
         except HarborsightError as exc:
             return self.frame_failed(frame_index, str(exc))
         except Exception as exc:   # one bad frame must not stop the live aid
@@ -253,8 +264,17 @@ class LiveEngine:
             })
         self._sections = sections
 
+    def _vessel_placed_by_image(self, now_s: float) -> bool:
+        """Whether the newest measured frame's vessel pose was carried by the images, and
+        the measurements are current: the vessel's own reports may then be old."""
+        report = self._report
+        return bool(report is not None and (report.pose_refinement or {}).get("carried_from")
+                    and not self.health["measurement"].stale(now_s))
+
     def _build(self, now_s: float) -> dict:
-        stale_sources = [name for name in SOURCES if self.health[name].stale(now_s)]
+        placed_by_image = self._vessel_placed_by_image(now_s)
+        stale_sources = [name for name in SOURCES if self.health[name].stale(now_s)
+                         and not (name == "vessel" and placed_by_image)]
         stale = bool(stale_sources)
         sections, alarms = [], []
         for entry in self._sections:
@@ -298,6 +318,9 @@ class LiveEngine:
                     for w in self._warnings if now_s - w["at_s"] <= WARNING_SHOWN_S]
         report = self._report
         distances = [s["distance_m"] for s in sections if s["distance_m"] is not None]
+        sources = {name: self.health[name].to_dict(now_s) for name in SOURCES}
+        if placed_by_image:
+            sources["vessel"].update(stale=False, placed_by_image=True)
         return {
             "schema": SCHEMA,
             "time": datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
@@ -310,7 +333,7 @@ class LiveEngine:
             "sections": sections,
             "alarms": alarms,
             "warnings": warnings,
-            "sources": {name: self.health[name].to_dict(now_s) for name in SOURCES},
+            "sources": sources,
             "pose_refinement": report.pose_refinement if report is not None else None,
         }
 

@@ -24,9 +24,12 @@ course is not its heading.
 
 Motion: each report's speed (0.1 kn; 102.3 = none) and course over ground (360 = none) go
 with its position, and the track carries the vessel between reports by them for up to
-``AIS_DEAD_RECKON_S`` (:mod:`harborsight.telemetry.track`, "Dead reckoning"): a class A
+``AIS_FRAME_REACH_S`` (:mod:`harborsight.telemetry.track`, "Dead reckoning"): a class A
 transponder under way reports every 10 s, and without it every frame more than a second
-from a report had no vessel pose.
+from a report had no vessel pose. A frame carried longer than ``AIS_DEAD_RECKON_S`` is
+measured only where the frames before it placed the vessel in the image
+(:mod:`harborsight.flight.pose_carry`): a class B transponder reports every 30 s under way
+and every 3 min under 2 kn.
 
 Dimensions (types 5 and 24 part B, and 19): A to the bow, B to the stern, C to port, D to
 starboard, in metres from the position reference point: exactly the vessel frame's origin
@@ -45,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 from harborsight.telemetry.track import KNOT_MPS, Track, carried_by_motion
 
 POSITION_TYPES = frozenset({1, 2, 3, 18, 19})
@@ -158,10 +162,17 @@ def unmeasured_position(fields: dict) -> str | None:
     return UNMEASURED_SECONDS.get(second) if isinstance(second, int) else None
 
 
-#: how long (s) a report's speed and course carry the vessel where no later report is in
-#: reach: a class A transponder reports every 10 s under way at up to 14 kn (2-6 s faster
-#: or turning); one report missed leaves a gap. 0 turns dead reckoning off
-AIS_DEAD_RECKON_S = 12.0
+#: how long (s) a report's speed and course carry the vessel for a measurement where no
+#: later report is in reach: a class A transponder reports every 10 s under way at up to
+#: 14 kn (2-6 s faster or turning); one report missed leaves a gap. The live aid counts the
+#: vessel's source stale after it
+AIS_DEAD_RECKON_S = MAX_DEAD_RECKONED_S
+#: how far (s) from a report a track read from a file still gives frames a vessel pose
+#: (dead-reckoned, ``vessel.dead_reckoned_s`` saying for how long): a class B transponder
+#: reports every 3 min under 2 kn. Beyond :data:`AIS_DEAD_RECKON_S` such a frame is measured
+#: only where the frames before it placed the vessel in the image
+#: (:mod:`harborsight.flight.pose_carry`); the frame's drone pose is kept for that
+AIS_FRAME_REACH_S = 200.0
 
 
 def report_motion(fields: dict) -> tuple[float, float]:
@@ -346,14 +357,16 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
                      "sideways")
     with_motion = int(carried_by_motion([r[4] for r in rows], [r[5] for r in rows]).sum())
     notes.append(f"{with_motion} of {len(rows)} report(s) give speed and course: the vessel is "
-                 f"carried by them up to {AIS_DEAD_RECKON_S:g} s between reports, its error bars "
-                 "widened for the time (vessel.dead_reckoned_s)")
+                 f"carried by them between reports, its error bars widened for the time "
+                 f"(vessel.dead_reckoned_s); frames up to {AIS_FRAME_REACH_S:g} s from a report "
+                 f"are written, those carried over {AIS_DEAD_RECKON_S:g} s measured only where "
+                 "the frames before them placed the vessel in the image")
     start = rows[0][0]
     return Track(source=ais.path, kind="ais", t_s=np.array([(r[0] - start).total_seconds() for r in rows]),
                  lat_deg=np.array([r[1] for r in rows]), lon_deg=np.array([r[2] for r in rows]),
                  heading_deg=np.array([r[3] for r in rows]), sog_mps=np.array([r[4] for r in rows]),
                  cog_deg=np.array([r[5] for r in rows]), rot_deg_s=np.array([r[6] for r in rows]),
-                 dead_reckon_s=AIS_DEAD_RECKON_S,
+                 dead_reckon_s=AIS_FRAME_REACH_S,
                  utc_start=start,
                  clock="seconds since the first report (UTC, receiver time)", notes=notes)
 

@@ -1,0 +1,275 @@
+"""The vessel's pose carried from frame to frame by the images (flight/pose_carry.py): a
+class B AIS transponder reports every 30 s, or every 3 min under 2 kn, and a pose
+dead-reckoned past 12 s is not measured with; the poses the frames' images placed carry the
+vessel instead."""
+
+import json
+import math
+import shutil
+import time
+from dataclasses import replace
+from datetime import datetime, timedelta
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pyproj import Geod
+from typer.testing import CliRunner
+
+from harborsight.clearance.measure import measure_frame
+from harborsight.clearance.pose_refinement import SENSORS_FIT
+from harborsight.clearance.report import ClearanceReport
+from harborsight.cli import app
+from harborsight.errors import InputError
+from harborsight.flight.pose_carry import (
+    CARRY_REACH_S,
+    FLOOR_DEG,
+    FLOOR_M,
+    VesselPoseCarry,
+    placed_pose,
+)
+from harborsight.frame import parse_frame_metadata
+from harborsight.geometry.sensor_sigmas import SensorSigmas
+from harborsight.images import read_mask
+from harborsight.vessel.spec import load_vessel_spec
+
+SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
+FLIGHT = SAMPLES / "flight"
+VESSEL = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
+GEOD = Geod(ellps="WGS84")
+
+
+def _meta(index: int = 0, **changes):
+    path = FLIGHT / "frames" / f"{index:06d}.json"
+    meta = parse_frame_metadata(json.loads(path.read_text()), str(path))
+    return replace(meta, **changes) if changes else meta
+
+
+def _report(refinement: dict | None) -> ClearanceReport:
+    return ClearanceReport(image="x.png", timestamp=None, altitude_m=40.0, gsd_m_per_px=0.05,
+                           method="ground_plane", sections=[], pose_refinement=refinement)
+
+
+def _applied(east: float, north: float, turn_deg: float) -> dict:
+    return {"applied": True, "shift_m": [east, north], "rotation_deg": turn_deg,
+            "reason": None, "sensors_contradicted": False}
+
+
+def _moving_vessel(t_s: float, speed_mps=0.6, course_deg=40.0, turn_deg_s=0.8):
+    """A vessel on a straight course at a steady speed, turning its heading steadily (pyproj's
+    geodesic, not the code's pymap3d)."""
+    meta0 = _meta()
+    lon, lat, _ = GEOD.fwd(meta0.vessel_lon_deg, meta0.vessel_lat_deg, course_deg, speed_mps * t_s)
+    return lat, lon, (100.0 + turn_deg_s * t_s) % 360.0
+
+
+def _carry_with(times_s) -> VesselPoseCarry:
+    """A carry that took the moving vessel's true pose at ``times_s``, each as a frame whose
+    sensors put it 1.5 m east and 2 degrees off and whose image corrected that."""
+    carry = VesselPoseCarry()
+    for t in times_s:
+        lat, lon, heading = _moving_vessel(t)
+        lon_off, lat_off, _ = GEOD.fwd(lon, lat, 270.0, 1.5)        # the sensors: 1.5 m west
+        meta = _meta(vessel_lat_deg=lat_off, vessel_lon_deg=lon_off,
+                     vessel_heading_deg=heading - 2.0)
+        carry.took(meta, _report(_applied(1.5, 0.0, 2.0)), t)
+    return carry
+
+
+def test_the_placed_poses_carry_a_moving_turning_vessel_to_a_later_frame():
+    carry = _carry_with([0.0, 0.5, 1.0, 1.5, 2.0])
+    for age in (0.5, 2.0, CARRY_REACH_S):
+        carried = carry.carried(2.0 + age)
+        lat, lon, heading = _moving_vessel(2.0 + age)
+        off_m = GEOD.inv(carried.lon_deg, carried.lat_deg, lon, lat)[2]
+        assert off_m < 0.02, (age, off_m)
+        assert abs((carried.heading_deg - heading + 180) % 360 - 180) < 0.01
+        # sigmas: the floor and the dead-reckoning drift (0.1 m/s, 0.05 m/s², 0.5 deg/s)
+        drift_m = math.hypot(0.1 * age, 0.5 * 0.05 * age ** 2)
+        assert carried.sigma_m == pytest.approx(math.hypot(FLOOR_M, drift_m))
+        assert carried.heading_sigma_deg == pytest.approx(math.hypot(FLOOR_DEG, 0.5 * age))
+        assert (carried.age_s, carried.image) == (pytest.approx(age), _meta().image)
+    assert carry.carried(2.0 + CARRY_REACH_S + 0.01) is None       # beyond its reach
+    assert carry.carried(2.0) is None and carry.carried(1.0) is None   # not back in time
+    assert carry.carried(None) is None
+
+
+def test_too_few_or_too_close_placed_poses_carry_nothing():
+    assert _carry_with([0.0, 0.5]).carried(1.0) is None           # no speed from two
+    assert _carry_with([0.0, 0.3, 0.6]).carried(1.0) is None      # a span under a second
+    assert _carry_with([0.0, 0.5, 1.0]).carried(1.5) is not None
+    # placed poses older than the fit's window are dropped: the newest three span 1 s
+    carry = _carry_with([0.0, 0.5, 1.0, 10.0, 10.5, 11.0])
+    assert carry.carried(11.5).age_s == pytest.approx(0.5)
+    carry.forget()
+    assert carry.carried(11.5) is None
+
+
+def test_only_a_pose_the_image_placed_is_taken():
+    meta = _meta()
+    assert placed_pose(meta, _report(None), 0.0) is None                       # refinement off
+    kept = {"applied": False, "shift_m": [3.0, 0.0], "rotation_deg": 1.0,
+            "reason": "30 % of the outline fits a ship edge", "sensors_contradicted": False}
+    assert placed_pose(meta, _report(kept), 0.0) is None
+    assert placed_pose(meta, _report({**_applied(3.0, 0.0, 1.0), "sensors_contradicted": True}),
+                       0.0) is None
+    fitted = placed_pose(meta, _report({**kept, "reason": SENSORS_FIT}), 0.0)
+    assert (fitted.lat_deg, fitted.lon_deg) == pytest.approx((meta.vessel_lat_deg, meta.vessel_lon_deg))
+    moved = placed_pose(meta, _report(_applied(3.0, -4.0, 1.0)), 0.0)
+    azimuth, _, distance = GEOD.inv(meta.vessel_lon_deg, meta.vessel_lat_deg, moved.lon_deg,
+                                    moved.lat_deg)
+    assert distance == pytest.approx(5.0, abs=1e-3)
+    assert azimuth % 360 == pytest.approx(math.degrees(math.atan2(3.0, -4.0)) % 360, abs=0.01)
+    assert moved.heading_deg == pytest.approx((meta.vessel_heading_deg + 1.0) % 360)
+    # a frame out of order, or without a time, is not taken
+    carry = _carry_with([0.0, 0.5, 1.0])
+    carry.took(meta, _report(_applied(0.0, 0.0, 0.0)), 0.7)
+    carry.took(meta, _report(_applied(0.0, 0.0, 0.0)), None)
+    assert carry.carried(1.5) is not None and len(carry._placed) == 3
+
+
+def test_only_a_dead_reckoned_frame_takes_the_carried_pose_and_only_a_better_one():
+    carry = _carry_with([0.0, 0.5, 1.0, 1.5, 2.0])
+    live_fix = _meta()
+    assert carry.prior_for(live_fix, 2.5, SensorSigmas()) == (live_fix, None)
+    reckoned = _meta(vessel_dead_reckoned_s=40.0)
+    meta, carried = carry.prior_for(reckoned, 2.5, SensorSigmas(vessel_gps=150.0))
+    assert carried is not None and meta.vessel_dead_reckoned_s is None
+    assert (meta.vessel_lat_deg, meta.vessel_lon_deg) == (carried.lat_deg, carried.lon_deg)
+    # the sigmas go in as the frame's own: per axis for the position
+    assert meta.sensor_sigmas["vessel_gps"] == pytest.approx(carried.sigma_m / math.sqrt(2))
+    assert meta.sensor_sigmas["vessel_heading_deg"] == carried.heading_sigma_deg
+    # an RTK fix a second old is better than what the image carries
+    assert carry.prior_for(_meta(vessel_dead_reckoned_s=1.0), 2.5,
+                           SensorSigmas(vessel_gps=0.1))[1] is None
+
+
+def test_a_pose_dead_reckoned_past_twelve_seconds_is_not_measured_with():
+    labels = read_mask(FLIGHT / "labels" / "000000.png")
+    vessel = load_vessel_spec(VESSEL)
+    assert measure_frame(labels, _meta(vessel_dead_reckoned_s=12.0), vessel).sections
+    with pytest.raises(InputError) as caught:
+        measure_frame(labels, _meta(vessel_dead_reckoned_s=95.0), vessel)
+    assert caught.value.field == "vessel.dead_reckoned_s"
+    assert "carried 95 s from its last position report, beyond the 12 s" in str(caught.value)
+
+
+def _class_b_flight(root: Path, placed_frames: int, off_m: float = 2.0, turn_deg: float = 2.0) -> Path:
+    """The bundled flight as a class B transponder gives it: the first ``placed_frames``
+    frames with the true pose, a second from their report; the rest with a pose dead-reckoned
+    from a report 20-44 s before, ``off_m`` metres east and ``turn_deg`` off."""
+    flight = root / "flight"
+    shutil.copytree(FLIGHT / "images", flight / "images")
+    shutil.copytree(FLIGHT / "labels", flight / "labels")
+    (flight / "frames").mkdir()
+    start = None
+    for path in sorted((FLIGHT / "frames").glob("*.json")):
+        meta = json.loads(path.read_text())
+        meta.pop("vessel_spec", None)
+        when = datetime.fromisoformat(meta["timestamp"].replace("Z", "+00:00"))
+        start = start or when
+        if int(path.stem) < placed_frames:
+            meta["vessel"]["dead_reckoned_s"] = 1.0
+        else:
+            lon, lat, _ = GEOD.fwd(meta["vessel"]["lon"], meta["vessel"]["lat"], 90.0, off_m)
+            meta["vessel"].update(lat=lat, lon=lon, heading_deg=meta["vessel"]["heading_deg"] + turn_deg,
+                                  dead_reckoned_s=20.0 + (when - start) / timedelta(seconds=1))
+        (flight / "frames" / path.name).write_text(json.dumps(meta))
+    return flight
+
+
+def _section_errors(out: Path) -> tuple[list[float], int]:
+    errors, carried = [], 0
+    for path in sorted((out / "reports").glob("*.json")):
+        report = json.loads(path.read_text())
+        truth = json.loads((FLIGHT / "frames" / f"{path.stem}.json").read_text())
+        expected = {s["index"]: s["distance_m"] for s in truth["ground_truth"]["sections"]}
+        carried += bool(report["pose_refinement"].get("carried_from"))
+        errors += [abs(s["distance_m"] - expected[s["index"]]) for s in report["sections"]
+                   if s["status"] == "ok" and expected.get(s["index"]) is not None]
+    return errors, carried
+
+
+def test_run_measures_a_class_b_vessel_s_frames_from_the_poses_its_images_placed(tmp_path):
+    flight = _class_b_flight(tmp_path, placed_frames=4)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
+                                      "--no-overlays"])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    # frames 0-2 start the carry; from frame 3 on every frame is carried
+    assert (record["measured"], record["skipped"], record["pose_refinement"]["carried"]) == (48, 0, 45)
+    assert "carried from earlier frames' images on 45" in " ".join(result.output.split())
+    errors, carried = _section_errors(out)
+    # as good as with the true pose on every frame (exact labels: median 0.057 m)
+    exact = tmp_path / "exact"
+    result = CliRunner().invoke(app, ["run", str(FLIGHT), "--masks", str(FLIGHT / "labels"),
+                                      "--vessel", str(VESSEL), "--out", str(exact), "--no-video",
+                                      "--no-overlays"])
+    assert result.exit_code == 0, result.output
+    exact_errors, _ = _section_errors(exact)
+    assert carried == 45 and len(errors) == len(exact_errors)
+    assert np.median(errors) < np.median(exact_errors) + 0.01
+    assert np.mean(errors) < np.mean(exact_errors) + 0.01 and max(errors) < 0.3
+
+    # without the refinement nothing is placed: the frames past 12 s are refused, by name
+    out_off = tmp_path / "off"
+    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                                      "--vessel", str(VESSEL), "--out", str(out_off), "--no-video",
+                                      "--no-overlays", "--no-refine-pose"])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out_off / "run.json").read_text())
+    assert (record["measured"], record["skipped"]) == (4, 44)
+    assert all("vessel.dead_reckoned_s" in s["error"] for s in record["skipped_frames"])
+
+
+def test_the_live_aid_measures_a_class_b_vessel_from_the_poses_its_images_placed():
+    """The newest AIS report 30 s old: frames 0-3 a second dead-reckoned (measured, the
+    vessel's source stale), then 40 s and 2 m off: carried by the images, measured, the
+    vessel's source not stale while they are; without the refinement, refused by name."""
+    import cv2
+
+    from harborsight.clearance.measure import ClearanceSettings
+    from harborsight.clearance.pose_refinement import PoseRefinementSettings
+    from harborsight.live.alarms import AlarmSettings
+    from harborsight.live.engine import LiveEngine
+    from harborsight.pipeline import VesselCache
+
+    def frames():
+        for k in range(8):
+            meta_path = FLIGHT / "frames" / f"{k:06d}.json"
+            meta = _meta(k, vessel_dead_reckoned_s=1.0)
+            if k >= 4:
+                lon, lat, _ = GEOD.fwd(meta.vessel_lon_deg, meta.vessel_lat_deg, 90.0, 2.0)
+                meta = replace(meta, vessel_lat_deg=lat, vessel_lon_deg=lon,
+                               vessel_dead_reckoned_s=40.0)
+            yield k, cv2.imread(str(FLIGHT / "images" / meta.image)), meta, meta_path
+
+    for refine in (True, False):
+        engine = LiveEngine(None, VesselCache(load_vessel_spec(VESSEL)),
+                            ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=refine)),
+                            AlarmSettings(vessel_stale_s=12.0))
+        start = time.monotonic()        # the state is built at the process's own time
+        engine.source_arrived("vessel", start - 30.0)
+        states = []
+        for k, image, meta, meta_path in frames():
+            now = start + 0.5 * k
+            engine.source_arrived("video", now)
+            engine.source_arrived("drone", now)
+            states.append(engine.process(k, image, meta, meta_path, 0.5 * k, now,
+                                         mask_path=FLIGHT / "labels" / f"{k:06d}.png"))
+        kinds = [{a["kind"] for a in state["alarms"]} for state in states]
+        if refine:
+            assert engine.frames_measured == 8
+            assert all("stale_vessel" in kinds[k] for k in range(3))
+            for state, kind in zip(states[3:], kinds[3:], strict=True):
+                assert state["pose_refinement"]["carried_from"]["age_s"] == pytest.approx(0.5)
+                assert state["sources"]["vessel"]["placed_by_image"] and not state["stale"]
+                assert not kind & {"stale_vessel", "frame_error"}
+                assert state["min_distance_m"] is not None
+        else:
+            assert engine.frames_measured == 4
+            assert all("frame_error" in kinds[k] and "stale_vessel" in kinds[k] for k in range(4, 8))
+            assert any("vessel.dead_reckoned_s" in a["message"] for a in states[-1]["alarms"])
