@@ -115,10 +115,10 @@ def test_only_a_pose_the_image_placed_is_taken():
     assert placed_pose(meta, _report({**_applied(3.0, 0.0, 1.0), "sensors_contradicted": True}),
                        0.0) is None
     fitted = placed_pose(meta, _report({**kept, "reason": SENSORS_FIT}), 0.0)
-    assert (fitted.lat_deg, fitted.lon_deg) == pytest.approx((meta.vessel_lat_deg, meta.vessel_lon_deg))
+    assert fitted.lat_lon_deg == pytest.approx((meta.vessel_lat_deg, meta.vessel_lon_deg))
     moved = placed_pose(meta, _report(_applied(3.0, -4.0, 1.0)), 0.0)
-    azimuth, _, distance = GEOD.inv(meta.vessel_lon_deg, meta.vessel_lat_deg, moved.lon_deg,
-                                    moved.lat_deg)
+    lat, lon = moved.lat_lon_deg
+    azimuth, _, distance = GEOD.inv(meta.vessel_lon_deg, meta.vessel_lat_deg, lon, lat)
     assert distance == pytest.approx(5.0, abs=1e-3)
     assert azimuth % 360 == pytest.approx(math.degrees(math.atan2(3.0, -4.0)) % 360, abs=0.01)
     assert moved.heading_deg == pytest.approx((meta.vessel_heading_deg + 1.0) % 360)

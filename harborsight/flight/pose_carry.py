@@ -60,13 +60,22 @@ MIN_SPAN_S = 1.0
 
 @dataclass(frozen=True)
 class PlacedPose:
-    """A vessel pose a frame's image placed: time (s, the run's clock), position, heading."""
+    """A vessel pose a frame's image placed: time (s, the run's clock), the frame's vessel
+    fix and the image's shift of it (east, north on the fix's local plane; turned into a
+    position only when a carry needs it), and the heading."""
 
     time_s: float
-    lat_deg: float
-    lon_deg: float
+    fix_lat_deg: float
+    fix_lon_deg: float
+    shift_en_m: tuple[float, float]
     heading_deg: float
     image: str
+
+    @property
+    def lat_lon_deg(self) -> tuple[float, float]:
+        lat, lon, _ = pymap3d.enu2geodetic(*self.shift_en_m, 0.0, self.fix_lat_deg,
+                                           self.fix_lon_deg, 0.0)
+        return float(lat), float(lon)
 
 
 @dataclass(frozen=True)
@@ -102,9 +111,7 @@ def placed_pose(meta: FrameMetadata, report: ClearanceReport, time_s: float) -> 
         east, north, turn = 0.0, 0.0, 0.0
     else:
         return None
-    lat, lon, _ = pymap3d.enu2geodetic(east, north, 0.0, meta.vessel_lat_deg,
-                                       meta.vessel_lon_deg, 0.0)
-    return PlacedPose(time_s, float(lat), float(lon),
+    return PlacedPose(time_s, meta.vessel_lat_deg, meta.vessel_lon_deg, (float(east), float(north)),
                       (meta.vessel_heading_deg + turn) % 360.0, meta.image)
 
 
@@ -142,15 +149,18 @@ class VesselPoseCarry:
         if not 0.0 < age <= CARRY_REACH_S or span < MIN_SPAN_S:
             return None
         t = np.array([p.time_s for p in self._placed]) - newest.time_s
-        east, north, _ = pymap3d.geodetic2enu(
-            np.array([p.lat_deg for p in self._placed]), np.array([p.lon_deg for p in self._placed]),
-            0.0, newest.lat_deg, newest.lon_deg, 0.0)
+        shifts = np.array([p.shift_en_m for p in self._placed])
+        lat, lon, _ = pymap3d.enu2geodetic(
+            shifts[:, 0], shifts[:, 1], 0.0, np.array([p.fix_lat_deg for p in self._placed]),
+            np.array([p.fix_lon_deg for p in self._placed]), 0.0)
+        origin = (float(lat[-1]), float(lon[-1]))
+        east, north, _ = pymap3d.geodetic2enu(lat, lon, 0.0, *origin, 0.0)
         heading = np.rad2deg(np.unwrap(np.deg2rad([p.heading_deg for p in self._placed])))
         # least-squares lines in time, read at ``age`` past the newest
         design = np.stack((np.ones_like(t), t), axis=1)
         coef, *_ = np.linalg.lstsq(design, np.stack((east, north, heading), axis=1), rcond=None)
         e, n, h = coef[0] + coef[1] * age
-        lat, lon, _ = pymap3d.enu2geodetic(e, n, 0.0, newest.lat_deg, newest.lon_deg, 0.0)
+        lat, lon, _ = pymap3d.enu2geodetic(e, n, 0.0, *origin, 0.0)
         drift_m, drift_deg = dead_reckoning_drift(age)
         return CarriedPose(float(lat), float(lon), float(h) % 360.0, math.hypot(FLOOR_M, drift_m),
                            math.hypot(FLOOR_DEG, drift_deg), float(age), newest.image)
