@@ -273,3 +273,15 @@ def test_the_live_aid_measures_a_class_b_vessel_from_the_poses_its_images_placed
             assert engine.frames_measured == 4
             assert all("frame_error" in kinds[k] and "stale_vessel" in kinds[k] for k in range(4, 8))
             assert any("vessel.dead_reckoned_s" in a["message"] for a in states[-1]["alarms"])
+
+
+def test_the_overlay_says_a_pose_was_carried():
+    from harborsight.viz.overlay import _pose_note
+
+    carried = {"image": "000003.jpg", "age_s": 0.5, "sigma_m": 0.5, "heading_sigma_deg": 1.0}
+    applied = {**_applied(0.3, 0.4, 1.0), "height_change_m": 0.0}
+    assert _pose_note(applied) == "  pose +0.5 m +1.0 deg"
+    assert _pose_note({**applied, "carried_from": carried}) == "  pose +0.5 m +1.0 deg (carried)"
+    fitted = {"applied": False, "reason": SENSORS_FIT, "sensors_contradicted": False}
+    assert _pose_note({**fitted, "carried_from": carried}) == "  pose: carried"
+    assert _pose_note(fitted) == "  pose: sensors"

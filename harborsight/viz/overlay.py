@@ -199,17 +199,20 @@ def draw_overlay(
 def _pose_note(refinement: dict | None) -> str:
     """``pose +1.3 m 0.8 deg`` (and ``h -0.9 m`` when the height moved by 5 cm or more)
     when the pose was refined, ``pose: sensors`` when the alignment was not trusted,
-    nothing when it was off."""
+    nothing when it was off; a pose carried from earlier frames' images
+    (:mod:`harborsight.flight.pose_carry`) says ``carried`` in place of the sensors."""
     if not refinement or refinement.get("reason") == "off":
         return ""
     if refinement.get("sensors_contradicted"):
         return "  POSE CONTRADICTED: distances untrusted"
+    carried = bool(refinement.get("carried_from"))
     if refinement.get("applied"):
         shift = float(np.hypot(*refinement["shift_m"]))
         note = f"  pose {shift:+.1f} m {refinement['rotation_deg']:+.1f} deg"
         height_m = float(refinement.get("height_change_m") or 0.0)
-        return note + (f" h {height_m:+.1f} m" if abs(height_m) >= 0.05 else "")
-    return "  pose: sensors"
+        return (note + (f" h {height_m:+.1f} m" if abs(height_m) >= 0.05 else "")
+                + (" (carried)" if carried else ""))
+    return "  pose: carried" if carried else "  pose: sensors"
 
 
 def _label_anchor(section, end: np.ndarray, w: int, h: int) -> np.ndarray | None:
