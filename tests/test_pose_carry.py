@@ -101,9 +101,15 @@ def test_too_few_or_too_close_placed_poses_carry_nothing():
     assert _carry_with([0.0, 0.5, 1.0]).carried(1.5) is not None
     # placed poses older than the fit's window are dropped: the newest three span 1 s
     carry = _carry_with([0.0, 0.5, 1.0, 10.0, 10.5, 11.0])
-    assert carry.carried(11.5).age_s == pytest.approx(0.5)
+    assert carry.carried(11.5).age_s == pytest.approx(0.5) and len(carry._placed) == 3
     carry.forget()
     assert carry.carried(11.5) is None
+    # stills every 2 s: the newest three, over 4 s, carry the vessel to the next
+    stills = _carry_with([0.0, 2.0, 4.0, 6.0])
+    carried = stills.carried(8.0)
+    lat, lon, _ = _moving_vessel(8.0)
+    assert len(stills._placed) == 3 and GEOD.inv(carried.lon_deg, carried.lat_deg, lon, lat)[2] < 0.02
+    assert _carry_with([0.0, 5.0, 10.0]).carried(12.0) is None    # over 8 s: too old a speed
 
 
 def test_only_a_pose_the_image_placed_is_taken():

@@ -9,7 +9,8 @@ a tenth of a metre: the frames that follow can start from there.
 
 **Model.** The poses the image placed (the refinement applied, or found the frame's pose
 fitting as well after every test of the fit, ``SENSORS_FIT``) in the last
-:data:`VELOCITY_WINDOW_S` are fitted with a straight line in time, east, north and heading
+:data:`VELOCITY_WINDOW_S` (or the newest :data:`MIN_PLACED`, up to :data:`MAX_FIT_SPAN_S`
+old: stills every 2 s) are fitted with a straight line in time, east, north and heading
 (unwrapped), on the local plane of the newest; the carried pose at ``t`` is that
 line at ``t``, and its one-sigma error (DRMS, and heading)
 
@@ -52,8 +53,11 @@ FLOOR_M = 0.5
 FLOOR_DEG = 1.0
 #: how far (s) the placed poses are carried past the newest
 CARRY_REACH_S = 5.0
-#: the placed poses the motion is fitted on: those of the last this many seconds
+#: the placed poses the motion is fitted on: those of the last this many seconds, or the
+#: newest :data:`MIN_PLACED` where they span longer, up to :data:`MAX_FIT_SPAN_S` (stills
+#: taken every 2 s)
 VELOCITY_WINDOW_S = 3.0
+MAX_FIT_SPAN_S = 8.0
 MIN_PLACED = 3
 MIN_SPAN_S = 1.0
 
@@ -135,7 +139,10 @@ class VesselPoseCarry:
         if pose is None:
             return
         self._placed.append(pose)
-        while self._placed and self._placed[0].time_s < time_s - VELOCITY_WINDOW_S:
+        while self._placed and (
+                self._placed[0].time_s < time_s - MAX_FIT_SPAN_S
+                or (len(self._placed) > MIN_PLACED
+                    and self._placed[0].time_s < time_s - VELOCITY_WINDOW_S)):
             self._placed.popleft()
 
     def carried(self, time_s: float | None) -> CarriedPose | None:
