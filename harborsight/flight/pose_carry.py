@@ -11,27 +11,41 @@ a tenth of a metre: the frames that follow can start from there.
 fitting as well after every test of the fit, ``SENSORS_FIT``) in the last
 :data:`VELOCITY_WINDOW_S` (or the newest :data:`MIN_PLACED`, up to :data:`MAX_FIT_SPAN_S`
 old: stills every 2 s) are fitted with a straight line in time, east, north and heading
-(unwrapped), on the local plane of the newest; the carried pose at ``t`` is that
-line at ``t``, and its one-sigma error (DRMS, and heading)
+(unwrapped), on the local plane of the newest; the carried pose at ``τ`` past the newest is
+that line there. Its one-sigma error (DRMS, and heading) adds in quadrature
 
-    σ_p = sqrt(FLOOR_M² + drift_p(τ)²),   σ_ψ = sqrt(FLOOR_DEG² + drift_ψ(τ)²)
+* a floor, :data:`FLOOR_M` and :data:`FLOOR_DEG`: what a placed pose is not (the drone's
+  GPS and compass drift between frames, whose error the alignment absorbed at that frame
+  and not at this one; a mask's edge);
+* the line's own error at ``τ``: ``σ₀ sqrt(1/n + (τ - t̄)² / Σ(t - t̄)²)`` for ``n`` poses at
+  times ``t`` (mean ``t̄``), ``σ₀`` the fit's residual per pose, at least
+  :data:`PLACED_NOISE_M` (:data:`PLACED_NOISE_DEG`): few poses over a short span carry far
+  worse than many;
+* its lag under a steady acceleration ``a`` (:data:`~harborsight.geometry.sensor_sigmas.
+  DEAD_RECKONING_ACCEL_MPS2`): a line fitted over a span ``W`` and read ``τ`` past its end
+  misses ``p = a t²/2`` by ``a (τ² + W τ + W²/6) / 2`` (the least-squares line of ``t²`` on
+  a uniform span); and the turn of the heading, :data:`~harborsight.geometry.
+  sensor_sigmas.DEAD_RECKONING_TURN_DEG_S` ``· τ``.
 
-with ``τ`` the time since the newest placed pose and ``drift`` the dead-reckoning drift
-(:func:`~harborsight.geometry.sensor_sigmas.dead_reckoning_drift`: a speed known to
-0.1 m/s, a change of speed of 0.05 m/s², a turn of 0.5°/s). The floors stand for what the
-placed pose is not: the drone's own GPS and compass drift between frames (the refinement
-absorbed their error at that frame, not at this one) and a mask's edge. It takes at least
-:data:`MIN_PLACED` placed poses spanning :data:`MIN_SPAN_S`, so that the speed is measured,
-and reaches :data:`CARRY_REACH_S` past the newest.
+It takes at least :data:`MIN_PLACED` placed poses spanning :data:`MIN_SPAN_S`, so that the
+speed is measured, reaches :data:`CARRY_REACH_S` past the newest, and carries nothing whose
+sigma is over :data:`MAX_CARRIED_SIGMA_M` (the refinement could not reach its error).
 
 **Use.** Only a frame whose own vessel pose was dead-reckoned (``vessel.dead_reckoned_s``)
 is carried, and only when the carried sigma is below the frame's own (its receiver's and
-its dead reckoning's, in quadrature): a frame with a live fix keeps it. The carried frame
-is measured like any other: refined from the carried pose, its bars from the alignment
-(or, where the alignment does not place it, from the carried sigmas). What the image of a
-frame placed then carries the next; a frame whose image does not place the vessel carries
-nothing, and after :data:`CARRY_REACH_S` without one the frames are the reports' again.
-The report says where the pose came from (``pose_refinement.carried_from``).
+its dead reckoning's, in quadrature): a frame with a live fix keeps it. A frame whose own
+pose can still be measured with (dead-reckoned at most 12 s) but lies more than
+:data:`GATE_SIGMAS` combined sigmas (the vessel's and the drone's receivers and the carry;
+heading: the vessel's and the camera's compasses and the carry) from the carried pose keeps
+its own, and the carry starts again from what the images place next: the images may have
+been following a sister hull the first report put them on. The carried frame is measured
+like any other: refined from the carried pose, its bars from the alignment (or, where the
+alignment does not place it, from the carried sigmas). What the image of a frame placed
+then carries the next; a frame whose image does not place the vessel carries nothing, and
+after :data:`CARRY_REACH_S` without one the frames are the reports' again (past 12 s from a
+report: not measured, until the next report). A clock that jumps back by more than
+:data:`CARRY_REACH_S`, or another vessel, starts the carry again. The report says where
+the pose came from (``pose_refinement.carried_from``).
 """
 
 from __future__ import annotations
@@ -46,11 +60,25 @@ import pymap3d
 from harborsight.clearance.pose_refinement import SENSORS_FIT
 from harborsight.clearance.report import ClearanceReport
 from harborsight.frame import FrameMetadata
-from harborsight.geometry.sensor_sigmas import SensorSigmas, dead_reckoning_drift
+from harborsight.geometry.sensor_sigmas import (
+    DEAD_RECKONING_ACCEL_MPS2,
+    DEAD_RECKONING_TURN_DEG_S,
+    MAX_DEAD_RECKONED_S,
+    SensorSigmas,
+)
 
 #: one sigma of a placed pose carried to the next frame, before any motion (DRMS, m; deg)
 FLOOR_M = 0.5
 FLOOR_DEG = 1.0
+#: the least scatter of placed poses about their line that the fit's error is reckoned with
+#: (per pose; m, deg): the bench's refined poses are within a tenth of a metre
+PLACED_NOISE_M = 0.15
+PLACED_NOISE_DEG = 0.3
+#: a carried pose less sure than this (m, DRMS) is not used: the refinement searches 2.5
+#: sigma of its 3 m prior
+MAX_CARRIED_SIGMA_M = 3.0
+#: how many combined sigmas a frame's own measurable pose may lie from the carried one
+GATE_SIGMAS = 3.0
 #: how far (s) the placed poses are carried past the newest
 CARRY_REACH_S = 5.0
 #: the placed poses the motion is fitted on: those of the last this many seconds, or the
@@ -100,23 +128,46 @@ class CarriedPose:
                 "heading_sigma_deg": round(self.heading_sigma_deg, 3)}
 
 
+def placed_by_image(refinement: dict | None) -> bool:
+    """Whether a report's pose refinement placed the vessel: applied, or found the frame's
+    pose fitting as well (``SENSORS_FIT``: reached only by a fit that passed every test), and
+    not contradicting it."""
+    return bool(refinement and not refinement.get("sensors_contradicted")
+                and (refinement.get("applied") or refinement.get("reason") == SENSORS_FIT))
+
+
 def placed_pose(meta: FrameMetadata, report: ClearanceReport, time_s: float) -> PlacedPose | None:
     """The vessel pose ``report``'s image placed, in ``meta``'s terms: the frame's pose moved
     by the refinement's shift (east, north on the plane of the frame's vessel antenna) and
-    turned by its rotation, or the frame's own where the alignment found it fitting as well
-    (``SENSORS_FIT``: reached only by a fit that passed every test); None when the image did
-    not place it, or contradicted the frame's pose."""
+    turned by its rotation (or the frame's own, when it fitted as well); None when the image
+    did not place it (:func:`placed_by_image`)."""
     refinement = report.pose_refinement
-    if not refinement or report.sensors_contradicted:
+    if not placed_by_image(refinement):
         return None
     if refinement.get("applied"):
         (east, north), turn = refinement["shift_m"], refinement["rotation_deg"]
-    elif refinement.get("reason") == SENSORS_FIT:
-        east, north, turn = 0.0, 0.0, 0.0
     else:
-        return None
+        east, north, turn = 0.0, 0.0, 0.0
     return PlacedPose(time_s, meta.vessel_lat_deg, meta.vessel_lon_deg, (float(east), float(north)),
                       (meta.vessel_heading_deg + turn) % 360.0, meta.image)
+
+
+def _line_at(t: np.ndarray, values: np.ndarray, at: float, noise_floor: float
+             ) -> tuple[np.ndarray, float]:
+    """Least-squares lines of ``values`` (n, k) in ``t``, read at ``at``, and one sigma of that
+    reading per column's scatter (module docstring: ``σ₀ sqrt(1/n + (at - t̄)² / Sₜₜ)``, ``σ₀``
+    the residual RMS over ``n - 2`` degrees of freedom, pooled over the columns, at least
+    ``noise_floor``)."""
+    n = len(t)
+    mean_t = float(t.mean())
+    s_tt = float(((t - mean_t) ** 2).sum())
+    slope = ((t - mean_t) @ (values - values.mean(axis=0))) / s_tt
+    intercept = values.mean(axis=0) - slope * mean_t
+    residual = values - (intercept + slope * t[:, None])
+    scatter = (math.sqrt(float((residual ** 2).sum()) / (values.shape[1] * (n - 2)))
+               if n > 2 else 0.0)
+    sigma0 = max(scatter, noise_floor)
+    return intercept + slope * at, sigma0 * math.sqrt(1.0 / n + (at - mean_t) ** 2 / s_tt)
 
 
 class VesselPoseCarry:
@@ -125,6 +176,7 @@ class VesselPoseCarry:
 
     def __init__(self) -> None:
         self._placed: deque[PlacedPose] = deque()
+        self._vessel: str | None = None
 
     def forget(self) -> None:
         self._placed.clear()
@@ -133,6 +185,11 @@ class VesselPoseCarry:
         """Remember the pose ``report``'s image placed, if it did."""
         if time_s is None or not math.isfinite(time_s):
             return
+        if report.vessel != self._vessel:
+            self.forget()
+            self._vessel = report.vessel
+        if self._placed and time_s < self._placed[-1].time_s - CARRY_REACH_S:
+            self.forget()   # the clock went back: the placed poses are of another time line
         if self._placed and time_s <= self._placed[-1].time_s:
             return          # out of order or repeated: a line through it would be wrong
         pose = placed_pose(meta, report, time_s)
@@ -147,13 +204,13 @@ class VesselPoseCarry:
 
     def carried(self, time_s: float | None) -> CarriedPose | None:
         """The pose carried to ``time_s``, or None: too few placed poses, their span too
-        short, or ``time_s`` before the newest or beyond its reach."""
-        if time_s is None or len(self._placed) < MIN_PLACED:
+        short, ``time_s`` before the newest or beyond its reach, or its sigma too wide."""
+        if time_s is None or not math.isfinite(time_s) or len(self._placed) < MIN_PLACED:
             return None
         newest = self._placed[-1]
         age = time_s - newest.time_s
         span = newest.time_s - self._placed[0].time_s
-        if not 0.0 < age <= CARRY_REACH_S or span < MIN_SPAN_S:
+        if not 0.0 <= age <= CARRY_REACH_S or span < MIN_SPAN_S:
             return None
         t = np.array([p.time_s for p in self._placed]) - newest.time_s
         shifts = np.array([p.shift_en_m for p in self._placed])
@@ -163,29 +220,61 @@ class VesselPoseCarry:
         origin = (float(lat[-1]), float(lon[-1]))
         east, north, _ = pymap3d.geodetic2enu(lat, lon, 0.0, *origin, 0.0)
         heading = np.rad2deg(np.unwrap(np.deg2rad([p.heading_deg for p in self._placed])))
-        # least-squares lines in time, read at ``age`` past the newest
-        design = np.stack((np.ones_like(t), t), axis=1)
-        coef, *_ = np.linalg.lstsq(design, np.stack((east, north, heading), axis=1), rcond=None)
-        e, n, h = coef[0] + coef[1] * age
+        (e, n), fit_m = _line_at(t, np.stack((east, north), axis=1), age, PLACED_NOISE_M)
+        (h,), fit_deg = _line_at(t, heading[:, None], age, PLACED_NOISE_DEG)
+        lag_m = 0.5 * DEAD_RECKONING_ACCEL_MPS2 * (age ** 2 + span * age + span ** 2 / 6.0)
+        # fit_m is per axis: the DRMS of the two
+        sigma_m = math.sqrt(FLOOR_M ** 2 + 2.0 * fit_m ** 2 + lag_m ** 2)
+        if sigma_m > MAX_CARRIED_SIGMA_M:
+            return None
+        sigma_deg = math.sqrt(FLOOR_DEG ** 2 + fit_deg ** 2 + (DEAD_RECKONING_TURN_DEG_S * age) ** 2)
         lat, lon, _ = pymap3d.enu2geodetic(e, n, 0.0, *origin, 0.0)
-        drift_m, drift_deg = dead_reckoning_drift(age)
-        return CarriedPose(float(lat), float(lon), float(h) % 360.0, math.hypot(FLOOR_M, drift_m),
-                           math.hypot(FLOOR_DEG, drift_deg), float(age), newest.image)
+        return CarriedPose(float(lat), float(lon), float(h) % 360.0, sigma_m, sigma_deg,
+                           float(age), newest.image)
 
-    def prior_for(self, meta: FrameMetadata, time_s: float | None, own: SensorSigmas
-                  ) -> tuple[FrameMetadata, CarriedPose | None]:
+    def prior_for(self, meta: FrameMetadata, time_s: float | None, own: SensorSigmas,
+                  vessel: str) -> tuple[FrameMetadata, CarriedPose | None, str | None]:
         """``meta`` with the carried pose, when its own vessel pose was dead-reckoned and the
-        carried one is better than ``own`` (the frame's sigmas as it came); else ``meta``."""
+        carried one is better than ``own`` (the frame's sigmas as it came); else ``meta``.
+        The third item is a warning when the frame's own measurable pose disagreed with the
+        carried one, which was then dropped (module docstring)."""
+        if vessel != self._vessel:
+            self.forget()
+            self._vessel = vessel
         if not meta.vessel_dead_reckoned_s:
-            return meta, None
+            return meta, None, None
         carried = self.carried(time_s)
         if carried is None or carried.sigma_m >= own.vessel_gps:
-            return meta, None
+            return meta, None, None
+        if meta.vessel_dead_reckoned_s <= MAX_DEAD_RECKONED_S:
+            disagreement = _disagreement(meta, carried, own)
+            if disagreement is not None:
+                self.forget()
+                return meta, None, disagreement
         sigmas = dict(meta.sensor_sigmas, vessel_gps=carried.sigma_m / math.sqrt(2.0),
                       vessel_heading_deg=carried.heading_sigma_deg)
         return replace(meta, vessel_lat_deg=carried.lat_deg, vessel_lon_deg=carried.lon_deg,
                        vessel_heading_deg=carried.heading_deg, vessel_dead_reckoned_s=None,
-                       sensor_sigmas=sigmas), carried
+                       sensor_sigmas=sigmas), carried, None
+
+
+def _disagreement(meta: FrameMetadata, carried: CarriedPose, own: SensorSigmas) -> str | None:
+    """Why the frame's own vessel pose and the carried one cannot both be right: more than
+    :data:`GATE_SIGMAS` combined sigmas apart in position (the vessel's and the drone's
+    receivers, DRMS, and the carry's) or heading (the vessel's and the camera's compasses
+    and the carry's); None when they agree."""
+    east, north, _ = pymap3d.geodetic2enu(carried.lat_deg, carried.lon_deg, 0.0,
+                                          meta.vessel_lat_deg, meta.vessel_lon_deg, 0.0)
+    apart_m = math.hypot(float(east), float(north))
+    limit_m = GATE_SIGMAS * math.hypot(own.vessel_gps, own.uav_gps, carried.sigma_m)
+    turn_deg = abs((carried.heading_deg - meta.vessel_heading_deg + 180.0) % 360.0 - 180.0)
+    limit_deg = GATE_SIGMAS * math.hypot(own.vessel_heading_deg, own.camera_yaw_deg,
+                                         carried.heading_sigma_deg)
+    if apart_m <= limit_m and turn_deg <= limit_deg:
+        return None
+    return (f"the vessel's report lies {apart_m:.1f} m and {turn_deg:.1f} deg from the pose the "
+            f"images carried (more than {limit_m:.1f} m or {limit_deg:.1f} deg): the report is "
+            "taken, and the carry starts again from what the images place next")
 
 
 def note_carried(report: ClearanceReport, carried: CarriedPose | None) -> None:

@@ -320,9 +320,12 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
                 warnings.append(f"{frame.source}: {clock.drift_warning}")
                 clock.drift_warning = None
         mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data)
-        meta, carried = carry.prior_for(frame.meta, time_s, options.settings.sensor_sigmas(frame.meta))
-        report = measure_mask(mask, meta, vessels.for_frame(meta, frame.meta_path),
-                              options.settings)
+        vessel = vessels.for_frame(frame.meta, frame.meta_path)
+        meta, carried, disagreement = carry.prior_for(
+            frame.meta, time_s, options.settings.sensor_sigmas(frame.meta), vessel.name)
+        if disagreement is not None:
+            warnings.append(f"{frame.source}: {disagreement}")
+        report = measure_mask(mask, meta, vessel, options.settings)
         note_carried(report, carried)
         carry.took(meta, report, time_s)
     except HarborsightError as exc:

@@ -52,7 +52,7 @@ from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
-from harborsight.flight.pose_carry import VesselPoseCarry, note_carried
+from harborsight.flight.pose_carry import VesselPoseCarry, note_carried, placed_by_image
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
@@ -131,8 +131,12 @@ class LiveEngine:
         try:
             mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path,
                                 no_data)
-            meta, carried = self._carry.prior_for(meta, time_s, self.clearance.sensor_sigmas(meta))
-            report = measure_mask(mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance)
+            vessel = self.vessels.for_frame(meta, meta_path)
+            meta, carried, disagreement = self._carry.prior_for(
+                meta, time_s, self.clearance.sensor_sigmas(meta), vessel.name)
+            if disagreement is not None:
+                self.warn("vessel", disagreement)
+            report = measure_mask(mask, meta, vessel, self.clearance)
             note_carried(report, carried)
             self._carry.took(meta, report, time_s)
         except HarborsightError as exc:
@@ -265,10 +269,12 @@ class LiveEngine:
         self._sections = sections
 
     def _vessel_placed_by_image(self, now_s: float) -> bool:
-        """Whether the newest measured frame's vessel pose was carried by the images, and
-        the measurements are current: the vessel's own reports may then be old."""
+        """Whether the newest measured frame's vessel pose was carried by the images and its
+        own image placed it again, and the measurements are current: the vessel's own
+        reports may then be old."""
         report = self._report
         return bool(report is not None and (report.pose_refinement or {}).get("carried_from")
+                    and placed_by_image(report.pose_refinement)
                     and not self.health["measurement"].stale(now_s))
 
     def _build(self, now_s: float) -> dict:
