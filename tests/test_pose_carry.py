@@ -79,7 +79,7 @@ def _carry_with(times_s) -> VesselPoseCarry:
 
 def test_the_placed_poses_carry_a_moving_turning_vessel_to_a_later_frame():
     carry = _carry_with([0.0, 0.5, 1.0, 1.5, 2.0])
-    for age in (0.0, 0.5, 2.0, CARRY_REACH_S):
+    for age in (0.0, 0.5, 2.0, 5.0):
         carried = carry.carried(2.0 + age)
         lat, lon, heading = _moving_vessel(2.0 + age)
         off_m = GEOD.inv(carried.lon_deg, carried.lat_deg, lon, lat)[2]
@@ -96,6 +96,7 @@ def test_the_placed_poses_carry_a_moving_turning_vessel_to_a_later_frame():
             FLOOR_DEG ** 2 + 0.3 ** 2 * share + (0.5 * age) ** 2))
         assert (carried.age_s, carried.image) == (pytest.approx(age), _meta().image)
     assert carry.carried(2.0 + CARRY_REACH_S + 0.01) is None       # beyond its reach
+    assert carry.carried(2.0 + 9.5) is None                         # its sigma past 3 m
     assert carry.carried(1.0) is None                               # not back in time
     assert carry.carried(None) is None and carry.carried(math.nan) is None
 
@@ -228,13 +229,22 @@ def test_a_pose_dead_reckoned_past_twelve_seconds_is_not_measured_with():
     assert "carried 95 s from its last position report, beyond the 12 s" in str(caught.value)
 
 
-def _class_b_flight(root: Path, placed_frames: int, off_m: float = 2.0, turn_deg: float = 2.0) -> Path:
+def _class_b_flight(root: Path, placed_frames: int, off_m: float = 2.0, turn_deg: float = 2.0,
+                    hidden: range = range(0)) -> Path:
     """The bundled flight as a class B transponder gives it: the first ``placed_frames``
     frames with the true pose, a second from their report; the rest with a pose dead-reckoned
-    from a report 20-44 s before, ``off_m`` metres east and ``turn_deg`` off."""
+    from a report 20-44 s before, ``off_m`` metres east and ``turn_deg`` off. The frames
+    ``hidden`` show no ship at all (their ship pixels made water: under a bridge)."""
+    import cv2
+
     flight = root / "flight"
     shutil.copytree(FLIGHT / "images", flight / "images")
     shutil.copytree(FLIGHT / "labels", flight / "labels")
+    for k in hidden:
+        path = flight / "labels" / f"{k:06d}.png"
+        labels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        labels[labels == 1] = 0
+        cv2.imwrite(str(path), labels)
     (flight / "frames").mkdir()
     start = None
     for path in sorted((FLIGHT / "frames").glob("*.json")):
@@ -286,6 +296,22 @@ def test_run_measures_a_class_b_vessel_s_frames_from_the_poses_its_images_placed
     assert carried == 45 and len(errors) == len(exact_errors)
     assert np.median(errors) < np.median(exact_errors) + 0.01
     assert np.mean(errors) < np.mean(exact_errors) + 0.01 and max(errors) < 0.3
+
+    # the vessel hidden for 5 s (frames 20-29: flagged, its pose contradicted), then found
+    # again by the carry (its sigma 1.4 m after 5.5 s) and carried on to the end
+    hidden = _class_b_flight(tmp_path / "hidden", placed_frames=4, hidden=range(20, 30))
+    out_hidden = tmp_path / "out-hidden"
+    result = CliRunner().invoke(app, ["run", str(hidden), "--masks", str(hidden / "labels"),
+                                      "--vessel", str(VESSEL), "--out", str(out_hidden),
+                                      "--no-video", "--no-overlays"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((out_hidden / "run.json").read_text())["measured"] == 48
+    found_again = tmp_path / "found-again"
+    (found_again / "reports").mkdir(parents=True)
+    for k in range(30, 48):
+        shutil.copy(out_hidden / "reports" / f"{k:06d}.json", found_again / "reports")
+    errors, carried = _section_errors(found_again)
+    assert carried == 18 and np.mean(errors) < 0.1
 
     # without the refinement nothing is placed: the frames past 12 s are refused, by name
     out_off = tmp_path / "off"

@@ -28,8 +28,9 @@ that line there. Its one-sigma error (DRMS, and heading) adds in quadrature
   sensor_sigmas.DEAD_RECKONING_TURN_DEG_S` ``· τ``.
 
 It takes at least :data:`MIN_PLACED` placed poses spanning :data:`MIN_SPAN_S`, so that the
-speed is measured, reaches :data:`CARRY_REACH_S` past the newest, and carries nothing whose
-sigma is over :data:`MAX_CARRIED_SIGMA_M` (the refinement could not reach its error).
+speed is measured, reaches at most :data:`CARRY_REACH_S` past the newest, and carries
+nothing whose sigma is over :data:`MAX_CARRIED_SIGMA_M` (the refinement could not reach its
+error): a vessel hidden for a few seconds is found again.
 
 **Use.** Only a frame whose own vessel pose was dead-reckoned (``vessel.dead_reckoned_s``)
 is carried, and only when the carried sigma is below the frame's own (its receiver's and
@@ -42,8 +43,8 @@ been following a sister hull the first report put them on. The carried frame is 
 like any other: refined from the carried pose, its bars from the alignment (or, where the
 alignment does not place it, from the carried sigmas). What the image of a frame placed
 then carries the next; a frame whose image does not place the vessel carries nothing, and
-after :data:`CARRY_REACH_S` without one the frames are the reports' again (past 12 s from a
-report: not measured, until the next report). A clock that jumps back by more than
+once the carried sigma is past :data:`MAX_CARRIED_SIGMA_M` the frames are the reports' again
+(past 12 s from a report: not measured, until the next report). A clock that jumps back by more than
 :data:`CARRY_REACH_S`, or another vessel, starts the carry again. The report says where
 the pose came from (``pose_refinement.carried_from``).
 """
@@ -79,8 +80,10 @@ PLACED_NOISE_DEG = 0.3
 MAX_CARRIED_SIGMA_M = 3.0
 #: how many combined sigmas a frame's own measurable pose may lie from the carried one
 GATE_SIGMAS = 3.0
-#: how far (s) the placed poses are carried past the newest
-CARRY_REACH_S = 5.0
+#: how far (s) the placed poses are carried past the newest, at most (their sigma, capped
+#: at :data:`MAX_CARRIED_SIGMA_M`, ends most carries sooner: 8-9 s at 2 fps): a vessel
+#: hidden a few seconds under a crane or a bridge is found again
+CARRY_REACH_S = 10.0
 #: the placed poses the motion is fitted on: those of the last this many seconds, or the
 #: newest :data:`MIN_PLACED` where they span longer, up to :data:`MAX_FIT_SPAN_S` (stills
 #: taken every 2 s)
