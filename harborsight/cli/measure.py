@@ -28,6 +28,7 @@ from harborsight.cli.app import (
     print_pose_refinement_summary,
     vessel_cache,
 )
+from harborsight.cli.listing import grouped_lines
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_folder
 from harborsight.progress import progress_report
@@ -127,8 +128,9 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     print_pose_refinement_summary([o.report.pose_refinement for o in good])
     if bad:
         err_console.print(f"[red]{len(bad)} frame(s) skipped:[/]")
-        for outcome in bad:
-            err_console.print(f"  {outcome.job.stem}: {outcome.error}", markup=False)
+        for line in grouped_lines((None, f"{outcome.job.stem}: {outcome.error}", None)
+                                  for outcome in bad):
+            err_console.print(line, markup=False)
     return 1 if bad and (strict or not good) else 0
 
 

@@ -30,6 +30,7 @@ from harborsight.cli.app import (
     print_pose_refinement_summary,
     vessel_cache,
 )
+from harborsight.cli.listing import grouped_lines
 from harborsight.cli.measure import input_folders
 from harborsight.cli.progress import progress_report
 from harborsight.cli.usage import use_plain_usage_names
@@ -215,13 +216,15 @@ def run_command(
     for name, path in summary.outputs.items():
         console.print(f"  {name}: {path}", markup=False, highlight=False)
     if summary.skipped:
-        err_console.print(f"[red]{len(summary.skipped)} frame(s) skipped[/] (also in "
+        err_console.print(f"[red]{len(summary.skipped)} frame(s) skipped[/] (every one in "
                           f"{out / 'run.json'}):")
-        for item in summary.skipped:
-            err_console.print(f"  {item['error']}", markup=False, highlight=False)
+        for line in grouped_lines((item["frame"], item["error"], item["source"])
+                                  for item in summary.skipped):
+            err_console.print(line, markup=False, highlight=False)
     if summary.warnings:
-        err_console.print(f"[yellow]{len(summary.warnings)} warning(s)[/] (frames measured; also "
-                          f"in {out / 'run.json'}):")
-        for item in summary.warnings:
-            err_console.print(f"  {item['warning']}", markup=False, highlight=False)
+        err_console.print(f"[yellow]{len(summary.warnings)} warning(s)[/] (frames measured; every "
+                          f"one in {out / 'run.json'}):")
+        for line in grouped_lines((item["frame"], item["warning"], item["source"])
+                                  for item in summary.warnings):
+            err_console.print(line, markup=False, highlight=False)
     raise typer.Exit(1 if summary.skipped and not summary.measured else 0)
