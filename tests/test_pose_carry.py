@@ -452,3 +452,42 @@ def test_a_carry_that_began_on_a_sister_hull_gives_way_to_the_reports(tmp_path):
         shutil.copy(out / "reports" / f"{k:06d}.json", later / "reports")
     errors, _ = _section_errors(later)
     assert np.mean(errors) < 0.1 and max(errors) < 0.5
+
+
+def test_a_class_b_ais_log_through_telemetry_video_and_run(tmp_path):
+    """A user's path: the bundled flight's vessel as a class B transponder gives it (one
+    type 18 report at the start, with speed and course: the next comes 30 s later), through
+    `telemetry video` (every frame written, those past 12 s said) and `run` with the default
+    model: every frame measured, the frames past 12 s carried by the images."""
+    from pyais.encode import encode_dict
+
+    from harborsight.telemetry.vessel_track import read_vessel_track
+    from tests.helpers import ais_tag_block
+
+    logs = FLIGHT / "logs"
+    nmea = read_vessel_track(logs / "ship.nmea")
+    azimuth, _, step_m = GEOD.inv(nmea.lon_deg[0], nmea.lat_deg[0], nmea.lon_deg[1], nmea.lat_deg[1])
+    when = nmea.utc_start.timestamp()
+    report = {"type": 18, "mmsi": 235000001, "lat": nmea.lat_deg[0], "lon": nmea.lon_deg[0],
+              "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
+              "speed": round(step_m / (nmea.t_s[1] - nmea.t_s[0]) * 3600 / 1852, 1),
+              "course": round(azimuth % 360, 1)}
+    ais = tmp_path / "ship.ais"
+    ais.write_text(ais_tag_block(when + 0.3) + encode_dict(report)[0] + "\n")
+    metadata = tmp_path / "flight.jsonl"
+    result = CliRunner().invoke(app, [
+        "telemetry", "video", str(logs / "flight.SRT"), "--vessel-track", str(ais), "--camera",
+        "dji-mavic3", "--water-level-m", "0", "--video", str(logs / "flight.mp4"),
+        "--video-start", "2026-05-01T12:00:00Z", "--out", str(metadata)])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "48 of 48 frame(s) written" in text
+    assert "23 of them carry the vessel more than 12 s from its last report" in text
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(logs / "flight.mp4"), "--metadata", str(metadata),
+                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
+                                      "--no-overlays"])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert (record["measured"], record["skipped"]) == (48, 0)
+    assert record["pose_refinement"]["carried"] >= 40

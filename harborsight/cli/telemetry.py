@@ -20,6 +20,7 @@ from harborsight.cli.app import (
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file, strict_json
+from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 
 telemetry_app = typer.Typer(rich_markup_mode=None,
     no_args_is_help=True,
@@ -268,6 +269,13 @@ def telemetry_video(
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
+    stale = sum((frame["vessel"].get("dead_reckoned_s") or 0.0) > MAX_DEAD_RECKONED_S
+                for frame in result.frames)
+    if stale:
+        err_console.print(f"[yellow]{stale} of them[/] carry the vessel more than "
+                          f"{MAX_DEAD_RECKONED_S:g} s from its last report: `run` and `live` "
+                          "measure those only where the frames before placed the vessel in "
+                          "the image", highlight=False)
     if result.skipped:
         reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
         err_console.print(f"[red]{len(result.skipped)} frame(s) left out[/] (frames "
