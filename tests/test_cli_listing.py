@@ -1,11 +1,8 @@
 """Long lists of per-frame messages on the terminal: each kind once, with a count and the
 frames of the rest (cli/listing.py); run.json keeps every one."""
 
-import json
 
-from typer.testing import CliRunner
 
-from harborsight.cli import app
 from harborsight.cli.listing import frame_ranges, grouped_lines, message_kind
 
 
@@ -36,15 +33,11 @@ def test_each_kind_shows_three_then_counts_the_rest_in_first_come_order():
 def test_run_lists_a_flood_of_one_kind_once(tmp_path):
     """44 frames of the bundled flight whose vessel report is 30-44 s old, and no pose
     refinement to carry them: the terminal shows three and counts 41 more; run.json has 44."""
-    from tests.test_pose_carry import VESSEL, _class_b_flight
+    from tests.test_pose_carry import _class_b_flight, run_with_masks
 
     flight = _class_b_flight(tmp_path, placed_frames=4)
-    out = tmp_path / "out"
-    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
-                                      "--no-overlays", "--no-refine-pose"])
-    assert result.exit_code == 0, result.output
+    result, record = run_with_masks(flight, tmp_path / "out", "--no-refine-pose")
     text = result.output
     assert "44 frame(s) skipped" in text and "... and 41 more like the last (frames 7-47)" in text
     assert text.count("vessel.dead_reckoned_s") == 3
-    assert len(json.loads((out / "run.json").read_text())["skipped_frames"]) == 44
+    assert len(record["skipped_frames"]) == 44

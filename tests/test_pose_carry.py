@@ -274,25 +274,27 @@ def _section_errors(out: Path) -> tuple[list[float], int]:
     return errors, carried
 
 
+def run_with_masks(flight: Path, out: Path, *options: str):
+    """`harborsight run` on a frames folder with its label masks (no video, no overlays):
+    the CLI's result, and run.json."""
+    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
+                                      "--no-overlays", *options])
+    assert result.exit_code == 0, result.output
+    return result, json.loads((out / "run.json").read_text())
+
+
 def test_run_measures_a_class_b_vessel_s_frames_from_the_poses_its_images_placed(tmp_path):
     flight = _class_b_flight(tmp_path, placed_frames=4)
     out = tmp_path / "out"
-    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
-                                      "--no-overlays"])
-    assert result.exit_code == 0, result.output
-    record = json.loads((out / "run.json").read_text())
+    result, record = run_with_masks(flight, out)
     # frames 0-2 start the carry; from frame 3 on every frame is carried
     assert (record["measured"], record["skipped"], record["pose_refinement"]["carried"]) == (48, 0, 45)
     assert "carried from earlier frames' images on 45" in " ".join(result.output.split())
     errors, carried = _section_errors(out)
     # as good as with the true pose on every frame (exact labels: median 0.057 m)
-    exact = tmp_path / "exact"
-    result = CliRunner().invoke(app, ["run", str(FLIGHT), "--masks", str(FLIGHT / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(exact), "--no-video",
-                                      "--no-overlays"])
-    assert result.exit_code == 0, result.output
-    exact_errors, _ = _section_errors(exact)
+    run_with_masks(FLIGHT, tmp_path / "exact")
+    exact_errors, _ = _section_errors(tmp_path / "exact")
     assert carried == 45 and len(errors) == len(exact_errors)
     assert np.median(errors) < np.median(exact_errors) + 0.01
     assert np.mean(errors) < np.mean(exact_errors) + 0.01 and max(errors) < 0.3
@@ -300,26 +302,17 @@ def test_run_measures_a_class_b_vessel_s_frames_from_the_poses_its_images_placed
     # the vessel hidden for 5 s (frames 20-29: flagged, its pose contradicted), then found
     # again by the carry (its sigma 1.4 m after 5.5 s) and carried on to the end
     hidden = _class_b_flight(tmp_path / "hidden", placed_frames=4, hidden=range(20, 30))
-    out_hidden = tmp_path / "out-hidden"
-    result = CliRunner().invoke(app, ["run", str(hidden), "--masks", str(hidden / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(out_hidden),
-                                      "--no-video", "--no-overlays"])
-    assert result.exit_code == 0, result.output
-    assert json.loads((out_hidden / "run.json").read_text())["measured"] == 48
+    _, record = run_with_masks(hidden, tmp_path / "out-hidden")
+    assert record["measured"] == 48
     found_again = tmp_path / "found-again"
     (found_again / "reports").mkdir(parents=True)
     for k in range(30, 48):
-        shutil.copy(out_hidden / "reports" / f"{k:06d}.json", found_again / "reports")
+        shutil.copy(tmp_path / "out-hidden" / "reports" / f"{k:06d}.json", found_again / "reports")
     errors, carried = _section_errors(found_again)
     assert carried == 18 and np.mean(errors) < 0.1
 
     # without the refinement nothing is placed: the frames past 12 s are refused, by name
-    out_off = tmp_path / "off"
-    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(out_off), "--no-video",
-                                      "--no-overlays", "--no-refine-pose"])
-    assert result.exit_code == 0, result.output
-    record = json.loads((out_off / "run.json").read_text())
+    _, record = run_with_masks(flight, tmp_path / "off", "--no-refine-pose")
     assert (record["measured"], record["skipped"]) == (4, 44)
     assert all("vessel.dead_reckoned_s" in s["error"] for s in record["skipped_frames"])
 
@@ -438,11 +431,7 @@ def test_a_carry_that_began_on_a_sister_hull_gives_way_to_the_reports(tmp_path):
             record["vessel"]["dead_reckoned_s"] = round(0.5 + (0.5 * k) % 10.0, 3)
         (flight / "frames" / path.name).write_text(json.dumps(record))
     out = tmp_path / "out"
-    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
-                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
-                                      "--no-overlays"])
-    assert result.exit_code == 0, result.output
-    record = json.loads((out / "run.json").read_text())
+    _, record = run_with_masks(flight, out)
     assert record["measured"] == 48
     said = [w["warning"] for w in record["warnings"] if "carry starts again" in w["warning"]]
     assert len(said) == 1 and "000004" in said[0]
