@@ -20,7 +20,6 @@ from harborsight.cli.app import (
 )
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import prepare_output_file, strict_json
-from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 
 telemetry_app = typer.Typer(rich_markup_mode=None,
     no_args_is_help=True,
@@ -269,6 +268,8 @@ def telemetry_video(
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
+    from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
+
     stale = sum((frame["vessel"].get("dead_reckoned_s") or 0.0) > MAX_DEAD_RECKONED_S
                 for frame in result.frames)
     if stale:
