@@ -707,3 +707,119 @@ def test_a_live_heading_sensor_that_falls_silent_hands_over():
     times = t.attitude_t_s - 10.0
     assert np.allclose(t.heading_deg[times < 2.0], 100.0)
     assert np.allclose(t.heading_deg[times > 1.1 + HEADING_SENSOR_HOLD_S], 104.0)
+
+
+def test_a_class_b_vessel_live_is_carried_by_the_images_past_its_report(tmp_path):
+    """The bundled flight streamed into `harborsight live --ais`, the vessel as a class B
+    transponder gives it: one report at the start (the next would come 30 s later). Frames
+    more than 12 s from it are measured from the poses the frames before placed, the vessel's
+    source not stale meanwhile (`placed_by_image`), against the flight's truth."""
+    from pyais.encode import encode_dict
+    from pyproj import Geod
+
+    from harborsight.telemetry.vessel_track import read_vessel_track
+    from tests.helpers import ais_tag_block
+
+    nmea = read_vessel_track(LOGS / "ship.nmea")
+    azimuth, _, step_m = Geod(ellps="WGS84").inv(nmea.lon_deg[0], nmea.lat_deg[0],
+                                                 nmea.lon_deg[1], nmea.lat_deg[1])
+    when = nmea.utc_start.timestamp()
+    report = {"type": 18, "mmsi": 235000001, "lat": nmea.lat_deg[0], "lon": nmea.lon_deg[0],
+              "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
+              "speed": round(step_m / (nmea.t_s[1] - nmea.t_s[0]) * 3600 / 1852, 1),
+              "course": round(azimuth % 360, 1)}
+    ais = tmp_path / "ship.ais"
+    ais.write_text(ais_tag_block(when + 0.3) + encode_dict(report, sentence_type="VDM")[0] + "\n")
+    truth = {}
+    for path in sorted((FLIGHT / "frames").glob("*.json")):
+        record = json.loads(path.read_text())
+        truth[record["frame_index"] if "frame_index" in record else int(path.stem)] = {
+            s["index"]: s["distance_m"] for s in record["ground_truth"]["sections"]}
+    video_port, mavlink_port, ais_port, http_port = (
+        _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM), _free_port(socket.SOCK_DGRAM),
+        _free_port())
+    live = subprocess.Popen(
+        [sys.executable, "-m", "harborsight.cli", "live", "--video", f"udp://127.0.0.1:{video_port}",
+         "--mavlink", f"udpin:127.0.0.1:{mavlink_port}", "--ais", f"udp:127.0.0.1:{ais_port}",
+         "--mmsi", "235000001", "--camera", "dji-mavic3", "--water-level-m", "0",
+         "--vessel", str(TUG), "--http", f"127.0.0.1:{http_port}"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    states: list[dict] = []
+    try:
+        deadline = time.monotonic() + 60
+        while _state(http_port) is None:
+            assert live.poll() is None and time.monotonic() < deadline, live.stdout.read()
+            time.sleep(0.2)
+        import threading
+
+        done = threading.Event()
+
+        def poll() -> None:
+            while not done.is_set():
+                state = _state(http_port)
+                if state is not None:
+                    states.append(state)
+                time.sleep(0.15)
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
+        # live dates frames by the AIS receiver's clock, this machine's: flight time is the
+        # frame's time less the replay's start
+        started = datetime.now(UTC)
+        summary = play_flight(FeedPlan(
+            LOGS / "flight.mp4", LOGS / "flight.SRT", ais, video_to=f"udp://127.0.0.1:{video_port}",
+            mavlink_to=f"udpout:127.0.0.1:{mavlink_port}", nmea_to=f"127.0.0.1:{ais_port}",
+            start_s=0.0, duration_s=20.0))
+        time.sleep(0.5)
+        done.set()
+        poller.join(5)
+    finally:
+        live.send_signal(signal.SIGTERM)
+        output = live.communicate(timeout=30)[0]
+    assert live.returncode == 0, output
+    assert summary.nmea_lines == 1
+    def flight_s(state: dict) -> float:
+        return (datetime.fromisoformat(state["frame_time"].replace("Z", "+00:00"))
+                - started).total_seconds()
+
+    late = [s for s in states if s["frame_time"] is not None and flight_s(s) > 13.5]
+    assert late, output
+    errors = []
+    for state in late:
+        assert state["pose_refinement"]["carried_from"] and not state["stale"], state
+        assert state["sources"]["vessel"]["placed_by_image"], state["sources"]
+        frame = min(47, round(flight_s(state) * 2))
+        for section in state["sections"]:
+            true = truth[frame][section["index"]]
+            if section["measured"] == "ok" and true is not None:
+                errors.append(abs(section["distance_m"] - true))
+    errors.sort()
+    print(f"{len(late)} states past 13.5 s, frames {sorted({round(flight_s(x) * 2) for x in late})}, "
+          f"median error {errors[len(errors) // 2]:.3f} m")
+    assert errors and errors[len(errors) // 2] < 0.5      # median, the model's masks
+
+
+def test_a_replayed_ais_report_carries_the_second_it_goes_out_at():
+    from pyais.encode import encode_dict
+    from pyais.messages import NMEAMessage
+
+    from harborsight.telemetry.ais import receiver_time, restamped
+    from tests.helpers import ais_tag_block
+
+    report = {"type": 18, "mmsi": 235000001, "lat": 56.15, "lon": 10.2, "heading": 118,
+              "second": 7, "speed": 0.8, "course": 117.7}
+    sentence = encode_dict(report, sentence_type="VDM", radio_channel="B")[0]
+    again = restamped(sentence, 42)
+    decoded = NMEAMessage.from_string(again).decode().asdict()
+    assert again.startswith("!AIVDM,1,1,,B,") and decoded["second"] == 42
+    assert {k: decoded[k] for k in ("mmsi", "heading", "speed", "course")} == {
+        "mmsi": 235000001, "heading": 118, "speed": 0.8, "course": 117.7}
+    static = encode_dict({"type": 5, "mmsi": 235000001, "shipname": "TUG"}, seq_id=1)
+    assert [restamped(part, 42) for part in static] == static          # no time stamp
+    no_fix = encode_dict(dict(report, second=63))[0]
+    assert restamped(no_fix, 42) == no_fix                             # says no working fix
+    assert restamped("!AIVDM,1,1,,B,garbage,0*00", 42) == "!AIVDM,1,1,,B,garbage,0*00"
+    # the receiver's time: a tag block's c:, or an ISO time before the sentence
+    assert receiver_time(ais_tag_block(1777636800) + sentence) == datetime(
+        2026, 5, 1, 12, 0, 0, tzinfo=UTC)
+    assert receiver_time(f"2026-05-01T12:00:01Z {sentence}") == datetime(2026, 5, 1, 12, 0, 1, tzinfo=UTC)
+    assert receiver_time(sentence) is None and receiver_time("no sentence") is None

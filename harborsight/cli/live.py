@@ -313,7 +313,9 @@ def live_feed_command(
     drone_log: Annotated[Path, typer.Option(
         help="The drone's log (DJI .srt, PX4 .ulg, ArduPilot .bin), sent as MAVLink.")],
     vessel_track: Annotated[Path, typer.Option(
-        help="The vessel's NMEA 0183 log, sent line by line at its fixes' times.")],
+        help="The vessel's NMEA 0183 log, sent line by line at its fixes' times; or its AIS "
+        "log (receiver times in tag blocks or before each line; for `live --ais`), each report "
+        "at its time, stamped with the second it goes out at.")],
     video_to: Annotated[str, typer.Option(
         help="Where the video goes: an MPEG-TS URL (udp://HOST:PORT), or an RTSP server to "
         "publish to (rtsp://HOST:PORT/PATH).")] = "udp://127.0.0.1:5600",
@@ -334,8 +336,8 @@ def live_feed_command(
 ) -> None:
     """Play a recorded flight as the live feeds a drone and a ship send, in real time: video
     as H.264 MPEG-TS over UDP (or published to an RTSP server), the drone's log as MAVLink,
-    the vessel's NMEA over UDP. For
-    rehearsing `harborsight live --video udp://... --mavlink ... --nmea ...`."""
+    the vessel's NMEA (or AIS) over UDP. For
+    rehearsing `harborsight live --video udp://... --mavlink ... --nmea ...` (or `--ais`)."""
     from harborsight.live.feed import FeedPlan, play_flight
     from harborsight.telemetry.metadata import parse_utc_time
 
@@ -362,5 +364,5 @@ def live_feed_command(
         err_console.print(f"error: {exc}", markup=False, highlight=False)
         raise typer.Exit(2) from None
     console.print(f"sent {summary.frames} frame(s), {summary.mavlink_messages} MAVLink "
-                  f"message(s), {summary.nmea_lines} NMEA line(s); 95 % went out within "
+                  f"message(s), {summary.nmea_lines} vessel line(s) (NMEA or AIS); 95 % went out within "
                   f"{summary.lateness_p95_ms():.0f} ms of their time", highlight=False)

@@ -9,6 +9,12 @@ start (as ``telemetry video`` does). The vessel's sentences go out with the fix 
 at that fix's UTC time less the video's UTC start: ``--video-start``, else the SRT's date
 lines, else the vessel's first fix (the two recordings are then taken to start together).
 
+The vessel's log may be AIS (AIVDM/AIVDO with receiver times, as `telemetry video` reads it;
+for `live --ais`): each sentence goes out at its receiver time less the video's UTC start,
+without its tag block, and a position report re-encoded with the second of the minute it is
+sent at (a receiver dates a report by its own clock's minute and the report's second, so a
+recording replayed later must carry the seconds of now).
+
 MAVLink: ``GLOBAL_POSITION_INT`` (``relative_alt`` and ``alt`` both the log's altitude: the
 receiver's ``--water-level-m`` is in the log's datum), ``GIMBAL_DEVICE_ATTITUDE_STATUS`` with
 yaw in the earth frame for a gimbal attitude, ``ATTITUDE`` for an airframe's, ``SYSTEM_TIME``
@@ -23,7 +29,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import cv2
@@ -31,8 +37,10 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.telemetry import read_drone_log
+from harborsight.telemetry.ais import receiver_time, restamped, sentence_start
 from harborsight.telemetry.nmea import Fix, NmeaDecoder
 from harborsight.telemetry.track import Track
+from harborsight.telemetry.vessel_track import is_ais_log
 
 #: the autopilot "booted" this long before the video's first frame
 BOOT_OFFSET_S = 120.0
@@ -104,8 +112,16 @@ def _video_start(plan: FeedPlan, drone: Track) -> datetime:
         return plan.video_start_utc
     if drone.kind == "dji-srt" and drone.utc_at(0.0) is not None:
         return drone.utc_at(0.0)
+    lines = plan.vessel_nmea.read_text(errors="replace").splitlines()
+    if is_ais_log(plan.vessel_nmea):
+        for line in lines:
+            received = receiver_time(line)
+            if received is not None:
+                return received
+        raise InputError(plan.vessel_nmea, None, "no AIS sentence with a receiver time: give "
+                         "--video-start")
     decoder = NmeaDecoder()
-    for line in plan.vessel_nmea.read_text(errors="replace").splitlines():
+    for line in lines:
         for event in decoder.feed(line):
             if isinstance(event, Fix):
                 return event.utc
@@ -215,7 +231,32 @@ def _send_mavlink(plan: FeedPlan, drone: Track, video_start: datetime, clock: _C
         connection.close()
 
 
+def _send_ais(plan: FeedPlan, video_start: datetime, clock: _Clock) -> None:
+    """The AIS log's sentences at their receiver times (module docstring); a line without
+    one cannot be placed and is left out."""
+    host, _, port = plan.nmea_to.rpartition(":")
+    lines = plan.vessel_nmea.read_text(errors="replace").splitlines()
+    clock.ready()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for line in lines:
+            received = receiver_time(line)
+            if received is None:
+                continue
+            t_s = (received - video_start).total_seconds()
+            if t_s < clock.start_s:
+                continue
+            if t_s >= clock.end_s or not clock.wait_for(t_s):
+                break
+            sentence = restamped(line[sentence_start(line):], datetime.now(UTC).second)
+            sock.sendto((sentence.strip() + "\r\n").encode("ascii", errors="replace"),
+                        (host, int(port)))
+            clock.summary.nmea_lines += 1
+
+
 def _send_nmea(plan: FeedPlan, video_start: datetime, clock: _Clock) -> None:
+    if is_ais_log(plan.vessel_nmea):
+        _send_ais(plan, video_start, clock)
+        return
     host, _, port = plan.nmea_to.rpartition(":")
     decoder = NmeaDecoder()
     epoch_s: float | None = None

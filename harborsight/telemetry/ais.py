@@ -129,6 +129,36 @@ def _received(line: str, start: int) -> tuple[datetime | None, bool]:
     return None, False
 
 
+def receiver_time(line: str) -> datetime | None:
+    """When the receiver logged ``line``'s AIS sentence (its tag block's ``c:``, or an ISO
+    8601 time before it), or None."""
+    start = sentence_start(line)
+    return _received(line, start)[0] if start >= 0 else None
+
+
+def restamped(sentence: str, second: int) -> str:
+    """A single-part position report (types 1, 2, 3, 18, 19) re-encoded with ``second`` as
+    its time stamp (0-59), or ``sentence`` unchanged (other messages, parts of multi-part
+    ones, a time stamp saying none or no working fix: 60-63). A recording replayed now must
+    carry the seconds of now: a receiver dates each report by its own clock's minute and the
+    report's second (:func:`fix_time`)."""
+    from pyais.encode import encode_dict
+    from pyais.messages import NMEAMessage
+
+    try:
+        message = NMEAMessage.from_string(sentence.strip())
+        if not message.is_valid or message.frag_cnt != 1:
+            return sentence
+        fields = message.decode().asdict()
+    except Exception:                    # pyais's errors are many types
+        return sentence
+    if fields.get("msg_type") not in POSITION_TYPES or not 0 <= (fields.get("second") or 0) <= 59:
+        return sentence
+    fields["second"] = second
+    return encode_dict(fields, talker_id=message.talker, sentence_type=message.type,
+                       radio_channel=message.channel or "A")[0]
+
+
 def sentence_start(line: str) -> int:
     """Where a line's AIS sentence (``!AIVDM``/``!AIVDO``, base station ``!ABVD``/``!BSVD``)
     starts; −1 for a line without one."""

@@ -76,7 +76,7 @@ def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0, *, mmsi:
     path = Path(path)
     if path.suffix.lower() == ".csv":
         return read_vessel_csv(path)
-    if _is_ais(path):
+    if is_ais_log(path):
         from harborsight.telemetry.ais import read_ais_track
 
         return read_ais_track(path, mmsi, allow_cog_heading)
@@ -86,7 +86,9 @@ def read_vessel_track(path: str | Path, max_heading_gap_s: float = 2.0, *, mmsi:
     return read_vessel_nmea(path, max_heading_gap_s)
 
 
-def _is_ais(path: Path) -> bool:
+def is_ais_log(path: Path) -> bool:
+    """Whether ``path`` holds AIS sentences (AIVDM/AIVDO) rather than a receiver's fixes: an
+    ``.ais`` file, or one whose head has AIS sentences and no RMC or GGA."""
     if path.suffix.lower() == ".ais":
         return True
     try:
