@@ -480,3 +480,53 @@ def test_a_class_b_ais_log_through_telemetry_video_and_run(tmp_path):
     record = json.loads((out / "run.json").read_text())
     assert (record["measured"], record["skipped"]) == (48, 0)
     assert record["pose_refinement"]["carried"] >= 40
+
+
+def test_stills_every_two_seconds_with_a_class_b_vessel_are_carried_by_run(tmp_path):
+    """DJI photos of the bundled flight every 2 s (tests/test_dji_photo.py), the vessel from one
+    class B report at the start: `telemetry photos` writes every frame and says which carry the
+    vessel past 12 s, and `run` on the folder (stills: the newest three placed poses) measures
+    every one of them, against the flight's truth."""
+    from pyais.encode import encode_dict
+
+    from harborsight.telemetry.vessel_track import read_vessel_track
+    from tests.helpers import ais_tag_block
+    from tests.test_dji_photo import _flight_photo
+
+    indices = range(0, 48, 4)                       # every 2 s, on whole seconds
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for index in indices:
+        _flight_photo(tmp_path, index)
+        shutil.copy(FLIGHT / "labels" / f"{index:06d}.png", masks / f"DJI_{index:04d}.png")
+    nmea = read_vessel_track(FLIGHT / "logs" / "ship.nmea")
+    azimuth, _, step_m = GEOD.inv(nmea.lon_deg[0], nmea.lat_deg[0], nmea.lon_deg[1], nmea.lat_deg[1])
+    when = nmea.utc_start.timestamp()
+    report = {"type": 18, "mmsi": 235000001, "lat": nmea.lat_deg[0], "lon": nmea.lon_deg[0],
+              "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
+              "speed": round(step_m / (nmea.t_s[1] - nmea.t_s[0]) * 3600 / 1852, 1),
+              "course": round(azimuth % 360, 1)}
+    ais = tmp_path / "ship.ais"
+    ais.write_text(ais_tag_block(when + 0.3) + encode_dict(report, sentence_type="VDM")[0] + "\n")
+    result = CliRunner().invoke(app, ["telemetry", "photos", str(tmp_path / "photos"),
+                                      "--vessel-track", str(ais), "--mmsi", "235000001",
+                                      "--water-level-m", "0", "--out", str(tmp_path / "frames")])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "12 of 12 photo(s) written" in text
+    assert "5 of them carry the vessel more than 12 s" in text and "not `measure`" in text
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(tmp_path / "frames"), "--masks", str(masks),
+                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
+                                      "--no-overlays"])
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "run.json").read_text())
+    assert (record["measured"], record["skipped"]) == (12, 0) and record["pose_refinement"]["carried"] >= 5
+    errors = []
+    for index in indices:
+        report = json.loads((out / "reports" / f"DJI_{index:04d}.json").read_text())
+        truth = json.loads((FLIGHT / "frames" / f"{index:06d}.json").read_text())
+        expected = {s["index"]: s["distance_m"] for s in truth["ground_truth"]["sections"]}
+        errors += [abs(s["distance_m"] - expected[s["index"]]) for s in report["sections"]
+                   if s["status"] == "ok" and expected.get(s["index"]) is not None]
+    assert np.median(errors) < 0.1

@@ -268,15 +268,9 @@ def telemetry_video(
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
-    from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
-
-    stale = sum((frame["vessel"].get("dead_reckoned_s") or 0.0) > MAX_DEAD_RECKONED_S
-                for frame in result.frames)
-    if stale:
-        err_console.print(f"[yellow]{stale} of them[/] carry the vessel more than "
-                          f"{MAX_DEAD_RECKONED_S:g} s from its last report: `run` and `live` "
-                          "measure those only where the frames before placed the vessel in "
-                          "the image", highlight=False)
+    _say_beyond_dead_reckoning(sum(
+        (frame["vessel"].get("dead_reckoned_s") or 0.0) > _max_dead_reckoned_s()
+        for frame in result.frames))
     if result.skipped:
         reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
         err_console.print(f"[red]{len(result.skipped)} frame(s) left out[/] (frames "
@@ -284,6 +278,24 @@ def telemetry_video(
         for reason, count in reasons.most_common():
             err_console.print(f"  {count} x {reason}", markup=False, highlight=False)
     raise typer.Exit(1 if not result.frames else 0)
+
+
+def _max_dead_reckoned_s() -> float:
+    # imported here: training imports this module, and must not need the geodesy stack
+    from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
+
+    return MAX_DEAD_RECKONED_S
+
+
+def _say_beyond_dead_reckoning(count: int, photos: bool = False) -> None:
+    """Say how many frames written carry the vessel past the dead reckoning it is measured
+    with, and what measures them."""
+    if count:
+        how = ("`harborsight run` on the folder (not `measure`) measures those" if photos
+               else "`run` and `live` measure those")
+        err_console.print(f"[yellow]{count} of them[/] carry the vessel more than "
+                          f"{_max_dead_reckoned_s():g} s from its last report: {how} only where "
+                          "the frames before placed the vessel in the image", highlight=False)
 
 
 def _show_photo(path: Path) -> dict | None:
@@ -366,8 +378,10 @@ def telemetry_photos(
 ) -> None:
     """Write one harborsight.frame/1 file per DJI photo (pose, gimbal attitude, intrinsics and
     accuracy from its XMP and EXIF; the vessel sampled at its capture time) for
-    `harborsight measure OUT --vessel ...`. A photo that cannot be a frame is listed with its
-    reason and skipped. Exit code 1 when no frame was written, 2 for a bad option or track."""
+    `harborsight measure OUT --vessel ...`, or `harborsight run OUT --vessel ...` (which carries
+    a vessel known from sparse AIS reports from photo to photo). A photo that cannot be a frame
+    is listed with its reason and skipped. Exit code 1 when no frame was written, 2 for a bad
+    option or track."""
     from harborsight.cli.progress import progress_report
     from harborsight.files import prepare_output_folder
     from harborsight.telemetry.dji_photo import ALTITUDES, YAW_REFERENCES
@@ -403,6 +417,7 @@ def telemetry_photos(
         err_console.print(f"note: ... and {len(batch.notes) - 12} other notes", highlight=False)
     console.print(f"{len(batch.written)} of {len(paths)} photo(s) written as frames to {out}",
                   highlight=False)
+    _say_beyond_dead_reckoning(batch.beyond_dead_reckoning, photos=True)
     if batch.skipped:
         err_console.print(f"[red]{len(batch.skipped)} photo(s) left out:[/]")
         for path, reason in batch.skipped:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import natural_key, strict_json
+from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 from harborsight.telemetry.dji_photo import PHOTO_SUFFIXES, photo_frame, read_dji_photo
 from harborsight.telemetry.track import Track
 
@@ -25,6 +26,10 @@ class PhotoBatch:
     written: list[tuple[Path, Path]] = field(default_factory=list)    # (photo, frame file)
     skipped: list[tuple[Path, str]] = field(default_factory=list)     # (photo, reason)
     notes: dict[str, list[str]] = field(default_factory=dict)         # note -> photo names
+    #: frames written whose vessel pose is dead-reckoned past what is measured with
+    #: (:data:`~harborsight.geometry.sensor_sigmas.MAX_DEAD_RECKONED_S`): `run` measures them
+    #: where the frames before placed the vessel in the image, `measure` does not
+    beyond_dead_reckoning: int = 0
 
 
 def find_photos(inputs: Iterable[Path]) -> list[Path]:
@@ -88,6 +93,8 @@ def write_photo_frames(
                 target.write_text(strict_json(result.frame, indent=1) + "\n")
                 stems.add(stem)
                 batch.written.append((photo_path, target))
+                reckoned_s = result.frame["vessel"].get("dead_reckoned_s") or 0.0
+                batch.beyond_dead_reckoning += reckoned_s > MAX_DEAD_RECKONED_S
         except HarborsightError as exc:
             batch.skipped.append((photo_path, str(exc)))
         if on_photo is not None:
