@@ -25,6 +25,36 @@ def ais_tag_block(seconds: float) -> str:
     return f"\\{body}*{nmea_checksum(body)}\\"
 
 
+#: the MMSI of the class B transponder :func:`class_b_ais_log` writes
+CLASS_B_MMSI = 235000001
+
+
+def class_b_ais_log(path, nmea_path, sentence_type: str = "VDM"):
+    """The vessel of an NMEA log (the bundled flight's ship) as a class B transponder under
+    2 kn gives it: a type 18 report at its first fix, with the speed and course of its first
+    two, and the next 180 s later where that motion carries it; each received 0.3 s after
+    its fix. Returns ``path``."""
+    from pyais.encode import encode_dict
+    from pyproj import Geod
+
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    nmea = read_vessel_track(nmea_path)
+    geod = Geod(ellps="WGS84")
+    course, _, step_m = geod.inv(nmea.lon_deg[0], nmea.lat_deg[0], nmea.lon_deg[1], nmea.lat_deg[1])
+    speed_mps = step_m / (nmea.t_s[1] - nmea.t_s[0])
+    lines = []
+    for after_s in (0.0, 180.0):
+        lon, lat, _ = geod.fwd(nmea.lon_deg[0], nmea.lat_deg[0], course, speed_mps * after_s)
+        when = nmea.utc_start.timestamp() + after_s
+        report = {"type": 18, "mmsi": CLASS_B_MMSI, "lat": lat, "lon": lon,
+                  "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
+                  "speed": round(speed_mps * 3600 / 1852, 1), "course": round(course % 360, 1)}
+        lines.append(ais_tag_block(when + 0.3) + encode_dict(report, sentence_type=sentence_type)[0])
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def flat_box_vessel(n_sections: int = 16) -> VesselSpec:
     """A 40 m x 10 m pointed-bow vessel with no height (the planar case)."""
     outline = outline_from_dimensions(30.0, 10.0, 5.0, 5.0)

@@ -132,7 +132,7 @@ def test_the_live_ais_feed_carries_the_vessel_to_the_frame(monkeypatch):
 
     track = LiveTrack("ais", "ais")
     ais = AisVessel(track, None)
-    assert track.dead_reckon_s == AIS_FRAME_REACH_S        # measured only to 12 s (pose_carry)
+    assert (track.dead_reckon_s, track.frame_reach_s) == (AIS_DEAD_RECKON_S, AIS_FRAME_REACH_S)
     t0 = datetime(2026, 11, 29, 12, 0, 0, tzinfo=UTC).timestamp()
     fields = {"speed": 1.5 / KNOT_MPS, "course": 90.0, "heading": 88}
     for k, (lat, lon) in enumerate(zip(*_truth(np.array([0.0, 10.0]), 1.5, 90.0), strict=True)):
@@ -176,7 +176,8 @@ def test_the_live_ais_reader_keeps_each_report_s_speed_and_course():
     listener.feed(encode_dict(report, sentence_type="VDM")[0], 20.0)
     vessel = track.track()
     assert vessel.sog_mps[0] == pytest.approx(3.0 * KNOT_MPS)
-    assert vessel.cog_deg[0] == pytest.approx(121.5) and vessel.dead_reckon_s == AIS_FRAME_REACH_S
+    assert vessel.cog_deg[0] == pytest.approx(121.5) and (vessel.dead_reckon_s, vessel.frame_reach_s) == (
+        AIS_DEAD_RECKON_S, AIS_FRAME_REACH_S)
 
 
 def test_a_missed_report_leaves_no_jump_and_a_vessel_at_rest_is_carried_in_place():
@@ -206,7 +207,7 @@ def test_an_ais_log_s_track_carries_its_reports_speed_and_course(tmp_path):
     from tests.test_ais import _own_log
 
     track = read_vessel_track(_own_log(tmp_path))            # 10 reports, 0.8 kn at 117.7 deg
-    assert track.dead_reckon_s == AIS_FRAME_REACH_S        # measured only to 12 s (pose_carry)
+    assert (track.dead_reckon_s, track.frame_reach_s) == (AIS_DEAD_RECKON_S, AIS_FRAME_REACH_S)
     assert np.allclose(track.sog_mps, 0.8 * KNOT_MPS) and np.allclose(track.cog_deg, 117.7)
     assert any("10 of 10 report(s) give speed and course" in note for note in track.notes)
 
@@ -313,3 +314,22 @@ def test_a_fix_without_speed_or_course_makes_no_jump_along_the_carry():
     steps = _error_m(samples["lat_deg"][:-1], samples["lon_deg"][:-1], samples["lat_deg"][1:],
                      samples["lon_deg"][1:])
     assert np.isfinite(steps).all() and steps.max() < 0.1    # 5 m/s: 0.05 m a step
+
+
+def test_reports_minutes_apart_are_never_blended_and_each_frame_has_its_nearest_s_age():
+    """Class B under 2 kn: reports 180 s apart. A frame 1 s after the first is that report
+    carried 1 s (a blend with the report 179 s away made it 13.4 s old, and refused); past
+    12 s from both, the nearest report alone, its age said (measured only where the images
+    carry the vessel); beyond the frame reach, nothing."""
+    from harborsight.telemetry.ais import AIS_FRAME_REACH_S
+
+    report_s = np.array([0.0, 180.0])
+    track = _ais_track(report_s, 0.5, 60.0)
+    track.frame_reach_s = AIS_FRAME_REACH_S
+    times = np.array([1.0, 2.0, 11.0, 13.0, 100.0, 179.0, 379.0, 381.0])
+    samples = track.sample(times)
+    assert np.allclose(samples["dead_reckoned_s"][:6], [1.0, 2.0, 11.0, 13.0, 80.0, 1.0])
+    lat, lon = _truth(times[:6], 0.5, 60.0)
+    assert _error_m(samples["lat_deg"][:6], samples["lon_deg"][:6], lat, lon).max() < 0.01
+    assert np.isfinite(samples["lat_deg"][6]) and not np.isfinite(samples["lat_deg"][7])
+    assert np.allclose(samples["heading_deg"][:7], 60.0)      # the nearest report's heading

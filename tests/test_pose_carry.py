@@ -33,6 +33,7 @@ from harborsight.frame import parse_frame_metadata
 from harborsight.geometry.sensor_sigmas import SensorSigmas
 from harborsight.images import read_mask
 from harborsight.vessel.spec import load_vessel_spec
+from tests.helpers import CLASS_B_MMSI, class_b_ais_log
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 FLIGHT = SAMPLES / "flight"
@@ -444,25 +445,14 @@ def test_a_carry_that_began_on_a_sister_hull_gives_way_to_the_reports(tmp_path):
 
 
 def test_a_class_b_ais_log_through_telemetry_video_and_run(tmp_path):
-    """A user's path: the bundled flight's vessel as a class B transponder gives it (one
-    type 18 report at the start, with speed and course: the next comes 30 s later), through
+    """A user's path: the bundled flight's vessel as a class B transponder under 2 kn gives it
+    (a type 18 report at the start with speed and course, the next 3 min later), through
     `telemetry video` (every frame written, those past 12 s said) and `run` with the default
-    model: every frame measured, the frames past 12 s carried by the images."""
-    from pyais.encode import encode_dict
-
-    from harborsight.telemetry.vessel_track import read_vessel_track
-    from tests.helpers import ais_tag_block
-
+    model: every frame measured, the frames past 12 s carried by the images. (With the next
+    report in the log, a blend of the two once put a frame a second from the first at 13 s
+    of age: 46 of 48 frames refused.)"""
     logs = FLIGHT / "logs"
-    nmea = read_vessel_track(logs / "ship.nmea")
-    azimuth, _, step_m = GEOD.inv(nmea.lon_deg[0], nmea.lat_deg[0], nmea.lon_deg[1], nmea.lat_deg[1])
-    when = nmea.utc_start.timestamp()
-    report = {"type": 18, "mmsi": 235000001, "lat": nmea.lat_deg[0], "lon": nmea.lon_deg[0],
-              "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
-              "speed": round(step_m / (nmea.t_s[1] - nmea.t_s[0]) * 3600 / 1852, 1),
-              "course": round(azimuth % 360, 1)}
-    ais = tmp_path / "ship.ais"
-    ais.write_text(ais_tag_block(when + 0.3) + encode_dict(report)[0] + "\n")
+    ais = class_b_ais_log(tmp_path / "ship.ais", logs / "ship.nmea", sentence_type="VDO")
     metadata = tmp_path / "flight.jsonl"
     result = CliRunner().invoke(app, [
         "telemetry", "video", str(logs / "flight.SRT"), "--vessel-track", str(ais), "--camera",
@@ -486,11 +476,7 @@ def test_stills_every_two_seconds_with_a_class_b_vessel_are_carried_by_run(tmp_p
     """DJI photos of the bundled flight every 2 s (tests/test_dji_photo.py), the vessel from one
     class B report at the start: `telemetry photos` writes every frame and says which carry the
     vessel past 12 s, and `run` on the folder (stills: the newest three placed poses) measures
-    every one of them, against the flight's truth."""
-    from pyais.encode import encode_dict
-
-    from harborsight.telemetry.vessel_track import read_vessel_track
-    from tests.helpers import ais_tag_block
+    every one of them, against the flight's truth (the next report 3 min later in the log)."""
     from tests.test_dji_photo import _flight_photo
 
     indices = range(0, 48, 4)                       # every 2 s, on whole seconds
@@ -499,17 +485,9 @@ def test_stills_every_two_seconds_with_a_class_b_vessel_are_carried_by_run(tmp_p
     for index in indices:
         _flight_photo(tmp_path, index)
         shutil.copy(FLIGHT / "labels" / f"{index:06d}.png", masks / f"DJI_{index:04d}.png")
-    nmea = read_vessel_track(FLIGHT / "logs" / "ship.nmea")
-    azimuth, _, step_m = GEOD.inv(nmea.lon_deg[0], nmea.lat_deg[0], nmea.lon_deg[1], nmea.lat_deg[1])
-    when = nmea.utc_start.timestamp()
-    report = {"type": 18, "mmsi": 235000001, "lat": nmea.lat_deg[0], "lon": nmea.lon_deg[0],
-              "heading": round(nmea.heading_deg[0]), "second": round(when) % 60,
-              "speed": round(step_m / (nmea.t_s[1] - nmea.t_s[0]) * 3600 / 1852, 1),
-              "course": round(azimuth % 360, 1)}
-    ais = tmp_path / "ship.ais"
-    ais.write_text(ais_tag_block(when + 0.3) + encode_dict(report, sentence_type="VDM")[0] + "\n")
+    ais = class_b_ais_log(tmp_path / "ship.ais", FLIGHT / "logs" / "ship.nmea")
     result = CliRunner().invoke(app, ["telemetry", "photos", str(tmp_path / "photos"),
-                                      "--vessel-track", str(ais), "--mmsi", "235000001",
+                                      "--vessel-track", str(ais), "--mmsi", str(CLASS_B_MMSI),
                                       "--water-level-m", "0", "--out", str(tmp_path / "frames")])
     assert result.exit_code == 0, result.output
     text = " ".join(result.output.split())

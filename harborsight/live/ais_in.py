@@ -19,6 +19,7 @@ from datetime import UTC, datetime
 
 from harborsight.live.telemetry import LiveTrack, worth_saying
 from harborsight.telemetry.ais import (
+    AIS_DEAD_RECKON_S,
     AIS_FRAME_REACH_S,
     POSITION_TYPES,
     fix_time,
@@ -39,7 +40,8 @@ class AisVessel:
                  on_fix: Callable[[float], None] | None = None) -> None:
         self.track, self.mmsi, self.allow_cog_heading, self.on_fix = track, mmsi, allow_cog_heading, on_fix
         track.source_clock_is_utc()
-        track.dead_reckon_s = AIS_FRAME_REACH_S     # frames past 12 s: the images carry them
+        track.dead_reckon_s = AIS_DEAD_RECKON_S
+        track.frame_reach_s = AIS_FRAME_REACH_S     # frames past 12 s: the images carry them
         self.reports = 0
         self.others = 0
         self.unreadable = 0

@@ -120,8 +120,10 @@ class LiveTrack:
         self.utc_clock: ClockMap | None = None     # source seconds -> UTC epoch, where known
         self.attitude_of: str | None = None
         self._positions: deque = deque()           # (t, lat, lon, alt, sigma, sog, cog, rot)
-        #: how long a position's speed and course may carry it (Track.dead_reckon_s; AIS)
+        #: how long a position's speed and course may carry it (Track.dead_reckon_s; AIS),
+        #: and how far a frame still gets the nearest one's (Track.frame_reach_s)
         self.dead_reckon_s = 0.0
+        self.frame_reach_s = 0.0
         self._orientation: deque = deque()         # (t, yaw, pitch, roll) or (t, heading)
         self._lock = threading.Lock()
         #: samples left out for coming more than LATE_SAID_S after newer ones
@@ -222,6 +224,7 @@ class LiveTrack:
         sigma = p[:, 4] if np.isfinite(p[:, 4]).any() else None
         if np.isfinite(p[:, 5]).any():
             extra.update(sog_mps=p[:, 5], cog_deg=p[:, 6], dead_reckon_s=self.dead_reckon_s,
+                         frame_reach_s=self.frame_reach_s,
                          rot_deg_s=p[:, 7] if np.isfinite(p[:, 7]).any() else None)
         return Track(source=Path(self.source), kind=self.kind, t_s=p[:, 0], lat_deg=p[:, 1],
                      lon_deg=p[:, 2], alt_m=alt, alt_reference=self.alt_reference,

@@ -396,7 +396,7 @@ def read_ais_track(path: str | Path, mmsi: int | None = None, allow_cog_heading:
                  lat_deg=np.array([r[1] for r in rows]), lon_deg=np.array([r[2] for r in rows]),
                  heading_deg=np.array([r[3] for r in rows]), sog_mps=np.array([r[4] for r in rows]),
                  cog_deg=np.array([r[5] for r in rows]), rot_deg_s=np.array([r[6] for r in rows]),
-                 dead_reckon_s=AIS_FRAME_REACH_S,
+                 dead_reckon_s=AIS_DEAD_RECKON_S, frame_reach_s=AIS_FRAME_REACH_S,
                  utc_start=start,
                  clock="seconds since the first report (UTC, receiver time)", notes=notes)
 

@@ -22,6 +22,10 @@ from the next one within ``dead_reckon_s`` after it), and where both are near, t
 blended, weighted by nearness: ``(1 - w) p0' + w p1'``, ``w = (t - t0) / (t1 - t0)`` (where
 a report was missed and the two do not both reach the whole gap, ``w`` tapers to 0 and 1
 where each comes into and leaves reach, so the position does not jump: :func:`_blend_weight`).
+Beyond ``dead_reckon_s`` of any report, up to ``frame_reach_s`` (AIS: a class B transponder
+reports every 3 min under 2 kn), a time still gets the nearest report's position carried
+alone, its age said, never blended: a blend with a report minutes away put a frame a second
+from the last report at 13 s of age. Such a frame is not measured with its own pose.
 A report at rest (speed under :data:`AT_REST_MPS`) without a course (AIS 360) carries its
 position in place. A position reported without speed or course (an AIS report whose fields
 are "not available", an RMC without them) is still an anchor: it is carried with the speed
@@ -107,6 +111,11 @@ class Track:
     #: how long (s) past a position its speed and course may carry it where no sample is
     #: within reach (module docstring, "Dead reckoning"); 0: never
     dead_reckon_s: float = 0.0
+    #: how far (s) from a report a time still gets a position, carried from the nearest
+    #: report alone, where none is within ``dead_reckon_s`` (``dead_reckoned_s`` then says
+    #: more than that: not measured with, but carried by the images,
+    #: :mod:`harborsight.flight.pose_carry`); 0: no further than ``dead_reckon_s``
+    frame_reach_s: float = 0.0
     utc_start: datetime | None = None        # UTC time of t_s = 0, when the log states it
     clock: str = ""                          # what t_s counts, in words
     notes: list[str] = field(default_factory=list)   # lines skipped, fields missing, ...
@@ -243,6 +252,13 @@ class Track:
             ends = [(k, x - t[k], motion) for k in (before, after)   # carried forward, back
                     if 0 <= k < len(t) and placed[k] and abs(x - t[k]) <= reach
                     and (motion := motion_of(k, x >= t[k])) is not None]
+            beyond = not ends and self.frame_reach_s > reach
+            if beyond:                                      # the nearest report alone
+                ends = sorted(((k, x - t[k], motion) for k in (before, after)
+                               if 0 <= k < len(t) and placed[k]
+                               and abs(x - t[k]) <= self.frame_reach_s
+                               and (motion := motion_of(k, x >= t[k])) is not None),
+                              key=lambda end: abs(end[1]))[:1]
             if not ends:
                 continue
             guesses, ages = [], []
@@ -263,7 +279,11 @@ class Track:
                 out["lat_deg"][i], out["lon_deg"][i] = pymap3d.enu2geodetic(
                     w * east, w * north, 0.0, *guesses[0], 0.0)[:2]
                 age[i] = math.sqrt((1.0 - w) * ages[0] ** 2 + w * ages[1] ** 2)
-            if "heading_deg" in out and not np.isfinite(out["heading_deg"][i]):
+            if "heading_deg" in out and beyond:    # that report's heading, and its turn
+                k, dt = ends[0][0], ends[0][1]
+                out["heading_deg"][i] = (self._heading_near(t[k])
+                                         + self._turn_rate_at(t[k]) * max(dt, 0.0)) % 360.0
+            elif "heading_deg" in out and not np.isfinite(out["heading_deg"][i]):
                 out["heading_deg"][i] = self._heading_near(x)
             elif "heading_deg" in out and len(ends) == 1:
                 out["heading_deg"][i] = self._heading_near(x)     # held from the nearest
