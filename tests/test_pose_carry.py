@@ -147,13 +147,21 @@ def test_too_few_or_too_close_placed_poses_carry_nothing():
     carried = stills.carried(8.0)
     lat, lon, _ = _moving_vessel(8.0)
     assert len(stills._placed) == 3 and GEOD.inv(carried.lon_deg, carried.lat_deg, lon, lat)[2] < 0.02
-    assert _carry_with([0.0, 5.0, 10.0]).carried(12.0) is None    # over 8 s: too old a speed
+    assert _carry_with([0.0, 7.0, 14.0]).carried(16.0) is None    # over 12 s: too old a speed
     # a stretch of frames that placed nothing, then one that did, carries on
     assert _carry_with([*np.arange(0.0, 10.0, 0.5), 12.5]).carried(13.0) is not None
-    # a clock that jumped back starts the carry again
+    # a clock that jumped back starts the carry again: a placed frame, or a frame to carry
     carry = _carry_with([100.0, 100.5, 101.0])
     carry.took(_meta(), _report(_applied(0.0, 0.0, 0.0)), 20.0)
     assert len(carry._placed) == 1 and carry.carried(20.5) is None
+    carry = _carry_with([100.0, 100.5, 101.0])
+    carry.prior_for(_meta(vessel_dead_reckoned_s=40.0), 99.5, SensorSigmas(vessel_gps=150.0), "")
+    assert len(carry._placed) == 0
+    carry = _carry_with([100.0, 100.5, 101.0])        # a frame half a second late: kept
+    carry.prior_for(_meta(vessel_dead_reckoned_s=40.0), 100.5, SensorSigmas(vessel_gps=150.0), "")
+    assert len(carry._placed) == 3
+    # stills every 5 s carry too (the newest three span 10 s)
+    assert _carry_with([0.0, 5.0, 10.0]).carried(15.0) is not None
 
 
 def test_only_a_pose_the_image_placed_is_taken():

@@ -44,9 +44,9 @@ like any other: refined from the carried pose, its bars from the alignment (or, 
 alignment does not place it, from the carried sigmas). What the image of a frame placed
 then carries the next; a frame whose image does not place the vessel carries nothing, and
 once the carried sigma is past :data:`MAX_CARRIED_SIGMA_M` the frames are the reports' again
-(past 12 s from a report: not measured, until the next report). A clock that jumps back by more than
-:data:`CARRY_REACH_S`, or another vessel, starts the carry again. The report says where
-the pose came from (``pose_refinement.carried_from``).
+(past 12 s from a report: not measured, until the next report). A clock that goes back by
+more than :data:`CLOCK_BACK_S`, or another vessel, starts the carry again. The report says
+where the pose came from (``pose_refinement.carried_from``).
 """
 
 from __future__ import annotations
@@ -86,9 +86,12 @@ GATE_SIGMAS = 3.0
 CARRY_REACH_S = 10.0
 #: the placed poses the motion is fitted on: those of the last this many seconds, or the
 #: newest :data:`MIN_PLACED` where they span longer, up to :data:`MAX_FIT_SPAN_S` (stills
-#: taken every 2 s)
+#: taken every 2-6 s)
 VELOCITY_WINDOW_S = 3.0
-MAX_FIT_SPAN_S = 8.0
+MAX_FIT_SPAN_S = 12.0
+#: a frame this much (s) before the newest placed pose: the clock went back (a replay
+#: restarted, a clock reset), and the placed poses belong to another time line
+CLOCK_BACK_S = 1.0
 MIN_PLACED = 3
 MIN_SPAN_S = 1.0
 
@@ -191,8 +194,7 @@ class VesselPoseCarry:
         if report.vessel != self._vessel:
             self.forget()
             self._vessel = report.vessel
-        if self._placed and time_s < self._placed[-1].time_s - CARRY_REACH_S:
-            self.forget()   # the clock went back: the placed poses are of another time line
+        self._forget_if_the_clock_went_back(time_s)
         if self._placed and time_s <= self._placed[-1].time_s:
             return          # out of order or repeated: a line through it would be wrong
         pose = placed_pose(meta, report, time_s)
@@ -204,6 +206,11 @@ class VesselPoseCarry:
                 or (len(self._placed) > MIN_PLACED
                     and self._placed[0].time_s < time_s - VELOCITY_WINDOW_S)):
             self._placed.popleft()
+
+    def _forget_if_the_clock_went_back(self, time_s: float | None) -> None:
+        if (time_s is not None and self._placed
+                and time_s < self._placed[-1].time_s - CLOCK_BACK_S):
+            self.forget()
 
     def carried(self, time_s: float | None) -> CarriedPose | None:
         """The pose carried to ``time_s``, or None: too few placed poses, their span too
@@ -244,6 +251,7 @@ class VesselPoseCarry:
         if vessel != self._vessel:
             self.forget()
             self._vessel = vessel
+        self._forget_if_the_clock_went_back(time_s)
         if not meta.vessel_dead_reckoned_s:
             return meta, None, None
         carried = self.carried(time_s)
