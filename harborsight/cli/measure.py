@@ -128,8 +128,8 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     print_pose_refinement_summary([o.report.pose_refinement for o in good])
     if bad:
         err_console.print(f"[red]{len(bad)} frame(s) skipped:[/]")
-        for line in grouped_lines((None, f"{outcome.job.stem}: {outcome.error}", None)
-                                  for outcome in bad):
+        for line in grouped_lines((outcome.job.stem, f"{outcome.job.stem}: {outcome.error}",
+                                   outcome.job.stem) for outcome in bad):
             err_console.print(line, markup=False)
     return 1 if bad and (strict or not good) else 0
 
