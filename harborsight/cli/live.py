@@ -330,7 +330,8 @@ def live_feed_command(
         min=0.1, help="How much of the flight to send (default: to the video's end).")] = None,
     video_start: Annotated[str | None, typer.Option(
         help="UTC time of the video's first frame, ISO 8601 (default: the SRT's date lines, "
-        "else the vessel's first fix).")] = None,
+        "else the vessel's first fix; for an AIS log, its first line with a receiver time, "
+        "whichever vessel's: give this with a log of several vessels).")] = None,
     utc_offset_h: Annotated[float | None, typer.Option(
         min=-14.0, max=14.0, help="A DJI SRT's local date lines: hours ahead of UTC.")] = None,
 ) -> None:

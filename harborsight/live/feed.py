@@ -7,13 +7,17 @@ Times. Flight time ``t`` counts from the video's first frame. The drone's log is
 its own clock: a DJI SRT runs on the video's, an autopilot log is placed by the video's UTC
 start (as ``telemetry video`` does). The vessel's sentences go out with the fix they follow,
 at that fix's UTC time less the video's UTC start: ``--video-start``, else the SRT's date
-lines, else the vessel's first fix (the two recordings are then taken to start together).
+lines, else the vessel's first fix (the two recordings are then taken to start together; an
+AIS log's first line with a receiver time, whichever vessel's).
 
 The vessel's log may be AIS (AIVDM/AIVDO with receiver times, as `telemetry video` reads it;
 for `live --ais`): each sentence goes out at its receiver time less the video's UTC start,
 without its tag block, and a position report re-encoded with the second of the minute it is
 sent at (a receiver dates a report by its own clock's minute and the report's second, so a
-recording replayed later must carry the seconds of now).
+recording replayed later must carry the seconds of now). Lines go out in the file's order:
+a line older than the one before is sent at once and dated now by the receiver, and a
+fragment of a multi-part message without a receiver time of its own is left out (`live`
+reads position reports, all single-part); the transponder's own delay is not replayed.
 
 MAVLink: ``GLOBAL_POSITION_INT`` (``relative_alt`` and ``alt`` both the log's altitude: the
 receiver's ``--water-level-m`` is in the log's datum), ``GIMBAL_DEVICE_ATTITUDE_STATUS`` with
