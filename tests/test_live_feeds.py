@@ -382,6 +382,29 @@ def _state(port: int) -> dict | None:
     return None
 
 
+@contextlib.contextmanager
+def _states_polled(http_port: int):
+    """The live states read from ``/api/state`` every 0.15 s while the block runs."""
+    import threading
+
+    states: list[dict] = []
+    done = threading.Event()
+
+    def poll() -> None:
+        while not done.is_set():
+            state = _state(http_port)
+            if state is not None:
+                states.append(state)
+            time.sleep(0.15)
+    poller = threading.Thread(target=poll, daemon=True)
+    poller.start()
+    try:
+        yield states
+    finally:
+        done.set()
+        poller.join(5)
+
+
 RTSP_SERVER = (Path(__file__).resolve().parents[1] / ".tools" / "rtsp" / "node_modules"
                / "rtsp-streaming-server")
 
@@ -454,18 +477,8 @@ def _stream_flight_into_live(tmp_path, video_to: str, video_from: str, live_opti
             time.sleep(0.2)
         import threading
 
-        states: list[dict] = []
-        done = threading.Event()
-
-        def poll() -> None:
-            while not done.is_set():
-                state = _state(http_port)
-                if state is not None:
-                    states.append(state)
-                time.sleep(0.15)
-        poller = threading.Thread(target=poll, daemon=True)
-        poller.start()
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as junk:
+        with _states_polled(http_port) as states, \
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as junk:
             timer = threading.Timer(6.0, lambda: (
                 junk.sendto(b"$GPRMC,garbage*00\r\nnot nmea at all\r\n", ("127.0.0.1", nmea_port)),
                 junk.sendto(bytes([0xFD, 9, 0, 0, 7, 1, 1, 33, 0, 0]) + os.urandom(20),
@@ -480,9 +493,7 @@ def _stream_flight_into_live(tmp_path, video_to: str, video_from: str, live_opti
             finally:
                 timer.cancel()
                 timer.join()
-        time.sleep(0.5)
-        done.set()
-        poller.join(5)
+            time.sleep(0.5)
     finally:
         live.send_signal(signal.SIGTERM)
         output = live.communicate(timeout=30)[0]
@@ -737,28 +748,17 @@ def test_a_class_b_vessel_live_is_carried_by_the_images_past_its_report(tmp_path
         while _state(http_port) is None:
             assert live.poll() is None and time.monotonic() < deadline, live.stdout.read()
             time.sleep(0.2)
-        import threading
-
-        done = threading.Event()
-
-        def poll() -> None:
-            while not done.is_set():
-                state = _state(http_port)
-                if state is not None:
-                    states.append(state)
-                time.sleep(0.15)
-        poller = threading.Thread(target=poll, daemon=True)
-        poller.start()
-        # live dates frames by the AIS receiver's clock, this machine's: flight time is the
-        # frame's time less the replay's start
-        started = datetime.now(UTC)
-        summary = play_flight(FeedPlan(
-            LOGS / "flight.mp4", LOGS / "flight.SRT", ais, video_to=f"udp://127.0.0.1:{video_port}",
-            mavlink_to=f"udpout:127.0.0.1:{mavlink_port}", nmea_to=f"127.0.0.1:{ais_port}",
-            start_s=0.0, duration_s=20.0))
-        time.sleep(0.5)
-        done.set()
-        poller.join(5)
+        with _states_polled(http_port) as polled:
+            # live dates frames by the AIS receiver's clock, this machine's: flight time is
+            # the frame's time less the replay's start
+            started = datetime.now(UTC)
+            summary = play_flight(FeedPlan(
+                LOGS / "flight.mp4", LOGS / "flight.SRT", ais,
+                video_to=f"udp://127.0.0.1:{video_port}",
+                mavlink_to=f"udpout:127.0.0.1:{mavlink_port}", nmea_to=f"127.0.0.1:{ais_port}",
+                start_s=0.0, duration_s=20.0))
+            time.sleep(0.5)
+        states.extend(polled)
     finally:
         live.send_signal(signal.SIGTERM)
         output = live.communicate(timeout=30)[0]

@@ -283,10 +283,11 @@ def _section_errors(out: Path) -> tuple[list[float], int]:
     return errors, carried
 
 
-def run_with_masks(flight: Path, out: Path, *options: str):
-    """`harborsight run` on a frames folder with its label masks (no video, no overlays):
-    the CLI's result, and run.json."""
-    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(flight / "labels"),
+def run_with_masks(flight: Path, out: Path, *options: str, masks: Path | None = None):
+    """`harborsight run` on a frames folder with its label masks (``flight/labels`` unless
+    given; no video, no overlays): the CLI's result, and run.json."""
+    masks = masks or flight / "labels"
+    result = CliRunner().invoke(app, ["run", str(flight), "--masks", str(masks),
                                       "--vessel", str(VESSEL), "--out", str(out), "--no-video",
                                       "--no-overlays", *options])
     assert result.exit_code == 0, result.output
@@ -502,11 +503,7 @@ def test_stills_every_two_seconds_with_a_class_b_vessel_are_carried_by_run(tmp_p
     assert "12 of 12 photo(s) written" in text
     assert "5 of them carry the vessel more than 12 s" in text and "not `measure`" in text
     out = tmp_path / "out"
-    result = CliRunner().invoke(app, ["run", str(tmp_path / "frames"), "--masks", str(masks),
-                                      "--vessel", str(VESSEL), "--out", str(out), "--no-video",
-                                      "--no-overlays"])
-    assert result.exit_code == 0, result.output
-    record = json.loads((out / "run.json").read_text())
+    _, record = run_with_masks(tmp_path / "frames", out, masks=masks)
     assert (record["measured"], record["skipped"]) == (12, 0) and record["pose_refinement"]["carried"] >= 5
     errors = []
     for index in indices:
