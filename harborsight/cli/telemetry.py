@@ -268,9 +268,7 @@ def telemetry_video(
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
-    _say_beyond_dead_reckoning(sum(
-        (frame["vessel"].get("dead_reckoned_s") or 0.0) > _max_dead_reckoned_s()
-        for frame in result.frames))
+    _say_beyond_dead_reckoning(result.beyond_dead_reckoning)
     if result.skipped:
         reasons = Counter(reason.split(":")[0] for _, reason in result.skipped)
         err_console.print(f"[red]{len(result.skipped)} frame(s) left out[/] (frames "
@@ -280,21 +278,17 @@ def telemetry_video(
     raise typer.Exit(1 if not result.frames else 0)
 
 
-def _max_dead_reckoned_s() -> float:
-    # imported here: training imports this module, and must not need the geodesy stack
-    from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
-
-    return MAX_DEAD_RECKONED_S
-
-
 def _say_beyond_dead_reckoning(count: int, photos: bool = False) -> None:
     """Say how many frames written carry the vessel past the dead reckoning it is measured
     with, and what measures them."""
+    # imported here: training imports this module, and must not need the geodesy stack
+    from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
+
     if count:
         how = ("`harborsight run` on the folder (not `measure`) measures those" if photos
                else "`run` and `live` measure those")
         err_console.print(f"[yellow]{count} of them[/] carry the vessel more than "
-                          f"{_max_dead_reckoned_s():g} s from its last report: {how} only where "
+                          f"{MAX_DEAD_RECKONED_S:g} s from its last report: {how} only where "
                           "the frames before placed the vessel in the image", highlight=False)
 
 

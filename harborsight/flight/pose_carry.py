@@ -58,6 +58,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pymap3d
 
+from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.pose_refinement import SENSORS_FIT
 from harborsight.clearance.report import ClearanceReport
 from harborsight.frame import FrameMetadata
@@ -67,6 +68,8 @@ from harborsight.geometry.sensor_sigmas import (
     MAX_DEAD_RECKONED_S,
     SensorSigmas,
 )
+from harborsight.pipeline import FrameMask, measure_mask
+from harborsight.vessel.spec import VesselSpec
 
 #: one sigma of a placed pose carried to the next frame, before any motion (DRMS, m; deg)
 FLOOR_M = 0.5
@@ -267,6 +270,21 @@ class VesselPoseCarry:
         return replace(meta, vessel_lat_deg=carried.lat_deg, vessel_lon_deg=carried.lon_deg,
                        vessel_heading_deg=carried.heading_deg, vessel_dead_reckoned_s=None,
                        sensor_sigmas=sigmas), carried, None
+
+
+    def measure(self, mask: FrameMask, meta: FrameMetadata, vessel: VesselSpec,
+                settings: ClearanceSettings, time_s: float | None
+                ) -> tuple[ClearanceReport, str | None]:
+        """``mask`` measured (:func:`~harborsight.pipeline.measure_mask`) with the carried
+        pose where it applies (:meth:`prior_for`), the report saying so, and what its image
+        placed taken for the frames after; with the warning of a disagreeing report, or None.
+        What `run` and the live aid do with every frame."""
+        meta, carried, disagreement = self.prior_for(meta, time_s, settings.sensor_sigmas(meta),
+                                                     vessel.name)
+        report = measure_mask(mask, meta, vessel, settings)
+        note_carried(report, carried)
+        self.took(meta, report, time_s)
+        return report, disagreement
 
 
 def _disagreement(meta: FrameMetadata, carried: CarriedPose, own: SensorSigmas) -> str | None:

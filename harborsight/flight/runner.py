@@ -44,11 +44,11 @@ from harborsight.clearance.measure import ClearanceSettings
 from harborsight.clearance.pose_refinement import refinement_counts
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
-from harborsight.flight.pose_carry import VesselPoseCarry, note_carried
+from harborsight.flight.pose_carry import VesselPoseCarry
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
 from harborsight.flight.tracking import MEASURED_STATES
-from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels
 from harborsight.viz.overlay import GREY, RED, draw_banner, draw_overlay
 
 RUN_SCHEMA = "harborsight.run/1"
@@ -320,14 +320,11 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
                 warnings.append(f"{frame.source}: {clock.drift_warning}")
                 clock.drift_warning = None
         mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data)
-        vessel = vessels.for_frame(frame.meta, frame.meta_path)
-        meta, carried, disagreement = carry.prior_for(
-            frame.meta, time_s, options.settings.sensor_sigmas(frame.meta), vessel.name)
+        report, disagreement = carry.measure(mask, frame.meta,
+                                             vessels.for_frame(frame.meta, frame.meta_path),
+                                             options.settings, time_s)
         if disagreement is not None:
             warnings.append(f"{frame.source}: {disagreement}")
-        report = measure_mask(mask, meta, vessel, options.settings)
-        note_carried(report, carried)
-        carry.took(meta, report, time_s)
     except HarborsightError as exc:
         frame.error = str(exc)
         return None

@@ -52,12 +52,12 @@ from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
-from harborsight.flight.pose_carry import VesselPoseCarry, note_carried, placed_by_image
+from harborsight.flight.pose_carry import VesselPoseCarry, placed_by_image
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
 from harborsight.live.health import SourceHealth
-from harborsight.pipeline import Segmenter, VesselCache, frame_labels, measure_mask
+from harborsight.pipeline import Segmenter, VesselCache, frame_labels
 
 SCHEMA = "harborsight.live/1"
 #: the inputs, and the frames measured from them, whose age the state shows
@@ -131,14 +131,10 @@ class LiveEngine:
         try:
             mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path,
                                 no_data)
-            vessel = self.vessels.for_frame(meta, meta_path)
-            meta, carried, disagreement = self._carry.prior_for(
-                meta, time_s, self.clearance.sensor_sigmas(meta), vessel.name)
+            report, disagreement = self._carry.measure(
+                mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance, time_s)
             if disagreement is not None:
                 self.warn("vessel", disagreement)
-            report = measure_mask(mask, meta, vessel, self.clearance)
-            note_carried(report, carried)
-            self._carry.took(meta, report, time_s)
         except HarborsightError as exc:
             return self.frame_failed(frame_index, str(exc))
         except Exception as exc:   # one bad frame must not stop the live aid

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError, brief
+from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 from harborsight.telemetry.accuracy import MAX_SIGMA_M
 from harborsight.telemetry.track import Track
 
@@ -152,6 +153,14 @@ class FrameMetadataResult:
     frames: list[dict]                      # one harborsight.frame/1 object per usable frame
     skipped: list[tuple[int, str]]          # (frame index, "what: detail")
     mount: str
+
+    @property
+    def beyond_dead_reckoning(self) -> int:
+        """Frames whose vessel pose is dead-reckoned past what is measured with
+        (:data:`~harborsight.geometry.sensor_sigmas.MAX_DEAD_RECKONED_S`): `run` and `live`
+        measure them where the frames before placed the vessel in the image."""
+        return sum((frame["vessel"].get("dead_reckoned_s") or 0.0) > MAX_DEAD_RECKONED_S
+                   for frame in self.frames)
 
 
 def build_video_metadata(
