@@ -295,6 +295,71 @@ def test_a_fix_on_a_larger_neighbour_does_not_hold_the_hull_there(monkeypatch):
     assert not held.sensors_contradicted and held.min_distance_m is not None
 
 
+def _abeam_m(geometry) -> np.ndarray:
+    """The vessel's starboard beam direction, east and north."""
+    heading = geometry.vessel_heading_rad
+    return np.array([math.cos(heading), -math.sin(heading)])
+
+
+def _rafted_between_sisters(labels: np.ndarray, true) -> np.ndarray:
+    """``labels`` with a sister hull drawn touching the vessel on either side (0.98 of a beam
+    abeam: one ship blob three hulls wide), on the water only."""
+    beam_m = float(np.ptp(TUG.outline[:, 1]))
+    rafted = labels.copy()
+    for side in (-1, 1):
+        moved = corrected_geometry(true, np.array([*(side * 0.98 * beam_m * _abeam_m(true)), 0.0, 0.0]))
+        uv = moved.camera.project(moved.vessel_to_enu(TUG.hull_points))[0]
+        drawn = np.zeros_like(labels)
+        cv2.fillConvexPoly(drawn, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
+        rafted[(drawn > 0) & (labels == 0)] = 1                          # ship, on the water
+    return rafted
+
+
+@pytest.mark.parametrize(("seed", "altitude_m"), [(5, 100), (3, 60)])
+def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, altitude_m):
+    """Rafted between two sister hulls, touching, with the sensors 2.5 m toward one of them
+    (and 1 m ahead, 1 degree turned): an outer twin puts one side on the blob's edge, the
+    true pose neither, and the alignment's cost took the twin, one beam (10.7 m) off,
+    applied and unflagged. Of the placements that fit alike, the prior now picks the one
+    nearest the sensors' pose."""
+    scene, labels = scene_and_labels(seed, "open", altitude_m)
+    true = scene.geometry()
+    rafted = _rafted_between_sisters(labels, true)
+    error = np.array([*(2.5 * _abeam_m(true) + 1.0 * _abeam_m(true) @ [[0, -1], [1, 0]]),
+                      math.radians(1.0), 0.0])
+    found, refinement = refine_vessel_pose(rafted, corrected_geometry(true, error), TUG)
+    assert refinement.applied, refinement.reason
+    assert pose_error(found, true)[0] < 0.3
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "TWIN_DEEP_SHARE", 1.01)        # no twin check
+        laid, unchecked = refine_vessel_pose(rafted, corrected_geometry(true, error), TUG)
+    assert unchecked.applied and not unchecked.sensors_contradicted
+    assert pose_error(laid, true)[0] > 9.0
+
+
+def test_sister_hulls_the_sensors_cannot_tell_apart_keep_the_sensors_pose():
+    """The sensors half a beam (5.4 m) toward one sister: the true pose and the twin are
+    about as near the sensors' pose, so the image cannot say which hull is the vessel. The
+    sensors' pose is kept with its own error bars, and the report says why; it is not a
+    contradiction of the sensors (the frame is measured, not flagged)."""
+    scene, labels = scene_and_labels(5, "open", 100)
+    true = scene.geometry()
+    rafted = _rafted_between_sisters(labels, true)
+    told = corrected_geometry(true, np.array([*(5.4 * _abeam_m(true)), 0.0, 0.0]))
+    _, refinement = refine_vessel_pose(rafted, told, TUG)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert "10.7 m abeam" in refinement.reason
+    report = measure_clearance(rafted, told, TUG)
+    assert not report.sensors_contradicted and not report.pose_refinement["applied"]
+    assert report.pose_refinement["reason"].startswith(pose_refinement.TWIN_ALIKE)
+    assert report.min_distance_m is not None          # measured, with the sensors' bars
+    truth = {s.index: s for s in measure_clearance(rafted, true, TUG).sections if s.status == "ok"}
+    bounded = [(s.distance_lower_m, truth[s.index].distance_m) for s in report.sections
+               if s.status == "ok" and s.index in truth]
+    assert bounded and all(lower <= true_m for lower, true_m in bounded)
+
+
 def test_a_vessel_rafted_between_two_others_is_held_there_by_its_ends():
     """Moored between two sister ships, the right pose puts only 40 % of its outline on ship
     edges (its sides lie against theirs), and a third sister on open water fits cleanly 30 m
@@ -302,17 +367,7 @@ def test_a_vessel_rafted_between_two_others_is_held_there_by_its_ends():
     is flagged. By the share alone it was (a reviewer's case)."""
     scene, labels = scene_and_labels(3, "open", 60)
     true = scene.geometry()
-    heading = true.vessel_heading_rad
-    abeam = np.array([math.cos(heading), -math.sin(heading)])
-    beam_m = float(np.ptp(TUG.outline[:, 1]))
-    rafted = labels.copy()
-    for side in (-1, 1):
-        moved = corrected_geometry(true, np.array([*(side * 0.98 * beam_m * abeam), 0.0, 0.0]))
-        uv = moved.camera.project(moved.vessel_to_enu(TUG.hull_points))[0]
-        drawn = np.zeros_like(labels)
-        cv2.fillConvexPoly(drawn, np.round(cv2.convexHull(uv.astype(np.float32))).astype(np.int32), 1)
-        rafted[(drawn > 0) & (labels == 0)] = 1                          # ship, on the water
-    rafted = _with_a_twin(rafted, true)
+    rafted = _with_a_twin(_rafted_between_sisters(labels, true), true)
     _, refinement = refine_vessel_pose(rafted, true, TUG)
     assert refinement.edge_share < pose_refinement.HELD_FROM_SHARE
     assert not refinement.sensors_contradicted, refinement.reason

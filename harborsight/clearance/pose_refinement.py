@@ -64,6 +64,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.alignment import (
+    DEEP_PX,
     MIN_EDGE_POINTS,
     SCHEDULES,
     Alignment,
@@ -324,7 +325,7 @@ def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselS
     Either the pose is off by more than the search could tell (on the bench: a fix 14 m
     off, a heading reversed, a camera yaw 60 degrees off, with a model's mask) or the mask
     misses the vessel; the distances are untrustworthy either way."""
-    if found.applied or found.reason == SENSORS_FIT:
+    if found.applied or found.reason == SENSORS_FIT or (found.reason or "").startswith(TWIN_ALIKE):
         return found
     share = found.edge_share or 0.0
     if share >= UNCONFIRMED_BELOW_SHARE:
@@ -499,10 +500,14 @@ ENDS_ON_EDGES_SHARE = 0.5
 ENDS_MIN_POINTS = 3
 
 
-def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray) -> bool:
+def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray,
+                   against_neighbours: bool = False) -> bool:
     """Whether the outline under the correction ``params`` has both its ends on ship edges
     (:data:`HULL_END_SHARE`, :data:`ENDS_ON_EDGES_SHARE`; an end with fewer than
-    :data:`ENDS_MIN_POINTS` points in view is not on edges)."""
+    :data:`ENDS_MIN_POINTS` points in view is not on edges). ``against_neighbours``: an end's
+    points deep inside ship pixels (:data:`~harborsight.clearance.alignment.DEEP_PX`) are
+    left out of its share, as for a stern whose quarters lie against the sterns of vessels
+    rafted alongside; an end all deep inside is still not on edges."""
     outline = silhouette.outline(align.pixels(silhouette.points_h, params))
     if outline.shape[1] == 0:
         return False
@@ -510,6 +515,8 @@ def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray)
     reach = HULL_END_SHARE * float(x.max() - x.min())
     for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
         values = align.residuals(end, params)
+        if against_neighbours:
+            values = values[values > -DEEP_PX]
         if len(values) < ENDS_MIN_POINTS or edge_share(values) < ENDS_ON_EDGES_SHARE:
             return False
     return True
@@ -709,6 +716,16 @@ def _refine_within_prior(
         again, scale_prior_m = rescaled
         params, information, _, value, fill_share = best = (*again, fill(again[0]))
 
+    twin_alike = None
+    if np.isfinite(params).all():
+        def solve_and_fill(start: np.ndarray) -> tuple:
+            found = solve(SCHEDULES[1], start)
+            return (*found, fill(found[0]))
+
+        best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
+                                           prior_diagonal, solve_and_fill, fill)
+        params, information, _, value, fill_share = best
+
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
     shift = (float(params[0]), float(params[1]))
     rotation_deg = math.degrees(float(params[2]))
@@ -750,6 +767,8 @@ def _refine_within_prior(
                   f"(at least {100 * settings.min_ship_fill:.0f} % needed)")
     elif residual_px is None or residual_px > settings.max_residual_px:
         reason = f"residual {residual_px:.2f} px above {settings.max_residual_px:g} px"
+    elif twin_alike is not None:
+        reason = twin_alike
     elif fraction < before - 0.02 or (
             fraction <= before + 0.02 and before_rms_px is not None
             and before_rms_px <= residual_px + SAME_FIT_RMS_PX):
@@ -771,6 +790,86 @@ def _refine_within_prior(
         return geometry, replace(found, reason=reason, edge_share=edge_share(at_sensors),
                                  sensors_contradicted=contradicted, image_hull_px=image_hull_px)
     return corrected_geometry(geometry, params), replace(found, applied=True, edge_share=edge_share(value))
+
+
+#: a pose is checked for a twin alongside when this share of its outline's points in view
+#: lies deep inside ship pixels (:data:`~harborsight.clearance.alignment.DEEP_PX`): a side
+#: pressed against a neighbour's
+TWIN_DEEP_SHARE = 0.2
+#: a twin is another placement this share of the hull's beam or more from the pose
+TWIN_APART_BEAMS = 0.5
+#: placements that fit the mask alike are told apart by the prior alone, and only when their
+#: squared prior distances differ by this much (odds of 20 to 1)
+TWIN_ODDS_D2 = 2.0 * math.log(20.0)
+#: how the reason for a pose kept for want of telling twins apart begins
+TWIN_ALIKE = "the hull fits the mask as well "
+
+
+def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
+                settings: PoseRefinementSettings) -> bool:
+    """Whether a candidate ``(params, information, cost, signed distances, fill)`` fits the
+    mask as a placement of the hull would be accepted: within the limits, the outline's
+    points that can tell on edges, the silhouette filled, both ends on edges where they are
+    not against a neighbour's."""
+    params, _, _, value, fill_share = candidate
+    if not np.isfinite(params).all() or fill_share < settings.min_ship_fill:
+        return False
+    if any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
+                   settings.max_height_change_m)):
+        return False
+    fraction, residual_px, n_edge = outline_fit(value)
+    return (n_edge >= MIN_EDGE_POINTS and fraction >= settings.min_inlier_fraction
+            and residual_px is not None and residual_px <= settings.max_residual_px
+            and _ends_on_edges(align, silhouette, params, against_neighbours=True))
+
+
+def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geometry: FrameGeometry,
+                    settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill
+                    ) -> tuple[tuple, str | None]:
+    """The placement to keep when the hull may be one of identical vessels rafted side by
+    side, and why none can be kept when the sensors cannot tell which.
+
+    A vessel moored between two sister hulls, touching, makes one ship blob three beams
+    wide whose every beam-wide strip holds a hull with its bow and stern on edges. The
+    alignment's cost counts the outline's points deep inside ship pixels as misses, so a
+    placement on an outer twin (one side on the blob's edge) beats the true one (both sides
+    against the twins'): on schematic rafts at the documented sensor errors, 41 of 96 frames
+    were laid one beam over and applied. The image cannot tell such placements apart, so the
+    prior must: when ``best`` (a candidate ``(params, information, cost, signed distances,
+    fill)``) has :data:`TWIN_DEEP_SHARE` of its outline deep in ship pixels, the alignment is
+    run again from a beam to either side where the silhouette there is filled (``fill(params)``
+    its share of ship pixels; ``solve(start)`` returns a candidate); of ``best``
+    and the placements that fit as one would be accepted (:func:`_fits_alike`), all
+    :data:`TWIN_APART_BEAMS` beams or more apart, the one nearest the sensors' pose under
+    the prior (``p^T diag(prior) p``) is kept, when it is nearer than the next by
+    :data:`TWIN_ODDS_D2`; otherwise the reason to keep the sensors' pose is returned with
+    it."""
+    params, value = best[0], best[3]
+    if not len(value) or np.count_nonzero(value < -DEEP_PX) < TWIN_DEEP_SHARE * len(value):
+        return best, None
+    beam_m = float(np.ptp(silhouette.points_h[1]))
+    heading = geometry.vessel_heading_rad + float(params[2])
+    abeam = beam_m * np.array([math.cos(heading), -math.sin(heading), 0.0, 0.0])
+    alike = [best]
+    for side in (1.0, -1.0):
+        start = params + side * abeam
+        if fill(start) < settings.min_ship_fill:
+            continue        # water or a quay a beam over: no twin there (a solve costs ~2 ms)
+        found = solve(start)
+        if (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
+                and _fits_alike(found, align, silhouette, settings)):
+            alike.append(found)
+    if len(alike) == 1:
+        return best, None
+    alike.sort(key=lambda c: float(c[0] @ (prior_diagonal * c[0])))
+    nearest, next_ = (float(c[0] @ (prior_diagonal * c[0])) for c in alike[:2])
+    if next_ - nearest >= TWIN_ODDS_D2:
+        return alike[0], None
+    apart_m = math.hypot(*(alike[1][0][:2] - alike[0][0][:2]))
+    odds = math.exp(0.5 * (next_ - nearest))
+    return alike[0], (f"{TWIN_ALIKE}{apart_m:.1f} m abeam (a vessel alike alongside), and the "
+                      f"sensors' pose tells them apart only {odds:.1f} to 1 "
+                      f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
 
 
 #: a refused correction that puts this much more of the outline on ship edges than the
