@@ -524,3 +524,18 @@ def test_a_pose_the_image_shows_no_vessel_at_is_not_trusted():
     assert report.pose_refinement["reason"].startswith("only 0 % of the hull's outline lies on a ship edge")
     assert not measure_clearance(erased, true, TUG, NO_SEARCH).sensors_contradicted
     assert not measure_clearance(labels, true, TUG).sensors_contradicted
+
+
+def test_frames_kept_for_sister_hulls_are_one_kind_in_the_batch_line():
+    """A flight beside sister hulls keeps the sensors' pose on many frames, each with its own
+    distance and odds: the batch line counts them as one reason, and no frame is said to
+    contradict the sensors."""
+    kept = [{"applied": False, "reason": f"{pose_refinement.TWIN_ALIKE}{apart} m abeam (a vessel "
+             f"alike alongside), and the sensors' pose tells them apart only {odds} to 1 (at "
+             "least 20 to 1 needed)", "sensors_contradicted": False}
+            for apart, odds in (("10.7", "2.2"), ("10.9", "11.0"), ("8.4", "16.8"))]
+    applied = [{"applied": True, "reason": None, "sensors_contradicted": False}]
+    line = pose_refinement.refinement_summary(kept + applied)
+    assert line.startswith("pose refined on 1 of 4 frame(s)")
+    assert "the sensors' pose kept on 3 (3x the hull fits the mask as well" in line
+    assert "contradicts" not in line
