@@ -861,13 +861,13 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
             alike.append(found)
     if len(alike) == 1:
         return best, None
-    alike.sort(key=lambda c: float(c[0] @ (prior_diagonal * c[0])))
-    nearest, next_ = (float(c[0] @ (prior_diagonal * c[0])) for c in alike[:2])
-    if next_ - nearest >= TWIN_ODDS_D2:
-        return alike[0], None
-    apart_m = math.hypot(*(alike[1][0][:2] - alike[0][0][:2]))
-    odds = math.exp(0.5 * (next_ - nearest))
-    return alike[0], (f"{TWIN_ALIKE}{apart_m:.1f} m abeam (a vessel alike alongside), and the "
+    d2 = [float(c[0] @ (prior_diagonal * c[0])) for c in alike]
+    first, second = np.argsort(d2, kind="stable")[:2]
+    if d2[second] - d2[first] >= TWIN_ODDS_D2:
+        return alike[first], None
+    apart_m = math.hypot(*(alike[second][0][:2] - alike[first][0][:2]))
+    odds = math.exp(0.5 * (d2[second] - d2[first]))
+    return alike[first], (f"{TWIN_ALIKE}{apart_m:.1f} m abeam (a vessel alike alongside), and the "
                       f"sensors' pose tells them apart only {odds:.1f} to 1 "
                       f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
 
