@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -24,7 +25,10 @@ from harborsight.clearance.pose_search import (
     silhouette_overlap,
     whole_image_alignment,
 )
-from harborsight.sim.schematic import ground_truth
+from harborsight.geometry.sensor_sigmas import SensorSigmas
+from harborsight.sim.ground_truth import vessel_silhouette_px
+from harborsight.sim.schematic import ground_truth, render, sample_scene
+from harborsight.vessel.spec import parse_vessel_spec
 from tests.test_pose_refinement import TUG, pose_error, scene_and_labels
 
 NO_SEARCH = ClearanceSettings(pose_refinement=PoseRefinementSettings(search_whole_image=False))
@@ -358,6 +362,68 @@ def test_sister_hulls_the_sensors_cannot_tell_apart_keep_the_sensors_pose():
     bounded = [(s.distance_lower_m, truth[s.index].distance_m) for s in report.sections
                if s.status == "ok" and s.index in truth]
     assert bounded and all(lower <= true_m for lower, true_m in bounded)
+
+
+#: a 12 m yacht drawn from its dimensions, 4 m in beam; berths 5 m apart
+YACHT = parse_vessel_spec({"name": "yacht", "air_draft_m": 1.5, "dimensions": {
+    "to_bow": 8.0, "to_stern": 4.0, "to_port": 2.0, "to_starboard": 2.0}}, Path("yacht.yaml"))
+YACHT_BERTH_M = 5.0
+
+
+def _yacht_in_a_row(seed: int, altitude_m: float):
+    """The yacht in the open scene with four sister yachts moored in a row beside it, a
+    metre of water between hulls (five ship blobs): ``(labels, true geometry)``."""
+    scene = sample_scene(YACHT, np.random.default_rng(seed), altitude_m=altitude_m, tilt_deg=3.0,
+                         scenario="open")
+    labels = render(scene)[1].copy()
+    true = scene.geometry()
+    for slot in (-2, -1, 1, 2):
+        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
+        for polygon in vessel_silhouette_px(YACHT, moved):
+            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    return labels, true
+
+
+@pytest.mark.parametrize(("seed", "altitude_m"), [(3, 60), (8, 30)])
+def test_a_yacht_in_a_row_of_sisters_is_not_laid_on_the_next_berth(seed, altitude_m):
+    """A marina's row of identical yachts, 5 m apart, with the sensors 3 m toward the next
+    berth (the documented errors reach that): the alignment went to the nearer blob, the
+    neighbour, and applied it unflagged (19 of 96 frames of a row of five at the documented
+    errors). The other blobs of the hull's size are fitted too, and the prior cannot tell
+    the two apart at 20 to 1: the sensors' pose is kept, measured, and the reason says so."""
+    labels, true = _yacht_in_a_row(seed, altitude_m)
+    told = corrected_geometry(true, np.array([*(3.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "TWIN_BLOB_STARTS", 0)        # no other blob fitted
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and not unchecked.sensors_contradicted
+    assert pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    said = refinement.reason[len(pose_refinement.TWIN_ALIKE):]
+    apart_m = float(said.split(" m abeam (a vessel alike alongside)")[0])
+    assert apart_m == pytest.approx(YACHT_BERTH_M, abs=0.3)
+    report = measure_clearance(labels, told, YACHT)
+    assert not report.sensors_contradicted and report.min_distance_m is not None
+
+
+def test_a_tighter_prior_tells_sister_yachts_apart():
+    """The same row with the sensors 1.5 m toward the next berth: under a 3 m prior the
+    true pose is 3 to 1 likelier than the neighbour, kept so; under a 1 m prior (DGPS on
+    both receivers) it is about 25,000 to 1, and the alignment's pose is applied. A frame's
+    sensors set that prior in ``measure_clearance``."""
+    labels, true = _yacht_in_a_row(3, 60)
+    told = corrected_geometry(true, np.array([*(1.5 * _abeam_m(true)), 0.0, 0.0]))
+    _, default = refine_vessel_pose(labels, told, YACHT)
+    assert not default.applied and default.reason.startswith(pose_refinement.TWIN_ALIKE)
+    found, tight = refine_vessel_pose(labels, told, YACHT, PoseRefinementSettings(prior_shift_m=1.0))
+    assert tight.applied, tight.reason
+    assert pose_error(found, true)[0] < 0.3
+    # the frame's own sensors set that prior: DGPS on both receivers gives about 1 m
+    dgps = measure_clearance(labels, told, YACHT, sigmas=SensorSigmas(uav_gps=0.5, vessel_gps=0.5))
+    assert dgps.pose_refinement["applied"], dgps.pose_refinement["reason"]
+    assert not measure_clearance(labels, told, YACHT).pose_refinement["applied"]
 
 
 def test_a_vessel_rafted_between_two_others_is_held_there_by_its_ends():

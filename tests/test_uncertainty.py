@@ -106,6 +106,32 @@ def test_gps_of_both_receivers_adds_per_axis():
     assert section.sigma_random_m == pytest.approx(QUANTISATION_M, rel=1e-3)
 
 
+def test_the_alignments_prior_follows_the_frames_sensors():
+    """The refinement's shift and heading priors are its defaults (3 m per axis, 3 deg) for
+    the default sensors, scaled by the frame's sensors against them; by hand at 60 m with
+    the hull 10 m from the nadir: receivers per axis (DRMS / sqrt 2), a 0.5 deg tilt moves
+    the scene 0.524 m, a 2 deg yaw 0.349 m across (half per axis)."""
+    from harborsight.clearance.measure import alignment_settings
+
+    settings = ClearanceSettings()
+    tilt_m2, yaw_m2 = (60 * math.tan(math.radians(0.5))) ** 2, 0.5 * (10 * math.radians(2.0)) ** 2
+    default_m = math.sqrt(2.0 + 2.0 + tilt_m2 + yaw_m2)                  # 2.07 m
+    for sigmas, shift_m, heading_deg in (
+            (SensorSigmas(), 3.0, 3.0),
+            (SensorSigmas(uav_gps=0.5, vessel_gps=0.5, vessel_heading_deg=0.3),
+             3.0 * math.sqrt(0.125 + 0.125 + tilt_m2 + yaw_m2) / default_m,   # 1.05 m
+             3.0 * math.hypot(0.3, 2.0) / math.hypot(2.0, 2.0)),              # 2.15 deg
+            (SensorSigmas(vessel_gps=6.0),                                       # dead reckoned
+             3.0 * math.sqrt(2.0 + 18.0 + tilt_m2 + yaw_m2) / default_m, 3.0)):
+        prior = alignment_settings(settings, sigmas, 60.0, 10.0)
+        assert prior.prior_shift_m == pytest.approx(shift_m, rel=1e-12)
+        assert prior.prior_heading_deg == pytest.approx(heading_deg, rel=1e-12)
+    exact = SensorSigmas(uav_gps=0, vessel_gps=0, vessel_heading_deg=0, camera_yaw_deg=0,
+                         camera_tilt_deg=0)
+    prior = alignment_settings(settings, exact, 60.0, 10.0)
+    assert prior.prior_shift_m > 0 and prior.prior_heading_deg > 0        # a prior still
+
+
 def test_mask_edge_adds_its_pixels_in_metres():
     section = _sigma(_nadir(), [5.0, 0.0], [8.0, 0.0], SensorSigmas(**{**ZERO.to_dict(),
                                                                       "edge_px": 2.0}))

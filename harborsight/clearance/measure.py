@@ -450,15 +450,42 @@ SCALE_EDGE_SHARE = 0.6
 HEIGHT_LIMIT_SIGMAS = 4.0
 
 
+#: the least prior (m, deg) the sensors' sigmas can give the alignment: sigmas of zero say
+#: the pose is exact, and a prior of zero would be no prior at all
+MIN_PRIOR_SHIFT_M = 0.02
+MIN_PRIOR_HEADING_DEG = 0.05
+
+
 def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas,
-                       height_m: float) -> PoseRefinementSettings:
-    """The pose refinement's settings for a frame at ``height_m`` above the water: the
-    height's prior is the frame's own scale sigma, its height's and its focal length's
+                       height_m: float, nadir_offset_m: float = 0.0) -> PoseRefinementSettings:
+    """The pose refinement's settings for a frame at ``height_m`` above the water with the
+    vessel's antenna ``nadir_offset_m`` from the camera's nadir.
+
+    The shift's and the heading's priors are the refinement's own (3 m per axis and 3° by
+    default, for standalone receivers and magnetic compasses) scaled by the frame's sensors
+    against the default ones: the hull's shift sigma
+    (:meth:`~harborsight.geometry.sensor_sigmas.SensorSigmas.hull_shift_axis_m`) and
+    heading sigma of the frame's sigmas over those of :class:`SensorSigmas`' defaults at
+    the same height and offset. Default sensors keep the default priors; DGPS on both
+    receivers narrows the shift's to about 1 m, RTK to 0.8 m (the camera's attitude is left),
+    a pose carried by dead reckoning widens it. The prior decides between sister hulls the
+    image cannot tell apart (:func:`~harborsight.clearance.pose_refinement._twin_alongside`),
+    so it must say what the sensors can.
+
+    The height's prior is the frame's own scale sigma, its height's and its focal length's
     (an RTK altitude and a calibrated camera hold the scale, a barometer or a datasheet's
     focal length let the hull's size in pixels correct it), and the height's limit at least
     :data:`HEIGHT_LIMIT_SIGMAS` of it; the scale test's mask edge :data:`SCALE_EDGE_SHARE`
     of the frame's edge sigma."""
     alignment = settings.pose_refinement
+    default = SensorSigmas()
+    shift_scale = (sigmas.hull_shift_axis_m(height_m, nadir_offset_m)
+                   / default.hull_shift_axis_m(height_m, nadir_offset_m))
+    heading_scale = sigmas.hull_heading_deg / default.hull_heading_deg
+    alignment = replace(
+        alignment,
+        prior_shift_m=max(alignment.prior_shift_m * shift_scale, MIN_PRIOR_SHIFT_M),
+        prior_heading_deg=max(alignment.prior_heading_deg * heading_scale, MIN_PRIOR_HEADING_DEG))
     if not alignment.refine_height:
         return alignment
     prior_m = max(sigmas.scale_height_m(height_m), 1e-3)
@@ -572,8 +599,9 @@ def measure_clearance(
 
     # align the vessel to its own pixels; the sensors' pose stays when that is not trustworthy
     sigmas = sigmas or settings.sensor_sigmas()
-    geometry, refinement = refine_vessel_pose(labels, geometry, vessel,
-                                              alignment_settings(settings, sigmas, height_m))
+    nadir_offset_m = float(np.hypot(*(geometry.vessel_position_enu[:2] - camera.position_enu[:2])))
+    geometry, refinement = refine_vessel_pose(
+        labels, geometry, vessel, alignment_settings(settings, sigmas, height_m, nadir_offset_m))
     if refinement.applied:      # the hull moved (and the camera's height): all once more
         in_image = _sections_in_image(sections_v, geometry)
         camera = geometry.camera

@@ -72,6 +72,7 @@ from harborsight.clearance.alignment import (
     Silhouette,
     corrected_geometry,
     gauss_newton,
+    homogeneous,
     outline_fit,
     ship_fill,
     tukey_cost,
@@ -100,7 +101,10 @@ SKIP_SECOND_START_FRACTION = 0.9
 
 @dataclass(frozen=True)
 class PoseRefinementSettings:
-    """Priors (one sigma of the combined drone + vessel error, per axis) and acceptance."""
+    """Priors (one sigma of the combined drone + vessel error, per axis) and acceptance.
+    The priors here are those of the default sensors; ``measure_clearance`` scales the
+    shift's and the heading's to a frame's own (:func:`harborsight.clearance.measure.
+    alignment_settings`)."""
 
     enabled: bool = True
     prior_shift_m: float = 3.0
@@ -228,6 +232,33 @@ SEARCH_POINTS = 120
 SEARCH_TUKEY_PX = SCHEDULES[1][0][1]
 
 
+def _shift_costs(align: Alignment, outline: np.ndarray, params: np.ndarray, de: np.ndarray,
+                 dn: np.ndarray, points: int = SEARCH_POINTS) -> np.ndarray | None:
+    """The Tukey cost at :data:`SEARCH_TUKEY_PX` of up to ``points`` outline points
+    (every k-th) under the correction ``params`` moved by each horizontal shift
+    ``(de, dn)`` (metres; points that leave the view count as outliers), one per shift.
+    The outline's pixels under a shift are taken to first order, ``uv(t) = uv(0) + J t``,
+    with ``J`` from the projections at 1 m east and 1 m north: one projection per axis
+    instead of one per shift. None when too few points project."""
+    if outline.shape[1] == 0:
+        return None
+    outline = outline[:, ::-(-outline.shape[1] // points)]    # every k-th point
+    base = align.pixels(outline, params)
+    east = align.pixels(outline, params + np.array([1.0, 0.0, 0.0, 0.0])) - base
+    north = align.pixels(outline, params + np.array([0.0, 1.0, 0.0, 0.0])) - base
+    keep = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
+    if keep.sum() < MIN_EDGE_POINTS:
+        return None
+    base, east, north = base[keep], east[keep], north[keep]
+    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
+          - align.origin.T[None])                                    # (shifts, points, 2)
+    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
+            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
+    values = np.full(seen.shape, np.inf)
+    values[seen] = align.sdf.sample(xy[seen].T)[0]
+    return tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+
+
 def _translation_search(align: Alignment, outline: np.ndarray, settings: PoseRefinementSettings,
                         taken: list[np.ndarray]) -> list[tuple[float, float]]:
     """The best horizontal shifts ``(de, dn)`` (metres) of a grid over the prior's reach
@@ -236,38 +267,22 @@ def _translation_search(align: Alignment, outline: np.ndarray, settings: PoseRef
     neighbourhood holds the wrong basin (a start 5 m off with a 3 m prior, docs/results.md).
 
     A cell is scored by the Tukey cost, at the second schedule's first scale
-    (:data:`SEARCH_TUKEY_PX`, the basin its run starts with), of the signed distances of up
-    to :data:`SEARCH_POINTS` outline points (every k-th); points that leave the view count as
-    outliers. The outline's pixels under a shift are taken to first order,
-    ``uv(t) = uv(0) + J t``, with ``J`` from the projections at 1 m east and 1 m north: one
-    projection per axis instead of one per cell. At most :data:`SEARCH_STARTS` cells, each
-    cheaper than the sensors' pose and more than 1.5 steps from the other starts (``taken``,
-    the sensors' pose among them) and from each other; none when no cell beats the sensors'
-    pose."""
+    (:data:`SEARCH_TUKEY_PX`, the basin its run starts with), of the outline's points
+    (:func:`_shift_costs`). At most :data:`SEARCH_STARTS` cells, each cheaper than the
+    sensors' pose and more than 1.5 steps from the other starts (``taken``, the sensors'
+    pose among them) and from each other; none when no cell beats the sensors' pose."""
     reach_m = _reach(settings)[0]
     step_m = SEARCH_STEP_SIGMA * settings.prior_shift_m
     n = int(reach_m // step_m)
-    if n < 1 or outline.shape[1] == 0:
+    if n < 1:
         return []
-    outline = outline[:, ::-(-outline.shape[1] // SEARCH_POINTS)]    # every k-th point
-    base = align.pixels(outline, np.zeros(4))
-    east = align.pixels(outline, np.array([1.0, 0.0, 0.0, 0.0])) - base
-    north = align.pixels(outline, np.array([0.0, 1.0, 0.0, 0.0])) - base
-    keep = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
-    if keep.sum() < MIN_EDGE_POINTS:
-        return []
-    base, east, north = base[keep], east[keep], north[keep]
     offsets = np.arange(-n, n + 1) * step_m
     de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
     inside = np.hypot(de, dn) <= reach_m + 1e-9
     de, dn = de[inside], dn[inside]
-    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
-          - align.origin.T[None])                                    # (cells, points, 2)
-    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
-            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
-    values = np.full(seen.shape, np.inf)
-    values[seen] = align.sdf.sample(xy[seen].T)[0]
-    cost = tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+    cost = _shift_costs(align, outline, np.zeros(4), de, dn)
+    if cost is None:
+        return []
     centre = cost[np.flatnonzero((de == 0) & (dn == 0))[0]]
     found: list[tuple[float, float]] = []
     others = [(float(t[0]), float(t[1])) for t in taken]
@@ -304,13 +319,16 @@ def refine_vessel_pose(
     height counts as gross only beyond
     :data:`GROSS_HEIGHT_SHARE` of the camera's height. When the search changes nothing and the
     sensors' pose kept leaves its outline off the ship's edges, that contradicts the sensors
-    too (:func:`_unconfirmed`). Never raises for a failed alignment.
+    too (:func:`_unconfirmed`). A pose kept because vessels alike fit the mask as well
+    (:func:`_twin_alongside`) is not searched: the search would find one of them. Never
+    raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
     refined, found = _refine_within_prior(labels, geometry, vessel, settings)
-    if not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW:
-        return refined, found
+    if (not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW
+            or (found.reason or "").startswith(TWIN_ALIKE)):
+        return refined, found       # (the image holds vessels alike: it would find one of them)
     chosen, result = _search_whole_image(labels, geometry, refined, found, vessel, settings)
     if result is found:         # the search changed nothing: is the pose kept borne out?
         result = _unconfirmed(found, geometry, vessel)
@@ -723,7 +741,7 @@ def _refine_within_prior(
             return (*found, fill(found[0]))
 
         best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
-                                           prior_diagonal, solve_and_fill, fill)
+                                           prior_diagonal, solve_and_fill, fill, ship)
         params, information, _, value, fill_share = best
 
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
@@ -803,6 +821,15 @@ TWIN_APART_BEAMS = 0.5
 TWIN_ODDS_D2 = 2.0 * math.log(20.0)
 #: how the reason for a pose kept for want of telling twins apart begins
 TWIN_ALIKE = "the hull fits the mask as well "
+#: another ship blob may hold a twin when its area is within these shares of the hull's
+#: silhouette's: less is a buoy, a tender or a twin mostly out of view; more, a larger
+#: vessel, inside which the hull would fit with its sides and one end on nothing
+TWIN_BLOB_AREA = (0.6, 1.6)
+#: at most this many such blobs are fitted, the likeliest under the prior first
+TWIN_BLOB_STARTS = 3
+#: outline points (at most) that score a cell on such a blob: a start need only be in the
+#: basin of the alignment's first scale
+TWIN_BLOB_POINTS = 40
 
 
 def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
@@ -823,38 +850,132 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
             and _ends_on_edges(align, silhouette, params, against_neighbours=True))
 
 
+def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, outline: np.ndarray,
+                 ship: np.ndarray, prior_diagonal: np.ndarray, step_m: float,
+                 apart_m: float) -> list[np.ndarray]:
+    """Starts of the alignment on the mask's other ship blobs, for identical vessels
+    moored apart (a marina's row of charter yachts).
+
+    The blobs are the connected components of the window's ship pixels (``ship``) eroded
+    by a 3x3 square and at half the resolution, a pixel ship where all four under it are
+    (which parts blobs joined by a pixel or two: a metre of water at 150 m).
+    Shifts of the pose ``params`` on a grid of ``step_m`` are kept where the prior cannot
+    rule them out (``p^T diag(prior) p``, the shift shortened by a step, within
+    :data:`TWIN_ODDS_D2` of ``params``'), ``apart_m`` or more from it, and where the hull's
+    centre falls on a blob other than its own whose area is within :data:`TWIN_BLOB_AREA`
+    of the silhouette's; per blob the cell whose outline fits best
+    (:func:`_shift_costs`) is a start. At most :data:`TWIN_BLOB_STARTS`, the likeliest
+    under the prior first. Blobs clipped by the window are so started within a step of
+    their best placement (their centroids are not: a hull half out of the window moves it
+    by metres)."""
+    uv = align.pixels(silhouette.points_h, params)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) < 3:
+        return []
+    area_px = float(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
+    least_px, most_px = TWIN_BLOB_AREA[0] * area_px, TWIN_BLOB_AREA[1] * area_px
+    if area_px < 1.0 or np.count_nonzero(ship) < 2.0 * least_px:
+        return []       # too few ship pixels in the window for the hull and a twin
+    # eroded once, and at half the resolution a pixel ship only where all four under it
+    # are: blobs joined by a pixel or two part, and the labelling costs a quarter
+    rows, cols = ship.shape[0] // 2 * 2, ship.shape[1] // 2 * 2
+    if min(rows, cols) < 4:
+        return []
+    e = cv2.erode(ship.view(np.uint8), np.ones((3, 3), np.uint8))[:rows, :cols]
+    parted = e[::2, ::2] & e[1::2, ::2] & e[::2, 1::2] & e[1::2, 1::2]
+    count, blobs, stats, _ = cv2.connectedComponentsWithStats(parted, connectivity=8)
+    if count <= 2:
+        return []
+    point = homogeneous(np.array([silhouette.points_h[:3].mean(axis=1)]))
+    at = align.pixels(point, params)[0] - align.origin.ravel()
+    jacobian = np.column_stack([align.pixels(point, params + step)[0] - align.origin.ravel() - at
+                                for step in (np.array([1.0, 0, 0, 0]), np.array([0, 1.0, 0, 0]))])
+    if not (np.isfinite(at).all() and np.isfinite(jacobian).all()):
+        return []
+
+    def blob_at(de: np.ndarray, dn: np.ndarray) -> np.ndarray:
+        col = np.floor(0.5 * (at[0] + jacobian[0, 0] * de + jacobian[0, 1] * dn)).astype(int)
+        row = np.floor(0.5 * (at[1] + jacobian[1, 0] * de + jacobian[1, 1] * dn)).astype(int)
+        inside = (row >= 0) & (row < blobs.shape[0]) & (col >= 0) & (col < blobs.shape[1])
+        out = np.zeros(len(de), int)
+        out[inside] = blobs[row[inside], col[inside]]
+        return out
+
+    own = int(blob_at(np.zeros(1), np.zeros(1))[0])
+    d2_best = float(params @ (prior_diagonal * params))
+    shift_sigma_m = prior_diagonal[0] ** -0.5
+    rest = d2_best - float(params[:2] @ (prior_diagonal[:2] * params[:2]))    # turn and height
+    reach_m = shift_sigma_m * math.sqrt(max(d2_best + TWIN_ODDS_D2 - rest, 0.0)) + step_m
+    n = math.ceil(reach_m / step_m)
+    offsets = np.arange(-n, n + 1) * step_m
+    east, north = (g.ravel() for g in np.meshgrid(offsets, offsets))      # shifts from the sensors'
+    shortened = np.maximum(np.hypot(east, north) - step_m, 0.0)
+    de, dn = east - params[0], north - params[1]                          # from the pose
+    keep = (shortened ** 2 * prior_diagonal[0] + rest < d2_best + TWIN_ODDS_D2) & (
+        np.hypot(de, dn) >= apart_m)
+    de, dn, shortened = de[keep], dn[keep], shortened[keep]
+    label = blob_at(de, dn)
+    areas = 4.0 * stats[:, cv2.CC_STAT_AREA]
+    alike = (areas >= least_px) & (areas <= most_px)
+    on_other = (label > 0) & (label != own) & alike[label]
+    if not on_other.any():
+        return []
+    de, dn, shortened, label = de[on_other], dn[on_other], shortened[on_other], label[on_other]
+    cost = _shift_costs(align, outline, params, de, dn, TWIN_BLOB_POINTS)
+    if cost is None:
+        return []
+    starts = []
+    for blob in np.unique(label):
+        cells = np.flatnonzero(label == blob)
+        cell = cells[np.argmin(cost[cells])]
+        starts.append((float(shortened[cell]), params + np.array([de[cell], dn[cell], 0.0, 0.0])))
+    starts.sort(key=lambda item: item[0])
+    return [start for _, start in starts[:TWIN_BLOB_STARTS]]
+
+
 def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geometry: FrameGeometry,
-                    settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill
-                    ) -> tuple[tuple, str | None]:
-    """The placement to keep when the hull may be one of identical vessels rafted side by
-    side, and why none can be kept when the sensors cannot tell which.
+                    settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill,
+                    ship: np.ndarray) -> tuple[tuple, str | None]:
+    """The placement to keep when the hull may be one of identical vessels moored side by
+    side or in a row, and why none can be kept when the sensors cannot tell which.
 
     A vessel moored between two sister hulls, touching, makes one ship blob three beams
     wide whose every beam-wide strip holds a hull with its bow and stern on edges. The
     alignment's cost counts the outline's points deep inside ship pixels as misses, so a
     placement on an outer twin (one side on the blob's edge) beats the true one (both sides
     against the twins'): on schematic rafts at the documented sensor errors, 41 of 96 frames
-    were laid one beam over and applied. The image cannot tell such placements apart, so the
-    prior must: when ``best`` (a candidate ``(params, information, cost, signed distances,
-    fill)``) has :data:`TWIN_DEEP_SHARE` of its outline deep in ship pixels, the alignment is
-    run again from a beam to either side where the silhouette there is filled (``fill(params)``
-    its share of ship pixels; ``solve(start)`` returns a candidate); of ``best``
-    and the placements that fit as one would be accepted (:func:`_fits_alike`), all
-    :data:`TWIN_APART_BEAMS` beams or more apart, the one nearest the sensors' pose under
-    the prior (``p^T diag(prior) p``) is kept, when it is nearer than the next by
-    :data:`TWIN_ODDS_D2`; otherwise the reason to keep the sensors' pose is returned with
-    it."""
+    were laid one beam over and applied. Identical vessels moored apart (a marina's row of
+    yachts 5 m apart) are separate blobs that fit alike, and the alignment goes to the one
+    its start lies nearest: 19 of 96 frames of a 12 m yacht in a row of five were laid a
+    berth over at the documented errors. The image cannot tell such placements apart, so
+    the prior must. When ``best`` (a candidate ``(params, information, cost, signed
+    distances, fill)``) has :data:`TWIN_DEEP_SHARE` of its outline deep in ship pixels, the
+    alignment is run again from a beam to either side where the silhouette there is filled
+    (``fill(params)`` its share of ship pixels; ``solve(start)`` returns a candidate); and
+    from the other blobs of the hull's size the prior cannot rule out
+    (:func:`_blob_starts`). Of ``best`` and the placements that fit as one would be
+    accepted (:func:`_fits_alike`), all :data:`TWIN_APART_BEAMS` beams or more apart, the
+    one nearest the sensors' pose under the prior (``p^T diag(prior) p``) is kept, when it
+    is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
+    sensors' pose is returned with it."""
     params, value = best[0], best[3]
-    if not len(value) or np.count_nonzero(value < -DEEP_PX) < TWIN_DEEP_SHARE * len(value):
+    if not len(value):
         return best, None
     beam_m = float(np.ptp(silhouette.points_h[1]))
     heading = geometry.vessel_heading_rad + float(params[2])
-    abeam = beam_m * np.array([math.cos(heading), -math.sin(heading), 0.0, 0.0])
+    across = np.array([math.cos(heading), -math.sin(heading)])      # starboard, in ENU
+    bow = np.array([math.sin(heading), math.cos(heading)])
+    starts = []
+    if np.count_nonzero(value < -DEEP_PX) >= TWIN_DEEP_SHARE * len(value):
+        for side in (1.0, -1.0):
+            start = params + side * beam_m * np.array([*across, 0.0, 0.0])
+            if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
+                starts.append(start)
+    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
+    starts += _blob_starts(params, align, silhouette, outline, ship, prior_diagonal,
+                           SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)
     alike = [best]
-    for side in (1.0, -1.0):
-        start = params + side * abeam
-        if fill(start) < settings.min_ship_fill:
-            continue        # water or a quay a beam over: no twin there (a solve costs ~2 ms)
+    for start in starts:
         found = solve(start)
         if (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
                 and _fits_alike(found, align, silhouette, settings)):
@@ -865,9 +986,11 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     first, second = np.argsort(d2, kind="stable")[:2]
     if d2[second] - d2[first] >= TWIN_ODDS_D2:
         return alike[first], None
-    apart_m = math.hypot(*(alike[second][0][:2] - alike[first][0][:2]))
+    offset_m = alike[second][0][:2] - alike[first][0][:2]
+    abeam = abs(float(offset_m @ across)) >= abs(float(offset_m @ bow))
+    where = "abeam (a vessel alike alongside)" if abeam else "ahead or astern (a vessel alike in line)"
     odds = math.exp(0.5 * (d2[second] - d2[first]))
-    return alike[first], (f"{TWIN_ALIKE}{apart_m:.1f} m abeam (a vessel alike alongside), and the "
+    return alike[first], (f"{TWIN_ALIKE}{math.hypot(*offset_m):.1f} m {where}, and the "
                       f"sensors' pose tells them apart only {odds:.1f} to 1 "
                       f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
 

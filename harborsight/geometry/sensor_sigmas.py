@@ -121,6 +121,23 @@ class SensorSigmas:
     def vessel_axis_m(self) -> float:
         return self.vessel_gps / math.sqrt(2.0)
 
+    def hull_shift_axis_m(self, height_m: float, nadir_offset_m: float) -> float:
+        """One sigma per axis of where the sensors put the hull on the water, relative to
+        what the camera sees: both receivers per axis; a camera tilt moves the scene by
+        ``h tan(tilt)`` along each of its two axes; a camera yaw turns the scene about the
+        nadir, moving a hull ``r`` from it by ``r yaw`` across that line, half of that
+        variance per axis: ``sqrt(σ_uav² + σ_vessel² + (h σ_tilt)² + (r σ_yaw)² / 2)``."""
+        tilt_m = max(height_m, 0.0) * math.tan(math.radians(self.camera_tilt_deg))
+        yaw_m = max(nadir_offset_m, 0.0) * math.radians(self.camera_yaw_deg)
+        return math.sqrt(self.uav_axis_m ** 2 + self.vessel_axis_m ** 2 + tilt_m ** 2
+                         + 0.5 * yaw_m ** 2)
+
+    @property
+    def hull_heading_deg(self) -> float:
+        """One sigma of the hull's heading in the image: the vessel's compass and the
+        camera's yaw, which turns the whole scene."""
+        return math.hypot(self.vessel_heading_deg, self.camera_yaw_deg)
+
     def with_values(self, values: dict[str, float]) -> SensorSigmas:
         """A copy with some sigmas replaced (unknown names raise ValueError)."""
         unknown = sorted(set(values) - set(self.names()))
