@@ -850,9 +850,8 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
             and _ends_on_edges(align, silhouette, params, against_neighbours=True))
 
 
-def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, outline: np.ndarray,
-                 ship: np.ndarray, prior_diagonal: np.ndarray, step_m: float,
-                 apart_m: float) -> list[np.ndarray]:
+def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, ship: np.ndarray,
+                 prior_diagonal: np.ndarray, step_m: float, apart_m: float) -> list[np.ndarray]:
     """Starts of the alignment on the mask's other ship blobs, for identical vessels
     moored apart (a marina's row of charter yachts).
 
@@ -881,8 +880,8 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, o
     rows, cols = ship.shape[0] // 2 * 2, ship.shape[1] // 2 * 2
     if min(rows, cols) < 4:
         return []
-    e = cv2.erode(ship.view(np.uint8), np.ones((3, 3), np.uint8))[:rows, :cols]
-    parted = e[::2, ::2] & e[1::2, ::2] & e[::2, 1::2] & e[1::2, 1::2]
+    eroded = cv2.erode(ship.view(np.uint8), np.ones((3, 3), np.uint8))[:rows, :cols]
+    parted = eroded[::2, ::2] & eroded[1::2, ::2] & eroded[::2, 1::2] & eroded[1::2, 1::2]
     count, blobs, stats, _ = cv2.connectedComponentsWithStats(parted, connectivity=8)
     if count <= 2:
         return []
@@ -921,6 +920,7 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, o
     if not on_other.any():
         return []
     de, dn, shortened, label = de[on_other], dn[on_other], shortened[on_other], label[on_other]
+    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
     cost = _shift_costs(align, outline, params, de, dn, TWIN_BLOB_POINTS)
     if cost is None:
         return []
@@ -971,8 +971,7 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
             start = params + side * beam_m * np.array([*across, 0.0, 0.0])
             if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
                 starts.append(start)
-    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
-    starts += _blob_starts(params, align, silhouette, outline, ship, prior_diagonal,
+    starts += _blob_starts(params, align, silhouette, ship, prior_diagonal,
                            SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)
     alike = [best]
     for start in starts:
