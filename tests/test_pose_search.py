@@ -408,6 +408,20 @@ def test_a_yacht_in_a_row_of_sisters_is_not_laid_on_the_next_berth(seed, altitud
     assert not report.sensors_contradicted and report.min_distance_m is not None
 
 
+def test_sister_yachts_are_checked_where_the_outline_has_few_points():
+    """At 84 m the yacht's outline has 41-46 points; scored with every second of them the
+    sister blobs' cells had fewer than the 24 a score needs, nothing was tried, and the hull
+    was laid a berth over (a reviewer's find: 22 of 108 frames at 80-88 m)."""
+    labels, true = _yacht_in_a_row(5, 84)
+    told = corrected_geometry(true, np.array([*(3.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
+    _, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "TWIN_BLOB_POINTS", 40)
+        laid, scored_short = refine_vessel_pose(labels, told, YACHT)
+    assert scored_short.applied and pose_error(laid, true)[0] > 4.5
+
+
 def test_a_tighter_prior_tells_sister_yachts_apart():
     """The same row with the sensors 1.5 m toward the next berth: under a 3 m prior the
     true pose is 3 to 1 likelier than the neighbour, kept so; under a 1 m prior (DGPS on

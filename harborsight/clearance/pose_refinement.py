@@ -822,14 +822,22 @@ TWIN_ODDS_D2 = 2.0 * math.log(20.0)
 #: how the reason for a pose kept for want of telling twins apart begins
 TWIN_ALIKE = "the hull fits the mask as well "
 #: another ship blob may hold a twin when its area is within these shares of the hull's
-#: silhouette's: less is a buoy, a tender or a twin mostly out of view; more, a larger
-#: vessel, inside which the hull would fit with its sides and one end on nothing
-TWIN_BLOB_AREA = (0.6, 1.6)
+#: silhouette's (both in the window, both eroded and halved alike): less is a buoy, a tender
+#: or a twin mostly out of view; more, a larger vessel, inside which the hull would fit with
+#: its sides and one end on nothing. Low, for a model's masks: a yacht's blob eroded 2 px
+#: at 150 m keeps under half its area
+TWIN_BLOB_AREA = (0.4, 1.6)
 #: at most this many such blobs are fitted, the likeliest under the prior first
 TWIN_BLOB_STARTS = 3
-#: outline points (at most) that score a cell on such a blob: a start need only be in the
-#: basin of the alignment's first scale
-TWIN_BLOB_POINTS = 40
+#: a placement on another blob is a sister's when its outline's inlier share is at most
+#: this much under the chosen pose's (a 12 m yacht's outline on a 14 m yacht's blob, or on a
+#: box's, fits alike by the acceptance tests alone)
+TWIN_BLOB_FRACTION = 0.15
+#: outline points that score a cell on such a blob (every k-th of the outline, so half as
+#: many at least: never under the :data:`MIN_EDGE_POINTS` a score needs; at 40, an outline
+#: of 41-46 points kept 21-23, and no sister was tried at 80-92 m); a start need only be in
+#: the basin of the alignment's first scale
+TWIN_BLOB_POINTS = 2 * MIN_EDGE_POINTS
 
 
 def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
@@ -850,6 +858,14 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
             and _ends_on_edges(align, silhouette, params, against_neighbours=True))
 
 
+def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
+    """``p^T diag(prior) p`` of a correction's horizontal shift alone: what tells sister
+    placements apart. Their turns and heights are one vessel's, fitted twice; a mask's edge
+    bias moved the fitted height between them, and with it the odds (2 px of erosion: 25 of
+    144 frames of a yacht in a row laid a berth over, 13 on the shift alone)."""
+    return float(params[0] ** 2 * prior_diagonal[0] + params[1] ** 2 * prior_diagonal[1])
+
+
 def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, ship: np.ndarray,
                  prior_diagonal: np.ndarray, step_m: float, apart_m: float) -> list[np.ndarray]:
     """Starts of the alignment on the mask's other ship blobs, for identical vessels
@@ -859,30 +875,35 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
     by a 3x3 square and at half the resolution, a pixel ship where all four under it are
     (which parts blobs joined by a pixel or two: a metre of water at 150 m).
     Shifts of the pose ``params`` on a grid of ``step_m`` are kept where the prior cannot
-    rule them out (``p^T diag(prior) p``, the shift shortened by a step, within
+    rule them out (:func:`_shift_d2`, the shift shortened by a step, within
     :data:`TWIN_ODDS_D2` of ``params``'), ``apart_m`` or more from it, and where the hull's
     centre falls on a blob other than its own whose area is within :data:`TWIN_BLOB_AREA`
-    of the silhouette's; per blob the cell whose outline fits best
-    (:func:`_shift_costs`) is a start. At most :data:`TWIN_BLOB_STARTS`, the likeliest
-    under the prior first. Blobs clipped by the window are so started within a step of
-    their best placement (their centroids are not: a hull half out of the window moves it
-    by metres)."""
+    of the silhouette's (drawn in the window and parted as the blobs are); per blob the
+    cell whose outline fits best (:func:`_shift_costs`) is a start. At most
+    :data:`TWIN_BLOB_STARTS`, the likeliest under the prior first. Blobs clipped by the
+    window are so started within a step of their best placement (their centroids are not:
+    a hull half out of the window moves it by metres)."""
     uv = align.pixels(silhouette.points_h, params)
     uv = uv[np.isfinite(uv).all(axis=1)]
-    if len(uv) < 3:
-        return []
-    area_px = float(cv2.contourArea(cv2.convexHull(uv.astype(np.float32))))
-    least_px, most_px = TWIN_BLOB_AREA[0] * area_px, TWIN_BLOB_AREA[1] * area_px
-    if area_px < 1.0 or np.count_nonzero(ship) < 2.0 * least_px:
-        return []       # too few ship pixels in the window for the hull and a twin
-    # eroded once, and at half the resolution a pixel ship only where all four under it
-    # are: blobs joined by a pixel or two part, and the labelling costs a quarter
     rows, cols = ship.shape[0] // 2 * 2, ship.shape[1] // 2 * 2
-    if min(rows, cols) < 4:
+    if len(uv) < 3 or min(rows, cols) < 4 or np.count_nonzero(ship) < 1.1 * cv2.contourArea(
+            cv2.convexHull(uv.astype(np.float32))):
+        return []       # too few ship pixels in the window for the hull and a twin
+
+    def parted(mask: np.ndarray) -> np.ndarray:
+        # eroded once, and at half the resolution a pixel set only where all four under it
+        # are: blobs joined by a pixel or two part, and the labelling costs a quarter
+        eroded = cv2.erode(mask, np.ones((3, 3), np.uint8))[:rows, :cols]
+        return eroded[::2, ::2] & eroded[1::2, ::2] & eroded[::2, 1::2] & eroded[1::2, 1::2]
+
+    drawn = np.zeros(ship.shape, np.uint8)
+    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
+    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
+    area_px = float(np.count_nonzero(parted(drawn)))      # the hull's, in the window, as a blob's
+    least_px, most_px = TWIN_BLOB_AREA[0] * area_px, TWIN_BLOB_AREA[1] * area_px
+    if area_px < 1.0:
         return []
-    eroded = cv2.erode(ship.view(np.uint8), np.ones((3, 3), np.uint8))[:rows, :cols]
-    parted = eroded[::2, ::2] & eroded[1::2, ::2] & eroded[::2, 1::2] & eroded[1::2, 1::2]
-    count, blobs, stats, _ = cv2.connectedComponentsWithStats(parted, connectivity=8)
+    count, blobs, stats, _ = cv2.connectedComponentsWithStats(parted(ship.view(np.uint8)), connectivity=8)
     if count <= 2:
         return []
     point = homogeneous(np.array([silhouette.points_h[:3].mean(axis=1)]))
@@ -901,20 +922,17 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
         return out
 
     own = int(blob_at(np.zeros(1), np.zeros(1))[0])
-    d2_best = float(params @ (prior_diagonal * params))
-    shift_sigma_m = prior_diagonal[0] ** -0.5
-    rest = d2_best - float(params[:2] @ (prior_diagonal[:2] * params[:2]))    # turn and height
-    reach_m = shift_sigma_m * math.sqrt(max(d2_best + TWIN_ODDS_D2 - rest, 0.0)) + step_m
+    d2_best = _shift_d2(params, prior_diagonal)
+    reach_m = prior_diagonal[0] ** -0.5 * math.sqrt(d2_best + TWIN_ODDS_D2) + step_m
     n = math.ceil(reach_m / step_m)
     offsets = np.arange(-n, n + 1) * step_m
     east, north = (g.ravel() for g in np.meshgrid(offsets, offsets))      # shifts from the sensors'
     shortened = np.maximum(np.hypot(east, north) - step_m, 0.0)
     de, dn = east - params[0], north - params[1]                          # from the pose
-    keep = (shortened ** 2 * prior_diagonal[0] + rest < d2_best + TWIN_ODDS_D2) & (
-        np.hypot(de, dn) >= apart_m)
+    keep = (shortened ** 2 * prior_diagonal[0] < d2_best + TWIN_ODDS_D2) & (np.hypot(de, dn) >= apart_m)
     de, dn, shortened = de[keep], dn[keep], shortened[keep]
     label = blob_at(de, dn)
-    areas = 4.0 * stats[:, cv2.CC_STAT_AREA]
+    areas = stats[:, cv2.CC_STAT_AREA]
     alike = (areas >= least_px) & (areas <= most_px)
     on_other = (label > 0) & (label != own) & alike[label]
     if not on_other.any():
@@ -955,8 +973,8 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     from the other blobs of the hull's size the prior cannot rule out
     (:func:`_blob_starts`). Of ``best`` and the placements that fit as one would be
     accepted (:func:`_fits_alike`), all :data:`TWIN_APART_BEAMS` beams or more apart, the
-    one nearest the sensors' pose under the prior (``p^T diag(prior) p``) is kept, when it
-    is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
+    one nearest the sensors' pose under the prior (of the shifts alone, :func:`_shift_d2`)
+    is kept, when it is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
     sensors' pose is returned with it."""
     params, value = best[0], best[3]
     if not len(value):
@@ -970,18 +988,21 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
         for side in (1.0, -1.0):
             start = params + side * beam_m * np.array([*across, 0.0, 0.0])
             if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
-                starts.append(start)
-    starts += _blob_starts(params, align, silhouette, ship, prior_diagonal,
-                           SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)
+                starts.append((start, False))
+    starts += [(start, True) for start in _blob_starts(
+        params, align, silhouette, ship, prior_diagonal,
+        SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)]
+    best_fraction = outline_fit(value)[0]
     alike = [best]
-    for start in starts:
+    for start, on_blob in starts:
         found = solve(start)
         if (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
-                and _fits_alike(found, align, silhouette, settings)):
+                and _fits_alike(found, align, silhouette, settings)
+                and (not on_blob or outline_fit(found[3])[0] >= best_fraction - TWIN_BLOB_FRACTION)):
             alike.append(found)
     if len(alike) == 1:
         return best, None
-    d2 = [float(c[0] @ (prior_diagonal * c[0])) for c in alike]
+    d2 = [_shift_d2(c[0], prior_diagonal) for c in alike]
     first, second = np.argsort(d2, kind="stable")[:2]
     if d2[second] - d2[first] >= TWIN_ODDS_D2:
         return alike[first], None
