@@ -422,6 +422,31 @@ def test_sister_yachts_are_checked_where_the_outline_has_few_points():
     assert scored_short.applied and pose_error(laid, true)[0] > 4.5
 
 
+def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():
+    """A 12 x 4 m box (a work float) moored 5.5 m abeam of the 12 m yacht, the sensors 1.5 m
+    toward it: the yacht's outline laid inside the box passes every test of a placement, and
+    the box was taken for a sister (the sensors' pose kept on 80 of 144 such frames in a
+    reviewer's probe). Ship pixels just outside that placement (the box's corners) tell it
+    from a sister: the alignment's pose is applied."""
+    box = parse_vessel_spec({"name": "box", "air_draft_m": 1.5, "dimensions": {
+        "to_bow": 8.0, "to_stern": 4.0, "to_port": 2.0, "to_starboard": 2.0, "bow": "box"}},
+        Path("box.yaml"))
+    scene = sample_scene(YACHT, np.random.default_rng(3), altitude_m=60, tilt_deg=3.0, scenario="open")
+    labels = render(scene)[1].copy()
+    true = scene.geometry()
+    moved = corrected_geometry(true, np.array([*(5.5 * _abeam_m(true)), 0.0, 0.0]))
+    for polygon in vessel_silhouette_px(box, moved):
+        cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    told = corrected_geometry(true, np.array([*(1.5 * _abeam_m(true)), math.radians(1.0), 0.3]))
+    found, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert refinement.applied, refinement.reason
+    assert pose_error(found, true)[0] < 0.3
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "TWIN_BLOB_RING", 99.0)          # no ring test
+        _, unringed = refine_vessel_pose(labels, told, YACHT)
+    assert not unringed.applied and unringed.reason.startswith(pose_refinement.TWIN_ALIKE)
+
+
 def test_a_tighter_prior_tells_sister_yachts_apart():
     """The same row with the sensors 1.5 m toward the next berth: under a 3 m prior the
     true pose is 3 to 1 likelier than the neighbour, kept so; under a 1 m prior (DGPS on

@@ -833,6 +833,11 @@ TWIN_BLOB_STARTS = 3
 #: this much under the chosen pose's (a 12 m yacht's outline on a 14 m yacht's blob, or on a
 #: box's, fits alike by the acceptance tests alone)
 TWIN_BLOB_FRACTION = 0.15
+#: a placement on another blob is a sister's only when the ring of pixels just outside its
+#: silhouette (:data:`RING_PX`) holds at most this much more ship than the chosen pose's:
+#: a 12 x 4 m box's corners lie outside a yacht's outline laid inside it
+TWIN_BLOB_RING = 0.1
+RING_PX = 1
 #: outline points that score a cell on such a blob (every k-th of the outline, so half as
 #: many at least: never under the :data:`MIN_EDGE_POINTS` a score needs; at 40, an outline
 #: of 41-46 points kept 21-23, and no sister was tried at 80-92 m); a start need only be in
@@ -856,6 +861,24 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
     return (n_edge >= MIN_EDGE_POINTS and fraction >= settings.min_inlier_fraction
             and residual_px is not None and residual_px <= settings.max_residual_px
             and _ends_on_edges(align, silhouette, params, against_neighbours=True))
+
+
+def _ring_ship_share(params: np.ndarray, align: Alignment, silhouette: Silhouette,
+                     ship: np.ndarray) -> float:
+    """Share of ship pixels in the ring :data:`RING_PX` wide just outside the silhouette
+    under ``params`` (in the signed distance's window ``ship``): water round a hull alone on
+    the water, ship where the blob holds more than the hull."""
+    uv = align.pixels(silhouette.points_h, params)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) < 3:
+        return 1.0
+    drawn = np.zeros(ship.shape, np.uint8)
+    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
+    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
+    size = 2 * RING_PX + 1
+    ring = (cv2.dilate(drawn, np.ones((size, size), np.uint8)) > drawn)
+    total = np.count_nonzero(ring)
+    return float(np.count_nonzero(ring & ship) / total) if total else 1.0
 
 
 def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
@@ -993,13 +1016,20 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
         params, align, silhouette, ship, prior_diagonal,
         SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)]
     best_fraction = outline_fit(value)[0]
+    best_ring = None
     alike = [best]
     for start, on_blob in starts:
         found = solve(start)
-        if (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
-                and _fits_alike(found, align, silhouette, settings)
-                and (not on_blob or outline_fit(found[3])[0] >= best_fraction - TWIN_BLOB_FRACTION)):
-            alike.append(found)
+        if not (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
+                and _fits_alike(found, align, silhouette, settings)):
+            continue
+        if on_blob:
+            if outline_fit(found[3])[0] < best_fraction - TWIN_BLOB_FRACTION:
+                continue
+            best_ring = _ring_ship_share(best[0], align, silhouette, ship) if best_ring is None else best_ring
+            if _ring_ship_share(found[0], align, silhouette, ship) > best_ring + TWIN_BLOB_RING:
+                continue        # ship beyond its outline: a larger vessel of another shape
+        alike.append(found)
     if len(alike) == 1:
         return best, None
     d2 = [_shift_d2(c[0], prior_diagonal) for c in alike]
