@@ -863,18 +863,28 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
             and _ends_on_edges(align, silhouette, params, against_neighbours=True))
 
 
+def _drawn_in_window(params: np.ndarray, align: Alignment, silhouette: Silhouette,
+                     shape: tuple[int, int]) -> np.ndarray | None:
+    """The convex hull of the silhouette's pixels under ``params``, drawn (1) in an array
+    of the signed distance's window ``shape``; None when fewer than three points project."""
+    uv = align.pixels(silhouette.points_h, params)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) < 3:
+        return None
+    drawn = np.zeros(shape, np.uint8)
+    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
+    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
+    return drawn
+
+
 def _ring_ship_share(params: np.ndarray, align: Alignment, silhouette: Silhouette,
                      ship: np.ndarray) -> float:
     """Share of ship pixels in the ring :data:`RING_PX` wide just outside the silhouette
     under ``params`` (in the signed distance's window ``ship``): water round a hull alone on
     the water, ship where the blob holds more than the hull."""
-    uv = align.pixels(silhouette.points_h, params)
-    uv = uv[np.isfinite(uv).all(axis=1)]
-    if len(uv) < 3:
+    drawn = _drawn_in_window(params, align, silhouette, ship.shape)
+    if drawn is None:
         return 1.0
-    drawn = np.zeros(ship.shape, np.uint8)
-    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
-    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
     size = 2 * RING_PX + 1
     ring = (cv2.dilate(drawn, np.ones((size, size), np.uint8)) > drawn)
     total = np.count_nonzero(ring)
@@ -919,9 +929,7 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
         eroded = cv2.erode(mask, np.ones((3, 3), np.uint8))[:rows, :cols]
         return eroded[::2, ::2] & eroded[1::2, ::2] & eroded[::2, 1::2] & eroded[1::2, 1::2]
 
-    drawn = np.zeros(ship.shape, np.uint8)
-    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
-    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
+    drawn = _drawn_in_window(params, align, silhouette, ship.shape)
     area_px = float(np.count_nonzero(parted(drawn)))      # the hull's, in the window, as a blob's
     least_px, most_px = TWIN_BLOB_AREA[0] * area_px, TWIN_BLOB_AREA[1] * area_px
     if area_px < 1.0:
@@ -1015,8 +1023,7 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     starts += [(start, True) for start in _blob_starts(
         params, align, silhouette, ship, prior_diagonal,
         SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, TWIN_APART_BEAMS * beam_m)]
-    best_fraction = outline_fit(value)[0]
-    best_ring = None
+    best_fraction = best_ring = None        # reckoned once, when a blob's placement asks
     alike = [best]
     for start, on_blob in starts:
         found = solve(start)
@@ -1024,9 +1031,11 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
                 and _fits_alike(found, align, silhouette, settings)):
             continue
         if on_blob:
+            if best_fraction is None:
+                best_fraction = outline_fit(value)[0]
+                best_ring = _ring_ship_share(params, align, silhouette, ship)
             if outline_fit(found[3])[0] < best_fraction - TWIN_BLOB_FRACTION:
                 continue
-            best_ring = _ring_ship_share(best[0], align, silhouette, ship) if best_ring is None else best_ring
             if _ring_ship_share(found[0], align, silhouette, ship) > best_ring + TWIN_BLOB_RING:
                 continue        # ship beyond its outline: a larger vessel of another shape
         alike.append(found)
