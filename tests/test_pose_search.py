@@ -336,6 +336,7 @@ def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, a
     assert pose_error(found, true)[0] < 0.3
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pose_refinement, "TWIN_DEEP_SHARE", 1.01)        # no twin check
+        patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))
         laid, unchecked = refine_vessel_pose(rafted, corrected_geometry(true, error), TUG)
     assert unchecked.applied and not unchecked.sensors_contradicted
     assert pose_error(laid, true)[0] > 9.0
@@ -420,6 +421,69 @@ def test_sister_yachts_are_checked_where_the_outline_has_few_points():
         patch.setattr(pose_refinement, "TWIN_BLOB_POINTS", 40)
         laid, scored_short = refine_vessel_pose(labels, told, YACHT)
     assert scored_short.applied and pose_error(laid, true)[0] > 4.5
+
+
+def test_sister_yachts_leaning_into_one_blob_far_from_the_nadir_are_told_apart():
+    """The row of three seen from a drone 75 m to one side at 100 m: the 1.5 m air draft leans
+    each silhouette over the metre of water, and the three yachts make one ship blob, 2.4
+    hulls' area, so no other blob of the hull's size was tried. The true pose, both sides
+    against a sister, fits worse than an outer sister with one side on the water, and the
+    hull was laid a berth over from every sensor error tried (1-3 m abeam, a reviewer's
+    probe: 12 of 12 frames of this scene). A blob larger than the hull now has the hull tried
+    a beam to either side, and the prior cannot tell the placements apart."""
+    scene = sample_scene(YACHT, np.random.default_rng(3), altitude_m=100, tilt_deg=3.0, scenario="open")
+    yaw = math.radians(scene.yaw_deg)
+    image_right = np.array([math.cos(yaw), -math.sin(yaw), 0.0])
+    scene = replace(scene, uav_enu=scene.uav_enu + 75.0 * image_right)
+    labels = render(scene)[1].copy()
+    true = scene.geometry()
+    for slot in (-1, 1):
+        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
+        for polygon in vessel_silhouette_px(YACHT, moved):
+            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    assert cv2.connectedComponents((labels == 1).astype(np.uint8))[0] == 2      # one blob
+    told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))      # no blob too large
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert "m abeam (a vessel alike alongside)" in refinement.reason
+
+
+def test_a_sister_between_two_others_half_a_metre_apart_is_one_of_the_row():
+    """A 14 m yacht (4.6 m beam) between two sisters 5 m apart, so half a metre of water on
+    either side, at 95 m, the sensors 3 m toward one sister: the 1 px ring just outside the
+    true pose touches both sisters, an outer sister's only one, and the ring test (meant
+    for a box's corners) turned the true pose away: the hull was laid a berth over (a
+    reviewer's probe: 21 of 108 frames at 95-105 m). The ring now leaves out what a row of
+    sisters at that spacing covers."""
+    yacht14 = parse_vessel_spec({"name": "yacht14", "air_draft_m": 1.5, "dimensions": {
+        "to_bow": 9.3, "to_stern": 4.7, "to_port": 2.3, "to_starboard": 2.3}}, Path("yacht14.yaml"))
+    scene = sample_scene(yacht14, np.random.default_rng(3), altitude_m=95, tilt_deg=3.0, scenario="open")
+    labels = render(scene)[1].copy()
+    true = scene.geometry()
+    for slot in (-1, 1):
+        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
+        for polygon in vessel_silhouette_px(yacht14, moved):
+            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    abeam = _abeam_m(true)
+    ahead = np.array([-abeam[1], abeam[0]])                 # (sin h, cos h): the bow's way
+    told = corrected_geometry(true, np.array([*(-3.0 * abeam - 2.0 * ahead), math.radians(1.0), 0.5]))
+
+    def rings_alone(best, found, align, silhouette, ship):
+        return (pose_refinement._ring_ship_share(best, align, silhouette, ship),
+                pose_refinement._ring_ship_share(found, align, silhouette, ship))
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "_row_rings", rings_alone)
+        laid, ringed_alone = refine_vessel_pose(labels, told, yacht14)
+    assert ringed_alone.applied and pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, yacht14)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
 
 
 def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():
