@@ -486,6 +486,50 @@ def test_a_sister_between_two_others_half_a_metre_apart_is_one_of_the_row():
     assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
 
 
+def _row_of_three_seen_from_aside(seed: int, altitude_m: float, sisters: bool = True):
+    """The yacht with a sister 5 m to either side, the drone 0.75 of its height to the
+    image's right of where the scene puts it: ``(labels, true geometry)``."""
+    scene = sample_scene(YACHT, np.random.default_rng(seed), altitude_m=altitude_m, tilt_deg=3.0,
+                         scenario="open")
+    yaw = math.radians(scene.yaw_deg)
+    image_right = np.array([math.cos(yaw), -math.sin(yaw), 0.0])
+    scene = replace(scene, uav_enu=scene.uav_enu + 0.75 * altitude_m * image_right)
+    labels = render(scene)[1].copy()
+    true = scene.geometry()
+    for slot in ((-1, 1) if sisters else ()):
+        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
+        for polygon in vessel_silhouette_px(YACHT, moved):
+            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    return labels, true
+
+
+def test_a_yacht_the_border_cuts_is_not_laid_on_a_sister_in_full_view():
+    """The row of three at 100 m with the yacht at the image's left border (its stern out of
+    the picture) and the sensors 2 m ahead: the hull where the sensors put it has too few
+    outline points in view to be scored, the sister beside it in full view fits cleanly,
+    and the hull was laid on the sister, 4.9 m off (a reviewer's probe: most of the 35 of
+    144 frames still laid a berth over with the camera so far aside). What is in view is
+    aligned from fewer points; it fits, so it joins the comparison with the sister, and the
+    prior cannot choose: the sensors' pose is kept. Alone on the water the yacht is refined."""
+    labels, true = _row_of_three_seen_from_aside(5, 100)
+    ahead = np.array([-_abeam_m(true)[1], _abeam_m(true)[0]])
+    error = np.array([*(2.0 * ahead), math.radians(1.0), 0.5])
+    told = corrected_geometry(true, error)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "CUT_IN_VIEW", 0.0)          # no hull counts as cut
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.CUT_ALIKE), refinement.reason
+    assert "of its outline in view, fitting the mask there" in refinement.reason
+    report = measure_clearance(labels, told, YACHT)
+    assert not report.sensors_contradicted and report.min_distance_m is not None
+    alone, true_alone = _row_of_three_seen_from_aside(5, 100, sisters=False)
+    found, refined = refine_vessel_pose(alone, corrected_geometry(true_alone, error), YACHT)
+    assert refined.applied and pose_error(found, true_alone)[0] < 0.6, refined.reason
+
+
 def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():
     """A 12 x 4 m box (a work float) moored 5.5 m abeam of the 12 m yacht, the sensors 1.5 m
     toward it: the yacht's outline laid inside the box passes every test of a placement, and

@@ -9,6 +9,7 @@ the ship pixels' boundary, the outline's samples, the projection of a pose corre
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import replace
 
@@ -289,6 +290,14 @@ class Alignment:
         # (x, y, z) within [lo, hi]: in view, in the window and in front (z > 1e-9)
         self.lo = (float(x_lo), float(y_lo), math.nextafter(1e-9, math.inf))
         self.hi = (float(x_hi), float(y_hi), math.inf)
+        #: fewer points in view than this and a pose is not linearised
+        self.min_points = MIN_EDGE_POINTS
+
+    def with_min_points(self, count: int) -> Alignment:
+        """This alignment, linearising a pose from ``count`` points in view."""
+        relaxed = copy.copy(self)
+        relaxed.min_points = count
+        return relaxed
 
     def _project(self, points_h: np.ndarray, params: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -342,10 +351,10 @@ class Alignment:
     def linearised(self, points_h: np.ndarray, params: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(s (n,), ds/dp (4, n))`` of the points in view, or None when fewer than
-        :data:`MIN_EDGE_POINTS` are."""
+        :attr:`min_points` (:data:`MIN_EDGE_POINTS`) are."""
         projected, jac = self._project(points_h, params)
         seen = self._seen(projected)
-        if len(seen) < MIN_EDGE_POINTS:
+        if len(seen) < self.min_points:
             return None
         projected = projected.take(seen, axis=1)
         xy = projected[:2]

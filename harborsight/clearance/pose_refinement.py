@@ -319,15 +319,17 @@ def refine_vessel_pose(
     height counts as gross only beyond
     :data:`GROSS_HEIGHT_SHARE` of the camera's height. When the search changes nothing and the
     sensors' pose kept leaves its outline off the ship's edges, that contradicts the sensors
-    too (:func:`_unconfirmed`). A pose kept because vessels alike fit the mask as well
-    (:func:`_twin_alongside`) is not searched: the search would find one of them. Never
+    too (:func:`_unconfirmed`). A pose kept because vessels alike fit the mask as well, or
+    because the hull where the sensors put it is cut by the image's border and a placement
+    elsewhere cannot be told from it (:func:`_twin_alongside`), is not searched: the search
+    would find one of them. Never
     raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
     refined, found = _refine_within_prior(labels, geometry, vessel, settings)
     if (not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW
-            or (found.reason or "").startswith(TWIN_ALIKE)):
+            or (found.reason or "").startswith((TWIN_ALIKE, CUT_ALIKE))):
         return refined, found       # (the image holds vessels alike: it would find one of them)
     chosen, result = _search_whole_image(labels, geometry, refined, found, vessel, settings)
     if result is found:         # the search changed nothing: is the pose kept borne out?
@@ -343,7 +345,8 @@ def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselS
     Either the pose is off by more than the search could tell (on the bench: a fix 14 m
     off, a heading reversed, a camera yaw 60 degrees off, with a model's mask) or the mask
     misses the vessel; the distances are untrustworthy either way."""
-    if found.applied or found.reason == SENSORS_FIT or (found.reason or "").startswith(TWIN_ALIKE):
+    if found.applied or found.reason == SENSORS_FIT or (found.reason or "").startswith(
+            (TWIN_ALIKE, CUT_ALIKE)):
         return found
     share = found.edge_share or 0.0
     if share >= UNCONFIRMED_BELOW_SHARE:
@@ -519,25 +522,31 @@ ENDS_MIN_POINTS = 3
 
 
 def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray,
-                   against_neighbours: bool = False) -> bool:
+                   against_neighbours: bool = False, unseen_ok: bool = False) -> bool:
     """Whether the outline under the correction ``params`` has both its ends on ship edges
     (:data:`HULL_END_SHARE`, :data:`ENDS_ON_EDGES_SHARE`; an end with fewer than
     :data:`ENDS_MIN_POINTS` points in view is not on edges). ``against_neighbours``: an end's
     points deep inside ship pixels (:data:`~harborsight.clearance.alignment.DEEP_PX`) are
     left out of its share, as for a stern whose quarters lie against the sterns of vessels
-    rafted alongside; an end all deep inside is still not on edges."""
+    rafted alongside; an end all deep inside is still not on edges. ``unseen_ok``: an end
+    mostly out of the picture (fewer than :data:`ENDS_MIN_POINTS` of its points, and under
+    half, in view) neither confirms nor denies; the other end must be on edges."""
     outline = silhouette.outline(align.pixels(silhouette.points_h, params))
     if outline.shape[1] == 0:
         return False
     x = silhouette.points_h[0]
     reach = HULL_END_SHARE * float(x.max() - x.min())
+    unseen = 0
     for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
         values = align.residuals(end, params)
+        if unseen_ok and len(values) < min(ENDS_MIN_POINTS, 0.5 * end.shape[1]):
+            unseen += 1
+            continue
         if against_neighbours:
             values = values[values > -DEEP_PX]
         if len(values) < ENDS_MIN_POINTS or edge_share(values) < ENDS_ON_EDGES_SHARE:
             return False
-    return True
+    return unseen < 2
 
 
 def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
@@ -740,8 +749,17 @@ def _refine_within_prior(
             found = solve(SCHEDULES[1], start)
             return (*found, fill(found[0]))
 
+        cut = None
+        in_view = len(at_sensors) / outline.shape[1]
+        if (in_view < CUT_IN_VIEW and math.hypot(*params[:2])
+                >= TWIN_APART_BEAMS * float(np.ptp(silhouette.points_h[1]))):
+            relaxed = align.with_min_points(CUT_MIN_POINTS)
+            cut = _cut_at_sensors(
+                (*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
+                               prior_diagonal, edge_weight), None),
+                at_sensors, in_view, fill, settings)
         best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
-                                           prior_diagonal, solve_and_fill, fill, ship)
+                                           prior_diagonal, solve_and_fill, fill, ship, cut)
         params, information, _, value, fill_share = best
 
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
@@ -850,7 +868,8 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
     """Whether a candidate ``(params, information, cost, signed distances, fill)`` fits the
     mask as a placement of the hull would be accepted: within the limits, the outline's
     points that can tell on edges, the silhouette filled, both ends on edges where they are
-    not against a neighbour's."""
+    not against a neighbour's or out of the picture (a sister's stern cut by the image's
+    border, or the vessel's own, does not rule the placement out)."""
     params, _, _, value, fill_share = candidate
     if not np.isfinite(params).all() or fill_share < settings.min_ship_fill:
         return False
@@ -860,7 +879,7 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
     fraction, residual_px, n_edge = outline_fit(value)
     return (n_edge >= MIN_EDGE_POINTS and fraction >= settings.min_inlier_fraction
             and residual_px is not None and residual_px <= settings.max_residual_px
-            and _ends_on_edges(align, silhouette, params, against_neighbours=True))
+            and _ends_on_edges(align, silhouette, params, against_neighbours=True, unseen_ok=True))
 
 
 def _drawn_in_window(params: np.ndarray, align: Alignment, silhouette: Silhouette,
@@ -1009,9 +1028,77 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
     return [start for _, start in starts[:TWIN_BLOB_STARTS]], merged
 
 
+#: the hull at the sensors' pose is cut by the image's border when under this share of its
+#: outline's samples are in view
+CUT_IN_VIEW = 0.9
+#: a hull so cut is aligned from this many outline points in view (half what an alignment
+#: needs), to see whether what is in view fits the mask
+CUT_MIN_POINTS = MIN_EDGE_POINTS // 2
+#: how the reason for a pose kept because the hull where the sensors put it is cut by the
+#: image's border, and cannot be told from the alignment's placement, begins
+CUT_ALIKE = "the hull where the sensors put it runs out of the picture "
+
+
+def _cut_at_sensors(relaxed: tuple, at_sensors: np.ndarray, in_view: float, fill,
+                    settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
+    """The placement of a hull the image's border cuts, near the sensors' pose, that the
+    image cannot refute, whether any of it is seen, and ``in_view``: ``(candidate, seen,
+    in_view)``, or None.
+
+    ``relaxed`` is the alignment from the sensors' pose on as few as
+    :data:`CUT_MIN_POINTS` outline points in view (a candidate with its fill not yet
+    reckoned); ``at_sensors`` the outline's signed distances in view at the sensors' pose,
+    ``in_view`` their share of the outline. When that alignment fits what is in view as a
+    placement would be accepted (inliers, residual, the silhouette's pixels in view ship),
+    it is the placement, seen. When fewer than :data:`CUT_MIN_POINTS` points are in view at
+    the sensors' pose, the image says nothing of the hull there: the sensors' pose itself,
+    unseen. Otherwise what is in view is not this hull's edges: None."""
+    params, information, cost, value, _ = relaxed
+    if np.isfinite(cost) and np.isfinite(params).all():
+        fraction, residual_px, telling = outline_fit(value)
+        fill_share = fill(params)
+        if (telling >= CUT_MIN_POINTS and fraction >= settings.min_inlier_fraction
+                and residual_px is not None and residual_px <= settings.max_residual_px
+                and fill_share >= settings.min_ship_fill
+                and not any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
+                                    settings.max_height_change_m))):
+            return (params, information, cost, value, fill_share), True, in_view
+        return None
+    if outline_fit(at_sensors)[2] < CUT_MIN_POINTS and in_view < CUT_IN_VIEW:
+        return (np.zeros(4), None, np.inf, at_sensors, fill(np.zeros(4))), False, in_view
+    return None
+
+
+#: a cut placement is another vessel's only when at most this share of its silhouette lies
+#: under the chosen pose's
+CUT_OVERLAP = 0.25
+
+
+def _cut_alike(cut: np.ndarray, seen: bool, params: np.ndarray, align: Alignment,
+               silhouette: Silhouette, shape: tuple[int, int]) -> bool:
+    """Whether the placement ``cut`` of a hull the image's border cuts may be the vessel's
+    as the chosen pose ``params`` may: at most :data:`CUT_OVERLAP` of its silhouette under
+    the chosen pose's (sisters lie side by side or in line, apart), and, when part of it is
+    ``seen``, its ends in view on edges. Laid from the sensors' pose onto a larger ship the
+    vessel touches (a tug 6 m off at 40 m), the relaxed alignment fitted what was in view
+    with an end on nothing; on a bench frame it slid the tug 7 m along its own image, an end
+    out of the picture. The ring test of sisters' blobs (:func:`_row_rings`) is not asked: a
+    placement from so few points lies up to 2 m off, and its ring catches the vessel's own
+    pixels (0.2-0.4 of it, against a sister's 0.01-0.03)."""
+    if seen and not _ends_on_edges(align, silhouette, cut, against_neighbours=True, unseen_ok=True):
+        return False
+    drawn = _drawn_in_window(cut, align, silhouette, shape)
+    chosen = _drawn_in_window(params, align, silhouette, shape)
+    area = 0 if drawn is None else np.count_nonzero(drawn)
+    if area == 0 or chosen is None:     # (a hull wholly out of the window overlaps nothing)
+        return area > 0 or not seen
+    return np.count_nonzero(drawn & chosen) <= CUT_OVERLAP * area
+
+
 def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geometry: FrameGeometry,
                     settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill,
-                    ship: np.ndarray) -> tuple[tuple, str | None]:
+                    ship: np.ndarray, cut: tuple[tuple, bool, float] | None = None
+                    ) -> tuple[tuple, str | None]:
     """The placement to keep when the hull may be one of identical vessels moored side by
     side or in a row, and why none can be kept when the sensors cannot tell which.
 
@@ -1033,7 +1120,14 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     accepted (:func:`_fits_alike`), all :data:`TWIN_APART_BEAMS` beams or more apart, the
     one nearest the sensors' pose under the prior (of the shifts alone, :func:`_shift_d2`)
     is kept, when it is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
-    sensors' pose is returned with it."""
+    sensors' pose is returned with it.
+
+    A hull the image's border cuts at the sensors' pose (``cut``, :func:`_cut_at_sensors`)
+    has too few outline points in view to be scored against a sister in full view, which
+    then wins on cost alone: a yacht in a row seen from 75 m to one side was laid a berth
+    over on 35 of 144 frames, most of them with its own hull partly out of view. That
+    placement joins the comparison; when it is the likelier, or the odds cannot tell, the
+    sensors' pose is kept."""
     params, value = best[0], best[3]
     if not len(value):
         return best, None
@@ -1067,16 +1161,33 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
             if found_ring > best_ring + TWIN_BLOB_RING:
                 continue        # ship beyond its outline: a larger vessel of another shape
         alike.append(found)
+    cut_at = None       # the index of the cut placement in ``alike``
+    if cut is not None and all(math.hypot(*(cut[0][0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m
+                               for c in alike) and _cut_alike(cut[0][0], cut[1], params, align,
+                                                              silhouette, ship.shape):
+        alike.append(cut[0])
+        cut_at = len(alike) - 1
     if len(alike) == 1:
         return best, None
     d2 = [_shift_d2(c[0], prior_diagonal) for c in alike]
     first, second = np.argsort(d2, kind="stable")[:2]
+    odds = math.exp(0.5 * (d2[second] - d2[first]))
+    offset_m = alike[second][0][:2] - alike[first][0][:2]
+    if cut_at in (first, second):
+        if first != cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
+            return alike[first], None
+        said = (f"{100 * cut[2]:.0f} % of its outline in view"
+                + (", fitting the mask there" if cut[1] else ""))
+        told = (f"the sensors' pose favours it {odds:.0f} to 1" if first == cut_at
+                and d2[second] - d2[first] >= TWIN_ODDS_D2 else
+                f"the sensors' pose tells them apart only {odds:.1f} to 1 (at least "
+                f"{math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
+        return best, (f"{CUT_ALIKE}({said}), and the hull fits the mask as well "
+                      f"{math.hypot(*offset_m):.1f} m from there: {told}")
     if d2[second] - d2[first] >= TWIN_ODDS_D2:
         return alike[first], None
-    offset_m = alike[second][0][:2] - alike[first][0][:2]
     abeam = abs(float(offset_m @ across)) >= abs(float(offset_m @ bow))
     where = "abeam (a vessel alike alongside)" if abeam else "ahead or astern (a vessel alike in line)"
-    odds = math.exp(0.5 * (d2[second] - d2[first]))
     return alike[first], (f"{TWIN_ALIKE}{math.hypot(*offset_m):.1f} m {where}, and the "
                       f"sensors' pose tells them apart only {odds:.1f} to 1 "
                       f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
