@@ -749,15 +749,8 @@ def _refine_within_prior(
             found = solve(SCHEDULES[1], start)
             return (*found, fill(found[0]))
 
-        cut = None
-        in_view = len(at_sensors) / outline.shape[1]
-        if (in_view < CUT_IN_VIEW and math.hypot(*params[:2])
-                >= TWIN_APART_BEAMS * float(np.ptp(silhouette.points_h[1]))):
-            relaxed = align.with_min_points(CUT_MIN_POINTS)
-            cut = _cut_at_sensors(
-                (*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
-                               prior_diagonal, edge_weight), None),
-                at_sensors, in_view, fill, settings)
+        cut = _cut_hull(align, silhouette, outline, at_sensors, params, prior_diagonal,
+                        edge_weight, fill, settings)
         best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
                                            prior_diagonal, solve_and_fill, fill, ship, cut)
         params, information, _, value, fill_share = best
@@ -769,7 +762,8 @@ def _refine_within_prior(
     if not settings.refine_height:
         params = params.copy()
         params[3] = 0.0
-    if n_edge < MIN_EDGE_POINTS:
+    # (a placement among sisters alike may have fewer: the twin's reason is the one to give)
+    if n_edge < MIN_EDGE_POINTS and twin_alike is None:
         return geometry, PoseRefinement(
             False, shift, rotation_deg, edge_points=n_edge, inlier_fraction_before=before,
             edge_share=edge_share(at_sensors),
@@ -863,13 +857,26 @@ RING_PX = 1
 TWIN_BLOB_POINTS = 2 * MIN_EDGE_POINTS
 
 
+#: a placement fits alike with :data:`MIN_EDGE_POINTS` of its outline's points able to tell
+#: (not deep in ship pixels), or this many, half that, when they are at least
+#: :data:`ALIKE_MIN_TELLING_SHARE` of its points in view (and :data:`MIN_EDGE_POINTS` are in
+#: view): a yacht rafted between two sisters has its sides deep in theirs, and with the 24
+#: an alignment needs its true placement (23 telling of about 50 at 100 m) lost to an outer
+#: sister, which has a free side (34 of 144 frames laid 4 m over, a reviewer's probe). A
+#: tug laid a beam over inside a larger moored ship's blob on a bench frame (a model's
+#: mask) kept 20 telling of 102: no sister, and the share tells it apart
+ALIKE_MIN_TELLING = MIN_EDGE_POINTS // 2
+ALIKE_MIN_TELLING_SHARE = 1.0 / 3.0
+
+
 def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
                 settings: PoseRefinementSettings) -> bool:
     """Whether a candidate ``(params, information, cost, signed distances, fill)`` fits the
     mask as a placement of the hull would be accepted: within the limits, the outline's
-    points that can tell on edges, the silhouette filled, both ends on edges where they are
-    not against a neighbour's or out of the picture (a sister's stern cut by the image's
-    border, or the vessel's own, does not rule the placement out)."""
+    points that can tell on edges (:data:`ALIKE_MIN_TELLING`), the silhouette filled, both
+    ends on edges where they are not against a neighbour's or out of the picture (a
+    sister's stern cut by the image's border, or the vessel's own, does not rule the
+    placement out)."""
     params, _, _, value, fill_share = candidate
     if not np.isfinite(params).all() or fill_share < settings.min_ship_fill:
         return False
@@ -877,7 +884,9 @@ def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
                    settings.max_height_change_m)):
         return False
     fraction, residual_px, n_edge = outline_fit(value)
-    return (n_edge >= MIN_EDGE_POINTS and fraction >= settings.min_inlier_fraction
+    telling = n_edge >= MIN_EDGE_POINTS or (
+        n_edge >= ALIKE_MIN_TELLING and n_edge >= ALIKE_MIN_TELLING_SHARE * len(value))
+    return (len(value) >= MIN_EDGE_POINTS and telling and fraction >= settings.min_inlier_fraction
             and residual_px is not None and residual_px <= settings.max_residual_px
             and _ends_on_edges(align, silhouette, params, against_neighbours=True, unseen_ok=True))
 
@@ -918,18 +927,22 @@ def _ring_ship_share(params: np.ndarray, align: Alignment, silhouette: Silhouett
 def _row_rings(best: np.ndarray, found: np.ndarray, align: Alignment, silhouette: Silhouette,
                ship: np.ndarray) -> tuple[float, float]:
     """The ring ship shares (:func:`_ring_ship_share`) of the pose ``best`` and of a
-    placement ``found`` on a sister's blob, each less the pixels a row of sisters at their
-    spacing ``d = found - best`` would cover (hulls at ``best - d``, ``best``, ``found``
-    and ``found + d``). Sisters moored half a metre apart touch the ring along their sides,
-    the middle one's on both: without the row, the true pose between two sisters read 0.3
+    placement ``found`` on a sister's blob, the latter's the lower of its own and its less
+    the pixels a row of sisters at their spacing ``d = found - best`` would cover (hulls at
+    ``best - d``, ``best``, ``found`` and ``found + d``): the row can only admit a
+    placement (taken out of both rings, it moved the shares apart: 0.032 / 0.113 became
+    0.009 / 0.122, and a real sister 4.8 m abeam was turned away). Sisters moored half a
+    metre apart touch the ring along their sides, the middle one's on both: without the
+    row, the true pose between two sisters read 0.3
     more ship in its ring than an outer sister's, and a 14 m yacht in a row was laid a berth
     over (21 of 108 frames at 95-105 m). A box's corners beyond the hull's outline lie under
     no sister's placement and still count."""
     spacing = found - best
     spacing[2:] = 0.0
     row = (best - spacing, best, found, found + spacing)
-    return (_ring_ship_share(best, align, silhouette, ship, row),
-            _ring_ship_share(found, align, silhouette, ship, row))
+    return (_ring_ship_share(best, align, silhouette, ship),
+            min(_ring_ship_share(found, align, silhouette, ship),
+                _ring_ship_share(found, align, silhouette, ship, row)))
 
 
 def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
@@ -1039,6 +1052,84 @@ CUT_MIN_POINTS = MIN_EDGE_POINTS // 2
 CUT_ALIKE = "the hull where the sensors put it runs out of the picture "
 
 
+def _cut_hull(align: Alignment, silhouette: Silhouette, outline: np.ndarray,
+              at_sensors: np.ndarray, params: np.ndarray, prior_diagonal: np.ndarray,
+              edge_weight: float, fill, settings: PoseRefinementSettings
+              ) -> tuple[tuple, bool, float] | None:
+    """The placement of the hull the image's border cuts that joins the sisters' comparison
+    (:func:`_cut_at_sensors`: ``(candidate, seen, in_view)``), or None: asked only when
+    under :data:`CUT_IN_VIEW` of the outline (``outline``, its signed distances in view at
+    the sensors' pose ``at_sensors``) is in view and the chosen correction ``params`` moves
+    the hull :data:`TWIN_APART_BEAMS` beams or more. The hull is aligned from the sensors'
+    pose on as few as :data:`CUT_MIN_POINTS` points; when that is refused or slides onto
+    the chosen placement, again from the likeliest cells of :func:`_cut_starts` with the
+    height held at the sensors' (a cut outline hardly measures the scale: a reviewer found
+    the fit from the sensors' pose refused in 3 of 4 frames still laid on a sister, its
+    silhouette on water or its height 4-8 m off, where a fit from the truth passed)."""
+    in_view = len(at_sensors) / outline.shape[1]
+    apart_m = TWIN_APART_BEAMS * float(np.ptp(silhouette.points_h[1]))
+    if in_view >= CUT_IN_VIEW or math.hypot(*params[:2]) < apart_m:
+        return None
+    relaxed = align.with_min_points(CUT_MIN_POINTS)
+    cut = _cut_at_sensors((*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
+                                         prior_diagonal, edge_weight), None),
+                          at_sensors, in_view, fill, settings)
+    if cut is not None and not (cut[1] and math.hypot(*(cut[0][0][:2] - params[:2])) < apart_m):
+        return cut
+    held = prior_diagonal.copy()
+    held[3] = CUT_HELD_HEIGHT_M ** -2.0
+    for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m):
+        again = _cut_at_sensors((*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start,
+                                               held, edge_weight), None),
+                                at_sensors, in_view, fill, settings)
+        if again is not None and again[1] and math.hypot(*(again[0][0][:2] - params[:2])) >= apart_m:
+            return again
+    return cut
+
+
+#: the height's prior (m) while a cut hull is aligned from a grid cell: held at the sensors'
+CUT_HELD_HEIGHT_M = 1e-6
+#: cells of the grid over the prior's reach that start such alignments
+CUT_STARTS = 2
+
+
+def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
+                prior_diagonal: np.ndarray, apart_m: float) -> list[np.ndarray]:
+    """Starts for a cut hull's alignment: the :data:`CUT_STARTS` cells of a grid over the
+    prior's reach (2.5 sigma, steps of :data:`SEARCH_STEP_SIGMA` sigma), ``apart_m`` or
+    more from the chosen correction ``params``, whose outline points in view (at least
+    :data:`CUT_MIN_POINTS`) have the least mean Tukey cost at :data:`SEARCH_TUKEY_PX`, the
+    nearer the sensors' pose first among equals. A mean, not :func:`_shift_costs`' sum with
+    points out of view as outliers, which ranks every cut placement below one in full
+    view. Pixels under a shift to first order, as there."""
+    sigma_m = prior_diagonal[0] ** -0.5
+    step_m = SEARCH_STEP_SIGMA * sigma_m
+    n = int(2.5 * sigma_m // step_m)
+    if n < 1 or outline.shape[1] == 0:
+        return []
+    offsets = np.arange(-n, n + 1) * step_m
+    de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
+    keep = (np.hypot(de, dn) <= 2.5 * sigma_m + 1e-9) & (np.hypot(de - params[0], dn - params[1]) >= apart_m)
+    de, dn = de[keep], dn[keep]
+    base = align.pixels(outline, np.zeros(4))
+    east = align.pixels(outline, np.array([1.0, 0.0, 0.0, 0.0])) - base
+    north = align.pixels(outline, np.array([0.0, 1.0, 0.0, 0.0])) - base
+    finite = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
+    if not len(de) or not finite.any():
+        return []
+    base, east, north = base[finite], east[finite], north[finite]
+    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
+          - align.origin.T[None])                                    # (cells, points, 2)
+    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
+            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
+    cost = np.zeros(seen.shape)
+    cost[seen] = tukey_cost(align.sdf.sample(xy[seen].T)[0], SEARCH_TUKEY_PX)
+    count = seen.sum(axis=1)
+    mean = np.where(count >= CUT_MIN_POINTS, cost.sum(axis=1) / np.maximum(count, 1), np.inf)
+    order = np.argsort(mean + 1e-3 * (de ** 2 + dn ** 2), kind="stable")
+    return [np.array([de[c], dn[c], 0.0, 0.0]) for c in order[:CUT_STARTS] if np.isfinite(mean[c])]
+
+
 def _cut_at_sensors(relaxed: tuple, at_sensors: np.ndarray, in_view: float, fill,
                     settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
     """The placement of a hull the image's border cuts, near the sensors' pose, that the
@@ -1064,7 +1155,7 @@ def _cut_at_sensors(relaxed: tuple, at_sensors: np.ndarray, in_view: float, fill
                                     settings.max_height_change_m))):
             return (params, information, cost, value, fill_share), True, in_view
         return None
-    if outline_fit(at_sensors)[2] < CUT_MIN_POINTS and in_view < CUT_IN_VIEW:
+    if len(at_sensors) < CUT_MIN_POINTS and in_view < CUT_IN_VIEW:
         return (np.zeros(4), None, np.inf, at_sensors, fill(np.zeros(4))), False, in_view
     return None
 
@@ -1178,12 +1269,14 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
             return alike[first], None
         said = (f"{100 * cut[2]:.0f} % of its outline in view"
                 + (", fitting the mask there" if cut[1] else ""))
-        told = (f"the sensors' pose favours it {odds:.0f} to 1" if first == cut_at
-                and d2[second] - d2[first] >= TWIN_ODDS_D2 else
-                f"the sensors' pose tells them apart only {odds:.1f} to 1 (at least "
-                f"{math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
-        return best, (f"{CUT_ALIKE}({said}), and the hull fits the mask as well "
-                      f"{math.hypot(*offset_m):.1f} m from there: {told}")
+        apart_m = math.hypot(*offset_m)
+        if first == cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
+            return best, (f"{CUT_ALIKE}({said}); a placement {apart_m:.1f} m from there fits the "
+                          f"mask in full, but the sensors' pose favours the hull where they put it "
+                          f"{odds:.0f} to 1")
+        return best, (f"{CUT_ALIKE}({said}), and a placement {apart_m:.1f} m from there fits the "
+                      f"mask as well: the sensors' pose tells them apart only {odds:.1f} to 1 "
+                      f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
     if d2[second] - d2[first] >= TWIN_ODDS_D2:
         return alike[first], None
     abeam = abs(float(offset_m @ across)) >= abs(float(offset_m @ bow))
