@@ -371,6 +371,15 @@ YACHT = parse_vessel_spec({"name": "yacht", "air_draft_m": 1.5, "dimensions": {
 YACHT_BERTH_M = 5.0
 
 
+def _paint_sisters(labels: np.ndarray, true, vessel, abeam_m: tuple[float, ...]) -> None:
+    """Draw ``vessel``'s silhouette as ship into ``labels`` at each offset ``abeam_m``
+    (metres to starboard of the true pose)."""
+    for offset_m in abeam_m:
+        moved = corrected_geometry(true, np.array([*(offset_m * _abeam_m(true)), 0.0, 0.0]))
+        for polygon in vessel_silhouette_px(vessel, moved):
+            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+
+
 def _yacht_in_a_row(seed: int, altitude_m: float):
     """The yacht in the open scene with four sister yachts moored in a row beside it, a
     metre of water between hulls (five ship blobs): ``(labels, true geometry)``."""
@@ -378,10 +387,7 @@ def _yacht_in_a_row(seed: int, altitude_m: float):
                          scenario="open")
     labels = render(scene)[1].copy()
     true = scene.geometry()
-    for slot in (-2, -1, 1, 2):
-        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
-        for polygon in vessel_silhouette_px(YACHT, moved):
-            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    _paint_sisters(labels, true, YACHT, tuple(k * YACHT_BERTH_M for k in (-2, -1, 1, 2)))
     return labels, true
 
 
@@ -437,10 +443,7 @@ def test_sister_yachts_leaning_into_one_blob_far_from_the_nadir_are_told_apart()
     scene = replace(scene, uav_enu=scene.uav_enu + 75.0 * image_right)
     labels = render(scene)[1].copy()
     true = scene.geometry()
-    for slot in (-1, 1):
-        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
-        for polygon in vessel_silhouette_px(YACHT, moved):
-            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    _paint_sisters(labels, true, YACHT, (-YACHT_BERTH_M, YACHT_BERTH_M))
     assert cv2.connectedComponents((labels == 1).astype(np.uint8))[0] == 2      # one blob
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
@@ -465,10 +468,7 @@ def test_a_sister_between_two_others_half_a_metre_apart_is_one_of_the_row():
     scene = sample_scene(yacht14, np.random.default_rng(3), altitude_m=95, tilt_deg=3.0, scenario="open")
     labels = render(scene)[1].copy()
     true = scene.geometry()
-    for slot in (-1, 1):
-        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
-        for polygon in vessel_silhouette_px(yacht14, moved):
-            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    _paint_sisters(labels, true, yacht14, (-YACHT_BERTH_M, YACHT_BERTH_M))
     abeam = _abeam_m(true)
     ahead = np.array([-abeam[1], abeam[0]])                 # (sin h, cos h): the bow's way
     told = corrected_geometry(true, np.array([*(-3.0 * abeam - 2.0 * ahead), math.radians(1.0), 0.5]))
@@ -500,10 +500,7 @@ def _row_of_three_seen_from_aside(seed: int, altitude_m: float, sisters: bool = 
     scene = replace(scene, uav_enu=scene.uav_enu + moved_m)
     labels = render(scene)[1].copy()
     true = scene.geometry()
-    for slot in ((-1, 1) if sisters else ()):
-        moved = corrected_geometry(true, np.array([*(slot * YACHT_BERTH_M * _abeam_m(true)), 0.0, 0.0]))
-        for polygon in vessel_silhouette_px(YACHT, moved):
-            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    _paint_sisters(labels, true, YACHT, (-YACHT_BERTH_M, YACHT_BERTH_M) if sisters else ())
     return labels, true
 
 
@@ -544,10 +541,7 @@ def test_a_yacht_rafted_between_two_sisters_is_not_laid_on_an_outer_one():
     scene = sample_scene(YACHT, np.random.default_rng(3), altitude_m=100, tilt_deg=3.0, scenario="open")
     labels = render(scene)[1].copy()
     true = scene.geometry()
-    for slot in (-1, 1):
-        moved = corrected_geometry(true, np.array([*(slot * 4.0 * _abeam_m(true)), 0.0, 0.0]))
-        for polygon in vessel_silhouette_px(YACHT, moved):
-            cv2.fillPoly(labels, [np.round(polygon).astype(np.int32)], 1)
+    _paint_sisters(labels, true, YACHT, (-4.0, 4.0))
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pose_refinement, "ALIKE_MIN_TELLING", pose_refinement.MIN_EDGE_POINTS)

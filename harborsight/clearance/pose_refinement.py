@@ -236,27 +236,39 @@ def _shift_costs(align: Alignment, outline: np.ndarray, params: np.ndarray, de: 
                  dn: np.ndarray, points: int = SEARCH_POINTS) -> np.ndarray | None:
     """The Tukey cost at :data:`SEARCH_TUKEY_PX` of up to ``points`` outline points
     (every k-th) under the correction ``params`` moved by each horizontal shift
-    ``(de, dn)`` (metres; points that leave the view count as outliers), one per shift.
-    The outline's pixels under a shift are taken to first order, ``uv(t) = uv(0) + J t``,
-    with ``J`` from the projections at 1 m east and 1 m north: one projection per axis
-    instead of one per shift. None when too few points project."""
+    ``(de, dn)`` (metres; points that leave the view count as outliers), one per shift
+    (:func:`_shifted_window_xy`). None when too few points project."""
     if outline.shape[1] == 0:
         return None
     outline = outline[:, ::-(-outline.shape[1] // points)]    # every k-th point
+    shifted = _shifted_window_xy(align, outline, params, de, dn)
+    if shifted is None or shifted[0].shape[1] < MIN_EDGE_POINTS:
+        return None
+    xy, seen = shifted
+    values = np.full(seen.shape, np.inf)
+    values[seen] = align.sdf.sample(xy[seen].T)[0]
+    return tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+
+
+def _shifted_window_xy(align: Alignment, outline: np.ndarray, params: np.ndarray,
+                       de: np.ndarray, dn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Window positions ``(shifts, points, 2)`` of the outline's points that project under
+    the correction ``params`` moved by each horizontal shift ``(de, dn)`` (metres), and
+    which of them are in view and in the window. To first order, ``uv(t) = uv(0) + J t``,
+    ``J`` from the projections at 1 m east and 1 m north: one projection per axis instead
+    of one per shift. None when no point projects."""
     base = align.pixels(outline, params)
     east = align.pixels(outline, params + np.array([1.0, 0.0, 0.0, 0.0])) - base
     north = align.pixels(outline, params + np.array([0.0, 1.0, 0.0, 0.0])) - base
     keep = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
-    if keep.sum() < MIN_EDGE_POINTS:
+    if not keep.any():
         return None
     base, east, north = base[keep], east[keep], north[keep]
     xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
-          - align.origin.T[None])                                    # (shifts, points, 2)
+          - align.origin.T[None])
     seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
             & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
-    values = np.full(seen.shape, np.inf)
-    values[seen] = align.sdf.sample(xy[seen].T)[0]
-    return tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
+    return xy, seen
 
 
 def _translation_search(align: Alignment, outline: np.ndarray, settings: PoseRefinementSettings,
@@ -1101,7 +1113,7 @@ def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
     :data:`CUT_MIN_POINTS`) have the least mean Tukey cost at :data:`SEARCH_TUKEY_PX`, the
     nearer the sensors' pose first among equals. A mean, not :func:`_shift_costs`' sum with
     points out of view as outliers, which ranks every cut placement below one in full
-    view. Pixels under a shift to first order, as there."""
+    view (:func:`_shifted_window_xy`)."""
     sigma_m = prior_diagonal[0] ** -0.5
     step_m = SEARCH_STEP_SIGMA * sigma_m
     n = int(2.5 * sigma_m // step_m)
@@ -1111,17 +1123,10 @@ def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
     de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
     keep = (np.hypot(de, dn) <= 2.5 * sigma_m + 1e-9) & (np.hypot(de - params[0], dn - params[1]) >= apart_m)
     de, dn = de[keep], dn[keep]
-    base = align.pixels(outline, np.zeros(4))
-    east = align.pixels(outline, np.array([1.0, 0.0, 0.0, 0.0])) - base
-    north = align.pixels(outline, np.array([0.0, 1.0, 0.0, 0.0])) - base
-    finite = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
-    if not len(de) or not finite.any():
+    shifted = _shifted_window_xy(align, outline, np.zeros(4), de, dn) if len(de) else None
+    if shifted is None:
         return []
-    base, east, north = base[finite], east[finite], north[finite]
-    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
-          - align.origin.T[None])                                    # (cells, points, 2)
-    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
-            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
+    xy, seen = shifted
     cost = np.zeros(seen.shape)
     cost[seen] = tukey_cost(align.sdf.sample(xy[seen].T)[0], SEARCH_TUKEY_PX)
     count = seen.sum(axis=1)
