@@ -921,19 +921,27 @@ def _ring_ship_share(params: np.ndarray, align: Alignment, silhouette: Silhouett
                      ship: np.ndarray, row: tuple[np.ndarray, ...] = ()) -> float:
     """Share of ship pixels in the ring :data:`RING_PX` wide just outside the silhouette
     under ``params`` (in the signed distance's window ``ship``): water round a hull alone on
-    the water, ship where the blob holds more than the hull. Ring pixels inside the
-    silhouette under any of ``row`` (corrections: sisters' placements) are left out."""
+    the water, ship where the blob holds more than the hull. With ``row`` (corrections:
+    sisters' placements), the lower of that share and the share with the ring pixels
+    inside their silhouettes left out: the row can only admit a placement."""
     drawn = _drawn_in_window(params, align, silhouette, ship.shape)
     if drawn is None:
         return 1.0
     size = 2 * RING_PX + 1
     ring = (cv2.dilate(drawn, np.ones((size, size), np.uint8)) > drawn)
+
+    def share() -> float:
+        total = np.count_nonzero(ring)
+        return float(np.count_nonzero(ring & ship) / total) if total else 1.0
+
+    alone = share()
+    if not row:
+        return alone
     for other in row:
         sister = _drawn_in_window(other, align, silhouette, ship.shape)
         if sister is not None:
             ring &= sister == 0
-    total = np.count_nonzero(ring)
-    return float(np.count_nonzero(ring & ship) / total) if total else 1.0
+    return min(alone, share())
 
 
 def _row_rings(best: np.ndarray, found: np.ndarray, align: Alignment, silhouette: Silhouette,
@@ -941,20 +949,17 @@ def _row_rings(best: np.ndarray, found: np.ndarray, align: Alignment, silhouette
     """The ring ship shares (:func:`_ring_ship_share`) of the pose ``best`` and of a
     placement ``found`` on a sister's blob, the latter's the lower of its own and its less
     the pixels a row of sisters at their spacing ``d = found - best`` would cover (hulls at
-    ``best - d``, ``best``, ``found`` and ``found + d``): the row can only admit a
-    placement (taken out of both rings, it moved the shares apart: 0.032 / 0.113 became
-    0.009 / 0.122, and a real sister 4.8 m abeam was turned away). Sisters moored half a
-    metre apart touch the ring along their sides, the middle one's on both: without the
-    row, the true pose between two sisters read 0.3
-    more ship in its ring than an outer sister's, and a 14 m yacht in a row was laid a berth
-    over (21 of 108 frames at 95-105 m). A box's corners beyond the hull's outline lie under
-    no sister's placement and still count."""
+    ``best - d``, ``best`` and ``found + d``): the row can only admit a placement (taken
+    out of both rings, it moved the shares apart: 0.032 / 0.113 became 0.009 / 0.122, and a
+    real sister 4.8 m abeam was turned away). Sisters moored half a metre apart touch the
+    ring along their sides, the middle one's on both: without the row, the true pose
+    between two sisters read 0.3 more ship in its ring than an outer sister's, and a 14 m
+    yacht in a row was laid a berth over (21 of 108 frames at 95-105 m). A box's corners
+    beyond the hull's outline lie under no sister's placement and still count."""
     spacing = found - best
     spacing[2:] = 0.0
-    row = (best - spacing, best, found, found + spacing)
     return (_ring_ship_share(best, align, silhouette, ship),
-            min(_ring_ship_share(found, align, silhouette, ship),
-                _ring_ship_share(found, align, silhouette, ship, row)))
+            _ring_ship_share(found, align, silhouette, ship, (best - spacing, best, found + spacing)))
 
 
 def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
@@ -1083,16 +1088,16 @@ def _cut_hull(align: Alignment, silhouette: Silhouette, outline: np.ndarray,
     if in_view >= CUT_IN_VIEW or math.hypot(*params[:2]) < apart_m:
         return None
     relaxed = align.with_min_points(CUT_MIN_POINTS)
-    cut = _cut_at_sensors((*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
-                                         prior_diagonal, edge_weight), None),
+    cut = _cut_at_sensors(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
+                                       prior_diagonal, edge_weight),
                           at_sensors, in_view, fill, settings)
     if cut is not None and not (cut[1] and math.hypot(*(cut[0][0][:2] - params[:2])) < apart_m):
         return cut
     held = prior_diagonal.copy()
     held[3] = CUT_HELD_HEIGHT_M ** -2.0
     for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m):
-        again = _cut_at_sensors((*gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start,
-                                               held, edge_weight), None),
+        again = _cut_at_sensors(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start,
+                                             held, edge_weight),
                                 at_sensors, in_view, fill, settings)
         if again is not None and again[1] and math.hypot(*(again[0][0][:2] - params[:2])) >= apart_m:
             return again
@@ -1135,21 +1140,21 @@ def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
     return [np.array([de[c], dn[c], 0.0, 0.0]) for c in order[:CUT_STARTS] if np.isfinite(mean[c])]
 
 
-def _cut_at_sensors(relaxed: tuple, at_sensors: np.ndarray, in_view: float, fill,
+def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
                     settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
     """The placement of a hull the image's border cuts, near the sensors' pose, that the
     image cannot refute, whether any of it is seen, and ``in_view``: ``(candidate, seen,
     in_view)``, or None.
 
-    ``relaxed`` is the alignment from the sensors' pose on as few as
-    :data:`CUT_MIN_POINTS` outline points in view (a candidate with its fill not yet
-    reckoned); ``at_sensors`` the outline's signed distances in view at the sensors' pose,
+    ``solved`` is an alignment (:func:`gauss_newton`'s ``(params, information, cost,
+    signed distances)``) on as few as :data:`CUT_MIN_POINTS` outline points in view;
+    ``at_sensors`` the outline's signed distances in view at the sensors' pose,
     ``in_view`` their share of the outline. When that alignment fits what is in view as a
     placement would be accepted (inliers, residual, the silhouette's pixels in view ship),
     it is the placement, seen. When fewer than :data:`CUT_MIN_POINTS` points are in view at
     the sensors' pose, the image says nothing of the hull there: the sensors' pose itself,
     unseen. Otherwise what is in view is not this hull's edges: None."""
-    params, information, cost, value, _ = relaxed
+    params, information, cost, value = solved
     if np.isfinite(cost) and np.isfinite(params).all():
         fraction, residual_px, telling = outline_fit(value)
         fill_share = fill(params)
