@@ -123,7 +123,6 @@ class BlenderRenderer:
         self.id_world.color = (0.0, 0.0, 0.0)
         self.id_world.use_fake_user = True
         self.sky_world = None
-        self.tmp = Path(tempfile.mkdtemp(prefix="harborsight-blender-"))
 
     # ------------------------------------------------------------------ building
 
@@ -359,14 +358,19 @@ class BlenderRenderer:
 
     # ------------------------------------------------------------------ rendering
 
-    def _render_to(self, path: Path) -> np.ndarray:
-        self.scene.render.filepath = str(path)
-        with _silenced_stdout():
-            self.bpy.ops.render.render(write_still=True)
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise RuntimeError(f"Blender wrote no image to {path}")
-        return image
+    def _render_to(self, name: str) -> np.ndarray:
+        """Render the scene and read back the PNG Blender writes. The file lives in a folder
+        made and removed around this one render: render workers are terminated, not closed,
+        so a folder kept for the renderer's life was left behind by every worker."""
+        with tempfile.TemporaryDirectory(prefix="harborsight-blender-") as folder:
+            path = Path(folder) / name
+            self.scene.render.filepath = str(path)
+            with _silenced_stdout():
+                self.bpy.ops.render.render(write_still=True)
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise RuntimeError(f"Blender wrote no image to {path}")
+            return image
 
     def render(self, scene: HarbourScene, cull: bool = True) -> RenderOutput:
         """RGB and instance ids of ``scene`` (``cull``: see :meth:`build`)."""
@@ -396,7 +400,7 @@ class BlenderRenderer:
         cycles.use_light_tree = False  # one sun and an unsampled sky: nothing to choose from
         cycles.pixel_filter_type = "BLACKMAN_HARRIS"
         cycles.filter_width = 1.5
-        image = self._render_to(self.tmp / "rgb.png")
+        image = self._render_to("rgb.png")
 
         # ids: emission of the object colour at the pixel centres, no colour transform
         s.view_layers[0].material_override = self.id_material
@@ -410,7 +414,7 @@ class BlenderRenderer:
         cycles.max_bounces = 0
         cycles.pixel_filter_type = "BOX"
         cycles.filter_width = 0.01
-        ids = decode_id_image(self._render_to(self.tmp / "ids.png"))
+        ids = decode_id_image(self._render_to("ids.png"))
         return RenderOutput(image[..., :3].copy(), ids, self._ocean_triangles())
 
     def _ocean_triangles(self) -> np.ndarray:
