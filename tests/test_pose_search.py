@@ -319,6 +319,17 @@ def _rafted_between_sisters(labels: np.ndarray, true) -> np.ndarray:
     return rafted
 
 
+def _compare_no_solved_candidates(patch: pytest.MonkeyPatch) -> None:
+    """Have the twin check leave out the candidates the refinement solved before it (as it
+    did before the forty-third session), so a test shows what its own check catches."""
+    twin_alongside = pose_refinement._twin_alongside
+
+    def without_solved(*args, **kwargs):
+        return twin_alongside(*args, **{**kwargs, "solved": ()})
+
+    patch.setattr(pose_refinement, "_twin_alongside", without_solved)
+
+
 @pytest.mark.parametrize(("seed", "altitude_m"), [(5, 100), (3, 60)])
 def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, altitude_m):
     """Rafted between two sister hulls, touching, with the sensors 2.5 m toward one of them
@@ -337,6 +348,7 @@ def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, a
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pose_refinement, "TWIN_DEEP_SHARE", 1.01)        # no twin check
         patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))
+        _compare_no_solved_candidates(patch)
         laid, unchecked = refine_vessel_pose(rafted, corrected_geometry(true, error), TUG)
     assert unchecked.applied and not unchecked.sensors_contradicted
     assert pose_error(laid, true)[0] > 9.0
@@ -448,6 +460,7 @@ def test_sister_yachts_leaning_into_one_blob_far_from_the_nadir_are_told_apart()
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))      # no blob too large
+        _compare_no_solved_candidates(patch)
         laid, unchecked = refine_vessel_pose(labels, told, YACHT)
     assert unchecked.applied and pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, YACHT)
@@ -487,12 +500,12 @@ def test_a_sister_between_two_others_half_a_metre_apart_is_one_of_the_row():
 
 
 def _row_of_three_seen_from_aside(seed: int, altitude_m: float, sisters: bool = True,
-                                  ahead: bool = False):
+                                  ahead: bool = False, tilt_deg: float = 3.0):
     """The yacht with a sister 5 m to either side, the drone 0.75 of its height to the
     image's right of where the scene puts it (``ahead``: 0.38 of it toward the image's
     top): ``(labels, true geometry)``."""
-    scene = sample_scene(YACHT, np.random.default_rng(seed), altitude_m=altitude_m, tilt_deg=3.0,
-                         scenario="open")
+    scene = sample_scene(YACHT, np.random.default_rng(seed), altitude_m=altitude_m,
+                         tilt_deg=tilt_deg, scenario="open")
     yaw = math.radians(scene.yaw_deg)
     image_right = np.array([math.cos(yaw), -math.sin(yaw), 0.0])
     image_up = np.array([math.sin(yaw), math.cos(yaw), 0.0])
@@ -570,6 +583,69 @@ def test_a_cut_hull_whose_fit_from_the_sensors_fails_is_found_from_the_grid():
     _, refinement = refine_vessel_pose(labels, told, YACHT)
     assert not refinement.applied and not refinement.sensors_contradicted
     assert refinement.reason.startswith((pose_refinement.CUT_ALIKE, pose_refinement.TWIN_ALIKE))
+
+
+def test_a_cut_hull_fitted_with_an_end_over_water_still_joins_the_comparison():
+    """The row of three at 100 m with the drone 38 m ahead: half the yacht's outline is out
+    of the picture and the sensors are 2 m off. Aligned on the 13 outline points in view,
+    the cut hull lies 0.4 m from the truth along its length, its bow over water: 83 % of
+    its silhouette is ship, under the 90 % an accepted placement needs, so it never joined
+    the comparison and the hull was laid on the sister 4.9 m over (a reviewer's probe: 8
+    of 12 such frames at 100 m). A cut hull's placement that fills 80 % of the 90 % now
+    joins, and the prior cannot choose."""
+    labels, true = _row_of_three_seen_from_aside(8, 100, ahead=True)
+    told = corrected_geometry(true, np.array([-0.34, 2.05, -0.01, 0.81]))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "CUT_FILL_SHARE", 1.0)
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    kept, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.CUT_ALIKE), refinement.reason
+    assert "fitting the mask there" in refinement.reason
+    assert pose_error(kept, true)[0] < 2.5
+
+
+def test_a_placement_solved_a_beam_over_is_compared_with_the_sister():
+    """The row of three at 30 m with the drone 11 m ahead, the sensors 2.8 m toward a
+    sister: the refinement's start a beam to the other side finds the true placement (every
+    point in view on an edge), but 16 % of its outline is out of the picture and counts as
+    misses, so the sister, in full view, wins on cost, and the hull was laid 5 m over. The
+    twin check solved again only from its own starts and never compared the two; the
+    candidates already solved are now checked as sisters' placements are, and the prior
+    cannot choose between them."""
+    labels, true = _row_of_three_seen_from_aside(3, 30, ahead=True)
+    told = corrected_geometry(true, np.array([-0.56, -2.8, 0.04, -0.08]))
+    with pytest.MonkeyPatch.context() as patch:
+        _compare_no_solved_candidates(patch)
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE), refinement.reason
+
+
+def test_a_cut_hull_whose_fit_runs_off_in_height_is_fitted_again_at_the_sensors_height():
+    """The row of three at 30 m, the drone 11 m ahead and its camera tilted 15 degrees: the
+    cut hull aligned from the sensors' pose lies 0.3 m from the truth but 5-6 m too high (a
+    cut outline hardly measures the scale), beyond the height's limit, and the grid's cells
+    lay it on water; so the sister in full view was laid on, 5 m over. Aligned again from
+    where that fit lay, at the sensors' height, it fits, joins the comparison, and the
+    sensors' pose is kept."""
+    labels, true = _row_of_three_seen_from_aside(8, 30, ahead=True, tilt_deg=15.0)
+    told = corrected_geometry(true, np.array([0.99, 1.45, -0.11, 0.95]))
+    cut_starts = pose_refinement._cut_starts
+
+    def grid_only(align, outline, params, prior_diagonal, apart_m, fitted=None):
+        return cut_starts(align, outline, params, prior_diagonal, apart_m)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "_cut_starts", grid_only)
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    kept, refinement = refine_vessel_pose(labels, told, YACHT)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert pose_error(kept, true)[0] < 2.5
 
 
 def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():

@@ -764,7 +764,8 @@ def _refine_within_prior(
         cut = _cut_hull(align, silhouette, outline, at_sensors, params, prior_diagonal,
                         edge_weight, fill, settings)
         best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
-                                           prior_diagonal, solve_and_fill, fill, ship, cut)
+                                           prior_diagonal, solve_and_fill, fill, ship, cut,
+                                           solved=candidates)
         params, information, _, value, fill_share = best
 
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
@@ -1079,31 +1080,46 @@ def _cut_hull(align: Alignment, silhouette: Silhouette, outline: np.ndarray,
     the sensors' pose ``at_sensors``) is in view and the chosen correction ``params`` moves
     the hull :data:`TWIN_APART_BEAMS` beams or more. The hull is aligned from the sensors'
     pose on as few as :data:`CUT_MIN_POINTS` points; when that is refused or slides onto
-    the chosen placement, again from the likeliest cells of :func:`_cut_starts` with the
-    height held at the sensors' (a cut outline hardly measures the scale: a reviewer found
-    the fit from the sensors' pose refused in 3 of 4 frames still laid on a sister, its
-    silhouette on water or its height 4-8 m off, where a fit from the truth passed)."""
+    the chosen placement, again from :func:`_cut_starts` with the height held at the
+    sensors' (a cut outline hardly measures the scale: a reviewer found the fit from the
+    sensors' pose refused in 3 of 4 frames still laid on a sister, its silhouette on water
+    or its height 4-8 m off, where a fit from the truth passed). When none fills the
+    silhouette as an accepted placement must, the first that fills :data:`CUT_FILL_SHARE`
+    of it joins."""
     in_view = len(at_sensors) / outline.shape[1]
     apart_m = TWIN_APART_BEAMS * float(np.ptp(silhouette.points_h[1]))
     if in_view >= CUT_IN_VIEW or math.hypot(*params[:2]) < apart_m:
         return None
+
+    def apart(candidate: np.ndarray) -> bool:
+        return math.hypot(*(candidate[:2] - params[:2])) >= apart_m
+
     relaxed = align.with_min_points(CUT_MIN_POINTS)
-    cut = _cut_at_sensors(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
-                                       prior_diagonal, edge_weight),
-                          at_sensors, in_view, fill, settings)
-    if cut is not None and not (cut[1] and math.hypot(*(cut[0][0][:2] - params[:2])) < apart_m):
+    first = gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4), prior_diagonal,
+                         edge_weight)
+    cut = _cut_at_sensors(first, at_sensors, in_view, fill, settings)
+    if cut is not None and (not cut[1] or apart(cut[0][0])):
         return cut
     held = prior_diagonal.copy()
     held[3] = CUT_HELD_HEIGHT_M ** -2.0
-    for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m):
-        again = _cut_at_sensors(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start,
-                                             held, edge_weight),
-                                at_sensors, in_view, fill, settings)
-        if again is not None and again[1] and math.hypot(*(again[0][0][:2] - params[:2])) >= apart_m:
+    tried = [first]
+    for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m, first[0]):
+        tried.append(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start, held, edge_weight))
+        again = _cut_at_sensors(tried[-1], at_sensors, in_view, fill, settings)
+        if again is not None and again[1] and apart(again[0][0]):
+            return again
+    for solved in tried:
+        again = _cut_at_sensors(solved, at_sensors, in_view, fill, settings, CUT_FILL_SHARE)
+        if again is not None and again[1] and apart(again[0][0]):
             return again
     return cut
 
 
+#: the share of an accepted placement's fill (``min_ship_fill``) a cut hull's placement
+#: needs when none has that: aligned on so few points it lies up to a metre off along a
+#: hull whose end is out of the picture, an end over water (fills of 0.72-0.87 were found
+#: 0.4-0.9 m from the truth, where the sister beside it was laid on)
+CUT_FILL_SHARE = 0.8
 #: the height's prior (m) while a cut hull is aligned from a grid cell: held at the sensors'
 CUT_HELD_HEIGHT_M = 1e-6
 #: cells of the grid over the prior's reach that start such alignments
@@ -1111,37 +1127,45 @@ CUT_STARTS = 2
 
 
 def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
-                prior_diagonal: np.ndarray, apart_m: float) -> list[np.ndarray]:
-    """Starts for a cut hull's alignment: the :data:`CUT_STARTS` cells of a grid over the
-    prior's reach (2.5 sigma, steps of :data:`SEARCH_STEP_SIGMA` sigma), ``apart_m`` or
-    more from the chosen correction ``params``, whose outline points in view (at least
-    :data:`CUT_MIN_POINTS`) have the least mean Tukey cost at :data:`SEARCH_TUKEY_PX`, the
-    nearer the sensors' pose first among equals. A mean, not :func:`_shift_costs`' sum with
-    points out of view as outliers, which ranks every cut placement below one in full
-    view (:func:`_shifted_window_xy`)."""
+                prior_diagonal: np.ndarray, apart_m: float, fitted: np.ndarray | None = None
+                ) -> list[np.ndarray]:
+    """Starts, ``apart_m`` or more from the chosen correction ``params``, for a cut hull's
+    alignment with its height held: where the alignment from the sensors' pose ``fitted``
+    it, at the sensors' height (a tilted camera's cut hull was fitted 0.3 m from the truth
+    with its height 5 m off, beyond the limit); then the :data:`CUT_STARTS` cells of a grid
+    over the prior's reach (2.5 sigma, steps of :data:`SEARCH_STEP_SIGMA` sigma) whose
+    outline points in view (at least :data:`CUT_MIN_POINTS`) have the least mean Tukey
+    cost at :data:`SEARCH_TUKEY_PX`, the nearer the sensors' pose first among equals. A
+    mean, not :func:`_shift_costs`' sum with points out of view as outliers, which ranks
+    every cut placement below one in full view (:func:`_shifted_window_xy`)."""
+    starts = []
+    if (fitted is not None and np.isfinite(fitted).all()
+            and math.hypot(*(fitted[:2] - params[:2])) >= apart_m):
+        starts.append(np.array([*fitted[:3], 0.0]))
     sigma_m = prior_diagonal[0] ** -0.5
     step_m = SEARCH_STEP_SIGMA * sigma_m
     n = int(2.5 * sigma_m // step_m)
     if n < 1 or outline.shape[1] == 0:
-        return []
+        return starts
     offsets = np.arange(-n, n + 1) * step_m
     de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
     keep = (np.hypot(de, dn) <= 2.5 * sigma_m + 1e-9) & (np.hypot(de - params[0], dn - params[1]) >= apart_m)
     de, dn = de[keep], dn[keep]
     shifted = _shifted_window_xy(align, outline, np.zeros(4), de, dn) if len(de) else None
     if shifted is None:
-        return []
+        return starts
     xy, seen = shifted
     cost = np.zeros(seen.shape)
     cost[seen] = tukey_cost(align.sdf.sample(xy[seen].T)[0], SEARCH_TUKEY_PX)
     count = seen.sum(axis=1)
     mean = np.where(count >= CUT_MIN_POINTS, cost.sum(axis=1) / np.maximum(count, 1), np.inf)
     order = np.argsort(mean + 1e-3 * (de ** 2 + dn ** 2), kind="stable")
-    return [np.array([de[c], dn[c], 0.0, 0.0]) for c in order[:CUT_STARTS] if np.isfinite(mean[c])]
+    return starts + [np.array([de[c], dn[c], 0.0, 0.0]) for c in order[:CUT_STARTS] if np.isfinite(mean[c])]
 
 
 def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
-                    settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
+                    settings: PoseRefinementSettings, fill_share: float = 1.0
+                    ) -> tuple[tuple, bool, float] | None:
     """The placement of a hull the image's border cuts, near the sensors' pose, that the
     image cannot refute, whether any of it is seen, and ``in_view``: ``(candidate, seen,
     in_view)``, or None.
@@ -1150,20 +1174,21 @@ def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
     signed distances)``) on as few as :data:`CUT_MIN_POINTS` outline points in view;
     ``at_sensors`` the outline's signed distances in view at the sensors' pose,
     ``in_view`` their share of the outline. When that alignment fits what is in view as a
-    placement would be accepted (inliers, residual, the silhouette's pixels in view ship),
-    it is the placement, seen. When fewer than :data:`CUT_MIN_POINTS` points are in view at
-    the sensors' pose, the image says nothing of the hull there: the sensors' pose itself,
-    unseen. Otherwise what is in view is not this hull's edges: None."""
+    placement would be accepted (inliers, residual, the silhouette's pixels in view ship;
+    of these ``fill_share`` of ``min_ship_fill``), it is the placement, seen. When fewer
+    than :data:`CUT_MIN_POINTS` points are in view at the sensors' pose, the image says
+    nothing of the hull there: the sensors' pose itself, unseen. Otherwise what is in view
+    is not this hull's edges: None."""
     params, information, cost, value = solved
     if np.isfinite(cost) and np.isfinite(params).all():
         fraction, residual_px, telling = outline_fit(value)
-        fill_share = fill(params)
+        filled = fill(params)
         if (telling >= CUT_MIN_POINTS and fraction >= settings.min_inlier_fraction
                 and residual_px is not None and residual_px <= settings.max_residual_px
-                and fill_share >= settings.min_ship_fill
+                and filled >= fill_share * settings.min_ship_fill
                 and not any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
                                     settings.max_height_change_m))):
-            return (params, information, cost, value, fill_share), True, in_view
+            return (params, information, cost, value, filled), True, in_view
         return None
     if len(at_sensors) < CUT_MIN_POINTS and in_view < CUT_IN_VIEW:
         return (np.zeros(4), None, np.inf, at_sensors, fill(np.zeros(4))), False, in_view
@@ -1198,8 +1223,8 @@ def _cut_alike(cut: np.ndarray, seen: bool, params: np.ndarray, align: Alignment
 
 def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geometry: FrameGeometry,
                     settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill,
-                    ship: np.ndarray, cut: tuple[tuple, bool, float] | None = None
-                    ) -> tuple[tuple, str | None]:
+                    ship: np.ndarray, cut: tuple[tuple, bool, float] | None = None,
+                    solved: list[tuple] = ()) -> tuple[tuple, str | None]:
     """The placement to keep when the hull may be one of identical vessels moored side by
     side or in a row, and why none can be kept when the sensors cannot tell which.
 
@@ -1217,7 +1242,11 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     alignment is run again from a beam to either side where the silhouette there is filled
     (``fill(params)`` its share of ship pixels; ``solve(start)`` returns a candidate); and
     from the other blobs of the hull's size the prior cannot rule out
-    (:func:`_blob_starts`). Of ``best`` and the placements that fit as one would be
+    (:func:`_blob_starts`); the candidates the refinement ``solved`` already (from the
+    sensors' pose and a beam to either side) are checked as those from blobs are, with no
+    solve (a hull partly out of the picture, fitted 5 m off its sister from a start a beam
+    over, lost to the sister on cost, its points out of view counted as misses, and was
+    never compared). Of ``best`` and the placements that fit as one would be
     accepted (:func:`_fits_alike`), all :data:`TWIN_APART_BEAMS` beams or more apart, the
     one nearest the sensors' pose under the prior (of the shifts alone, :func:`_shift_d2`)
     is kept, when it is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
@@ -1246,10 +1275,12 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
             if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
                 starts.append((start, False))
     starts += [(start, True) for start in on_blobs]
+    # the placements the refinement already solved are checked as the blobs' are
+    starts = [(c, True) for c in solved if c is not best] + starts
     best_fraction = None        # reckoned once, when a blob's placement asks
     alike = [best]
     for start, on_blob in starts:
-        found = solve(start)
+        found = start if isinstance(start, tuple) else solve(start)
         if not (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
                 and _fits_alike(found, align, silhouette, settings)):
             continue
