@@ -427,6 +427,32 @@ def test_a_yacht_in_a_row_of_sisters_is_not_laid_on_the_next_berth(seed, altitud
     assert not report.sensors_contradicted and report.min_distance_m is not None
 
 
+def test_a_prior_of_a_kilometre_still_finds_the_sisters_blobs():
+    """A receiver without a fix states a prior of a kilometre, and with sisters 5 m apart
+    the image cannot say which hull is the vessel. The blobs' grid stepped a third of the
+    prior, 485 m, never landed on a sister's blob, and the hull was laid a berth over (a
+    reviewer's probe with such a prior: 26 of 144 frames of a row of three). The grid steps
+    at most half a beam, reaches no farther than a correction may move, and the sensors'
+    pose is kept."""
+    labels, true = _yacht_in_a_row(3, 60)
+    told = corrected_geometry(true, np.array([2.49, 3.26, 0.0, -1.96]))
+    settings = PoseRefinementSettings(prior_shift_m=1000.0, prior_heading_deg=1000.0)
+    blob_starts = pose_refinement._blob_starts
+
+    def stepped_by_the_prior(params, align, silhouette, ship, prior_diagonal, step_m, apart_m,
+                             max_shift_m=math.inf):
+        return blob_starts(params, align, silhouette, ship, prior_diagonal,
+                           pose_refinement.SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, apart_m)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pose_refinement, "_blob_starts", stepped_by_the_prior)
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT, settings)
+    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
+    _, refinement = refine_vessel_pose(labels, told, YACHT, settings)
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE), refinement.reason
+
+
 def test_sister_yachts_are_checked_where_the_outline_has_few_points():
     """At 84 m the yacht's outline has 41-46 points; scored with every second of them the
     sister blobs' cells had fewer than the 24 a score needs, nothing was tried, and the hull

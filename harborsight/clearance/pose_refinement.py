@@ -858,6 +858,13 @@ TWIN_BLOB_STARTS = 3
 #: this much under the chosen pose's (a 12 m yacht's outline on a 14 m yacht's blob, or on a
 #: box's, fits alike by the acceptance tests alone)
 TWIN_BLOB_FRACTION = 0.15
+#: the same for a candidate the refinement solved before the twin check: one with 0.90 of
+#: its outline on edges, 7 m along a hull whose placement had 1.0, was no sister (a bench
+#: frame of a marina: the first pass had applied it, and the twin reason left it so)
+TWIN_SOLVED_FRACTION = 0.05
+#: ... or this many more of its telling points off an edge, where that is more (of 19
+#: telling points one off is 0.05: a hull rafted at the border, partly out of view)
+TWIN_SOLVED_MISSES = 2
 #: a placement on another blob is a sister's only when the ring of pixels just outside its
 #: silhouette (:data:`RING_PX`) holds at most this much more ship than the chosen pose's:
 #: a 12 x 4 m box's corners lie outside a yacht's outline laid inside it
@@ -972,8 +979,8 @@ def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
 
 
 def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, ship: np.ndarray,
-                 prior_diagonal: np.ndarray, step_m: float, apart_m: float
-                 ) -> tuple[list[np.ndarray], bool]:
+                 prior_diagonal: np.ndarray, step_m: float, apart_m: float,
+                 max_shift_m: float = math.inf) -> tuple[list[np.ndarray], bool]:
     """Starts of the alignment on the mask's other ship blobs, for identical vessels
     moored apart (a marina's row of charter yachts).
 
@@ -982,9 +989,12 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
     (which parts blobs joined by a pixel or two: a metre of water at 150 m).
     Shifts of the pose ``params`` on a grid of ``step_m`` are kept where the prior cannot
     rule them out (:func:`_shift_d2`, the shift shortened by a step, within
-    :data:`TWIN_ODDS_D2` of ``params``'), ``apart_m`` or more from it, and where the hull's
-    centre falls on a blob other than its own whose area is within :data:`TWIN_BLOB_AREA`
-    of the silhouette's (drawn in the window and parted as the blobs are); per blob the
+    :data:`TWIN_ODDS_D2` of ``params``'; no farther from the sensors' pose than
+    ``max_shift_m``, the most a correction may be: a prior of a kilometre, a receiver
+    without a fix, would grid millions of cells at a step of half a beam), ``apart_m`` or
+    more from it, and where the hull's centre falls on a blob other than its own whose
+    area is within :data:`TWIN_BLOB_AREA` of the silhouette's (drawn in the window and
+    parted as the blobs are); per blob the
     cell whose outline fits best (:func:`_shift_costs`) is a start. At most
     :data:`TWIN_BLOB_STARTS`, the likeliest under the prior first. Blobs clipped by the
     window are so started within a step of their best placement (their centroids are not:
@@ -1032,7 +1042,7 @@ def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, s
     if count <= 2:
         return [], merged
     d2_best = _shift_d2(params, prior_diagonal)
-    reach_m = prior_diagonal[0] ** -0.5 * math.sqrt(d2_best + TWIN_ODDS_D2) + step_m
+    reach_m = min(prior_diagonal[0] ** -0.5 * math.sqrt(d2_best + TWIN_ODDS_D2), max_shift_m) + step_m
     n = math.ceil(reach_m / step_m)
     offsets = np.arange(-n, n + 1) * step_m
     east, north = (g.ravel() for g in np.meshgrid(offsets, offsets))      # shifts from the sensors'
@@ -1265,29 +1275,33 @@ def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geome
     heading = geometry.vessel_heading_rad + float(params[2])
     across = np.array([math.cos(heading), -math.sin(heading)])      # starboard, in ENU
     bow = np.array([math.sin(heading), math.cos(heading)])
+    # (a step under half a beam lands on every sister's blob, however wide the prior)
     on_blobs, merged = _blob_starts(params, align, silhouette, ship, prior_diagonal,
-                                    SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5,
-                                    TWIN_APART_BEAMS * beam_m)
-    starts = []
+                                    min(SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, 0.5 * beam_m),
+                                    TWIN_APART_BEAMS * beam_m, settings.max_shift_m)
+    # (start, or candidate already solved; whence: "solved", "beside" (not compared with
+    # the chosen pose's fit, nor its ring) or "blob")
+    starts = [(c, "solved") for c in solved if c is not best]
     if merged or np.count_nonzero(value < -DEEP_PX) >= TWIN_DEEP_SHARE * len(value):
         for side in (1.0, -1.0):
             start = params + side * beam_m * np.array([*across, 0.0, 0.0])
             if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
-                starts.append((start, False))
-    starts += [(start, True) for start in on_blobs]
-    # the placements the refinement already solved are checked as the blobs' are
-    starts = [(c, True) for c in solved if c is not best] + starts
-    best_fraction = None        # reckoned once, when a blob's placement asks
+                starts.append((start, "beside"))
+    starts += [(start, "blob") for start in on_blobs]
+    best_fraction = None        # reckoned once, when a placement asks
     alike = [best]
-    for start, on_blob in starts:
+    for start, whence in starts:
         found = start if isinstance(start, tuple) else solve(start)
         if not (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
                 and _fits_alike(found, align, silhouette, settings)):
             continue
-        if on_blob:
+        if whence != "beside":
             if best_fraction is None:
                 best_fraction = outline_fit(value)[0]
-            if outline_fit(found[3])[0] < best_fraction - TWIN_BLOB_FRACTION:
+            fraction, _, telling = outline_fit(found[3])
+            below = (TWIN_BLOB_FRACTION if whence == "blob"
+                     else max(TWIN_SOLVED_FRACTION, TWIN_SOLVED_MISSES / telling))
+            if fraction < best_fraction - below:
                 continue
             best_ring, found_ring = _row_rings(params, found[0], align, silhouette, ship)
             if found_ring > best_ring + TWIN_BLOB_RING:
