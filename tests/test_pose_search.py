@@ -330,6 +330,24 @@ def _compare_no_solved_candidates(patch: pytest.MonkeyPatch) -> None:
     patch.setattr(pose_refinement, "_twin_alongside", without_solved)
 
 
+def _laid_a_berth_over_without(rule_away, labels, told, true, off_m: float,
+                               settings: PoseRefinementSettings | None = None) -> None:
+    """With ``rule_away(patch)`` the yacht is laid ``off_m`` or more from the truth, applied."""
+    with pytest.MonkeyPatch.context() as patch:
+        rule_away(patch)
+        laid, unchecked = refine_vessel_pose(labels, told, YACHT, settings or PoseRefinementSettings())
+    assert unchecked.applied and pose_error(laid, true)[0] > off_m
+
+
+def _kept_for(reason: str, labels, told, settings: PoseRefinementSettings | None = None):
+    """The yacht's sensors' pose is kept, not flagged, for a reason that begins ``reason``:
+    ``(geometry, refinement)``."""
+    kept, refinement = refine_vessel_pose(labels, told, YACHT, settings or PoseRefinementSettings())
+    assert not refinement.applied and not refinement.sensors_contradicted
+    assert refinement.reason.startswith(reason), refinement.reason
+    return kept, refinement
+
+
 @pytest.mark.parametrize(("seed", "altitude_m"), [(5, 100), (3, 60)])
 def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, altitude_m):
     """Rafted between two sister hulls, touching, with the sensors 2.5 m toward one of them
@@ -444,13 +462,10 @@ def test_a_prior_of_a_kilometre_still_finds_the_sisters_blobs():
         return blob_starts(params, align, silhouette, ship, prior_diagonal,
                            pose_refinement.SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, apart_m)
 
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "_blob_starts", stepped_by_the_prior)
-        laid, unchecked = refine_vessel_pose(labels, told, YACHT, settings)
-    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
-    _, refinement = refine_vessel_pose(labels, told, YACHT, settings)
-    assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE), refinement.reason
+    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "_blob_starts",
+                                                           stepped_by_the_prior),
+                               labels, told, true, 4.5, settings)
+    _kept_for(pose_refinement.TWIN_ALIKE, labels, told, settings)
 
 
 def test_sister_yachts_are_checked_where_the_outline_has_few_points():
@@ -582,13 +597,10 @@ def test_a_yacht_rafted_between_two_sisters_is_not_laid_on_an_outer_one():
     true = scene.geometry()
     _paint_sisters(labels, true, YACHT, (-4.0, 4.0))
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "ALIKE_MIN_TELLING", pose_refinement.MIN_EDGE_POINTS)
-        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
-    assert unchecked.applied and pose_error(laid, true)[0] > 3.5
-    _, refinement = refine_vessel_pose(labels, told, YACHT)
-    assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE), refinement.reason
+    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "ALIKE_MIN_TELLING",
+                                                           pose_refinement.MIN_EDGE_POINTS),
+                               labels, told, true, 3.5)
+    _kept_for(pose_refinement.TWIN_ALIKE, labels, told)
 
 
 def test_a_cut_hull_whose_fit_from_the_sensors_fails_is_found_from_the_grid():
@@ -621,13 +633,9 @@ def test_a_cut_hull_fitted_with_an_end_over_water_still_joins_the_comparison():
     joins, and the prior cannot choose."""
     labels, true = _row_of_three_seen_from_aside(8, 100, ahead=True)
     told = corrected_geometry(true, np.array([-0.34, 2.05, -0.01, 0.81]))
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "CUT_FILL_SHARE", 1.0)
-        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
-    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
-    kept, refinement = refine_vessel_pose(labels, told, YACHT)
-    assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.CUT_ALIKE), refinement.reason
+    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "CUT_FILL_SHARE", 1.0),
+                               labels, told, true, 4.5)
+    kept, refinement = _kept_for(pose_refinement.CUT_ALIKE, labels, told)
     assert "fitting the mask there" in refinement.reason
     assert pose_error(kept, true)[0] < 2.5
 
@@ -642,13 +650,8 @@ def test_a_placement_solved_a_beam_over_is_compared_with_the_sister():
     cannot choose between them."""
     labels, true = _row_of_three_seen_from_aside(3, 30, ahead=True)
     told = corrected_geometry(true, np.array([-0.56, -2.8, 0.04, -0.08]))
-    with pytest.MonkeyPatch.context() as patch:
-        _compare_no_solved_candidates(patch)
-        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
-    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
-    _, refinement = refine_vessel_pose(labels, told, YACHT)
-    assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE), refinement.reason
+    _laid_a_berth_over_without(_compare_no_solved_candidates, labels, told, true, 4.5)
+    _kept_for(pose_refinement.TWIN_ALIKE, labels, told)
 
 
 def test_a_cut_hull_whose_fit_runs_off_in_height_is_fitted_again_at_the_sensors_height():
@@ -665,12 +668,9 @@ def test_a_cut_hull_whose_fit_runs_off_in_height_is_fitted_again_at_the_sensors_
     def grid_only(align, outline, params, prior_diagonal, apart_m, fitted=None):
         return cut_starts(align, outline, params, prior_diagonal, apart_m)
 
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "_cut_starts", grid_only)
-        laid, unchecked = refine_vessel_pose(labels, told, YACHT)
-    assert unchecked.applied and pose_error(laid, true)[0] > 4.5
-    kept, refinement = refine_vessel_pose(labels, told, YACHT)
-    assert not refinement.applied and not refinement.sensors_contradicted
+    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "_cut_starts", grid_only),
+                               labels, told, true, 4.5)
+    kept, _ = _kept_for("", labels, told)
     assert pose_error(kept, true)[0] < 2.5
 
 
