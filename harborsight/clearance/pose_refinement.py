@@ -1141,7 +1141,7 @@ def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
                 ) -> list[np.ndarray]:
     """Starts, ``apart_m`` or more from the chosen correction ``params``, for a cut hull's
     alignment with its height held: where the alignment from the sensors' pose ``fitted``
-    it, at the sensors' height (a tilted camera's cut hull was fitted 0.3 m from the truth
+    it, at the sensors' height (a tilted camera's cut hull was fitted 0.4 m from the truth
     with its height 5 m off, beyond the limit); then the :data:`CUT_STARTS` cells of a grid
     over the prior's reach (2.5 sigma, steps of :data:`SEARCH_STEP_SIGMA` sigma) whose
     outline points in view (at least :data:`CUT_MIN_POINTS`) have the least mean Tukey
