@@ -1101,28 +1101,28 @@ def _cut_hull(align: Alignment, silhouette: Silhouette, outline: np.ndarray,
     if in_view >= CUT_IN_VIEW or math.hypot(*params[:2]) < apart_m:
         return None
 
-    def apart(candidate: np.ndarray) -> bool:
-        return math.hypot(*(candidate[:2] - params[:2])) >= apart_m
-
     relaxed = align.with_min_points(CUT_MIN_POINTS)
-    first = gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4), prior_diagonal,
-                         edge_weight)
-    cut = _cut_at_sensors(first, at_sensors, in_view, fill, settings)
-    if cut is not None and (not cut[1] or apart(cut[0][0])):
-        return cut
     held = prior_diagonal.copy()
     held[3] = CUT_HELD_HEIGHT_M ** -2.0
-    tried = [first]
-    for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m, first[0]):
-        tried.append(gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start, held, edge_weight))
-        again = _cut_at_sensors(tried[-1], at_sensors, in_view, fill, settings)
-        if again is not None and again[1] and apart(again[0][0]):
-            return again
-    for solved in tried:
-        again = _cut_at_sensors(solved, at_sensors, in_view, fill, settings, CUT_FILL_SHARE)
-        if again is not None and again[1] and apart(again[0][0]):
-            return again
-    return cut
+
+    def alignments():
+        first = gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
+                             prior_diagonal, edge_weight)
+        yield first
+        for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m, first[0]):
+            yield gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start, held, edge_weight)
+
+    # (a fit on the chosen placement never joins; the unseen sensors' pose comes only from
+    # the first, which fails whenever under CUT_MIN_POINTS points are in view)
+    short = None        # the first fit that fills only CUT_FILL_SHARE of what it must
+    for solved in alignments():
+        cut = _cut_at_sensors(solved, at_sensors, in_view, fill, settings)
+        if cut is None or (cut[1] and math.hypot(*(cut[0][0][:2] - params[:2])) < apart_m):
+            continue
+        if not cut[1] or cut[0][4] >= settings.min_ship_fill:
+            return cut
+        short = short or cut
+    return short
 
 
 #: the share of an accepted placement's fill (``min_ship_fill``) a cut hull's placement
@@ -1174,8 +1174,7 @@ def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
 
 
 def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
-                    settings: PoseRefinementSettings, fill_share: float = 1.0
-                    ) -> tuple[tuple, bool, float] | None:
+                    settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
     """The placement of a hull the image's border cuts, near the sensors' pose, that the
     image cannot refute, whether any of it is seen, and ``in_view``: ``(candidate, seen,
     in_view)``, or None.
@@ -1184,8 +1183,9 @@ def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
     signed distances)``) on as few as :data:`CUT_MIN_POINTS` outline points in view;
     ``at_sensors`` the outline's signed distances in view at the sensors' pose,
     ``in_view`` their share of the outline. When that alignment fits what is in view as a
-    placement would be accepted (inliers, residual, the silhouette's pixels in view ship;
-    of these ``fill_share`` of ``min_ship_fill``), it is the placement, seen. When fewer
+    placement would be accepted (inliers, residual, the silhouette's pixels in view ship,
+    of these :data:`CUT_FILL_SHARE` of ``min_ship_fill`` at least), it is the placement,
+    seen. When fewer
     than :data:`CUT_MIN_POINTS` points are in view at the sensors' pose, the image says
     nothing of the hull there: the sensors' pose itself, unseen. Otherwise what is in view
     is not this hull's edges: None."""
@@ -1195,7 +1195,7 @@ def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
         filled = fill(params)
         if (telling >= CUT_MIN_POINTS and fraction >= settings.min_inlier_fraction
                 and residual_px is not None and residual_px <= settings.max_residual_px
-                and filled >= fill_share * settings.min_ship_fill
+                and filled >= CUT_FILL_SHARE * settings.min_ship_fill
                 and not any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
                                     settings.max_height_change_m))):
             return (params, information, cost, value, filled), True, in_view
