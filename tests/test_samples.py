@@ -9,7 +9,7 @@ import numpy as np
 from typer.testing import CliRunner
 
 from harborsight.cli import app
-from harborsight.evaluation.closing import compare_closing_speeds
+from harborsight.evaluation.flight import compare_closing_speeds
 from harborsight.sim.samples import DEFAULT_SEED, make_demo_samples
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))

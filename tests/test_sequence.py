@@ -13,7 +13,7 @@ import pytest
 import shapely
 
 from harborsight.errors import InputError
-from harborsight.evaluation.closing import compare_closing_speeds
+from harborsight.evaluation.flight import compare_closing_speeds
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.sim.dataset import SimulationConfig, plan_frame, simulate, split_of
 from harborsight.sim.samples import flight_config, write_example_vessel

@@ -86,7 +86,7 @@ def _demo_runs(samples: Path, out: Path, method: Method) -> int:
 
 def _print_demo_flight(flight: Path, out: Path, summary) -> None:
     """Frames measured, closest approach and measured-vs-true closing speed of a demo flight."""
-    from harborsight.evaluation.closing import compare_closing_speeds
+    from harborsight.evaluation.flight import compare_closing_speeds
 
     md = summary.min_distance_m
     console.print(f"{summary.measured} of {summary.frames} frames measured; closest approach "

@@ -339,3 +339,60 @@ def _draw_worst_frames(data: Path, frames: list[dict], results: list, sources: l
                     skipped.append((stem, f"worst-frame picture: {out_dir / name} could not "
                                           "be written"))
     return written
+
+
+@evaluate_app.command("flight")
+def evaluate_flight_command(
+    run_dir: Annotated[Path, typer.Argument(
+        metavar="RUN", help="A run's output folder (its sections.csv), or the CSV itself.")],
+    flight: Annotated[Path, typer.Option(
+        help="The simulated flight the run measured (frames/*.json with the flight's ground "
+        "truth: simulate --sequence-frames).")],
+    from_frame: Annotated[int, typer.Option(
+        min=0, help="Leave out each scene's frames before this one (the tracker starts from "
+        "its first readings).")] = 3,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the scores as JSON.")
+                        ] = None,
+) -> None:
+    """A run of a simulated berthing flight against its ground truth, per scene: the
+    distances' error per frame and filtered by the tracker, the error bars' calibration and
+    the closest section's closing speed."""
+    from dataclasses import asdict
+
+    from harborsight.evaluation.flight import score_flight
+
+    sections_csv = run_dir / "sections.csv" if run_dir.is_dir() else run_dir
+    try:
+        if json_out is not None:
+            prepare_output_file(json_out, "--json")
+        scores = score_flight(flight, sections_csv, from_frame)
+    except HarborsightError as exc:
+        err_console.print(f"error: {exc}", markup=False)
+        raise typer.Exit(2) from None
+    console.print(f"{sections_csv} against {flight}, from frame {from_frame} of each scene",
+                  markup=False, highlight=False)
+    for s in scores:
+        lines = [f"scene {s.scene} ({fmt_number(s.altitude_m, 0)} m): {s.frames_measured} of "
+                 f"{s.frames} frames, {s.estimates} sections compared, {s.missed} missed, "
+                 f"{s.false} false",
+                 f"  distance: MAE {fmt_number(s.mae_m, 3)} m per frame, "
+                 f"{fmt_number(s.mae_filtered_m, 3)} m filtered; median "
+                 f"{fmt_number(s.median_abs_error_m, 3)}, p95 {fmt_number(s.p95_abs_error_m, 3)} m",
+                 f"  bars: truth within 2 sigma {_percent(s.within_2_sigma_share)} %, at or "
+                 f"above the lower bound {_percent(s.lower_bound_share)} %"]
+        if s.closing is None:
+            lines.append("  closing speed: no frame to compare")
+        else:
+            lines.append(f"  closing speed (closest section): {s.closing.measured_mps:.3f} m/s, "
+                         f"true {s.closing.true_mps:.3f}, error {s.closing.median_abs_error_mps:.3f}"
+                         f" ({s.closing.samples} frames)")
+        console.print("\n".join(lines), markup=False, highlight=False)
+    if json_out is not None:
+        json_out.write_text(strict_json({"schema": "harborsight.flight-score/1",
+                                         "sections_csv": str(sections_csv), "flight": str(flight),
+                                         "from_frame": from_frame,
+                                         "scenes": [asdict(s) for s in scores]}, indent=2) + "\n")
+
+
+def _percent(share: float | None) -> str:
+    return fmt_number(None if share is None else 100.0 * share, 1)
