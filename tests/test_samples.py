@@ -60,6 +60,7 @@ def test_demo_measures_every_sample(tmp_path):
     # the flight twice: on its exact labels, then segmented by the packaged default model
     assert result.output.count("48 of 48 frames measured") == 2
     assert "on the default segmentation model" in result.output
+    assert result.output.count("distance error against the ground truth from frame 3: MAE") == 2
     assert (tmp_path / "flight" / "annotated.mp4").stat().st_size > 100_000
     # the model's closing speed (0.407 m/s with the simulator-only 95.0 % model, 0.409 m/s with the
     # WiSE-FT default shipped 2026-11-24) against the true 0.400 m/s

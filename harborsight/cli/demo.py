@@ -17,6 +17,7 @@ from harborsight.cli.app import (
     clearance_settings,
     console,
     err_console,
+    fmt_number,
     load_segmenter,
 )
 from harborsight.cli.measure import run_folder
@@ -85,14 +86,24 @@ def _demo_runs(samples: Path, out: Path, method: Method) -> int:
 
 
 def _print_demo_flight(flight: Path, out: Path, summary) -> None:
-    """Frames measured, closest approach and measured-vs-true closing speed of a demo flight."""
-    from harborsight.evaluation.flight import compare_closing_speeds
+    """Frames measured, closest approach, distance error and measured-vs-true closing speed
+    of a demo flight (:func:`~harborsight.evaluation.flight.score_flight`)."""
+    from harborsight.evaluation.flight import score_flight
 
     md = summary.min_distance_m
     console.print(f"{summary.measured} of {summary.frames} frames measured; closest approach "
                   + (f"{md:.2f} m" if md is not None else "--"))
-    comparison = compare_closing_speeds(flight, out / "sections.csv")
-    if comparison is not None:
+    try:
+        (score,) = score_flight(flight, out / "sections.csv")
+    except (HarborsightError, ValueError):
+        score = None        # a flight without its ground truth, or of several scenes
+    if score is not None and score.mae_m is not None:
+        console.print(f"distance error against the ground truth from frame 3: MAE "
+                      f"{score.mae_m:.3f} m per frame, {fmt_number(score.mae_filtered_m, 3)} m "
+                      "filtered "
+                      f"({score.estimates} sections)")
+    if score is not None and score.closing is not None:
+        comparison = score.closing
         console.print(
             f"closing speed of the closest section while berthing: measured "
             f"{comparison.measured_mps:.3f} m/s, true {comparison.true_mps:.3f} m/s "
