@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -67,6 +70,7 @@ def main() -> None:
     parser.add_argument("--heights", default="30,60,100", help="flight heights, m")
     parser.add_argument("--seed", type=int, default=FLIGHT_SEED, help="the harbour's seed")
     parser.add_argument("--workers", type=int, default=2, help="render processes")
+    parser.add_argument("--json", type=Path, default=None, help="also write the scores here")
     args = parser.parse_args()
     work = args.work.resolve()
     flights = [render_flight(work / f"flight-{h}m", float(h), args.seed, args.workers)
@@ -95,7 +99,15 @@ def main() -> None:
     print("| height | masks | sections | MAE per frame | MAE filtered | target/actual | "
           "closing speed (true) | its error (frames) | target/actual | within 2σ | ≥ lower bound |")
     print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for masks, s in sorted(rows, key=lambda r: (r[1].altitude_m, r[0])):
+    rows.sort(key=lambda r: (r[1].altitude_m, r[0]))
+    if args.json:
+        args.json.write_text(json.dumps({
+            "script": "benchmarks/berthing_flights.py", "machine": platform.machine(),
+            "cpus": os.cpu_count(), "pose_noise": args.pose_noise, "seed": args.seed,
+            "target_mae_m": TARGET_MAE_M, "target_closing_mps": TARGET_CLOSING_MPS,
+            "rows": [{"masks": masks, **dataclasses.asdict(s)} for masks, s in rows]},
+            indent=1, allow_nan=False) + "\n")
+    for masks, s in rows:
         closing = s.closing
         print(f"| {s.altitude_m:.0f} m | {masks} | {s.estimates} | {_m(s.mae_m)} | "
               f"{_m(s.mae_filtered_m)} | {_ratio(TARGET_MAE_M, s.mae_filtered_m)} | "

@@ -129,3 +129,15 @@ def test_the_bundled_flight_run_on_its_labels_is_scored_by_the_command(tmp_path)
     result = runner.invoke(app, ["evaluate", "flight", str(tmp_path / "run"), "--flight",
                                  str(tmp_path)])
     assert result.exit_code == 2 and "no frame carries a flight's ground truth" in result.output
+
+
+def test_a_csv_of_another_kind_or_with_a_bad_section_is_refused(tmp_path):
+    images = _flight(tmp_path, [(10.0, 0.4, 30.0)], frames=2)
+    rows = [{"image": image, "section": k, "status": "ok", "distance_m": 1.0}
+            for image in images for k in ("0", "x")]
+    with pytest.raises(InputError, match=r"s\.csv: section: 000000\.png: section 'x' is not "
+                                         r"one of the 2 of its ground truth"):
+        score_flight(tmp_path, _csv(tmp_path / "s.csv", rows))
+    (tmp_path / "t.csv").write_text("image,section,distance_m\n000000.png,0,1.0\n")
+    with pytest.raises(InputError, match=r"t\.csv: status: no such column"):
+        score_flight(tmp_path, tmp_path / "t.csv")

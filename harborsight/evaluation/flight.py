@@ -96,11 +96,18 @@ def _ground_truth(frames_dir: Path) -> dict[str, _Truth]:
     return truth
 
 
-def _run_rows(sections_csv: Path, truth: dict[str, _Truth]) -> list[dict]:
-    """The run's rows of the frames in ``truth``; refused when the run measured other
+def _run_rows(sections_csv: Path, truth: dict[str, _Truth],
+              columns: tuple[str, ...] = ("image", "section", "distance_m")) -> list[dict]:
+    """The run's rows of the frames in ``truth``, each ``section`` an index into the frame's
+    ground truth; refused when a column of ``columns`` is absent or the run measured other
     sections than the ground truth has."""
     with sections_csv.open(newline="") as handle:
-        rows = [row for row in csv.DictReader(handle) if row.get("image") in truth]
+        reader = csv.DictReader(handle)
+        missing = [c for c in columns if c not in (reader.fieldnames or ())]
+        if missing:
+            raise InputError(sections_csv, missing[0], "no such column: not a sections.csv of "
+                             "harborsight run")
+        rows = [row for row in reader if row.get("image") in truth]
     sections_of: dict[str, int] = {}
     for row in rows:
         sections_of[row["image"]] = sections_of.get(row["image"], 0) + 1
@@ -109,6 +116,15 @@ def _run_rows(sections_csv: Path, truth: dict[str, _Truth]) -> list[dict]:
             raise InputError(sections_csv, "section", f"{image}: the run measured {n} sections, "
                              f"its ground truth has {len(truth[image].ground_truth['sections'])}: "
                              "compare a run made with the vessel spec's own sections")
+    for row in rows:
+        n, text = len(truth[row["image"]].ground_truth["sections"]), row["section"]
+        try:
+            row["section"] = int(text)
+        except (TypeError, ValueError):
+            row["section"] = -1
+        if not 0 <= row["section"] < n:
+            raise InputError(sections_csv, "section", f"{row['image']}: section {text!r} is "
+                             f"not one of the {n} of its ground truth")
     return rows
 
 
@@ -159,7 +175,7 @@ def _closing_speeds(truth: dict[str, _Truth], rows: list[dict], sections_csv: Pa
         before, after = (truth[image].ground_truth for image in neighbours)
         if not (before["sequence"]["speed_mps"] and after["sequence"]["speed_mps"]):
             continue
-        k = int(row["section"])
+        k = row["section"]
         d0 = before["sections"][k]["distance_m"]
         d1 = after["sections"][k]["distance_m"]
         if d0 is None or d1 is None:
@@ -184,7 +200,7 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
                          "no frame carries a flight's ground truth (simulate --sequence-frames)")
     if not sections_csv.is_file():
         raise InputError(sections_csv, None, "no such file (the run's sections.csv)")
-    rows = _run_rows(sections_csv, truth)
+    rows = _run_rows(sections_csv, truth, ("image", "section", "status", "distance_m"))
     scores = []
     for scene in sorted({t.scene for t in truth.values()}):
         images = {image for image, t in truth.items() if t.scene == scene}
@@ -194,7 +210,7 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
             here = truth[row["image"]]
             if here.scene != scene or here.frame < from_frame:
                 continue
-            d_true = here.ground_truth["sections"][int(row["section"])]["distance_m"]
+            d_true = here.ground_truth["sections"][row["section"]]["distance_m"]
             status = row.get("status")
             if status == "clear" and d_true is not None:
                 missed += 1

@@ -46,6 +46,23 @@ On the three berthing flights (docs/results.md) this took the filtered MAE at 10
 to 0.33 m and at 60 m from 0.31 to 0.30 m; the closing speed's median error per frame grew
 from 0.005-0.011 to 0.010-0.044 m/s.
 
+Manoeuvres. A constant-velocity filter lags when the obstacle's motion changes at once: a
+vessel that stops at its berth leaves a steady approach's prediction by its speed times the
+frame interval, every frame. The robust cap took those farther readings for outliers and
+precise ones fell beyond the gate and were held back as a farther obstacle, so on the
+berthing flights 0.2-0.36 m/s was still shown 3 s after the stop, and the filtered distance
+ran 0.2-0.4 m short. Each track therefore keeps the normalised innovations
+``ν = (z - d̂)/√(P + R)`` of the readings since its last manoeuvre, also of the readings the
+current track did not take. When the last ``n >= 2`` of them, spanning 0.4 to 1 s, lie on one
+side with ``|Σν| / √n`` beyond ``manoeuvre_sigma`` (each ν clipped to the gate), the track
+restarts from the straight line fitted to those readings (its slope and its distance now,
+with their least-squares covariance under ``R``), provided that the line's speed differs
+from the track's by at least twice its own sigma (the readings' measured scatter: a line
+through noisy readings says little, and a needless restart costs the speed's accuracy for
+many frames), by at most ``manoeuvre_max_mps``, and that the line run back to the track's
+last reading before them meets it within the gate (else the readings are of another
+obstacle, a quay behind a boat that left the band, which the gate's rules handle).
+
 Gating and tracks. A section may hold several tracks (obstacles): a reading updates the
 track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is within
 ``gate_sigma``; else it starts a new track. Which track is *current* (reported):
@@ -119,16 +136,23 @@ class TrackerSettings:
     noise_margin: float = 2.0
     #: a farther reading's innovation is capped at this many sigma; 0: off
     robust_sigma: float = 3.0
+    #: readings on one side of the prediction whose summed normalised innovations exceed
+    #: this many sigma are a manoeuvre (a stop, a push): the track restarts from a line
+    #: through them (module docstring); 0: off
+    manoeuvre_sigma: float = 3.5
+    #: the most a manoeuvre changes a section's closing speed (m/s)
+    manoeuvre_max_mps: float = 1.5
 
     def __post_init__(self) -> None:
         require_positive(self, ("accel_sigma_mps2", "gate_sigma", "max_coast_s",
                                 "initial_speed_sigma_mps", "drift_time_s", "min_reading_sigma_m",
-                                "unknown_reading_sigma_m", "max_speed_mps"))
+                                "unknown_reading_sigma_m", "max_speed_mps", "manoeuvre_max_mps"))
         for name in ("confirm_frames", "min_updates", "max_tracks"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if not self.robust_sigma >= 0:
-            raise ValueError(f"robust_sigma must be 0 (off) or positive, got {self.robust_sigma}")
+        for name in ("robust_sigma", "manoeuvre_sigma"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be 0 (off) or positive, got {getattr(self, name)}")
         if not self.noise_margin >= 1:
             raise ValueError(f"noise_margin must be at least 1, got {self.noise_margin}")
         if self.min_noise_residuals < 1:
@@ -161,6 +185,9 @@ class _Track:
     recent: deque = field(default_factory=lambda: deque(maxlen=3))   # (time_s, distance_m)
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
     residuals: deque = field(default_factory=deque)
+    #: ``(time_s, distance_m, ν)`` of the readings taken since the last manoeuvre (at most
+    #: :data:`MANOEUVRE_MAX_READINGS`), ``ν = (z - d̂)/√S`` the normalised innovation
+    surprises: deque = field(default_factory=lambda: deque(maxlen=MANOEUVRE_MAX_READINGS))
 
     def took(self, time_s: float, reading: Reading, systematic_m: float) -> None:
         """The bookkeeping of a reading taken (its state already updated)."""
@@ -201,6 +228,45 @@ class _Track:
         F = np.array([[1.0, dt], [0.0, 1.0]])
         Q = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
         return F @ self.state, F @ self.covariance @ F.T + Q
+
+
+#: a manoeuvre is looked for over the readings of the last this many seconds, and the line
+#: that restarts a track spans at least the shorter time (a line through readings 0.2 s
+#: apart at 10 Hz says little of a speed)
+MANOEUVRE_WINDOW_S = 1.0
+MANOEUVRE_MIN_SPAN_S = 0.4
+MANOEUVRE_MAX_READINGS = 64
+#: the line restarts a track only when its speed differs from the track's by this many of
+#: its own sigmas (a line through readings that scatter by 0.3 m over a second says the
+#: speed to 0.4 m/s: on a steady approach, two such restarts in 600 s cost the closing
+#: speed a third of its accuracy)
+MANOEUVRE_SPEED_SIGMA = 2.0
+
+
+def manoeuvre_readings(surprises: list[tuple[float, float, float]], threshold: float,
+                       cap: float = math.inf) -> int:
+    """How many of the last readings ``(time_s, distance_m, ν)`` (the newest last) a
+    manoeuvre spans: the most ``n >= 2`` of them, spanning :data:`MANOEUVRE_MIN_SPAN_S` to
+    :data:`MANOEUVRE_WINDOW_S`, that lie on one side of their predictions with
+    ``|Σν| / √n > threshold``, each ``ν`` clipped to ``± cap`` (under the filter's model
+    ``Σν/√n`` is a standard normal: beyond 3.5, once in 4,300 draws a side; clipped, one outlier
+    far out does not make a manoeuvre of the reading after it); 0 when none do. The most,
+    so that the line a track restarts from is drawn through as many readings as the
+    manoeuvre gives."""
+    if len(surprises) < 2:
+        return 0
+    newest, side = surprises[-1][0], math.copysign(1.0, surprises[-1][2])
+    run = 0                     # the readings in the window on the newest one's side
+    for t, _, v in reversed(surprises):
+        if newest - t > MANOEUVRE_WINDOW_S or v * side <= 0:
+            break
+        run += 1
+    for n in range(run, 1, -1):
+        last = surprises[-n:]
+        if (newest - last[0][0] >= MANOEUVRE_MIN_SPAN_S
+                and abs(sum(max(-cap, min(cap, v)) for _, _, v in last)) / math.sqrt(n) > threshold):
+            return n
+    return 0
 
 
 #: the estimate's states of a section that had a reading this frame (else it coasts a
@@ -321,22 +387,34 @@ class SectionTracker:
                 return self._estimate(time_s, "coasting")
             return SectionEstimate(state="clear" if seen_clear is not None else "none")
 
-        best, best_score = None, math.inf
-        for track in self.tracks:
-            x, P = self._predicted(track, time_s)
-            variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
-                                                 measured=False)
-            score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
-            if score < best_score:
-                best, best_score = track, score
-        if best is not None and best_score <= s.gate_sigma:
-            self._update(best, time_s, reading)
-            state = "updated"
+        current = self.current
+        surprise = self._surprise(current, time_s, reading) if current is not None else None
+        restart = (self._manoeuvre(current, time_s, reading, surprise[0])
+                   if surprise is not None else None)
+        if restart is not None:
+            self._restart(current, time_s, reading, restart)
+            best, state = current, "updated"
         else:
-            best = self._two_point_start(time_s, reading)
-            state = "updated" if best is not None else "new"
-            if best is None:
-                best = self._new_track(time_s, reading)
+            best, best_score = None, math.inf
+            for track in self.tracks:
+                x, P = self._predicted(track, time_s)
+                variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
+                                                     measured=False)
+                score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
+                if score < best_score:
+                    best, best_score = track, score
+            if best is not None and best_score <= s.gate_sigma:
+                self._update(best, time_s, reading)
+                state = "updated"
+            else:
+                best = self._two_point_start(time_s, reading)
+                state = "updated" if best is not None else "new"
+                if best is None:
+                    best = self._new_track(time_s, reading)
+            if surprise is not None and best is not current:
+                # a reading the current track did not take still tells of its motion: a
+                # stopped vessel's readings leave a steady approach's gate
+                current.surprises.append((time_s, reading.distance_m, surprise[0]))
         for track in list(self.tracks):
             if track is not best:
                 track.misses_in_row += 1
@@ -348,6 +426,72 @@ class SectionTracker:
             self.current = best
             return self._estimate(time_s, state)
         return self._estimate(time_s, "held")
+
+    def _surprise(self, track: _Track, time_s: float, reading: Reading) -> tuple[float, float]:
+        """``(ν, R)``: the reading's normalised innovation against ``track``'s prediction,
+        ``ν = (z - d̂) / √(P + R)``, and its variance ``R`` (the track's measured noise
+        capping the model's)."""
+        x, P = self._predicted(track, time_s)
+        variance, _ = self._reading_variance(reading, time_s - track.time_s, track)
+        return (reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance), variance
+
+    def _manoeuvre(self, track: _Track, time_s: float, reading: Reading, surprise: float
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The state and covariance the current ``track`` restarts from when ``reading``
+        (normalised innovation ``surprise``) and the readings before it show a manoeuvre
+        (:func:`manoeuvre_readings`), taken by the track or not (a stopped vessel's readings
+        soon leave a steady approach's gate): a straight line fitted to them, slope
+        ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²`` of variance ``R / Σ(t - t̄)²``, the distance at
+        ``time_s`` of variance ``R (1/n + (time_s - t̄)² / Σ(t - t̄)²)``. None without one;
+        when the line's speed differs from the track's by more than
+        :attr:`TrackerSettings.manoeuvre_max_mps`; or when the line, taken back to the
+        track's reading before them, misses it by more than the gate: then the readings
+        are of another obstacle (a quay behind a boat that left the band), which the gate's
+        rules handle."""
+        threshold = self.settings.manoeuvre_sigma
+        if not threshold or time_s <= track.time_s or not track.recent:
+            return None
+        points = [*track.surprises, (time_s, reading.distance_m, surprise)]
+        n = manoeuvre_readings(points, threshold, self.settings.gate_sigma)
+        if not n:
+            return None
+        variance = self._surprise(track, time_s, reading)[1]
+        t = np.array([p[0] for p in points[-n:]])
+        z = np.array([p[1] for p in points[-n:]])
+        t_mean, spread = float(t.mean()), float(np.sum((t - t.mean()) ** 2))
+        slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
+
+        def line(at_s: float) -> tuple[float, float]:
+            """The line's distance at ``at_s`` and its variance."""
+            lead = at_s - t_mean
+            return float(z.mean()) + slope * lead, variance * (1.0 / n + lead ** 2 / spread)
+
+        taken = [(t_, z_) for t_, z_ in track.recent if t_ < t[0]]
+        change = abs(slope - self._predicted(track, time_s)[0][1])
+        # the line's speed against the readings' own scatter where the track measured it
+        # (R itself takes twice that, an upper bound for the filter)
+        white = track.white_variance(self.settings.min_noise_residuals)
+        scatter = variance if white is None else min(variance, white)
+        if (not taken or change > self.settings.manoeuvre_max_mps
+                or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / spread)):
+            return None
+        before_s, before_m = taken[-1]
+        at_before, spread_before = line(before_s)
+        if abs(at_before - before_m) > self.settings.gate_sigma * math.sqrt(variance + spread_before):
+            return None
+        distance, distance_variance = line(time_s)
+        lead = time_s - t_mean
+        return (np.array([distance, slope]),
+                np.array([[distance_variance, variance * lead / spread],
+                          [variance * lead / spread, variance / spread]]))
+
+    def _restart(self, track: _Track, time_s: float, reading: Reading,
+                 restart: tuple[np.ndarray, np.ndarray]) -> None:
+        """The track restarted from :meth:`_manoeuvre`'s line, ``reading`` taken."""
+        _, systematic = self._reading_variance(reading, time_s - track.time_s, track)
+        track.state, track.covariance = restart
+        track.surprises.clear()
+        track.took(time_s, reading, systematic)
 
     def _two_point_start(self, time_s: float, reading: Reading) -> _Track | None:
         """The current track, when seen once, takes a reading beyond its gate if the two
@@ -403,6 +547,7 @@ class SectionTracker:
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
         innovation = reading.distance_m - x[0]
+        track.surprises.append((time_s, reading.distance_m, innovation / math.sqrt(P[0, 0] + variance)))
         c = self.settings.robust_sigma
         if c and innovation > 0:                # a farther reading: capped; a nearer one never
             variance = min(self._reading_variance(reading, dt, track, measured=False)[0],
