@@ -76,6 +76,7 @@ def test_errors_bars_and_speeds_are_scored_per_scene_from_the_chosen_frame(tmp_p
     assert first.closing.samples == 3
     assert first.closing.median_abs_error_mps == pytest.approx(0.02)
     assert first.closing.true_mps == pytest.approx(0.4)
+    assert first.still_speed_mps is None and first.still_frames == 0     # never still
     assert second.mae_m == 0.0 and second.mae_filtered_m == 0.0 and second.false == 1
     assert second.within_2_sigma_share == 1.0
     assert second.closing.true_mps == pytest.approx(1.0)
@@ -141,3 +142,19 @@ def test_a_csv_of_another_kind_or_with_a_bad_section_is_refused(tmp_path):
     (tmp_path / "t.csv").write_text("image,section,distance_m\n000000.png,0,1.0\n")
     with pytest.raises(InputError, match=r"t\.csv: status: no such column"):
         score_flight(tmp_path, tmp_path / "t.csv")
+
+
+def test_the_speed_shown_while_the_vessel_lies_still_is_scored(tmp_path):
+    """A vessel lying still: its closest section shows 0.1, 0.3 and -0.2 m/s on frames 2-4
+    (from_frame 2), a farther section 0.9: the median magnitude is 0.2 m/s over 3 frames."""
+    images = _flight(tmp_path, [(5.0, 0.0, 30.0)])
+    shown = {2: 0.1, 3: 0.3, 4: -0.2}
+    rows = []
+    for frame, image in enumerate(images):
+        rows.append({"image": image, "section": 0, "status": "ok", "distance_m": 5.0,
+                     "closing_speed_mps": shown.get(frame, "")})
+        rows.append({"image": image, "section": 1, "status": "ok", "distance_m": 9.0,
+                     "closing_speed_mps": 0.9})
+    (score,) = score_flight(tmp_path, _csv(tmp_path / "s.csv", rows), from_frame=2)
+    assert score.still_speed_mps == pytest.approx(0.2) and score.still_frames == 3
+    assert score.closing is None

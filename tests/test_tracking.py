@@ -519,3 +519,51 @@ def test_a_steady_approach_is_seldom_taken_for_a_manoeuvre(rate_hz):
         frames += int(60 * rate_hz)
     assert restarts < 0.005 * frames
     assert np.sqrt(np.mean(np.square(errors))) < 1.1 * np.sqrt(np.mean(np.square(errors_off)))
+
+
+def test_any_sequence_of_readings_keeps_the_filter_finite():
+    """Random flights of readings with stops, pushes, outliers, gaps, repeats, frames a
+    little out of order, sigmas missing or not numbers, and clear frames (a property test:
+    300 sequences): the tracker never raises, and what it shows is finite, a distance never
+    negative, every sigma non-negative; a time to contact only with a closing speed."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    step = st.tuples(
+        st.sampled_from(["steady", "stop", "push", "outlier", "gap", "repeat", "back", "clear",
+                         "nan"]),
+        st.floats(0.0, 0.3), st.one_of(st.none(), st.floats(-1.0, 2.0), st.just(float("nan"))))
+
+    @settings(max_examples=300, deadline=None, derandomize=True)
+    @given(st.lists(step, min_size=5, max_size=80), st.floats(0.1, 1.0), st.floats(0.5, 30.0))
+    def run(steps, interval_s, start_m):
+        tracker = SectionTracker()
+        t, d, speed = 0.0, start_m, 0.4
+        last = None
+        for kind, noise, sigma in steps:
+            if kind == "stop":
+                speed = 0.0
+            elif kind == "push":
+                speed += 0.5
+            t_frame = t - interval_s / 2 if kind == "back" else t
+            if kind == "repeat" and last is not None:
+                estimate = tracker.step(*last)
+            elif kind == "clear":
+                estimate = tracker.step(t_frame, None, (0.0, 50.0))
+            elif kind == "gap":
+                estimate = tracker.step(t_frame, None)
+            else:
+                z = d + noise + (3.0 if kind == "outlier" else 0.0)
+                reading = Reading(float("nan") if kind == "nan" else z, sigma, sigma)
+                last = (t_frame, reading)
+                estimate = tracker.step(t_frame, reading)
+            for value in (estimate.distance_m, estimate.sigma_m, estimate.closing_speed_mps,
+                          estimate.closing_speed_sigma_mps, estimate.time_to_contact_s):
+                assert value is None or np.isfinite(value)
+            assert estimate.distance_m is None or estimate.distance_m >= 0
+            assert estimate.sigma_m is None or estimate.sigma_m >= 0
+            assert estimate.time_to_contact_s is None or estimate.closing_speed_mps > 0
+            t += interval_s
+            d = max(d - speed * interval_s, 0.0)
+
+    run()

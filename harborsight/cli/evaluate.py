@@ -383,9 +383,12 @@ def evaluate_flight_command(
         if s.closing is None:
             lines.append("  closing speed: no frame to compare")
         else:
-            lines.append(f"  closing speed (closest section): {s.closing.measured_mps:.3f} m/s, "
-                         f"true {s.closing.true_mps:.3f}, error {s.closing.median_abs_error_mps:.3f}"
-                         f" ({s.closing.samples} frames)")
+            lines.append(f"  closing speed: {s.closing.measured_mps:.3f} m/s, true "
+                         f"{s.closing.true_mps:.3f}, error {s.closing.median_abs_error_mps:.3f} "
+                         f"(closest section, {s.closing.samples} frames)")
+        if s.still_speed_mps is not None:
+            lines.append(f"  while the vessel lies still: {s.still_speed_mps:.3f} m/s shown "
+                         f"(median magnitude, {s.still_frames} frames)")
         console.print("\n".join(lines), markup=False, highlight=False)
     if json_out is not None:
         json_out.write_text(strict_json({"schema": "harborsight.flight-score/1",

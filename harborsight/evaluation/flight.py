@@ -16,7 +16,10 @@ t[i-1])``, where i-1 and i+1 are the neighbouring frames of the same scene (a fl
 may hold several scenes, each with its own clock from 0); the simulator moves the vessel at a
 constant velocity, so while it moves this is exact. Compared at the frames where the run
 measured a closing speed for its closest section (the section nearest an obstacle, whether
-or not it has a speed) and the vessel was moving on both sides.
+or not it has a speed) and the vessel was moving on both sides. Where the truth has the
+vessel lying still (at its berth after the approach), the closest section's closing speed
+should be 0: its median magnitude there is reported too (a filter that lags a stop shows a
+closing vessel, and a time to contact, at the berth).
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ class FlightScore:
     missed: int
     false: int
     closing: ClosingSpeedComparison | None
+    #: the closest section's closing speed shown while the vessel lies still (frames whose
+    #: truth has no speed, from ``from_frame``): median of its magnitude, and how many frames
+    still_speed_mps: float | None = None
+    still_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -191,6 +198,27 @@ def _closing_speeds(truth: dict[str, _Truth], rows: list[dict], sections_csv: Pa
                                   statistics.median(errors), len(measured))
 
 
+def _still_speed(truth: dict[str, _Truth], rows: list[dict], sections_csv: Path, scene: int,
+                 from_frame: int) -> dict:
+    """``still_speed_mps`` and ``still_frames`` of :class:`FlightScore`: at each frame of
+    ``scene`` whose truth has no speed, the closing speed of the frame's closest section
+    (when it has one)."""
+    closest: dict[str, dict] = {}
+    for row in rows:
+        here = truth[row["image"]]
+        if here.scene != scene or here.frame < from_frame or here.ground_truth["sequence"].get(
+                "speed_mps"):
+            continue
+        distance = _number(row, "distance_m", sections_csv)
+        if distance is not None and (row["image"] not in closest
+                                     or distance < float(closest[row["image"]]["distance_m"])):
+            closest[row["image"]] = row
+    speeds = [abs(v) for row in closest.values()
+              if (v := _number(row, "closing_speed_mps", sections_csv)) is not None]
+    return {"still_speed_mps": statistics.median(speeds) if speeds else None,
+            "still_frames": len(speeds)}
+
+
 def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> list[FlightScore]:
     """Each scene of the flight dataset ``flight_dir`` (``frames/*.json`` with sequence
     ground truth) against the run's ``sections.csv`` (module docstring), in scene order."""
@@ -246,5 +274,6 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
             within_2_sigma_share=float(np.mean(within)) if within else None,
             lower_bound_share=float(np.mean(above)) if above else None,
             missed=missed, false=false,
-            closing=_closing_speeds(truth, rows, sections_csv, scene)))
+            closing=_closing_speeds(truth, rows, sections_csv, scene),
+            **_still_speed(truth, rows, sections_csv, scene, from_frame)))
     return scores

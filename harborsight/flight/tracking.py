@@ -459,6 +459,8 @@ class SectionTracker:
         t = np.array([p[0] for p in points[-n:]])
         z = np.array([p[1] for p in points[-n:]])
         t_mean, spread = float(t.mean()), float(np.sum((t - t.mean()) ** 2))
+        if spread <= 0:
+            return None
         slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
 
         def line(at_s: float) -> tuple[float, float]:
