@@ -57,7 +57,7 @@ current track did not take. When the last ``n >= 2`` of them, spanning 0.4 to 1 
 side with ``|Σν| / √n`` beyond ``manoeuvre_sigma`` (each ν clipped to the gate), the track
 restarts from the straight line fitted to those readings (its slope and its distance now,
 with their least-squares covariance under ``R``), provided that the line's speed differs
-from the track's by at least twice its own sigma (the readings' measured scatter: a line
+from the track's by at least 2.5 times its own sigma (the readings' measured scatter: a line
 through noisy readings says little, and a needless restart costs the speed's accuracy for
 many frames), by at most ``manoeuvre_max_mps``, and that the line run back to the track's
 last reading before them meets it within the gate (else the readings are of another
@@ -139,7 +139,7 @@ class TrackerSettings:
     #: readings on one side of the prediction whose summed normalised innovations exceed
     #: this many sigma are a manoeuvre (a stop, a push): the track restarts from a line
     #: through them (module docstring); 0: off
-    manoeuvre_sigma: float = 3.5
+    manoeuvre_sigma: float = 3.25
     #: the most a manoeuvre changes a section's closing speed (m/s)
     manoeuvre_max_mps: float = 1.5
 
@@ -237,10 +237,10 @@ MANOEUVRE_WINDOW_S = 1.0
 MANOEUVRE_MIN_SPAN_S = 0.4
 MANOEUVRE_MAX_READINGS = 64
 #: the line restarts a track only when its speed differs from the track's by this many of
-#: its own sigmas (a line through readings that scatter by 0.3 m over a second says the
-#: speed to 0.4 m/s: on a steady approach, two such restarts in 600 s cost the closing
-#: speed a third of its accuracy)
-MANOEUVRE_SPEED_SIGMA = 2.0
+#: its own sigmas, under the readings' measured scatter (a line through readings that
+#: scatter by 0.3 m over a second says the speed to 0.4 m/s: on a steady approach, two such
+#: restarts in 600 s cost the closing speed a third of its accuracy)
+MANOEUVRE_SPEED_SIGMA = 2.5
 
 
 def manoeuvre_readings(surprises: list[tuple[float, float, float]], threshold: float,
@@ -249,7 +249,7 @@ def manoeuvre_readings(surprises: list[tuple[float, float, float]], threshold: f
     manoeuvre spans: the most ``n >= 2`` of them, spanning :data:`MANOEUVRE_MIN_SPAN_S` to
     :data:`MANOEUVRE_WINDOW_S`, that lie on one side of their predictions with
     ``|Σν| / √n > threshold``, each ``ν`` clipped to ``± cap`` (under the filter's model
-    ``Σν/√n`` is a standard normal: beyond 3.5, once in 4,300 draws a side; clipped, one outlier
+    ``Σν/√n`` is a standard normal: beyond 3.25, once in 1,700 draws a side; clipped, one outlier
     far out does not make a manoeuvre of the reading after it); 0 when none do. The most,
     so that the line a track restarts from is drawn through as many readings as the
     manoeuvre gives."""
