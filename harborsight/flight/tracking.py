@@ -185,8 +185,9 @@ class _Track:
     recent: deque = field(default_factory=lambda: deque(maxlen=3))   # (time_s, distance_m)
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
     residuals: deque = field(default_factory=deque)
-    #: ``(time_s, distance_m, ν)`` of the readings taken since the last manoeuvre (at most
-    #: :data:`MANOEUVRE_MAX_READINGS`), ``ν = (z - d̂)/√S`` the normalised innovation
+    #: ``(time_s, distance_m, ν, taken)`` of the readings since the last manoeuvre (at most
+    #: :data:`MANOEUVRE_MAX_READINGS`), ``ν = (z - d̂)/√S`` the normalised innovation; taken:
+    #: whether the track took the reading (a current track also logs those it did not)
     surprises: deque = field(default_factory=lambda: deque(maxlen=MANOEUVRE_MAX_READINGS))
 
     def took(self, time_s: float, reading: Reading, systematic_m: float) -> None:
@@ -243,9 +244,8 @@ MANOEUVRE_MAX_READINGS = 64
 MANOEUVRE_SPEED_SIGMA = 2.5
 
 
-def manoeuvre_readings(surprises: list[tuple[float, float, float]], threshold: float,
-                       cap: float = math.inf) -> int:
-    """How many of the last readings ``(time_s, distance_m, ν)`` (the newest last) a
+def manoeuvre_readings(surprises: list[tuple], threshold: float, cap: float = math.inf) -> int:
+    """How many of the last readings ``(time_s, distance_m, ν, ...)`` (the newest last) a
     manoeuvre spans: the most ``n >= 2`` of them, spanning :data:`MANOEUVRE_MIN_SPAN_S` to
     :data:`MANOEUVRE_WINDOW_S`, that lie on one side of their predictions with
     ``|Σν| / √n > threshold``, each ``ν`` clipped to ``± cap`` (under the filter's model
@@ -257,14 +257,14 @@ def manoeuvre_readings(surprises: list[tuple[float, float, float]], threshold: f
         return 0
     newest, side = surprises[-1][0], math.copysign(1.0, surprises[-1][2])
     run = 0                     # the readings in the window on the newest one's side
-    for t, _, v in reversed(surprises):
+    for t, _, v, *_ in reversed(surprises):
         if newest - t > MANOEUVRE_WINDOW_S or v * side <= 0:
             break
         run += 1
     for n in range(run, 1, -1):
         last = surprises[-n:]
         if (newest - last[0][0] >= MANOEUVRE_MIN_SPAN_S
-                and abs(sum(max(-cap, min(cap, v)) for _, _, v in last)) / math.sqrt(n) > threshold):
+                and abs(sum(max(-cap, min(cap, p[2])) for p in last)) / math.sqrt(n) > threshold):
             return n
     return 0
 
@@ -389,7 +389,7 @@ class SectionTracker:
 
         current = self.current
         surprise = self._surprise(current, time_s, reading) if current is not None else None
-        restart = (self._manoeuvre(current, time_s, reading, surprise[0])
+        restart = (self._manoeuvre(current, time_s, reading, *surprise)
                    if surprise is not None else None)
         if restart is not None:
             self._restart(current, time_s, reading, restart)
@@ -414,7 +414,7 @@ class SectionTracker:
             if surprise is not None and best is not current:
                 # a reading the current track did not take still tells of its motion: a
                 # stopped vessel's readings leave a steady approach's gate
-                current.surprises.append((time_s, reading.distance_m, surprise[0]))
+                current.surprises.append((time_s, reading.distance_m, surprise[0], False))
         for track in list(self.tracks):
             if track is not best:
                 track.misses_in_row += 1
@@ -435,51 +435,55 @@ class SectionTracker:
         variance, _ = self._reading_variance(reading, time_s - track.time_s, track)
         return (reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance), variance
 
-    def _manoeuvre(self, track: _Track, time_s: float, reading: Reading, surprise: float
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    def _manoeuvre(self, track: _Track, time_s: float, reading: Reading, surprise: float,
+                   variance: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The state and covariance the current ``track`` restarts from when ``reading``
-        (normalised innovation ``surprise``) and the readings before it show a manoeuvre
-        (:func:`manoeuvre_readings`), taken by the track or not (a stopped vessel's readings
-        soon leave a steady approach's gate): a straight line fitted to them, slope
-        ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²`` of variance ``R / Σ(t - t̄)²``, the distance at
-        ``time_s`` of variance ``R (1/n + (time_s - t̄)² / Σ(t - t̄)²)``. None without one;
-        when the line's speed differs from the track's by more than
-        :attr:`TrackerSettings.manoeuvre_max_mps`; or when the line, taken back to the
-        track's reading before them, misses it by more than the gate: then the readings
-        are of another obstacle (a quay behind a boat that left the band), which the gate's
-        rules handle."""
+        (normalised innovation ``surprise``, variance ``variance``) and the readings before
+        it show a manoeuvre (:func:`manoeuvre_readings`), taken by the track or not (a
+        stopped vessel's readings soon leave a steady approach's gate): a straight line
+        fitted to them, slope ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²`` of variance
+        ``R / Σ(t - t̄)²``, the distance at ``time_s`` of variance
+        ``R (1/n + (time_s - t̄)² / Σ(t - t̄)²)``. None without one; when the line's speed
+        differs from the track's by less than :data:`MANOEUVRE_SPEED_SIGMA` of its own sigma
+        under the readings' measured scatter, or by more than
+        :attr:`TrackerSettings.manoeuvre_max_mps`; or when the line, taken back to the last
+        reading the track took before them, misses it by more than the gate: then the
+        readings are of another obstacle (a quay behind a boat that left the band), which
+        the gate's rules handle."""
         threshold = self.settings.manoeuvre_sigma
-        if not threshold or time_s <= track.time_s or not track.recent:
+        if not threshold or time_s <= track.time_s:
             return None
-        points = [*track.surprises, (time_s, reading.distance_m, surprise)]
+        points = [*track.surprises, (time_s, reading.distance_m, surprise, False)]
         n = manoeuvre_readings(points, threshold, self.settings.gate_sigma)
         if not n:
             return None
-        variance = self._surprise(track, time_s, reading)[1]
         t = np.array([p[0] for p in points[-n:]])
         z = np.array([p[1] for p in points[-n:]])
         t_mean, spread = float(t.mean()), float(np.sum((t - t.mean()) ** 2))
         if spread <= 0:
             return None
         slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
+        change = abs(slope - self._predicted(track, time_s)[0][1])
+        # the line's speed against the readings' own scatter where the track measured it
+        # (R itself takes twice that, an upper bound for the filter)
+        white = track.white_variance(self.settings.min_noise_residuals)
+        scatter = variance if white is None else min(variance, white)
+        if (change > self.settings.manoeuvre_max_mps
+                or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / spread)):
+            return None
 
         def line(at_s: float) -> tuple[float, float]:
             """The line's distance at ``at_s`` and its variance."""
             lead = at_s - t_mean
             return float(z.mean()) + slope * lead, variance * (1.0 / n + lead ** 2 / spread)
 
-        taken = [(t_, z_) for t_, z_ in track.recent if t_ < t[0]]
-        change = abs(slope - self._predicted(track, time_s)[0][1])
-        # the line's speed against the readings' own scatter where the track measured it
-        # (R itself takes twice that, an upper bound for the filter)
-        white = track.white_variance(self.settings.min_noise_residuals)
-        scatter = variance if white is None else min(variance, white)
-        if (not taken or change > self.settings.manoeuvre_max_mps
-                or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / spread)):
+        taken = ([(p[0], p[1]) for p in points[:-n] if p[3]]
+                 or [(t_, z_) for t_, z_ in track.recent if t_ < t[0]])
+        if not taken:
             return None
         before_s, before_m = taken[-1]
-        at_before, spread_before = line(before_s)
-        if abs(at_before - before_m) > self.settings.gate_sigma * math.sqrt(variance + spread_before):
+        at_before, variance_before = line(before_s)
+        if abs(at_before - before_m) > self.settings.gate_sigma * math.sqrt(variance + variance_before):
             return None
         distance, distance_variance = line(time_s)
         lead = time_s - t_mean
@@ -549,7 +553,8 @@ class SectionTracker:
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
         innovation = reading.distance_m - x[0]
-        track.surprises.append((time_s, reading.distance_m, innovation / math.sqrt(P[0, 0] + variance)))
+        track.surprises.append((time_s, reading.distance_m,
+                                innovation / math.sqrt(P[0, 0] + variance), True))
         c = self.settings.robust_sigma
         if c and innovation > 0:                # a farther reading: capped; a nearer one never
             variance = min(self._reading_variance(reading, dt, track, measured=False)[0],
