@@ -158,18 +158,22 @@ def compare_closing_speeds(flight_dir: Path, sections_csv: Path, scene: int | No
     return _closing_speeds(truth, _run_rows(sections_csv, truth), sections_csv, scene)
 
 
+def _closest_rows(rows: list[dict], sections_csv: Path) -> dict[str, dict]:
+    """image -> the row of its closest section (the least ``distance_m``) among ``rows``."""
+    closest: dict[str, tuple[float, dict]] = {}
+    for row in rows:
+        distance = _number(row, "distance_m", sections_csv)
+        if distance is not None and (row["image"] not in closest
+                                     or distance < closest[row["image"]][0]):
+            closest[row["image"]] = (distance, row)
+    return {image: row for image, (_, row) in closest.items()}
+
+
 def _closing_speeds(truth: dict[str, _Truth], rows: list[dict], sections_csv: Path,
                     scene: int | None) -> ClosingSpeedComparison | None:
     by_key = {(t.scene, t.frame): image for image, t in truth.items()}
-    closest: dict[str, dict] = {}
-    for row in rows:
-        if scene is not None and truth[row["image"]].scene != scene:
-            continue
-        distance = _number(row, "distance_m", sections_csv)
-        if distance is not None:
-            best = closest.get(row["image"])
-            if best is None or distance < float(best["distance_m"]):
-                closest[row["image"]] = row
+    closest = _closest_rows(
+        [row for row in rows if scene is None or truth[row["image"]].scene == scene], sections_csv)
     measured, true, errors = [], [], []
     for image, row in closest.items():
         v_measured = _number(row, "closing_speed_mps", sections_csv)
@@ -203,16 +207,11 @@ def _still_speed(truth: dict[str, _Truth], rows: list[dict], sections_csv: Path,
     """``still_speed_mps`` and ``still_frames`` of :class:`FlightScore`: at each frame of
     ``scene`` whose truth has no speed, the closing speed of the frame's closest section
     (when it has one)."""
-    closest: dict[str, dict] = {}
-    for row in rows:
-        here = truth[row["image"]]
-        if here.scene != scene or here.frame < from_frame or here.ground_truth["sequence"].get(
-                "speed_mps"):
-            continue
-        distance = _number(row, "distance_m", sections_csv)
-        if distance is not None and (row["image"] not in closest
-                                     or distance < float(closest[row["image"]]["distance_m"])):
-            closest[row["image"]] = row
+    def still(here: _Truth) -> bool:
+        return (here.scene == scene and here.frame >= from_frame
+                and not here.ground_truth["sequence"].get("speed_mps"))
+
+    closest = _closest_rows([row for row in rows if still(truth[row["image"]])], sections_csv)
     speeds = [abs(v) for row in closest.values()
               if (v := _number(row, "closing_speed_mps", sections_csv)) is not None]
     return {"still_speed_mps": statistics.median(speeds) if speeds else None,
