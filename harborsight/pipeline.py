@@ -26,6 +26,7 @@ from harborsight.errors import HarborsightError, InputError, brief
 from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
+from harborsight.geometry.gsd import nadir_gsd_m_per_px
 from harborsight.images import read_image_and_no_data, read_mask
 from harborsight.perception.classes import IGNORE
 from harborsight.perception.confidence import SolidConfidence
@@ -117,12 +118,14 @@ def check_image_size(image: np.ndarray, meta: FrameMetadata, source: str | Path)
 
 
 def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
-                 source: str | Path, no_data: np.ndarray | None = None) -> FrameMask:
+                 source: str | Path, no_data: np.ndarray | None = None,
+                 meta: FrameMetadata | None = None) -> FrameMask:
     """The frame's class mask and where it came from: the mask file, else the model. Pixels
     in ``no_data`` (bool (H, W): no picture there, :func:`~harborsight.images.read_image_and_no_data`)
     are labelled 255, ignore, which measuring counts as solid: a transparent corner is
-    not seen water."""
-    mask = _frame_labels(image, mask_path, segmenter, source)
+    not seen water. ``meta``: the frame's metadata, whose nadir GSD a segmenter that takes
+    one is given (:class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
+    mask = _frame_labels(image, mask_path, segmenter, source, meta)
     if no_data is None or not no_data.any():
         return mask
     if mask.labels.shape != no_data.shape:
@@ -142,11 +145,20 @@ def unseen_where_no_picture(labels: np.ndarray, confidence: SolidConfidence | No
     return labels
 
 
+def frame_gsd_m_per_px(meta: FrameMetadata) -> float:
+    """The frame's nadir ground sample distance on the water, metres per pixel."""
+    return nadir_gsd_m_per_px(meta.height_above_water_m, meta.camera.fx, meta.camera.fy)
+
+
 def _frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,
-                  source: str | Path) -> FrameMask:
+                  source: str | Path, meta: FrameMetadata | None = None) -> FrameMask:
     if mask_path is not None:
         return FrameMask(read_mask(mask_path), str(mask_path), from_file=True)
     if segmenter is not None:
+        if getattr(segmenter, "takes_gsd", False):
+            gsd_m_per_px = None if meta is None else frame_gsd_m_per_px(meta)
+            labels, confidence = segmenter.segment_with_confidence(image, gsd_m_per_px)
+            return FrameMask(labels, str(segmenter.path), False, confidence)
         if hasattr(segmenter, "segment_with_confidence"):
             labels, confidence = segmenter.segment_with_confidence(image)
             return FrameMask(labels, str(segmenter.path), False, confidence)
@@ -190,7 +202,7 @@ def measure_job(
     image_path = frame_image_path(job, meta)
     image, no_data = read_image_and_no_data(image_path, camera_pixels=True)
     check_image_size(image, meta, image_path)
-    mask = frame_labels(image, job.mask_path, segmenter, job.meta_path, no_data)
+    mask = frame_labels(image, job.mask_path, segmenter, job.meta_path, no_data, meta)
     report = measure_mask(mask, meta, vessels.for_frame(meta, job.meta_path), settings)
     outcome = FrameOutcome(job, report, meta)
     if out_dir is not None:

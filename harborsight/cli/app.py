@@ -161,17 +161,37 @@ FLIPS_HELP = ("Test-time flips: 1, the frame alone; 2, also its mirror image; 4,
               "docs/results.md).")
 
 
-def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips: int = 1):
+#: help of --segment-gsd-m (run, measure, evaluate distance, live)
+SEGMENT_GSD_HELP = ("Show the model each frame at this ground sample distance (m per pixel on "
+                    "the water, from the frame's height and focal length) or finer: a coarser "
+                    "frame is enlarged to it (its longer side to at most 3 model inputs) and "
+                    "segmented in overlapping windows of the model input, 1-16 model calls a "
+                    "frame instead of one. 0: off, every frame stretched into one model input. "
+                    "The default model draws edges to about 2-5 of its pixels, so metres of "
+                    "error grow with the GSD it sees (docs/results.md, 'Segmenting at a chosen "
+                    "GSD').")
+
+
+def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips: int = 1,
+                   segment_gsd_m: float | None = None):
     """The ONNX model at ``model``, or the packaged default model (clear error if absent);
     with ``flips`` > 1 one whose ``segment`` and ``segment_with_confidence`` use them
-    (:class:`~harborsight.perception.flips.FlippedSegmenter`, for the pipelines)."""
+    (:class:`~harborsight.perception.flips.FlippedSegmenter`, for the pipelines); with
+    ``segment_gsd_m`` one that sees each frame at that GSD or finer
+    (:class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
     from harborsight.perception.default_model import describe, load_default_segmenter
     from harborsight.perception.flips import FlippedSegmenter, flip_views
+    from harborsight.perception.gsd_scaling import GsdScaledSegmenter, check_segment_gsd
 
     flip_views(flips)
+    segment_gsd_m = check_segment_gsd(segment_gsd_m)
     segmenter = load_default_segmenter(model, reference_arithmetic)
     console.print(f"segmenting with {describe(segmenter)}"
-                  + (f", {flips} flipped copies a frame" if flips != 1 else ""), markup=False)
+                  + (f", {flips} flipped copies a frame" if flips != 1 else "")
+                  + (f", frames coarser than {segment_gsd_m:g} m/px enlarged to it"
+                     if segment_gsd_m else ""), markup=False)
+    if segment_gsd_m:
+        return GsdScaledSegmenter(segmenter, flips, segment_gsd_m)
     return segmenter if flips == 1 else FlippedSegmenter(segmenter, flips)
 
 

@@ -19,6 +19,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SEGMENT_GSD_HELP,
     SIGMA_HELP,
     Method,
     app,
@@ -188,6 +189,7 @@ def evaluate_distance_command(
     model: Annotated[Path | None, typer.Option(
         help="Also measure on masks from this ONNX model; 'default' for the shipped one.")] = None,
     flips: Annotated[int, typer.Option(help="--model: " + FLIPS_HELP)] = 1,
+    segment_gsd_m: Annotated[float, typer.Option(help="--model: " + SEGMENT_GSD_HELP)] = 0.0,
     methods: Annotated[str, typer.Option(help="Comma list of gsd, ground_plane.")
                        ] = "gsd,ground_plane",
     split: Annotated[str | None, typer.Option(help="Only frames of this split.")] = None,
@@ -225,6 +227,7 @@ def evaluate_distance_command(
         write_outputs,
     )
     from harborsight.perception.flips import FlippedSegmenter, flip_views
+    from harborsight.perception.gsd_scaling import GsdScaledSegmenter, check_segment_gsd
 
     clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
                                   pose_refinement=PoseRefinementSettings(enabled=refine_pose),
@@ -247,11 +250,15 @@ def evaluate_distance_command(
         if model is not None:
             from harborsight.perception.default_model import load_default_segmenter
 
-            segmenter = FlippedSegmenter(
-                load_default_segmenter(None if str(model) == "default" else model), flips)
+            onnx_model = load_default_segmenter(None if str(model) == "default" else model)
+            target_gsd_m = check_segment_gsd(segment_gsd_m)
+            segmenter = (FlippedSegmenter(onnx_model, flips) if target_gsd_m is None
+                         else GsdScaledSegmenter(onnx_model, flips, target_gsd_m))
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
             name += f"+flips{flips}" if flips != 1 else ""
-            sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence)))
+            name += f"+gsd{target_gsd_m:g}" if target_gsd_m else ""
+            sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence,
+                                                         takes_gsd=target_gsd_m is not None)))
         if not sources:
             raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "
                              "or give --flat-world or --model")

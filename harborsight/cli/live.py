@@ -12,6 +12,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SEGMENT_GSD_HELP,
     SIGMA_HELP,
     Method,
     app,
@@ -177,6 +178,9 @@ def live_command(
         "written, so a killed session leaves a readable record.")] = None,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
+    segment_gsd_m: Annotated[float, typer.Option(
+        help=SEGMENT_GSD_HELP + " Live, each window is one more model call in the frame's "
+        "latency: benchmarks/bench_live.py measures what a machine keeps up with.")] = 0.0,
 ) -> None:
     """Live clearances: the newest frame measured (older ones dropped, so the latency does
     not grow), per-section ok / caution / danger with hysteresis, closing speed and time to
@@ -228,7 +232,7 @@ def live_command(
         elif is_stream(video):
             raise InputError(None, "--metadata", "a stream's poses come live: give --mavlink "
                              "and --nmea instead")
-        engine = LiveEngine(load_segmenter(model),
+        engine = LiveEngine(load_segmenter(model, segment_gsd_m=segment_gsd_m),
                             vessel_cache(vessel),
                             clearance_settings(Method.ground_plane, None, None, POSE_MARGIN_PX, OWN_RIM_PX,
                                                refine_pose, sigma),

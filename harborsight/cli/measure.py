@@ -16,6 +16,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SEGMENT_GSD_HELP,
     SIGMA_HELP,
     Method,
     app,
@@ -87,7 +88,8 @@ def print_report_table(outcome: FrameOutcome) -> None:
 
 def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
-                model: Path | None = None, strict: bool = False, flips: int = 1) -> int:
+                model: Path | None = None, strict: bool = False, flips: int = 1,
+                segment_gsd_m: float = 0.0) -> int:
     """Measure a folder; exit code 1 if every frame failed (``strict``: if any did), 130
     when Ctrl-C stopped it (after the frame in hand: the reports and overlays written are
     whole)."""
@@ -95,11 +97,14 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     from harborsight.pipeline import discover_jobs, run_batch
 
     jobs = discover_jobs(folder, masks, segment=model is not None)
-    segmenter = (load_segmenter(model, flips=flips) if any(job.mask_path is None for job in jobs)
-                 else None)
+    segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
+                 if any(job.mask_path is None for job in jobs) else None)
     if segmenter is None and flips != 1:
         raise InputError(masks or folder, "--flips", "every frame has a mask: test-time flips "
                          "are for a model's masks")
+    if segmenter is None and segment_gsd_m:
+        raise InputError(masks or folder, "--segment-gsd-m", "every frame has a mask: the GSD "
+                         "a model sees is for a model's masks")
     measured = skipped = 0
     try:
         with stop_on_interrupt() as stop, progress_report("measure", len(jobs), console) as report:
@@ -188,6 +193,8 @@ def measure(
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
     flips: Annotated[int, typer.Option(help="Frames a model labels: " + FLIPS_HELP)] = 1,
+    segment_gsd_m: Annotated[float, typer.Option(
+        help="Frames a model labels: " + SEGMENT_GSD_HELP)] = 0.0,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
     from harborsight.geometry.camera import load_camera_calibration
@@ -210,7 +217,8 @@ def measure(
                                      "frames carry their own JSON files (and masks: --masks)")
             check_masks_folder(masks)
             raise typer.Exit(run_folder(input_path, masks, vessels, settings, out, intrinsics,
-                                         tables, model, flips=flips))
+                                         tables, model, flips=flips,
+                                         segment_gsd_m=segment_gsd_m))
         if masks is not None:
             raise InputError(masks, "--masks", "--masks is for folders; give a single image's "
                              "mask with --mask")
@@ -218,7 +226,11 @@ def measure(
         job = FrameJob(input_path.stem, meta_path, input_path, mask)
         if mask is not None and flips != 1:
             raise InputError(mask, "--flips", "test-time flips are for a model, not --mask")
-        segmenter = load_segmenter(model, flips=flips) if mask is None else None
+        if mask is not None and segment_gsd_m:
+            raise InputError(mask, "--segment-gsd-m", "the GSD a model sees is for a model, "
+                             "not --mask")
+        segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
+                     if mask is None else None)
         outcome = measure_job(job, vessels, settings, out, intrinsics, segmenter=segmenter)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False, highlight=False)

@@ -19,6 +19,7 @@ from harborsight.cli.app import (
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
+    SEGMENT_GSD_HELP,
     SIGMA_HELP,
     Method,
     app,
@@ -152,6 +153,7 @@ def run_command(
         help="Closing speed: least-squares fit over this many seconds.")
     ] = 2.0,
     flips: Annotated[int, typer.Option(help=FLIPS_HELP)] = 1,
+    segment_gsd_m: Annotated[float, typer.Option(help=SEGMENT_GSD_HELP)] = 0.0,
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
@@ -176,7 +178,8 @@ def run_command(
             check_masks_folder(masks)
             source = FolderSource(input_path, masks, use_masks=masks is not None,
                                   camera=intrinsics)
-            segmenter = None if masks is not None else load_segmenter(model, flips=flips)
+            segmenter = (None if masks is not None
+                         else load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m))
         else:
             if metadata is None:
                 raise InputError(input_path, None, "a video needs --metadata FLIGHT.jsonl "
@@ -184,9 +187,12 @@ def run_command(
             if masks is not None:
                 raise InputError(masks, None, "--masks is for folders of frames")
             source = VideoSource(input_path, metadata, camera=intrinsics)
-            segmenter = load_segmenter(model, flips=flips)
+            segmenter = load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
         if segmenter is None and flips != 1:
             raise InputError(masks, "--flips", "test-time flips are for a model, not --masks")
+        if segmenter is None and segment_gsd_m:
+            raise InputError(masks, "--segment-gsd-m", "the GSD a model sees is for a model, "
+                             "not --masks")
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
                                                 pose_margin_px, own_rim_px, refine_pose, sigma),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)

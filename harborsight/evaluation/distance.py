@@ -77,16 +77,23 @@ def oracle_masks(dataset: Path, frame: dict) -> np.ndarray:
     return labels
 
 
-def model_masks(segment: Callable) -> MaskSource:
+def model_masks(segment: Callable, takes_gsd: bool = False) -> MaskSource:
     """Masks from a segmenter: BGR uint8 image -> class labels, or -> (labels,
     :class:`~harborsight.perception.confidence.SolidConfidence`) as
-    ``OnnxSegmenter.segment_with_confidence`` gives."""
+    ``OnnxSegmenter.segment_with_confidence`` gives. ``takes_gsd``: ``segment(image,
+    gsd_m_per_px)`` is given each frame's nadir GSD from its metadata (the sensors' height,
+    as a run has it; :class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
+    from harborsight.frame import parse_frame_metadata
     from harborsight.images import read_image_and_no_data
-    from harborsight.pipeline import unseen_where_no_picture
+    from harborsight.pipeline import frame_gsd_m_per_px, unseen_where_no_picture
 
     def source(dataset: Path, frame: dict) -> np.ndarray:
         image, no_data = read_image_and_no_data(dataset / "images" / frame["image"])
-        mask = segment(image)
+        if takes_gsd:
+            meta = parse_frame_metadata(frame, dataset / "frames" / f"{Path(frame['image']).stem}.json")
+            mask = segment(image, frame_gsd_m_per_px(meta))
+        else:
+            mask = segment(image)
         if no_data is None:
             return mask
         labels, confidence = split_mask(mask)

@@ -319,7 +319,8 @@ def _measure_one(frame: FlightFrame, summary: RunSummary, timeline: ClearanceTim
             if clock.drift_warning is not None:
                 warnings.append(f"{frame.source}: {clock.drift_warning}")
                 clock.drift_warning = None
-        mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data)
+        mask = frame_labels(frame.image, frame.mask_path, segmenter, frame.source, frame.no_data,
+                            frame.meta)
         report, disagreement = carry.measure(mask, frame.meta,
                                              vessels.for_frame(frame.meta, frame.meta_path),
                                              options.settings, time_s)
@@ -414,7 +415,8 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "sigma_options": dict(options.settings.sigma_options),
                            "video_fps": video_fps,
                            "model": str(segmenter.path) if segmenter is not None else None,
-                           "flips": getattr(segmenter, "flips", 1)},
+                           "flips": getattr(segmenter, "flips", 1),
+                           "segment_gsd_m": getattr(segmenter, "target_gsd_m", None)},
               **summary.to_dict()}
     write_text_atomic(out_dir / "run.json",
                       strict_json(record, indent=2, default=str) + "\n")

@@ -130,7 +130,7 @@ class LiveEngine:
         alarm; it never raises."""
         try:
             mask = frame_labels(image, mask_path, self.segmenter, meta.source or meta_path,
-                                no_data)
+                                no_data, meta)
             report, disagreement = self._carry.measure(
                 mask, meta, self.vessels.for_frame(meta, meta_path), self.clearance, time_s)
             if disagreement is not None:

@@ -320,10 +320,10 @@ def small_frame_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, flips: i
     if (options.mode is not SegmentMode.tiles
             or (height, width) == (segmenter.input_height, segmenter.input_width)):
         return None
-    return _scaled_tile_logits(segmenter, image_bgr, replace(options, flips=flips))
+    return scaled_tile_logits(segmenter, image_bgr, replace(options, flips=flips))
 
 
-def _scaled_tile_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
+def scaled_tile_logits(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,
                         info: dict | None = None) -> np.ndarray:
     """Logits ``(C, h, w)`` of a frame in ``tiles`` mode, on the grid of the frame scaled by
     ``options`` (module docstring); ``info``, if given, receives ``windows`` and the
@@ -353,7 +353,7 @@ def segment_tiles(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: Segm
         raise ValueError(f"expected a uint8 BGR image (H, W, 3), got {image_bgr.shape} "
                          f"{image_bgr.dtype}")
     height, width = image_bgr.shape[:2]
-    return labels_from_logits(_scaled_tile_logits(segmenter, image_bgr, options, info), width, height)
+    return labels_from_logits(scaled_tile_logits(segmenter, image_bgr, options, info), width, height)
 
 
 def segment_labels(segmenter: OnnxSegmenter, image_bgr: np.ndarray, options: SegmentOptions,

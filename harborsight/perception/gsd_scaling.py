@@ -1,0 +1,119 @@
+"""Segmenting a frame at a chosen ground sample distance (GSD): the measuring pipelines know
+each frame's height and focal length, so they can show the model the harbour at the scale it
+draws edges best at.
+
+The model's input is fixed (640x360 for the default model) and a frame is normally stretched
+into it: a nadir frame of width ``W`` and height ``H`` with ground sample distance ``g``
+(:func:`~harborsight.geometry.gsd.nadir_gsd_m_per_px`) reaches the model at
+
+    g_model = g · max(W / w_in, H / h_in)
+
+metres per model pixel. The default model's edge error is about 2-5 model pixels at every
+height (docs/results.md), so in metres it grows with ``g_model``: a 640x360 frame from
+100 m (0.22 m/px with the Mavic 3 preset) loses the quay's edge by more than the 0.3 m the
+flights ask for. With a target ``g_t`` the frame is scaled by
+
+    s = g / g_t                                  (the model then sees g_t per pixel)
+
+capped so that the scaled frame's longer side is at most :data:`MAX_SIDE_WINDOWS` model
+inputs, and segmented in overlapping windows of the model input
+(:func:`~harborsight.perception.segment_images.scaled_tile_logits`, tent-weighted blend); the
+blended logits are the frame's labels and its model confidence. Where stretching already
+gives ``g_model <= g_t`` the frame takes the ordinary one-call path, so small GSDs cost
+nothing. A tilted view's GSD grows away from nadir; the nadir value is used (the frame's
+own ``g`` at the image centre, to first order).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from harborsight.errors import InputError
+from harborsight.perception.confidence import SolidConfidence
+from harborsight.perception.flips import FlippedSegmenter
+
+#: the scaled frame's longer side at most this many model inputs' (3 x 640 px for the default
+#: model: at most 4 x 4 windows of 25 % overlap, 16 model calls)
+MAX_SIDE_WINDOWS = 3.0
+#: overlap of neighbouring windows, a fraction of a window (without it the seams cost the
+#: 100 m flight 0.13 m of MAE: 0.470 against 0.344 m at a scale of 2, docs/results.md)
+WINDOW_OVERLAP = 0.25
+#: a frame whose stretched GSD is within this factor of the target takes the one-call path
+SCALE_TOLERANCE = 1.05
+
+
+def check_segment_gsd(value_m: float | None, option: str = "--segment-gsd-m") -> float | None:
+    """``value_m`` (metres per pixel, > 0 and finite), or None for 0 / None (off)."""
+    if value_m is None or value_m == 0:
+        return None
+    if not (math.isfinite(value_m) and value_m > 0):
+        raise InputError(None, option, f"expected a ground sample distance > 0 m per pixel "
+                         f"(0: off), got {value_m}")
+    return float(value_m)
+
+
+def processing_scale(width_px: int, height_px: int, gsd_m_per_px: float | None,
+                     target_gsd_m: float, input_width_px: int, input_height_px: int
+                     ) -> float | None:
+    """The scale ``s`` of a ``width_px`` x ``height_px`` frame of GSD ``gsd_m_per_px`` for
+    the model to see it at ``target_gsd_m`` (module docstring), or None where stretching
+    the frame into the model input already does (or the GSD is unknown)."""
+    if gsd_m_per_px is None or not (math.isfinite(gsd_m_per_px) and gsd_m_per_px > 0):
+        return None
+    stretched_gsd_m = gsd_m_per_px * max(width_px / input_width_px, height_px / input_height_px)
+    if stretched_gsd_m <= target_gsd_m * SCALE_TOLERANCE:
+        return None
+    scale = gsd_m_per_px / target_gsd_m
+    longest_px = MAX_SIDE_WINDOWS * max(input_width_px, input_height_px)
+    return min(scale, longest_px / max(width_px, height_px))
+
+
+class GsdScaledSegmenter(FlippedSegmenter):
+    """A segmenter for the measuring pipelines that shows the model each frame at
+    ``target_gsd_m`` or finer (module docstring); ``flips`` as
+    :class:`~harborsight.perception.flips.FlippedSegmenter`. Its ``segment`` and
+    ``segment_with_confidence`` take the frame's nadir GSD; without it (None) a frame is
+    segmented as by the wrapped segmenter."""
+
+    #: the pipelines hand this segmenter each frame's GSD (:func:`harborsight.pipeline.frame_labels`)
+    takes_gsd = True
+
+    def __init__(self, segmenter, flips: int, target_gsd_m: float) -> None:
+        super().__init__(segmenter, flips)
+        target = check_segment_gsd(target_gsd_m)
+        if target is None:
+            raise InputError(None, "--segment-gsd-m", "a GSD-scaled segmenter needs a target > 0")
+        self.target_gsd_m = target
+
+    def scale_for(self, image_bgr: np.ndarray, gsd_m_per_px: float | None) -> float | None:
+        """:func:`processing_scale` of this frame for the model's input."""
+        height, width = image_bgr.shape[:2]
+        return processing_scale(width, height, gsd_m_per_px, self.target_gsd_m,
+                                self._segmenter.input_width, self._segmenter.input_height)
+
+    def _scaled_logits(self, image_bgr: np.ndarray, scale: float) -> np.ndarray:
+        from harborsight.perception.segment_images import (
+            SegmentMode,
+            SegmentOptions,
+            scaled_tile_logits,
+        )
+
+        options = SegmentOptions(SegmentMode.tiles, tile_overlap=WINDOW_OVERLAP,
+                                 tile_scale=scale, flips=self.flips)
+        return scaled_tile_logits(self._segmenter, image_bgr, options)
+
+    def segment(self, image_bgr: np.ndarray, gsd_m_per_px: float | None = None) -> np.ndarray:
+        return self.segment_with_confidence(image_bgr, gsd_m_per_px)[0]
+
+    def segment_with_confidence(self, image_bgr: np.ndarray, gsd_m_per_px: float | None = None
+                                ) -> tuple[np.ndarray, SolidConfidence]:
+        from harborsight.perception.segment_images import labels_from_logits
+
+        scale = self.scale_for(image_bgr, gsd_m_per_px)
+        if scale is None:
+            return super().segment_with_confidence(image_bgr)
+        height, width = image_bgr.shape[:2]
+        logits = self._scaled_logits(image_bgr, scale)
+        return labels_from_logits(logits, width, height), SolidConfidence(logits, width, height)
