@@ -76,11 +76,14 @@ def test_demo_measures_every_sample(tmp_path):
         for s, t in zip(report["sections"], frame["ground_truth"]["sections"], strict=True):
             if s["status"] == "ok" and not s["contact"] and t["distance_m"] is not None:
                 errors.append(abs(s["distance_m"] - t["distance_m"]) / report["gsd_m_per_px"])
-    # exact labels: what is left is pixel quantisation (within 1 px) and the planar
-    # assumption (raised deck edges and quay tops seen off nadir lean outward: up to ~2 px)
+    # exact labels: what is left is pixel quantisation (within half a pixel either way where
+    # an edge is straight, harborsight.clearance.pixel_edge) and the planar assumption (raised
+    # deck edges and quay tops seen off nadir lean outward: up to ~2 px). With the square rule
+    # alone these five frames read median 0.42 / max 2.04 px; with the line rule 0.44 / 2.52
+    # (its half pixel no longer hides some of the lean)
     errors = np.abs(errors)
     assert len(errors) >= 20
-    assert np.median(errors) <= 0.6 and np.max(errors) <= 2.5
+    assert np.median(errors) <= 0.6 and np.max(errors) <= 2.6
 
 
 def test_make_samples_never_replaces_a_folder_it_did_not_write(tmp_path):

@@ -15,9 +15,10 @@ Pipeline (paper Sec. III, with the changes noted in ``docs/geometry.md``):
      ``a · max(1/fx, 1/fy)``;
 
 4. pixel-boundary correction: a contour pixel is the centre of the outermost solid pixel,
-   and the solid pixel covers its whole square, so the chosen obstacle point is moved
-   toward the hull to where that ray leaves the square (0.5 to 0.71 px) before its
-   distance is taken (not where the move would cross a barrel lens's fold); a section
+   so the chosen obstacle point is moved toward the hull by its depth inside the edge,
+   estimated from a line through its contour neighbours where the edge is straight, else
+   to where the ray leaves its square (0.5 to 0.71 px; :mod:`~harborsight.clearance.pixel_edge`),
+   before its distance is taken (not where the move would cross a barrel lens's fold); a section
    whose nearest point has no place in the image or on the water is ``out_of_view``;
 5. band edges: a contour pixel whose square (not only its centre) reaches into a
    neighbouring band is also a candidate of that band, so an obstacle corner poking less
@@ -38,6 +39,7 @@ from harborsight.clearance.obstacles import (
     obstacle_contours,
     own_vessel_region,
 )
+from harborsight.clearance.pixel_edge import edge_shift_px
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
 from harborsight.clearance.report import (
     STATUS_CLEAR,
@@ -70,7 +72,6 @@ from harborsight.vessel.spec import VesselSpec
 
 METHODS = ("ground_plane", "gsd")
 _VISIBILITY_SAMPLES_PER_SECTION = 16
-_HALF_PIXEL = 0.5
 
 
 @dataclass(frozen=True)
@@ -702,13 +703,14 @@ def measure_clearance(
             hull_px = camera.project(hull_enu)[0]
         else:
             hull_px = nearest
-        # boundary correction: the solid pixel covers its whole square, so the boundary
-        # toward the hull lies where that ray leaves the square, 0.5/max(|u_x|, |u_y|) px out
+        # pixel-boundary correction: the chosen pixel's depth inside the obstacle's edge,
+        # from a line through its contour neighbours where the edge is straight, else the
+        # whole square (harborsight.clearance.pixel_edge)
         toward = hull_px - obstacle_px
         norm = np.hypot(*toward.T)
         unit = toward / np.maximum(norm, 1e-12)[:, None]
-        to_square_edge = _HALF_PIXEL / np.maximum(np.abs(unit).max(axis=1), _HALF_PIXEL * 2 ** 0.5)
-        shift = np.minimum(to_square_edge, norm)
+        shift = np.minimum(edge_shift_px(contours, np.where(best < n_contour, best, -1), unit),
+                           norm)
         moved_px = obstacle_px + unit * shift[:, None]
         moved_enu, moved_ok = camera.back_project_to_plane(moved_px)
         if not moved_ok.all():
