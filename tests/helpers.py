@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import random
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -149,3 +151,13 @@ def draw_vessel_as_seen(labels: np.ndarray, mesh_v, to_px) -> None:
     above = mesh_v.slice_plane([0, 0, 0], [0, 0, -1])
     for triangle in above.vertices[above.faces]:
         cv2.fillConvexPoly(labels, to_px(triangle), 1, cv2.LINE_8, shift=4)
+
+
+def copy_sample_frames(samples: Path, dest: Path, count: int) -> Path:
+    """The first ``count`` bundled sample frames (JSON beside its image) in ``dest``."""
+    dest.mkdir()
+    for path in sorted((samples / "frames").glob("*.json"))[:count]:
+        (dest / path.name).write_text(path.read_text())
+        image = json.loads(path.read_text())["image"]
+        (dest / image).write_bytes((samples / "images" / image).read_bytes())
+    return dest

@@ -20,6 +20,7 @@ from harborsight.cli import app
 from harborsight.errors import InputError
 from harborsight.flight.sources import read_metadata_lines
 from harborsight.flight.timeline import ClearanceTimeline, least_squares_slope
+from tests.helpers import copy_sample_frames
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))
 runner = CliRunner()
@@ -695,12 +696,7 @@ def test_run_on_a_video_with_json_lines(tmp_path, untrained_model):
 def test_run_with_test_time_flips_records_them(tmp_path, untrained_model):
     """``run --flips 2`` segments every frame with its mirror image and says so in run.json;
     with --masks there is no model to flip, and --flips 3 is no flip set: one line each."""
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for path in sorted((SAMPLES / "frames").glob("*.json"))[:2]:
-        (frames / path.name).write_text(path.read_text())
-        image = json.loads(path.read_text())["image"]
-        (frames / image).write_bytes((SAMPLES / "images" / image).read_bytes())
+    frames = copy_sample_frames(SAMPLES, tmp_path / "frames", 2)
     vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
     common = ["--vessel", str(vessel), "--no-video", "--no-overlays"]
     out = tmp_path / "out"

@@ -20,6 +20,7 @@ from harborsight.perception.gsd_scaling import (
     processing_scale,
 )
 from harborsight.pipeline import frame_gsd_m_per_px, frame_labels
+from tests.helpers import copy_sample_frames
 from tests.test_segment_images import colour_model
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
@@ -125,18 +126,8 @@ def test_the_pipeline_hands_the_frame_s_gsd_to_a_segmenter_that_takes_one():
     assert seen[-1] is None
 
 
-def _two_frames(tmp_path: Path) -> Path:
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for path in sorted((SAMPLES / "frames").glob("*.json"))[:2]:
-        (frames / path.name).write_text(path.read_text())
-        image = json.loads(path.read_text())["image"]
-        (frames / image).write_bytes((SAMPLES / "images" / image).read_bytes())
-    return frames
-
-
 def test_run_and_evaluate_take_the_option_and_say_so(tmp_path, untrained_model):
-    frames = _two_frames(tmp_path)
+    frames = copy_sample_frames(SAMPLES, tmp_path / "frames", 2)
     vessel = SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml"
     common = ["--vessel", str(vessel), "--no-video", "--no-overlays"]
     out = tmp_path / "out"
