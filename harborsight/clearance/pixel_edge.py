@@ -56,39 +56,51 @@ def square_exit_px(unit: np.ndarray) -> np.ndarray:
     return _HALF_PIXEL / np.maximum(np.abs(unit).max(axis=1), _HALF_PIXEL * 2 ** 0.5)
 
 
-def _window(contours: ObstacleContours, index: int) -> np.ndarray:
-    """The contour indices ``EDGE_FIT_HALF_POINTS`` before and after ``index``, and it."""
-    before, after, window = index, index, [index]
+def _windows(contours: ObstacleContours, index: np.ndarray) -> np.ndarray:
+    """``(N, 2k + 1)`` contour indices: each of ``index``, then the ``k``
+    (:data:`EDGE_FIT_HALF_POINTS`) before and after it, alternately."""
+    columns = [index]
+    before = after = index
     for _ in range(EDGE_FIT_HALF_POINTS):
         before, after = contours.previous_index[before], contours.next_index[after]
-        window += [before, after]
-    return np.array(window)
+        columns += [before, after]
+    return np.stack(columns, axis=1)
 
 
 def edge_shift_px(contours: ObstacleContours, index: np.ndarray, unit: np.ndarray) -> np.ndarray:
     """How far to move each chosen contour pixel ``contours.points_px[index]`` along its ray
     ``unit (N, 2)`` toward the hull to reach the obstacle's edge (module docstring). An
-    ``index`` of -1 (a point that is not a contour pixel) gets the square rule."""
+    ``index`` of -1 (a point that is not a contour pixel) gets the square rule.
+
+    The fitted line's normal is the minor axis of the window's 2x2 scatter matrix
+    ``[[a, b], [b, c]]``: the major axis is at ``θ = atan2(2b, a - c) / 2``, the normal at
+    ``θ + 90°``."""
     unit = np.asarray(unit, float).reshape(-1, 2)
+    index = np.asarray(index, int).reshape(-1)
     shift = square_exit_px(unit)
-    for j, (i, ray) in enumerate(zip(np.asarray(index, int).tolist(), unit, strict=True)):
-        if i < 0:
-            continue
-        window = _window(contours, i)
-        if len(np.unique(window)) < len(window) or contours.on_border[window].any():
-            continue
-        points = contours.points_px[window].astype(float)
-        centroid = points.mean(axis=0)
-        spread = points - centroid
-        normal = np.linalg.eigh(spread.T @ spread)[1][:, 0]
-        if np.abs(spread @ normal).max() > EDGE_FIT_MAX_RESIDUAL_PX:
-            continue
-        cosine = float(normal @ ray)
-        if cosine < 0:
-            normal, cosine = -normal, -cosine
-        if cosine < EDGE_FIT_MIN_COSINE:
-            continue
-        step = float(np.abs(normal).max())
-        depth = float(np.clip(step / 2 - normal @ (points[0] - centroid), 0.0, step))
-        shift[j] = min(depth / cosine, shift[j])
+    chosen = np.flatnonzero(index >= 0)
+    if not len(chosen):
+        return shift
+    window = _windows(contours, index[chosen])
+    ordered = np.sort(window, axis=1)
+    fits = ((np.diff(ordered, axis=1) != 0).all(axis=1)         # the window is not a whole contour
+            & ~contours.on_border[window].any(axis=1))
+    points = contours.points_px[window].astype(float)            # (M, 2k + 1, 2)
+    centroid = points.mean(axis=1, keepdims=True)
+    spread = points - centroid
+    a = (spread[..., 0] ** 2).mean(axis=1)
+    b = (spread[..., 0] * spread[..., 1]).mean(axis=1)
+    c = (spread[..., 1] ** 2).mean(axis=1)
+    theta = 0.5 * np.arctan2(2.0 * b, a - c)
+    normal = np.stack([-np.sin(theta), np.cos(theta)], axis=1)
+    fits &= np.abs(np.einsum("mkd,md->mk", spread, normal)).max(axis=1) <= EDGE_FIT_MAX_RESIDUAL_PX
+    cosine = np.einsum("md,md->m", normal, unit[chosen])
+    normal *= np.where(cosine < 0, -1.0, 1.0)[:, None]           # toward the hull
+    cosine = np.abs(cosine)
+    fits &= cosine >= EDGE_FIT_MIN_COSINE
+    step = np.abs(normal).max(axis=1)
+    offset = np.einsum("md,md->m", normal, points[:, 0] - centroid[:, 0])
+    depth = np.clip(step / 2 - offset, 0.0, step)
+    line = np.minimum(depth / np.maximum(cosine, EDGE_FIT_MIN_COSINE), shift[chosen])
+    shift[chosen[fits]] = line[fits]
     return shift
