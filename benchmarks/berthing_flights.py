@@ -13,7 +13,7 @@ least 1 meets it) measured in this run.
 
     .venv/bin/python benchmarks/berthing_flights.py [--work /tmp/harborsight-flights]
         [--heights 30,60,100] [--pose-noise standalone,2,1] [--masks labels,model]
-        [--segment-gsd-m 0,0.11]
+        [--segment-gsd-m default,0,0.11]
 """
 
 from __future__ import annotations
@@ -69,8 +69,9 @@ def main() -> None:
                         help="measure from noisy sensors (dataset add-pose-noise, seed 0)")
     parser.add_argument("--masks", default="labels,model", help="labels and/or model")
     parser.add_argument("--heights", default="30,60,100", help="flight heights, m")
-    parser.add_argument("--segment-gsd-m", default="0", metavar="G[,G...]",
-                        help="the model's masks at each of these `run --segment-gsd-m` (0: off)")
+    parser.add_argument("--segment-gsd-m", default="default", metavar="G[,G...]",
+                        help="the model's masks at each of these `run --segment-gsd-m` (0: off; "
+                        "default: run's own)")
     parser.add_argument("--seed", type=int, default=FLIGHT_SEED, help="the harbour's seed")
     parser.add_argument("--workers", type=int, default=2, help="render processes")
     parser.add_argument("--json", type=Path, default=None, help="also write the scores here")
@@ -92,11 +93,11 @@ def main() -> None:
     rows: list[tuple[str, FlightScore]] = []
     for flight in flights:
         for masks in args.masks.split(","):
-            for gsd in (args.segment_gsd_m.split(",") if masks == "model" else ["0"]):
-                name = masks if float(gsd) == 0 else f"{masks}@{gsd}"
+            for gsd in (args.segment_gsd_m.split(",") if masks == "model" else ["default"]):
+                name = masks if gsd == "default" else f"{masks}@{gsd}"
                 out = work / "runs" / f"{flight.name}{'-noisy' if args.pose_noise else ''}-{name}"
                 source = (["--masks", str(flight / "labels")] if masks == "labels"
-                          else ["--segment-gsd-m", gsd])
+                          else [] if gsd == "default" else ["--segment-gsd-m", gsd])
                 call(["run", str(flight), *source, "--out", str(out), "--no-overlays",
                       "--no-video"])
                 rows += [(name, s) for s in score_flight(flight, out / "sections.csv")]

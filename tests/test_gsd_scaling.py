@@ -138,10 +138,14 @@ def test_run_and_evaluate_take_the_option_and_say_so(tmp_path, untrained_model):
     assert "frames coarser than 0.05 m/px enlarged to it" in result.output
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 2 and record["settings"]["segment_gsd_m"] == 0.05
-    result = runner.invoke(app, ["run", str(frames), "--model", str(untrained_model), "--out",
-                                 str(tmp_path / "plain"), *common], terminal_width=200)
-    assert json.loads((tmp_path / "plain" / "run.json").read_text())["settings"][
-        "segment_gsd_m"] is None
+    # run's default is 0.12 m/px; 0 turns it off
+    for given, recorded in (([], 0.12), (["--segment-gsd-m", "0"], None)):
+        result = runner.invoke(app, ["run", str(frames), "--model", str(untrained_model), *given,
+                                     "--out", str(tmp_path / "plain"), *common],
+                               terminal_width=200)
+        assert result.exit_code == 0, result.output
+        assert json.loads((tmp_path / "plain" / "run.json").read_text())["settings"][
+            "segment_gsd_m"] == recorded
     for wrong in (["--model", str(untrained_model), "--segment-gsd-m", "-1"],
                   ["--masks", str(SAMPLES / "labels"), "--segment-gsd-m", "0.1"]):
         result = runner.invoke(app, ["run", str(SAMPLES if "--masks" in wrong else frames),
@@ -162,3 +166,29 @@ def test_run_and_evaluate_take_the_option_and_say_so(tmp_path, untrained_model):
                                  str(tmp_path / "distance")], terminal_width=200)
     assert result.exit_code == 0, result.output
     assert "+gsd0.05" in (tmp_path / "distance" / "sections.csv").read_text()
+
+
+def test_the_windows_blend_is_mixed_with_the_one_call_view_by_hand(colour_segmenter, monkeypatch):
+    """With constant logits from the windows (A) and from the one-call view (B), every pixel
+    of the scaled grid holds log((1 - w) softmax(A) + w softmax(B)), w = WHOLE_VIEW_WEIGHT."""
+    from harborsight.perception import gsd_scaling, segment_images
+
+    windows_logits = np.array([2.0, 0.0, -1.0], np.float32)
+    whole_logits = np.array([-1.0, 3.0, 0.5], np.float32)
+    monkeypatch.setattr(segment_images, "scaled_tile_logits", lambda segmenter, image, options:
+                        np.broadcast_to(windows_logits[:, None, None], (3, 720, 1280)).copy())
+    monkeypatch.setattr(colour_segmenter, "batch_logits", lambda images, flips=1:
+                        np.broadcast_to(whole_logits[None, :, None, None], (1, 3, 360, 640)).copy())
+    scaled = GsdScaledSegmenter(colour_segmenter, 1, 0.1)
+    labels, confidence = scaled.segment_with_confidence(_blocks(640, 360), 0.2)
+
+    def softmax(x):
+        e = np.exp(x - x.max())
+        return e / e.sum()
+
+    w = gsd_scaling.WHOLE_VIEW_WEIGHT
+    expected = (1 - w) * softmax(windows_logits.astype(float)) + w * softmax(whole_logits.astype(float))
+    got = confidence.logits_at(np.array([[100.0, 50.0], [639.0, 359.0]]))
+    assert np.allclose(np.exp(got), expected[None], atol=1e-5)
+    assert (labels == expected.argmax()).all()
+    assert confidence.solid_probability(np.array([[3.0, 4.0]]))[0] == pytest.approx(1 - expected[0])

@@ -164,12 +164,12 @@ FLIPS_HELP = ("Test-time flips: 1, the frame alone; 2, also its mirror image; 4,
 #: help of --segment-gsd-m (run, measure, evaluate distance, live)
 SEGMENT_GSD_HELP = ("Show the model each frame at this ground sample distance (m per pixel on "
                     "the water, from the frame's height and focal length) or finer: a coarser "
-                    "frame is enlarged to it (its longer side to at most 3 model inputs) and "
-                    "segmented in overlapping windows of the model input, 1-16 model calls a "
-                    "frame instead of one. 0: off, every frame stretched into one model input. "
-                    "The default model draws edges to about 2-5 of its pixels, so metres of "
-                    "error grow with the GSD it sees (docs/results.md, 'Segmenting at a chosen "
-                    "GSD').")
+                    "frame is enlarged to it (its longer side to at most 3 model inputs), "
+                    "segmented in overlapping windows of the model input and mixed with the "
+                    "frame seen whole, 2-17 model calls a frame instead of one. 0: off, every "
+                    "frame stretched into one model input. The default model draws edges to "
+                    "about 2-5 of its pixels, so metres of error grow with the GSD it sees "
+                    "(docs/results.md, 'Segmenting at a chosen GSD').")
 
 
 def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips: int = 1,
