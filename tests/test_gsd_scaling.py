@@ -192,3 +192,30 @@ def test_the_windows_blend_is_mixed_with_the_one_call_view_by_hand(colour_segmen
     assert np.allclose(np.exp(got), expected[None], atol=1e-5)
     assert (labels == expected.argmax()).all()
     assert confidence.solid_probability(np.array([[3.0, 4.0]]))[0] == pytest.approx(1 - expected[0])
+
+
+def test_a_small_tile_s_whole_view_is_the_one_its_segmenter_makes(colour_segmenter, monkeypatch):
+    """A 256x256 orthophoto tile at 0.3 m/px is enlarged (to 0.1 m/px: 768x768, windows of
+    640x360), and its one-call view is the wrapped segmenter's own (enlarged without
+    stretching into 360x360 and padded), not a stretch into 640x360."""
+    from harborsight.perception import segment_images
+
+    calls = []
+    real = segment_images.small_frame_logits
+
+    def spy(segmenter, image, flips=1):
+        calls.append(image.shape)
+        return real(segmenter, image, flips)
+
+    monkeypatch.setattr(segment_images, "small_frame_logits", spy)
+    tile = _blocks(256, 256, block=32)
+    scaled = GsdScaledSegmenter(colour_segmenter, 1, 0.1)
+    labels, confidence = scaled.segment_with_confidence(tile, 0.3)
+    assert calls == [(256, 256, 3)]
+    assert labels.shape == (256, 256)
+    assert (confidence.grid_width, confidence.grid_height) == (768, 768)
+    inner = np.ones((256, 256), bool)
+    for edge in range(0, 256, 32):
+        inner[:, max(0, edge - 2):edge + 2] = False
+        inner[max(0, edge - 2):edge + 2, :] = False
+    assert (labels[inner] == tile.argmax(axis=2)[inner]).all()

@@ -123,12 +123,18 @@ class GsdScaledSegmenter(FlippedSegmenter):
             SegmentMode,
             SegmentOptions,
             scaled_tile_logits,
+            small_frame_logits,
         )
 
         options = SegmentOptions(SegmentMode.tiles, tile_overlap=WINDOW_OVERLAP,
                                  tile_scale=scale, flips=self.flips)
         windows = scaled_tile_logits(self._segmenter, image_bgr, options)
-        whole = self._segmenter.batch_logits(self._segmenter.fit(image_bgr)[None], self.flips)[0]
+        # the one-call view as the wrapped segmenter makes it (a frame smaller than the
+        # input enlarged without stretching, any other stretched into it)
+        whole = small_frame_logits(self._segmenter, image_bgr, self.flips)
+        if whole is None:
+            whole = self._segmenter.batch_logits(self._segmenter.fit(image_bgr)[None],
+                                                 self.flips)[0]
         height, width = windows.shape[1:]
         whole = cv2.resize(np.ascontiguousarray(whole.transpose(1, 2, 0)), (width, height),
                            interpolation=cv2.INTER_LINEAR).reshape(height, width, -1)
