@@ -11,6 +11,7 @@ A frame may name its vessel with a ``vessel_spec`` key (path relative to the dat
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from glob import escape as glob_escape
@@ -27,6 +28,7 @@ from harborsight.files import is_existing_file, natural_key
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.gsd import nadir_gsd_m_per_px
+from harborsight.geometry.rotations import world_from_camera_rotation
 from harborsight.images import read_image_and_no_data, read_mask
 from harborsight.perception.classes import IGNORE
 from harborsight.perception.confidence import SolidConfidence
@@ -145,9 +147,21 @@ def unseen_where_no_picture(labels: np.ndarray, confidence: SolidConfidence | No
     return labels
 
 
+#: the optical axis's cosine off straight down below which a view's centre footprint is not
+#: used (78 degrees: near the horizon it grows without bound)
+MIN_AXIS_COSINE = 0.2
+
+
 def frame_gsd_m_per_px(meta: FrameMetadata) -> float:
-    """The frame's nadir ground sample distance on the water, metres per pixel."""
-    return nadir_gsd_m_per_px(meta.height_above_water_m, meta.camera.fx, meta.camera.fy)
+    """The ground sample distance at the image centre on the water, metres per pixel: the
+    centre pixel's footprint along the tilt, ``h / (f · cos²θ)`` with ``h`` the height above
+    the water, ``f = min(fx, fy)`` and ``θ`` the optical axis's angle off straight down
+    (``h / f`` at nadir; ``cos θ`` at least :data:`MIN_AXIS_COSINE`)."""
+    rotation = world_from_camera_rotation(math.radians(meta.yaw_deg), math.radians(meta.pitch_deg),
+                                          math.radians(meta.roll_deg))
+    axis_cosine = max(-float(rotation[2, 2]), MIN_AXIS_COSINE)   # (R · (0, 0, 1)) · down
+    return (nadir_gsd_m_per_px(meta.height_above_water_m, meta.camera.fx, meta.camera.fy)
+            / axis_cosine ** 2)
 
 
 def _frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter | None,

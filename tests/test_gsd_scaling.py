@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -106,8 +107,16 @@ def test_the_pipeline_hands_the_frame_s_gsd_to_a_segmenter_that_takes_one():
     meta = load_frame_metadata(meta_path)
     raw = json.loads(meta_path.read_text())
     height_m = raw["uav"]["alt_m"] - raw.get("water_level_m", 0.0)
-    by_hand = height_m / min(raw["camera"]["fx"], raw["camera"]["fy"])
-    assert frame_gsd_m_per_px(meta) == pytest.approx(by_hand, rel=1e-12)
+    # the centre pixel's footprint along the tilt: h / (f cos²θ), θ off straight down
+    off_nadir = math.radians(90.0 + raw["camera_attitude"]["pitch_deg"])
+    by_hand = height_m / min(raw["camera"]["fx"], raw["camera"]["fy"]) / math.cos(off_nadir) ** 2
+    assert frame_gsd_m_per_px(meta) == pytest.approx(by_hand, rel=1e-6)
+    # straight down: the nadir GSD; near the horizon: capped at 78 degrees off nadir
+    nadir = dataclasses.replace(meta, pitch_deg=-90.0, roll_deg=0.0)
+    assert frame_gsd_m_per_px(nadir) == pytest.approx(height_m / min(raw["camera"]["fx"],
+                                                                      raw["camera"]["fy"]))
+    level = dataclasses.replace(meta, pitch_deg=0.0, roll_deg=0.0)
+    assert frame_gsd_m_per_px(level) == pytest.approx(frame_gsd_m_per_px(nadir) / 0.2 ** 2)
 
     seen = []
 
@@ -166,6 +175,10 @@ def test_run_and_evaluate_take_the_option_and_say_so(tmp_path, untrained_model):
                                  str(tmp_path / "distance")], terminal_width=200)
     assert result.exit_code == 0, result.output
     assert "+gsd0.05" in (tmp_path / "distance" / "sections.csv").read_text()
+    result = runner.invoke(app, ["evaluate", "distance", "--data", str(SAMPLES),
+                                 "--segment-gsd-m", "0.05", "--out", str(tmp_path / "oracle")],
+                           terminal_width=200)
+    assert result.exit_code == 2 and "--segment-gsd-m" in result.output, result.output
 
 
 def test_the_windows_blend_is_mixed_with_the_one_call_view_by_hand(colour_segmenter, monkeypatch):

@@ -244,6 +244,8 @@ def evaluate_distance_command(
         flip_views(flips)
         if flips != 1 and model is None:
             raise InputError(None, "--flips", "test-time flips are for --model's masks")
+        if segment_gsd_m and model is None:
+            raise InputError(None, "--segment-gsd-m", "the GSD a model sees is for --model's masks")
         prepare_output_folder(out, "--out", inputs=(data,))
         if flat_world:
             sources.append(("flat", flat_world_masks(data)))

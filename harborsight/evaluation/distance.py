@@ -90,7 +90,8 @@ def model_masks(segment: Callable, takes_gsd: bool = False) -> MaskSource:
     def source(dataset: Path, frame: dict) -> np.ndarray:
         image, no_data = read_image_and_no_data(dataset / "images" / frame["image"])
         if takes_gsd:
-            meta = parse_frame_metadata(frame, dataset / "frames" / f"{Path(frame['image']).stem}.json")
+            meta = parse_frame_metadata(frame, dataset / "frames" / f"{Path(frame['image']).stem}.json",
+                                        base_dir=dataset / "frames")
             mask = segment(image, frame_gsd_m_per_px(meta))
         else:
             mask = segment(image)

@@ -27,8 +27,22 @@ of the windows' blend ``p_w`` are mixed with those of the ordinary one-call view
 
 and ``log p`` gives the frame's labels and its model confidence. Where stretching already
 gives ``g_model <= g_t`` the frame takes the ordinary one-call path, so small GSDs cost
-nothing. A tilted view's GSD grows away from nadir; the nadir value is used (the frame's
-own ``g`` at the image centre, to first order).
+nothing. ``g`` is the image centre's footprint along the tilt
+(:func:`~harborsight.pipeline.frame_gsd_m_per_px`); a tilted view is coarser beyond its
+centre and finer before it.
+
+What it does not promise:
+
+* "or finer" holds for the larger of the two axes' GSDs. Where stretching squeezes one axis
+  more than the other (a 4:3 frame into 16:9), the one-call path sees that frame's other axis
+  finer than ``g_t``. The tiles see both axes at ``g_t``.
+* A frame switches between the one-call and the enlarged path where its stretched GSD
+  crosses ``g_t · SCALE_TOLERANCE``. Over a climb or a descent through that height, the
+  masks change their maker in one step.
+* Where the windows and the whole view disagree, the mix caps the model's solid probability
+  near ``1 - w``. An obstacle only the windows see is drawn, but never counts as sure
+  (:data:`~harborsight.clearance.uncertainty.CONFIDENT_SOLID_P`). It widens its section's
+  sigma rather than narrowing it.
 """
 
 from __future__ import annotations
@@ -147,11 +161,13 @@ class GsdScaledSegmenter(FlippedSegmenter):
 
     def segment_with_confidence(self, image_bgr: np.ndarray, gsd_m_per_px: float | None = None
                                 ) -> tuple[np.ndarray, SolidConfidence]:
-        from harborsight.perception.segment_images import labels_from_logits
+        from harborsight.perception.onnx_segmenter import OnnxSegmenter
 
         scale = self.scale_for(image_bgr, gsd_m_per_px)
         if scale is None:
             return super().segment_with_confidence(image_bgr)
         height, width = image_bgr.shape[:2]
         logits = self._scaled_logits(image_bgr, scale)
-        return labels_from_logits(logits, width, height), SolidConfidence(logits, width, height)
+        # labels read like the confidence (bilinear, pixel centres aligned), not area-averaged
+        return OnnxSegmenter.frame_labels(logits, width, height), SolidConfidence(logits, width,
+                                                                                    height)

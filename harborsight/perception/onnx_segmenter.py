@@ -291,7 +291,7 @@ class OnnxSegmenter:
         image = self.fit(image_bgr)[None]
         if (h, w) == (self.input_height, self.input_width) and flips == 1:
             return self.session.run(["labels"], {"image": image})[0][0]
-        return self._frame_labels(self.batch_logits(image, flips)[0], w, h)
+        return self.frame_labels(self.batch_logits(image, flips)[0], w, h)
 
     def segment_with_confidence(self, image_bgr: np.ndarray, flips: int = 1
                                 ) -> tuple[np.ndarray, SolidConfidence]:
@@ -312,10 +312,10 @@ class OnnxSegmenter:
             logits, labels = self.session.run(["logits", "labels"], {"image": image})
             return labels[0], SolidConfidence(logits[0], w, h)
         logits = self.batch_logits(image, flips)[0]
-        return self._frame_labels(logits, w, h), SolidConfidence(logits, w, h)
+        return self.frame_labels(logits, w, h), SolidConfidence(logits, w, h)
 
     @staticmethod
-    def _frame_labels(logits: np.ndarray, w: int, h: int) -> np.ndarray:
+    def frame_labels(logits: np.ndarray, w: int, h: int) -> np.ndarray:
         """Labels at the frame's size ``w`` x ``h`` from logits on the model's grid."""
         # cv2.resize maps pixel centres to pixel centres: x_src = (x + 0.5)·W_m/w - 0.5
         upsampled = cv2.resize(np.ascontiguousarray(logits.transpose(1, 2, 0)), (w, h),
