@@ -14,6 +14,7 @@ process's resident memory after the first minute and at the end.
     .venv/bin/python benchmarks/bench_live.py --stream [--size 1280x720 --fps 10]
     .venv/bin/python benchmarks/bench_live.py --websocket [--stream]
     .venv/bin/python benchmarks/bench_live.py --record      # with `live --record`'s writing
+    .venv/bin/python benchmarks/bench_live.py --segment-gsd-m 0.12   # with `live --segment-gsd-m`
 
 With ``--websocket`` the states are also pushed by the dashboard's server (Starlette + uvicorn
 on 127.0.0.1, as ``--http`` runs it) to a WebSocket client in this process, and the latency
@@ -54,6 +55,7 @@ from harborsight.flight import VideoSource
 from harborsight.live.engine import LiveEngine
 from harborsight.live.session import file_reader, run_live
 from harborsight.perception.default_model import load_default_segmenter
+from harborsight.perception.gsd_scaling import GsdScaledSegmenter
 from harborsight.pipeline import VesselCache
 from harborsight.vessel.spec import load_vessel_spec
 
@@ -248,13 +250,18 @@ def main() -> None:
                         help="record the session as `live --record` does (replay only)")
     parser.add_argument("--websocket", action="store_true",
                         help="push the states to a WebSocket client and time their receipt")
+    parser.add_argument("--segment-gsd-m", type=float, default=0.0,
+                        help="as `live --segment-gsd-m` (0: off, live's default)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     target = args.p95_target_ms or (150.0 if width * height <= 1280 * 720 else 250.0)
     with tempfile.TemporaryDirectory() as tmp:
         video, metadata = write_replay(Path(tmp), width, height, args.fps, args.seconds)
         tug = load_vessel_spec(SAMPLES / "vessels" / "harbour-tug" / "vessel.yaml")
-        engine = LiveEngine(load_default_segmenter(None), VesselCache(tug))
+        segmenter = load_default_segmenter(None)
+        if args.segment_gsd_m:
+            segmenter = GsdScaledSegmenter(segmenter, 1, args.segment_gsd_m)
+        engine = LiveEngine(segmenter, VesselCache(tug))
         memory = {}
         stop = threading.Event()
 
