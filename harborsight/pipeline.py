@@ -125,8 +125,8 @@ def frame_labels(image: np.ndarray, mask_path: Path | None, segmenter: Segmenter
     """The frame's class mask and where it came from: the mask file, else the model. Pixels
     in ``no_data`` (bool (H, W): no picture there, :func:`~harborsight.images.read_image_and_no_data`)
     are labelled 255, ignore, which measuring counts as solid: a transparent corner is
-    not seen water. ``meta``: the frame's metadata, whose nadir GSD a segmenter that takes
-    one is given (:class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
+    not seen water. ``meta``: the frame's metadata, whose GSD (:func:`frame_gsd_m_per_px`) a
+    segmenter that takes one is given (:class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
     mask = _frame_labels(image, mask_path, segmenter, source, meta)
     if no_data is None or not no_data.any():
         return mask

@@ -180,8 +180,8 @@ def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips
     ``segment_gsd_m`` one that sees each frame at that GSD or finer
     (:class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
     from harborsight.perception.default_model import describe, load_default_segmenter
-    from harborsight.perception.flips import FlippedSegmenter, flip_views
-    from harborsight.perception.gsd_scaling import GsdScaledSegmenter, check_segment_gsd
+    from harborsight.perception.flips import flip_views
+    from harborsight.perception.gsd_scaling import check_segment_gsd, pipeline_segmenter
 
     flip_views(flips)
     segment_gsd_m = check_segment_gsd(segment_gsd_m)
@@ -190,9 +190,7 @@ def load_segmenter(model: Path | None, reference_arithmetic: bool = False, flips
                   + (f", {flips} flipped copies a frame" if flips != 1 else "")
                   + (f", frames coarser than {segment_gsd_m:g} m/px enlarged to it"
                      if segment_gsd_m else ""), markup=False)
-    if segment_gsd_m:
-        return GsdScaledSegmenter(segmenter, flips, segment_gsd_m)
-    return segmenter if flips == 1 else FlippedSegmenter(segmenter, flips)
+    return pipeline_segmenter(segmenter, flips, segment_gsd_m)
 
 
 def need_torch() -> None:

@@ -226,8 +226,8 @@ def evaluate_distance_command(
         truth_obstacle_kinds,
         write_outputs,
     )
-    from harborsight.perception.flips import FlippedSegmenter, flip_views
-    from harborsight.perception.gsd_scaling import GsdScaledSegmenter, check_segment_gsd
+    from harborsight.perception.flips import flip_views
+    from harborsight.perception.gsd_scaling import pipeline_segmenter
 
     clearance = ClearanceSettings(pose_margin_px=pose_margin_px, own_rim_px=own_rim_px,
                                   pose_refinement=PoseRefinementSettings(enabled=refine_pose),
@@ -252,15 +252,16 @@ def evaluate_distance_command(
         if model is not None:
             from harborsight.perception.default_model import load_default_segmenter
 
-            onnx_model = load_default_segmenter(None if str(model) == "default" else model)
-            target_gsd_m = check_segment_gsd(segment_gsd_m)
-            segmenter = (FlippedSegmenter(onnx_model, flips) if target_gsd_m is None
-                         else GsdScaledSegmenter(onnx_model, flips, target_gsd_m))
+            segmenter = pipeline_segmenter(
+                load_default_segmenter(None if str(model) == "default" else model), flips,
+                segment_gsd_m)
             name = segmenter.sidecar.get("network") or Path(segmenter.path).stem
             name += f"+flips{flips}" if flips != 1 else ""
+            target_gsd_m = getattr(segmenter, "target_gsd_m", None)
             name += f"+gsd{target_gsd_m:g}" if target_gsd_m else ""
-            sources.append((f"model:{name}", model_masks(segmenter.segment_with_confidence,
-                                                         takes_gsd=target_gsd_m is not None)))
+            sources.append((f"model:{name}", model_masks(
+                segmenter.segment_with_confidence,
+                takes_gsd=getattr(segmenter, "takes_gsd", False))))
         if not sources:
             raise InputError(None, "--oracle/--model", "nothing to evaluate: keep --oracle, "
                              "or give --flat-world or --model")

@@ -81,7 +81,8 @@ def model_masks(segment: Callable, takes_gsd: bool = False) -> MaskSource:
     """Masks from a segmenter: BGR uint8 image -> class labels, or -> (labels,
     :class:`~harborsight.perception.confidence.SolidConfidence`) as
     ``OnnxSegmenter.segment_with_confidence`` gives. ``takes_gsd``: ``segment(image,
-    gsd_m_per_px)`` is given each frame's nadir GSD from its metadata (the sensors' height,
+    gsd_m_per_px)`` is given each frame's GSD from its metadata
+    (:func:`~harborsight.pipeline.frame_gsd_m_per_px`) (the sensors' height,
     as a run has it; :class:`~harborsight.perception.gsd_scaling.GsdScaledSegmenter`)."""
     from harborsight.frame import parse_frame_metadata
     from harborsight.images import read_image_and_no_data

@@ -22,6 +22,13 @@ WATER_CLASS = 0
 _MAP_COLUMNS = 4096
 
 
+def class_probabilities(logits: np.ndarray, axis: int = 0) -> np.ndarray:
+    """The softmax of ``logits`` over their class ``axis``: ``exp(l - max l) / Σ exp(...)``."""
+    weights = np.exp(logits - logits.max(axis=axis, keepdims=True))
+    weights /= weights.sum(axis=axis, keepdims=True)
+    return weights
+
+
 class SolidConfidence:
     """The model's solid probability at frame pixels, from its logits on its own grid.
 

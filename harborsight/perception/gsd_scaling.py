@@ -53,7 +53,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.perception.confidence import SolidConfidence
+from harborsight.perception.confidence import SolidConfidence, class_probabilities
 from harborsight.perception.flips import FlippedSegmenter
 
 #: ``run`` and ``measure`` segment at this GSD unless told otherwise: on the seed-7 bench's
@@ -73,12 +73,6 @@ SCALE_TOLERANCE = 1.05
 #: 70-150 m of 9.41 / 8.65 / 8.52 m and medians of 0.23-0.39 / 0.23-0.41 / 0.29-0.46 m; on
 #: the 100 m berthing flight 0.335 / 0.342 / 0.359 m filtered (docs/results.md)
 WHOLE_VIEW_WEIGHT = 0.3
-
-
-def _softmax(logits: np.ndarray) -> np.ndarray:
-    """Class probabilities of logits ``(C, ...)``."""
-    weights = np.exp(logits - logits.max(axis=0, keepdims=True))
-    return weights / weights.sum(axis=0, keepdims=True)
 
 
 def check_segment_gsd(value_m: float | None, option: str = "--segment-gsd-m") -> float | None:
@@ -111,7 +105,8 @@ class GsdScaledSegmenter(FlippedSegmenter):
     """A segmenter for the measuring pipelines that shows the model each frame at
     ``target_gsd_m`` or finer (module docstring); ``flips`` as
     :class:`~harborsight.perception.flips.FlippedSegmenter`. Its ``segment`` and
-    ``segment_with_confidence`` take the frame's nadir GSD; without it (None) a frame is
+    ``segment_with_confidence`` take the frame's GSD
+    (:func:`~harborsight.pipeline.frame_gsd_m_per_px`); without it (None) a frame is
     segmented as by the wrapped segmenter."""
 
     #: the pipelines hand this segmenter each frame's GSD (:func:`harborsight.pipeline.frame_labels`)
@@ -152,8 +147,8 @@ class GsdScaledSegmenter(FlippedSegmenter):
         height, width = windows.shape[1:]
         whole = cv2.resize(np.ascontiguousarray(whole.transpose(1, 2, 0)), (width, height),
                            interpolation=cv2.INTER_LINEAR).reshape(height, width, -1)
-        mixed = ((1.0 - WHOLE_VIEW_WEIGHT) * _softmax(windows)
-                 + WHOLE_VIEW_WEIGHT * _softmax(whole.transpose(2, 0, 1)))
+        mixed = ((1.0 - WHOLE_VIEW_WEIGHT) * class_probabilities(windows)
+                 + WHOLE_VIEW_WEIGHT * class_probabilities(whole.transpose(2, 0, 1)))
         return np.log(mixed + 1e-12).astype(np.float32)
 
     def segment(self, image_bgr: np.ndarray, gsd_m_per_px: float | None = None) -> np.ndarray:
@@ -171,3 +166,14 @@ class GsdScaledSegmenter(FlippedSegmenter):
         # labels read like the confidence (bilinear, pixel centres aligned), not area-averaged
         return OnnxSegmenter.frame_labels(logits, width, height), SolidConfidence(logits, width,
                                                                                     height)
+
+
+def pipeline_segmenter(segmenter, flips: int = 1, segment_gsd_m: float | None = None):
+    """``segmenter`` (an :class:`~harborsight.perception.onnx_segmenter.OnnxSegmenter`) as
+    the measuring pipelines use it: seeing each frame at ``segment_gsd_m`` or finer
+    (:class:`GsdScaledSegmenter`), else with ``flips``
+    (:class:`~harborsight.perception.flips.FlippedSegmenter`), else as it is."""
+    target = check_segment_gsd(segment_gsd_m)
+    if target is not None:
+        return GsdScaledSegmenter(segmenter, flips, target)
+    return segmenter if flips == 1 else FlippedSegmenter(segmenter, flips)

@@ -12,7 +12,7 @@ import onnxruntime as ort
 
 from harborsight.errors import InputError
 from harborsight.perception.classes import CLASS_NAMES, NUM_CLASSES
-from harborsight.perception.confidence import SolidConfidence
+from harborsight.perception.confidence import SolidConfidence, class_probabilities
 from harborsight.perception.flips import flip_views
 
 #: :func:`cpu_int8_dot_product` of a CPU whose fused uint8 x int8 sums saturate
@@ -276,8 +276,7 @@ class OnnxSegmenter:
             flipped = np.flip(images, axes) if axes else images
             logits = self.session.run(["logits"], {"image": np.ascontiguousarray(flipped)})[0]
             logits = np.flip(logits, tuple(a + 1 for a in axes)) if axes else logits  # (N, C, H, W)
-            probability = np.exp(logits - logits.max(axis=1, keepdims=True))
-            probability /= probability.sum(axis=1, keepdims=True)
+            probability = class_probabilities(logits, axis=1)
             mean = probability if mean is None else mean + probability
         return np.log(mean / len(views) + 1e-12).astype(np.float32)
 
