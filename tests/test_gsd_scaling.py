@@ -147,8 +147,8 @@ def test_run_and_evaluate_take_the_option_and_say_so(tmp_path, untrained_model):
     assert "frames coarser than 0.05 m/px enlarged to it" in result.output
     record = json.loads((out / "run.json").read_text())
     assert record["measured"] == 2 and record["settings"]["segment_gsd_m"] == 0.05
-    # run's default is 0.12 m/px; 0 turns it off
-    for given, recorded in (([], 0.12), (["--segment-gsd-m", "0"], None)):
+    # off unless given (0 is off too)
+    for given, recorded in (([], None), (["--segment-gsd-m", "0"], None)):
         result = runner.invoke(app, ["run", str(frames), "--model", str(untrained_model), *given,
                                      "--out", str(tmp_path / "plain"), *common],
                                terminal_width=200)

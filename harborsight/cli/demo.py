@@ -57,7 +57,6 @@ def _demo_runs(samples: Path, out: Path, method: Method) -> int:
     bundled data are all good)."""
     from harborsight.flight import FolderSource, RunOptions
     from harborsight.perception.default_model import default_model_path
-    from harborsight.perception.gsd_scaling import DEFAULT_SEGMENT_GSD_M
     from harborsight.pipeline import VesselCache
 
     settings = clearance_settings(method, None, None, POSE_MARGIN_PX, OWN_RIM_PX)
@@ -75,7 +74,7 @@ def _demo_runs(samples: Path, out: Path, method: Method) -> int:
     failed = bool(summary.skipped)
     if default_model_path().is_file():
         console.print("\n[bold]on the default segmentation model[/]")
-        segmenter = load_segmenter(None, segment_gsd_m=DEFAULT_SEGMENT_GSD_M)   # as `run`
+        segmenter = load_segmenter(None)
         summary = run_flight_with_progress(
             FolderSource(flight, use_masks=False), out / "flight-model", VesselCache(), segmenter,
             RunOptions(settings=settings), {"input": str(flight), "model": str(segmenter.path)})

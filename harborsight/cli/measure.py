@@ -39,13 +39,6 @@ if TYPE_CHECKING:  # imported by the commands that use them: the CLI starts fast
     from harborsight.pipeline import FrameOutcome, VesselCache
 
 
-def model_gsd(segment_gsd_m: float | None) -> float:
-    """``--segment-gsd-m`` as given, or the measuring commands' default when not given."""
-    from harborsight.perception.gsd_scaling import DEFAULT_SEGMENT_GSD_M
-
-    return DEFAULT_SEGMENT_GSD_M if segment_gsd_m is None else segment_gsd_m
-
-
 def print_report_table(outcome: FrameOutcome) -> None:
     """Per-section table; adds the ground truth column when the frame carries one."""
     from harborsight.clearance.report import STATUS_OK
@@ -96,7 +89,7 @@ def print_report_table(outcome: FrameOutcome) -> None:
 def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
                 settings: ClearanceSettings, out: Path, camera, show_tables: bool,
                 model: Path | None = None, strict: bool = False, flips: int = 1,
-                segment_gsd_m: float | None = None) -> int:
+                segment_gsd_m: float = 0.0) -> int:
     """Measure a folder; exit code 1 if every frame failed (``strict``: if any did), 130
     when Ctrl-C stopped it (after the frame in hand: the reports and overlays written are
     whole)."""
@@ -104,7 +97,7 @@ def run_folder(folder: Path, masks: Path | None, vessels: VesselCache,
     from harborsight.pipeline import discover_jobs, run_batch
 
     jobs = discover_jobs(folder, masks, segment=model is not None)
-    segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=model_gsd(segment_gsd_m))
+    segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
                  if any(job.mask_path is None for job in jobs) else None)
     if segmenter is None and flips != 1:
         raise InputError(masks or folder, "--flips", "every frame has a mask: test-time flips "
@@ -200,9 +193,8 @@ def measure(
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
     flips: Annotated[int, typer.Option(help="Frames a model labels: " + FLIPS_HELP)] = 1,
-    segment_gsd_m: Annotated[float | None, typer.Option(
-        help="Frames a model labels: " + SEGMENT_GSD_HELP + " Default: 0.12.",
-        show_default=False)] = None,
+    segment_gsd_m: Annotated[float, typer.Option(
+        help="Frames a model labels: " + SEGMENT_GSD_HELP)] = 0.0,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
     from harborsight.geometry.camera import load_camera_calibration
@@ -237,7 +229,7 @@ def measure(
         if mask is not None and segment_gsd_m:
             raise InputError(mask, "--segment-gsd-m", "the GSD a model sees is for a model, "
                              "not --mask")
-        segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=model_gsd(segment_gsd_m))
+        segmenter = (load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
                      if mask is None else None)
         outcome = measure_job(job, vessels, settings, out, intrinsics, segmenter=segmenter)
     except HarborsightError as exc:

@@ -32,7 +32,7 @@ from harborsight.cli.app import (
     vessel_cache,
 )
 from harborsight.cli.listing import grouped_lines
-from harborsight.cli.measure import input_folders, model_gsd
+from harborsight.cli.measure import input_folders
 from harborsight.cli.progress import progress_report
 from harborsight.cli.usage import use_plain_usage_names
 from harborsight.errors import HarborsightError, InputError
@@ -153,8 +153,7 @@ def run_command(
         help="Closing speed: least-squares fit over this many seconds.")
     ] = 2.0,
     flips: Annotated[int, typer.Option(help=FLIPS_HELP)] = 1,
-    segment_gsd_m: Annotated[float | None, typer.Option(
-        help=SEGMENT_GSD_HELP + " Default: 0.12.", show_default=False)] = None,
+    segment_gsd_m: Annotated[float, typer.Option(help=SEGMENT_GSD_HELP)] = 0.0,
 ) -> None:
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
@@ -163,7 +162,6 @@ def run_command(
     from harborsight.perception.flips import flip_views
 
     running = False         # whether run_flight has started (and owns run.json)
-    model_gsd_m = model_gsd(segment_gsd_m)
     try:
         flip_views(flips)
         if not input_path.exists():
@@ -181,7 +179,7 @@ def run_command(
             source = FolderSource(input_path, masks, use_masks=masks is not None,
                                   camera=intrinsics)
             segmenter = (None if masks is not None
-                         else load_segmenter(model, flips=flips, segment_gsd_m=model_gsd_m))
+                         else load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m))
         else:
             if metadata is None:
                 raise InputError(input_path, None, "a video needs --metadata FLIGHT.jsonl "
@@ -189,7 +187,7 @@ def run_command(
             if masks is not None:
                 raise InputError(masks, None, "--masks is for folders of frames")
             source = VideoSource(input_path, metadata, camera=intrinsics)
-            segmenter = load_segmenter(model, flips=flips, segment_gsd_m=model_gsd_m)
+            segmenter = load_segmenter(model, flips=flips, segment_gsd_m=segment_gsd_m)
         if segmenter is None and flips != 1:
             raise InputError(masks, "--flips", "test-time flips are for a model, not --masks")
         if segmenter is None and segment_gsd_m:

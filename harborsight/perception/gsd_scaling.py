@@ -43,6 +43,12 @@ What it does not promise:
   near ``1 - w``. An obstacle only the windows see is drawn, but never counts as sure
   (:data:`~harborsight.clearance.uncertainty.CONFIDENT_SOLID_P`). It widens its section's
   sigma rather than narrowing it.
+
+Off by default everywhere. On simulator frames it lowered the model's distance error at
+every height it enlarged, but on the real val frames of ``data/real`` (given their nominal
+GSDs) it did not help: the marina tiles (0.3 m/px, enlarged 2.5x) fell from 65.4 to 62.1 %
+mIoU (ship 75.9 → 65.4 %), and the lake-shore photos (0.17 m/px, 1.42x) went 64.7 → 64.9 %
+while patches of shaded lawn turned to water (docs/results.md).
 """
 
 from __future__ import annotations
@@ -56,10 +62,6 @@ from harborsight.errors import InputError
 from harborsight.perception.confidence import SolidConfidence, class_probabilities
 from harborsight.perception.flips import FlippedSegmenter
 
-#: ``run`` and ``measure`` segment at this GSD unless told otherwise: on the seed-7 bench's
-#: frames 0-259 it lowered the model's MAE at every height it enlarged (60-150 m; 30-50 m
-#: frames are finer already) and on the berthing flights at 60 and 100 m (docs/results.md)
-DEFAULT_SEGMENT_GSD_M = 0.12
 #: the scaled frame's longer side at most this many model inputs' (3 x 640 px for the default
 #: model: at most 4 x 4 windows of 25 % overlap, 16 model calls)
 MAX_SIDE_WINDOWS = 3.0
