@@ -142,9 +142,15 @@ class TrackerSettings:
     manoeuvre_sigma: float = 3.25
     #: the most a manoeuvre changes a section's closing speed (m/s)
     manoeuvre_max_mps: float = 1.5
+    #: white acceleration (m/s²) of what is left of a distance's rate once the vessel's own
+    #: motion is taken out (readings with ``own_rate_mps``: module docstring, "The vessel's
+    #: own motion"): the obstacle's own motion, none for a quay; ``accel_sigma_mps2`` covers
+    #: the vessel's and the obstacle's together where no own rate is given
+    obstacle_accel_sigma_mps2: float = 0.02
 
     def __post_init__(self) -> None:
-        require_positive(self, ("accel_sigma_mps2", "gate_sigma", "max_coast_s",
+        require_positive(self, ("accel_sigma_mps2", "obstacle_accel_sigma_mps2",
+                                "gate_sigma", "max_coast_s",
                                 "initial_speed_sigma_mps", "drift_time_s", "min_reading_sigma_m",
                                 "unknown_reading_sigma_m", "max_speed_mps", "manoeuvre_max_mps"))
         for name in ("confirm_frames", "min_updates", "max_tracks"):
@@ -164,31 +170,57 @@ class TrackerSettings:
 
 @dataclass
 class Reading:
-    """One frame's clearance of one section: distance and its sigma (total and random part)."""
+    """One frame's clearance of one section: distance and its sigma (total and random part),
+    and the rate (m/s, negative closing) at which the vessel's own motion changes it were the
+    obstacle fixed, with its sigma, when the frame gives the vessel's velocity
+    (:func:`harborsight.clearance.own_motion.own_rates`)."""
 
     distance_m: float
     sigma_m: float | None = None
     sigma_random_m: float | None = None
+    own_rate_mps: float | None = None
+    own_rate_sigma_mps: float | None = None
 
 
 @dataclass
 class _Track:
     ident: int
     time_s: float
-    state: np.ndarray                 # [d, ḋ]
-    covariance: np.ndarray            # 2x2
+    #: ``[d, w, r]``: the distance; its rate less the vessel's own (the whole rate while the
+    #: track has no own rate); the vessel's own rate (0 while it has none)
+    state: np.ndarray
+    covariance: np.ndarray            # 3x3
     updates: int = 1
     misses_in_row: int = 0            # readings in a row that went to another track
     systematic_m: float = 0.0
     #: (sigma_m, sigma_random_m) of the last reading that had them
     last_sigmas: tuple[float, float | None] | None = None
-    recent: deque = field(default_factory=lambda: deque(maxlen=3))   # (time_s, distance_m)
+    #: whether ``r`` is in use: the readings gave the vessel's own rate
+    has_own: bool = False
+    #: white accelerations (m/s², squared) of ``w`` without and with an own rate, and of
+    #: ``r``; and the gate (sigma) beyond which an own rate is a change of the vessel's speed
+    accel_q: float = 0.0
+    obstacle_q: float = 0.0
+    own_q: float = 0.0
+    own_gate: float = 3.0
+    #: how far the vessel's own motion has moved the distance since the track began (m), the
+    #: filtered ``r`` integrated between readings: ``z - own_travel_m`` is what the obstacle's
+    #: own motion and the readings' noise leave
+    own_travel_m: float = 0.0
+    #: (time_s, distance_m, own_travel_m)
+    recent: deque = field(default_factory=lambda: deque(maxlen=3))
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
     residuals: deque = field(default_factory=deque)
-    #: ``(time_s, distance_m, ν, taken)`` of the readings since the last manoeuvre (at most
-    #: :data:`MANOEUVRE_MAX_READINGS`), ``ν = (z - d̂)/√S`` the normalised innovation; taken:
-    #: whether the track took the reading (a current track also logs those it did not)
+    #: ``(time_s, distance_m, ν, taken, own_travel_m)`` of the readings since the last
+    #: manoeuvre (at most :data:`MANOEUVRE_MAX_READINGS`), ``ν = (z - d̂)/√S`` the normalised
+    #: innovation; taken: whether the track took the reading (a current track also logs
+    #: those it did not)
     surprises: deque = field(default_factory=lambda: deque(maxlen=MANOEUVRE_MAX_READINGS))
+
+    @property
+    def own_rate_mps(self) -> float | None:
+        """The filtered own rate ``r``, None while the track has none."""
+        return float(self.state[2]) if self.has_own else None
 
     def took(self, time_s: float, reading: Reading, systematic_m: float) -> None:
         """The bookkeeping of a reading taken (its state already updated)."""
@@ -202,19 +234,21 @@ class _Track:
 
     def remember(self, time_s: float, distance_m: float) -> None:
         """Keep a reading, and the residual of the one before it once three are in a row
-        (module docstring): one residual a reading, so the noise is measured in constant
-        time, without looking back over the window."""
-        self.recent.append((time_s, distance_m))
+        (module docstring), of the distances less the vessel's own travel: one residual a
+        reading, so the noise is measured in constant time, without looking back over the
+        window."""
+        self.recent.append((time_s, distance_m, self.own_travel_m))
         if len(self.recent) < 3:
             return
-        (t1, z1), (t2, z2), (t3, z3) = self.recent
+        (t1, z1, s1), (t2, z2, s2), (t3, z3, s3) = self.recent
         span = t3 - t1
         if span <= 0:
             self.residuals.append(math.nan)
             return
         a = (t3 - t2) / span
         b = 1.0 - a
-        self.residuals.append(abs(z2 - (a * z1 + b * z3)) / math.sqrt(1.0 + a * a + b * b))
+        self.residuals.append(abs(z2 - s2 - (a * (z1 - s1) + b * (z3 - s3)))
+                              / math.sqrt(1.0 + a * a + b * b))
 
     def white_variance(self, min_residuals: int) -> float | None:
         """The robust variance ``(1.4826 · median |r|)²`` of the readings' white noise from the
@@ -224,11 +258,67 @@ class _Track:
             return None
         return (1.4826 * statistics.median(kept)) ** 2
 
-    def predicted(self, time_s: float, q: float) -> tuple[np.ndarray, np.ndarray]:
+    def predicted(self, time_s: float, own: tuple[float, float] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """State and covariance at ``time_s`` (module docstring, "The vessel's own motion"):
+        ``F = [[1, Δt, Δt], [0, 1, 0], [0, 0, 1]]`` with white accelerations of ``w`` and
+        ``r``; then, for a track with an own rate, the reading's ``own = (r, σ)`` taken
+        (a Kalman update of ``r``), or, beyond the gate, taken whole as a change of the
+        vessel's speed somewhere in the interval: ``d`` moves by ``Δr Δt / 2`` with variance
+        ``(Δr Δt)² / 12`` and ``r`` forgets what it knew."""
         dt = max(time_s - self.time_s, 0.0)
-        F = np.array([[1.0, dt], [0.0, 1.0]])
-        Q = q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
-        return F @ self.state, F @ self.covariance @ F.T + Q
+        F = np.array([[1.0, dt, dt], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        qw = self.obstacle_q if self.has_own else self.accel_q
+        qr = self.own_q if self.has_own else 0.0
+        a, b, c = dt ** 3 / 3, dt ** 2 / 2, dt
+        Q = np.array([[(qw + qr) * a, qw * b, qr * b], [qw * b, qw * c, 0.0], [qr * b, 0.0, qr * c]])
+        x = F @ self.state
+        P = F @ self.covariance @ F.T + Q
+        if own is None or not self.has_own:
+            return x, P
+        rate, sigma = own
+        innovation = rate - x[2]
+        total = P[2, 2] + sigma * sigma
+        if total > 0.0 and innovation * innovation <= self.own_gate ** 2 * total:
+            gain = P[:, 2] / total
+            return x + gain * innovation, P - np.outer(gain, P[2, :])
+        step = innovation * dt
+        x[0] += step / 2.0
+        x[2] = rate
+        P[0, 0] += step * step / 12.0
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        P[2, 2] = sigma * sigma
+        return x, P
+
+    def set_own_rate(self, own: tuple[float, float] | None) -> None:
+        """After a reading is taken: a reading without an own rate makes ``w`` the whole rate
+        again (``w + r``, ``r`` dropped); a first one starts ``r`` at it (``w`` becomes the
+        rate less it, ``Var w + σ²``, ``Cov(w, r) = -σ²``). Either way the rate itself carries
+        over."""
+        if own is None and self.has_own:
+            T = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+            self.state = T @ self.state
+            self.covariance = T @ self.covariance @ T.T
+            self.has_own = False
+        elif own is not None and not self.has_own:
+            rate, sigma = own
+            self.state[1] -= rate
+            self.state[2] = rate
+            variance = sigma * sigma
+            self.covariance[1, 1] += variance
+            self.covariance[1, 2] = self.covariance[2, 1] = -variance
+            self.covariance[0, 2] = self.covariance[2, 0] = 0.0
+            self.covariance[2, 2] = variance
+            self.has_own = True
+
+    def own_travel_to(self, time_s: float, x: np.ndarray) -> float:
+        """The own travel at ``time_s`` with ``x`` the state predicted there: the mean of the
+        filtered ``r`` at either end times the interval (none without an own rate)."""
+        if not self.has_own:
+            return self.own_travel_m
+        dt = max(time_s - self.time_s, 0.0)
+        return self.own_travel_m + 0.5 * (float(self.state[2]) + float(x[2])) * dt
 
 
 #: a manoeuvre is looked for over the readings of the last this many seconds, and the line
@@ -283,7 +373,18 @@ def _sane(reading: Reading) -> Reading | None:
     def usable(sigma: float | None) -> float | None:
         return sigma if sigma is not None and math.isfinite(sigma) and sigma >= 0 else None
 
-    return Reading(reading.distance_m, usable(reading.sigma_m), usable(reading.sigma_random_m))
+    rate, rate_sigma = reading.own_rate_mps, usable(reading.own_rate_sigma_mps)
+    if rate is None or not math.isfinite(rate) or rate_sigma is None:
+        rate, rate_sigma = None, None         # an own rate needs both, finite
+    return Reading(reading.distance_m, usable(reading.sigma_m), usable(reading.sigma_random_m),
+                   rate, rate_sigma)
+
+
+def _own(reading: Reading | None) -> tuple[float, float] | None:
+    """A (sane) reading's own rate and its sigma, or None."""
+    if reading is None or reading.own_rate_mps is None or reading.own_rate_sigma_mps is None:
+        return None
+    return reading.own_rate_mps, reading.own_rate_sigma_mps
 
 
 def seen_clear(section) -> tuple[float, float] | None:
@@ -320,6 +421,8 @@ class SectionTracker:
     tracks: list[_Track] = field(default_factory=list)
     current: _Track | None = None
     _next_id: int = 0
+    #: this step's reading's own rate and sigma (None: none, or no reading)
+    _own: tuple[float, float] | None = None
 
     def _reading_variance(self, reading: Reading, dt: float, track: _Track | None = None,
                           measured: bool = True) -> tuple[float, float]:
@@ -348,12 +451,21 @@ class SectionTracker:
     def _new_track(self, time_s: float, reading: Reading) -> _Track:
         # the bias is added later; a reading without a sigma is no surer than the current's
         variance, systematic = self._reading_variance(reading, 0.0, self.current, measured=False)
-        track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0]),
-                       np.diag([variance, self.settings.initial_speed_sigma_mps ** 2]),
+        # with the vessel's own rate, the obstacle is taken as fixed until its readings say
+        # otherwise (w = 0); without, the distance as unchanging (its rate 0): either way
+        # within initial_speed_sigma_mps
+        s = self.settings
+        own = _own(reading)
+        track = _Track(self._next_id, time_s, np.array([reading.distance_m, 0.0, 0.0]),
+                       np.diag([variance, s.initial_speed_sigma_mps ** 2, 0.0]),
                        systematic_m=systematic,
                        last_sigmas=(None if reading.sigma_m is None
                                     else (reading.sigma_m, reading.sigma_random_m)),
-                       residuals=deque(maxlen=max(self.settings.noise_window - 2, 0)))
+                       residuals=deque(maxlen=max(s.noise_window - 2, 0)),
+                       accel_q=s.accel_sigma_mps2 ** 2, obstacle_q=s.obstacle_accel_sigma_mps2 ** 2,
+                       own_q=s.accel_sigma_mps2 ** 2, own_gate=s.gate_sigma)
+        if own is not None:
+            track.state[2], track.covariance[2, 2], track.has_own = own[0], own[1] ** 2, True
         track.remember(time_s, reading.distance_m)
         self._next_id += 1
         self.tracks.append(track)
@@ -374,6 +486,7 @@ class SectionTracker:
         self.tracks = [t for t in self.tracks if time_s - t.time_s <= s.max_coast_s]
         if reading is not None:
             reading = _sane(reading)
+        self._own = _own(reading)
         if self.current is not None and self.current not in self.tracks:
             self.current = None
         if reading is None and seen_clear is not None and self.current is not None:
@@ -414,7 +527,9 @@ class SectionTracker:
             if surprise is not None and best is not current:
                 # a reading the current track did not take still tells of its motion: a
                 # stopped vessel's readings leave a steady approach's gate
-                current.surprises.append((time_s, reading.distance_m, surprise[0], False))
+                current.surprises.append((time_s, reading.distance_m, surprise[0], False,
+                                          current.own_travel_to(
+                                              time_s, self._predicted(current, time_s)[0])))
         for track in list(self.tracks):
             if track is not best:
                 track.misses_in_row += 1
@@ -453,17 +568,21 @@ class SectionTracker:
         threshold = self.settings.manoeuvre_sigma
         if not threshold or time_s <= track.time_s:
             return None
-        points = [*track.surprises, (time_s, reading.distance_m, surprise, False)]
+        predicted = self._predicted(track, time_s)[0]
+        travel_now = track.own_travel_to(time_s, predicted)
+        points = [*track.surprises, (time_s, reading.distance_m, surprise, False, travel_now)]
         n = manoeuvre_readings(points, threshold, self.settings.gate_sigma)
         if not n:
             return None
         t = np.array([p[0] for p in points[-n:]])
-        z = np.array([p[1] for p in points[-n:]])
+        # the line is drawn through the distances less the vessel's own travel: its slope
+        # is w, the rate the obstacle's own motion gives (the whole rate without own rates)
+        z = np.array([p[1] - p[4] for p in points[-n:]])
         t_mean, spread = float(t.mean()), float(np.sum((t - t.mean()) ** 2))
         if spread <= 0:
             return None
         slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
-        change = abs(slope - self._predicted(track, time_s)[0][1])
+        change = abs(slope - predicted[1])
         # the line's speed against the readings' own scatter where the track measured it
         # (R itself takes twice that, an upper bound for the filter)
         white = track.white_variance(self.settings.min_noise_residuals)
@@ -477,8 +596,8 @@ class SectionTracker:
             lead = at_s - t_mean
             return float(z.mean()) + slope * lead, variance * (1.0 / n + lead ** 2 / spread)
 
-        taken = ([(p[0], p[1]) for p in points[:-n] if p[3]]
-                 or [(t_, z_) for t_, z_ in track.recent if t_ < t[0]])
+        taken = ([(p[0], p[1] - p[4]) for p in points[:-n] if p[3]]
+                 or [(t_, z_ - s_) for t_, z_, s_ in track.recent if t_ < t[0]])
         if not taken:
             return None
         before_s, before_m = taken[-1]
@@ -486,6 +605,7 @@ class SectionTracker:
         if abs(at_before - before_m) > self.settings.gate_sigma * math.sqrt(variance + variance_before):
             return None
         distance, distance_variance = line(time_s)
+        distance += travel_now
         lead = time_s - t_mean
         return (np.array([distance, slope]),
                 np.array([[distance_variance, variance * lead / spread],
@@ -493,10 +613,18 @@ class SectionTracker:
 
     def _restart(self, track: _Track, time_s: float, reading: Reading,
                  restart: tuple[np.ndarray, np.ndarray]) -> None:
-        """The track restarted from :meth:`_manoeuvre`'s line, ``reading`` taken."""
+        """The track restarted from :meth:`_manoeuvre`'s line (distance and ``w``), its own
+        rate ``r`` as predicted, ``reading`` taken."""
         _, systematic = self._reading_variance(reading, time_s - track.time_s, track)
-        track.state, track.covariance = restart
+        x, P = self._predicted(track, time_s)
+        track.own_travel_m = track.own_travel_to(time_s, x)
+        (distance, w), line_covariance = restart
+        track.state = np.array([distance, w, x[2]])
+        track.covariance = np.zeros((3, 3))
+        track.covariance[:2, :2] = line_covariance
+        track.covariance[2, 2] = P[2, 2]
         track.surprises.clear()
+        track.set_own_rate(self._own)
         track.took(time_s, reading, systematic)
 
     def _two_point_start(self, time_s: float, reading: Reading) -> _Track | None:
@@ -516,14 +644,24 @@ class SectionTracker:
             return None
         first = best.covariance[0, 0]
         variance, systematic = self._reading_variance(reading, dt, best, measured=False)
-        best.state = np.array([reading.distance_m, (reading.distance_m - best.state[0]) / dt])
-        best.covariance = np.array([[variance, variance / dt],
-                                    [variance / dt, (first + variance) / dt ** 2]])
+        x, P = self._predicted(best, time_s)
+        best.own_travel_m = best.own_travel_to(time_s, x)
+        own_rate, own_variance = x[2], P[2, 2]          # 0 without an own rate
+        rate = (reading.distance_m - best.state[0]) / dt
+        best.state = np.array([reading.distance_m, rate - own_rate, own_rate])
+        best.covariance = np.array([
+            [variance, variance / dt, 0.0],
+            [variance / dt, (first + variance) / dt ** 2 + own_variance, -own_variance],
+            [0.0, -own_variance, own_variance]])
+        best.set_own_rate(self._own)
         best.took(time_s, reading, systematic)
         return best
 
-    def _predicted(self, track: _Track, time_s: float) -> tuple[np.ndarray, np.ndarray]:
-        return track.predicted(time_s, self.settings.accel_sigma_mps2 ** 2)
+    def _predicted(self, track: _Track, time_s: float, with_own: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The track at ``time_s``, with this step's own rate taken (``with_own``; held
+        without one)."""
+        return track.predicted(time_s, self._own if with_own else None)
 
     def _takes_over(self, track: _Track, time_s: float) -> bool:
         """Whether the track that took this frame's reading becomes the current one."""
@@ -539,7 +677,7 @@ class SectionTracker:
         return track.misses_in_row == 0 and current.misses_in_row >= confirm
 
     def _update(self, track: _Track, time_s: float, reading: Reading) -> None:
-        if track.recent and track.recent[-1] == (time_s, reading.distance_m):
+        if track.recent and track.recent[-1][:2] == (time_s, reading.distance_m):
             # the same frame delivered twice (a feed that repeats): one reading, not two
             # (taken twice, the speed's sigma shrank as if from independent frames: 67 %
             # within 2 sigma on such frames)
@@ -553,8 +691,10 @@ class SectionTracker:
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
         innovation = reading.distance_m - x[0]
+        track.own_travel_m = track.own_travel_to(time_s, x)
         track.surprises.append((time_s, reading.distance_m,
-                                innovation / math.sqrt(P[0, 0] + variance), True))
+                                innovation / math.sqrt(P[0, 0] + variance), True,
+                                track.own_travel_m))
         c = self.settings.robust_sigma
         if c and innovation > 0:                # a farther reading: capped; a nearer one never
             variance = min(self._reading_variance(reading, dt, track, measured=False)[0],
@@ -562,20 +702,24 @@ class SectionTracker:
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * innovation
         track.covariance = P - np.outer(gain, P[0, :])
+        track.set_own_rate(self._own)
         track.took(time_s, reading, systematic)
 
     def _estimate(self, time_s: float, state: str) -> SectionEstimate:
         track = self.current
         if track is None:
             return SectionEstimate(state="none")
-        x, P = self._predicted(track, time_s)
+        # the own rate of this frame's reading was taken, if the track took it
+        x, P = self._predicted(track, time_s, with_own=False)
         estimate = SectionEstimate(
             distance_m=max(float(x[0]), 0.0),
             sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2),
             track=track.ident, state=state)
         if track.updates >= self.settings.min_updates:
-            estimate.closing_speed_mps = -float(x[1])
-            estimate.closing_speed_sigma_mps = math.sqrt(max(P[1, 1], 0.0))
+            # the rate is w and the vessel's own rate r (0 without one)
+            estimate.closing_speed_mps = -float(x[1] + x[2])
+            estimate.closing_speed_sigma_mps = math.sqrt(max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2],
+                                                             0.0))
             if estimate.closing_speed_mps > self.settings.min_closing_mps:
                 estimate.time_to_contact_s = estimate.distance_m / estimate.closing_speed_mps
         return estimate
