@@ -108,6 +108,14 @@ class FrameMetadata:
     #: ground velocities (east, north) in m/s, when the file gives them
     uav_velocity_en_mps: tuple[float, float] | None = None
     vessel_velocity_en_mps: tuple[float, float] | None = None
+    #: one sigma (m/s, per axis) of the vessel's velocity, its rate of turn (deg/s, the
+    #: heading's: clockwise) and that rate's sigma, when the file gives them
+    #: (``vessel.velocity_sigma_mps``, ``vessel.yaw_rate_deg_s``,
+    #: ``vessel.yaw_rate_sigma_deg_s``): the vessel's own motion of each clearance
+    #: (:mod:`harborsight.clearance.own_motion`)
+    vessel_velocity_sigma_mps: float | None = None
+    vessel_yaw_rate_deg_s: float | None = None
+    vessel_yaw_rate_sigma_deg_s: float | None = None
     #: the sun (``sun`` block: elevation above the horizon, azimuth clockwise from north),
     #: when the file gives it; else the geometry computes it from ``timestamp``
     sun_elevation_deg: float | None = None
@@ -149,6 +157,11 @@ class FrameMetadata:
                                   ("vessel", self.vessel_velocity_en_mps)):
             if velocity is not None:
                 data[section]["velocity_en_mps"] = list(velocity)
+        for key, value in (("velocity_sigma_mps", self.vessel_velocity_sigma_mps),
+                           ("yaw_rate_deg_s", self.vessel_yaw_rate_deg_s),
+                           ("yaw_rate_sigma_deg_s", self.vessel_yaw_rate_sigma_deg_s)):
+            if value is not None:
+                data["vessel"][key] = value
         data.update(self.extra)
         return data
 
@@ -295,6 +308,8 @@ MAX_VESSEL_RANGE_M = 10_000.0
 
 #: bound on a velocity in frame metadata (m/s): faster than any drone or ship
 MAX_SPEED_MPS = 200.0
+#: bound on a vessel's rate of turn and its sigma in frame metadata (deg/s): a jet ski's
+MAX_TURN_DEG_S = 180.0
 #: bound on ``vessel.dead_reckoned_s`` (s): an hour
 MAX_DEAD_RECKONED_S = 3600.0
 
@@ -373,6 +388,12 @@ def parse_frame_metadata(
         uav_velocity_en_mps=reader.optional_pair(uav, "velocity_en_mps", "uav.", MAX_SPEED_MPS),
         vessel_velocity_en_mps=reader.optional_pair(ves, "velocity_en_mps", "vessel.",
                                                     MAX_SPEED_MPS),
+        vessel_velocity_sigma_mps=reader.optional_number(ves, "velocity_sigma_mps", "vessel.",
+                                                         0.0, MAX_SPEED_MPS),
+        vessel_yaw_rate_deg_s=reader.optional_number(ves, "yaw_rate_deg_s", "vessel.",
+                                                     -MAX_TURN_DEG_S, MAX_TURN_DEG_S),
+        vessel_yaw_rate_sigma_deg_s=reader.optional_number(ves, "yaw_rate_sigma_deg_s", "vessel.",
+                                                           0.0, MAX_TURN_DEG_S),
         sun_elevation_deg=sun_elevation_deg,
         sun_azimuth_deg=sun_azimuth_deg,
         vessel_dead_reckoned_s=reader.optional_number(ves, "dead_reckoned_s", "vessel.",

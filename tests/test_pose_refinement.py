@@ -492,8 +492,10 @@ def test_the_add_pose_noise_command_skips_a_bad_frame_and_writes_the_rest(tmp_pa
     assert written == [n for n in names if n != names[1]]
     assert (out / "images").is_dir() and (out / "vessels").is_dir()
     doc = json.loads((out / "frames" / names[0]).read_text())
+    # the vessel's velocity and rate of turn (the flight's frames give them) at the defaults
     assert doc["ground_truth"]["pose_errors"]["noise"] == {"gps_m": 0.5, "heading_deg": 1.0,
-                                                          "height_m": 0.0}
+                                                          "height_m": 0.0, "velocity_mps": 0.05,
+                                                          "yaw_rate_deg_s": 0.1}
     again = CliRunner().invoke(app, ["dataset", "add-pose-noise", str(data), "--out",
                                      str(tmp_path / "again"), "--gps", "dgps", "--heading-deg", "1",
                                      "--seed", "3"])

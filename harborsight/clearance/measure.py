@@ -39,6 +39,7 @@ from harborsight.clearance.obstacles import (
     obstacle_contours,
     own_vessel_region,
 )
+from harborsight.clearance.own_motion import add_own_rates
 from harborsight.clearance.pixel_edge import edge_shift_px
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
 from harborsight.clearance.report import (
@@ -87,6 +88,9 @@ class ClearanceSettings:
     pose_refinement: PoseRefinementSettings = field(default_factory=PoseRefinementSettings)
     #: ``--sigma NAME=VALUE`` pairs: the sensor sigmas of frames that do not carry their own
     sigma_options: tuple[tuple[str, float], ...] = ()
+    #: each section's own rate from the frame's vessel velocity, when it gives one
+    #: (:mod:`harborsight.clearance.own_motion`; ``--no-own-motion`` turns it off)
+    own_motion: bool = True
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -140,7 +144,9 @@ def measure_frame(
     check_label_mask(labels, meta.camera.width, meta.camera.height, mask_source or meta.source)
     check_dead_reckoning(meta)
     geometry = FrameGeometry.from_metadata(meta)
-    velocities = FrameVelocities(meta.uav_velocity_en_mps, meta.vessel_velocity_en_mps)
+    velocities = FrameVelocities(meta.uav_velocity_en_mps, meta.vessel_velocity_en_mps,
+                                 meta.vessel_velocity_sigma_mps, meta.vessel_yaw_rate_deg_s,
+                                 meta.vessel_yaw_rate_sigma_deg_s)
     report = measure_clearance(labels, geometry, vessel, settings,
                                sigmas=settings.sensor_sigmas(meta, mask_from_file),
                                velocities=velocities, confidence=confidence)
@@ -775,6 +781,10 @@ def measure_clearance(
     if settings.method == "gsd":
         add_nadir_approximation(results)
     _bound_by_what_was_seen(results)
+    if velocities is not None and settings.own_motion:
+        add_own_rates(results, geometry.vessel_position_enu, velocities.vessel_en_mps,
+                      velocities.vessel_sigma_mps, velocities.vessel_yaw_rate_deg_s,
+                      velocities.vessel_yaw_rate_sigma_deg_s)
     if refinement.sensors_contradicted:
         _distrust(results)
     return ClearanceReport(

@@ -57,6 +57,12 @@ class SectionClearance:
     #: where the obstacle point is the crossing of an obstacle edge with the band's boundary
     #: ray: that edge's direction at it (pixels), for the uncertainty (not in the report)
     crossing_edge_px: list[float] | None = None
+    #: the rate (m/s) at which the vessel's own velocity and turn change ``distance_m``, were
+    #: the obstacle fixed, and its sigma (:mod:`harborsight.clearance.own_motion`); None
+    #: when the frame gives no vessel velocity. In the report as the closing speed it
+    #: means, ``own_closing_mps = -own_rate_mps``
+    own_rate_mps: float | None = None
+    own_rate_sigma_mps: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -75,6 +81,9 @@ class SectionClearance:
             "obstacle_point_px": _round_list(self.obstacle_point_px, 2),
             "hull_point_enu": _round_list(self.hull_point_enu, 3),
             "obstacle_point_enu": _round_list(self.obstacle_point_enu, 3),
+            "own_closing_mps": None if self.own_rate_mps is None else round(-self.own_rate_mps, 3),
+            "own_closing_sigma_mps": (None if self.own_rate_sigma_mps is None
+                                      else round(self.own_rate_sigma_mps, 3)),
             "contact": self.contact,
             "truncated": self.truncated,
             "visible_fraction": round(self.visible_fraction, 3),

@@ -160,6 +160,10 @@ class FrameVelocities:
 
     uav_en_mps: tuple[float, float] | None = None
     vessel_en_mps: tuple[float, float] | None = None
+    #: the vessel's velocity sigma (m/s, per axis), rate of turn and its sigma (deg/s)
+    vessel_sigma_mps: float | None = None
+    vessel_yaw_rate_deg_s: float | None = None
+    vessel_yaw_rate_sigma_deg_s: float | None = None
 
 
 def _camera_errors(sigmas: SensorSigmas, height_m: float) -> list[str]:

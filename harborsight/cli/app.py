@@ -72,7 +72,7 @@ def check_masks_folder(masks: Path | None) -> None:
 
 def clearance_settings(method: Method, sections: int | None, section_length_m: float | None,
               pose_margin_px: float, own_rim_px: int, refine_pose: bool = True,
-              sigma: list[str] | None = None) -> ClearanceSettings:
+              sigma: list[str] | None = None, own_motion: bool = True) -> ClearanceSettings:
     from harborsight.clearance.measure import ClearanceSettings
     from harborsight.clearance.pose_refinement import PoseRefinementSettings
 
@@ -83,7 +83,7 @@ def clearance_settings(method: Method, sections: int | None, section_length_m: f
                              own_rim_px=own_rim_px, n_sections=sections,
                              section_length_m=section_length_m,
                              pose_refinement=PoseRefinementSettings(enabled=refine_pose),
-                             sigma_options=parse_sigma_options(sigma))
+                             sigma_options=parse_sigma_options(sigma), own_motion=own_motion)
 
 
 def parse_sigma_options(values: list[str] | None) -> tuple[tuple[str, float], ...]:
@@ -136,6 +136,14 @@ REFINE_POSE_HELP = ("Align the projected vessel to its own ship pixels (a correc
                     "position and heading for GPS and compass error) and measure with that pose "
                     "when the fit is trustworthy; each report says what was found "
                     "(pose_refinement).")
+
+
+#: help of --own-motion/--no-own-motion, shared by measure, run and live
+OWN_MOTION_HELP = ("Where a frame gives the vessel's ground velocity (vessel.velocity_en_mps, and "
+                   "its rate of turn), take the rate at which the vessel's own motion closes "
+                   "each section's gap as part of its closing speed (own_closing_mps in the "
+                   "report): the tracker then follows the vessel's stops and starts at once and "
+                   "measures only the obstacle's own motion from the image.")
 
 
 #: help of --own-rim-px, shared by measure, run and evaluate distance

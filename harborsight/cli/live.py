@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from harborsight.cli.app import (
+    OWN_MOTION_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
     REFINE_POSE_HELP,
@@ -177,6 +178,7 @@ def live_command(
         "fragmented MP4, run.json, timeline.png at the end); each file whole as it is "
         "written, so a killed session leaves a readable record.")] = None,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    own_motion: Annotated[bool, typer.Option(help=OWN_MOTION_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     segment_gsd_m: Annotated[float, typer.Option(
         help=SEGMENT_GSD_HELP + " Live, each window is one more model call in the frame's "
@@ -235,7 +237,7 @@ def live_command(
         engine = LiveEngine(load_segmenter(model, segment_gsd_m=segment_gsd_m),
                             vessel_cache(vessel),
                             clearance_settings(Method.ground_plane, None, None, POSE_MARGIN_PX, OWN_RIM_PX,
-                                               refine_pose, sigma),
+                                               refine_pose, sigma, own_motion),
                             alarms)
         feeds, composer = [], None
         if live_telemetry:

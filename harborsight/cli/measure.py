@@ -12,6 +12,7 @@ from rich.table import Table
 from harborsight.cli.app import (
     FLIPS_HELP,
     MAX_MARGIN_PX,
+    OWN_MOTION_HELP,
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
@@ -190,6 +191,7 @@ def measure(
         "error.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    own_motion: Annotated[bool, typer.Option(help=OWN_MOTION_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     tables: Annotated[bool, typer.Option(help="Print a table per frame.")] = True,
     flips: Annotated[int, typer.Option(help="Frames a model labels: " + FLIPS_HELP)] = 1,
@@ -206,7 +208,7 @@ def measure(
         if model is not None and (mask is not None or masks is not None):
             raise InputError(model, "model", "give either --model or --mask/--masks, not both")
         settings = clearance_settings(method, sections, section_length_m, pose_margin_px, own_rim_px,
-                                      refine_pose, sigma)
+                                      refine_pose, sigma, own_motion)
         prepare_output_folder(out, "--out", inputs=input_folders(input_path, meta, mask, masks))
         intrinsics = load_camera_calibration(camera) if camera else None
         vessels = vessel_cache(vessel)

@@ -25,6 +25,12 @@ def add_pose_noise_command(
         "heading, degrees.")] = 2.0,
     height_m: Annotated[float, typer.Option(
         min=0.0, max=1000.0, help="One sigma of the drone's height above the water, metres.")] = 0.0,
+    velocity_mps: Annotated[float, typer.Option(
+        min=0.0, max=1000.0, help="One sigma per axis of the vessel's ground velocity (a GNSS "
+        "receiver's Doppler velocity), m/s, where the frames give one (a flight's do).")] = 0.05,
+    yaw_rate_deg_s: Annotated[float, typer.Option(
+        min=0.0, max=180.0, help="One sigma of the vessel's rate of turn (a rate gyro), deg/s, "
+        "where the frames give one (a flight's do).")] = 0.1,
     correlation_s: Annotated[float, typer.Option(
         min=0.0, max=1e6, help="Time constant of the errors' drift over the flight (a Gauss-Markov "
         "process over the frames in time order, each keeping its sigma); 0: independent per "
@@ -46,7 +52,8 @@ def add_pose_noise_command(
             raise InputError(data, None, "not a dataset: no frames/ folder")
         prepare_output_folder(out, "--out", inputs=(data,))
         noise = PoseNoise(gps_m=gps_m, heading_deg=heading_deg, height_m=height_m,
-                          correlation_s=correlation_s)
+                          correlation_s=correlation_s, velocity_mps=velocity_mps,
+                          yaw_rate_deg_s=yaw_rate_deg_s)
         result = write_noisy_dataset(data, out, noise, seed)
     except HarborsightError as exc:
         err_console.print(f"error: {exc}", markup=False)
@@ -54,7 +61,8 @@ def add_pose_noise_command(
     for line in result.skipped:
         err_console.print(f"skipped {line}", markup=False, highlight=False)
     console.print(f"{len(result.written)} frame(s) with sensor noise (GPS {gps_m:g} m per receiver, "
-                  f"heading {heading_deg:g} deg, height {height_m:g} m"
+                  f"heading {heading_deg:g} deg, height {height_m:g} m, velocity "
+                  f"{velocity_mps:g} m/s, rate of turn {yaw_rate_deg_s:g} deg/s"
                   + (f", drifting over {correlation_s:g} s" if correlation_s else "")
                   + f", seed {seed}) in {out}",
                   markup=False, highlight=False)

@@ -15,6 +15,7 @@ from harborsight.cli.app import (
     FLIPS_HELP,
     MAX_MARGIN_PX,
     MAX_VIDEO_FPS,
+    OWN_MOTION_HELP,
     OWN_RIM_HELP,
     OWN_RIM_PX,
     POSE_MARGIN_PX,
@@ -141,6 +142,7 @@ def run_command(
         help="Growth in pixels of the vessel's own image region.")] = POSE_MARGIN_PX,
     own_rim_px: Annotated[int, typer.Option(min=0, max=MAX_MARGIN_PX, help=OWN_RIM_HELP)] = OWN_RIM_PX,
     refine_pose: Annotated[bool, typer.Option(help=REFINE_POSE_HELP)] = True,
+    own_motion: Annotated[bool, typer.Option(help=OWN_MOTION_HELP)] = True,
     sigma: Annotated[list[str] | None, typer.Option(metavar="NAME=VALUE", help=SIGMA_HELP)] = None,
     overlays: Annotated[bool, typer.Option(help="Write an annotated PNG per frame.")] = True,
     video: Annotated[bool, typer.Option(help="Write annotated.mp4.")] = True,
@@ -194,7 +196,7 @@ def run_command(
             raise InputError(masks, "--segment-gsd-m", "the GSD a model sees is for a model, "
                              "not --masks")
         options = RunOptions(settings=clearance_settings(method, sections, section_length_m,
-                                                pose_margin_px, own_rim_px, refine_pose, sigma),
+                                                pose_margin_px, own_rim_px, refine_pose, sigma, own_motion),
                              overlays=overlays, video=video, video_fps=fps, window_s=window_s)
         vessels = vessel_cache(vessel)
         inputs = {"input": str(input_path), "metadata": str(metadata) if metadata else None,

@@ -413,6 +413,7 @@ def _write_run_record(out_dir: Path, summary: RunSummary, timeline: ClearanceTim
                            "section_length_m": options.settings.section_length_m,
                            "closing_window_s": options.window_s,
                            "sigma_options": dict(options.settings.sigma_options),
+                           "own_motion": options.settings.own_motion,
                            "video_fps": video_fps,
                            "model": str(segmenter.path) if segmenter is not None else None,
                            "flips": getattr(segmenter, "flips", 1),

@@ -42,7 +42,7 @@ CSV_COLUMNS = [
     "status", "distance_m", "sigma_m", "distance_lower_m", "distance_px", "contact", "truncated",
     "closing_speed_raw_mps", "filtered_distance_m", "filtered_sigma_m", "closing_speed_mps",
     "closing_speed_sigma_mps", "time_to_contact_s", "track", "track_state", "clear_to_m",
-    "pose_contradicted", "hidden_to_m",
+    "pose_contradicted", "hidden_to_m", "own_closing_mps",
 ]
 
 
@@ -175,7 +175,8 @@ class ClearanceTimeline:
                         trend.closing_speed_raw_mps = -slope
                 tracker = self._trackers.setdefault(
                     section.index, SectionTracker(self.tracker_settings))
-                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
+                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m,
+                                   section.own_rate_mps, section.own_rate_sigma_mps)
                            if fits else None)
                 trend.estimate = tracker.step(time_s, reading, seen_clear(section))
             trends[section.index] = trend
@@ -200,6 +201,8 @@ class ClearanceTimeline:
                 "clear_to_m": _round(section.clear_to_m, 2),
                 "pose_contradicted": int(report.sensors_contradicted),
                 "hidden_to_m": _round(section.hidden_to_m, 2),
+                "own_closing_mps": (None if section.own_rate_mps is None
+                                    else _round(-section.own_rate_mps, 3)),
             })
         if timed:
             self._last_time_s = time_s

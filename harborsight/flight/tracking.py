@@ -146,7 +146,7 @@ class TrackerSettings:
     #: motion is taken out (readings with ``own_rate_mps``: module docstring, "The vessel's
     #: own motion"): the obstacle's own motion, none for a quay; ``accel_sigma_mps2`` covers
     #: the vessel's and the obstacle's together where no own rate is given
-    obstacle_accel_sigma_mps2: float = 0.02
+    obstacle_accel_sigma_mps2: float = 0.01
 
     def __post_init__(self) -> None:
         require_positive(self, ("accel_sigma_mps2", "obstacle_accel_sigma_mps2",

@@ -208,7 +208,8 @@ class LiveEngine:
             estimate = None
             if time_s is not None:
                 tracker = self._trackers.setdefault(section.index, SectionTracker(self.tracker_settings))
-                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m)
+                reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m,
+                                   section.own_rate_mps, section.own_rate_sigma_mps)
                            if fits else None)
                 estimate = tracker.step(time_s, reading,
                                         None if report.sensors_contradicted else seen_clear(section))

@@ -8,7 +8,11 @@ field a sensor delivers is perturbed with independent Gaussian errors, seeded pe
   ``gps_m / sqrt(2)`` so that ``gps_m`` is the horizontal RMS error (DRMS) of one receiver
   (:data:`GPS_CLASSES`: RTK 0.02 m, DGPS 0.5 m, standalone 2 m);
 * drone camera yaw and vessel heading (compasses): sigma ``heading_deg`` each;
-* drone height above the water (barometer, water level): sigma ``height_m``.
+* drone height above the water (barometer, water level): sigma ``height_m``;
+* the vessel's ground velocity (its receiver's Doppler velocity) and rate of turn (its rate
+  gyro), where the frame gives them (a flight's frames do): sigma ``velocity_mps`` per axis
+  and ``yaw_rate_deg_s``, drawn after the others, so that a frame's other errors are those
+  of a set made without them.
 
 Real GPS and compass errors drift slowly rather than jump from frame to frame, and a filter
 cannot average a drift away. With ``correlation_s`` > 0 the errors of a flight's frames (in
@@ -18,8 +22,9 @@ the stated sigma and errors ``correlation_s`` apart are correlated by ``1/e``.
 
 Each noisy frame carries the sigmas it was drawn with (``uav.position_sigma_m``,
 ``uav.alt_sigma_m``, ``camera_attitude.yaw_sigma_deg``, ``vessel.position_sigma_m``,
-``vessel.heading_sigma_deg``), as a telemetry reader writes a receiver's reported accuracy,
-so that the distances' sigmas follow them. The true values move to
+``vessel.heading_sigma_deg``, ``vessel.velocity_sigma_mps``,
+``vessel.yaw_rate_sigma_deg_s``), as a telemetry reader writes
+a receiver's reported accuracy, so that the distances' sigmas follow them. The true values move to
 ``ground_truth.true_pose`` and the errors drawn to ``ground_truth.pose_errors``; the
 ground-truth distances themselves do not change (they are properties of the scene, not of
 the sensors).
@@ -54,9 +59,13 @@ class PoseNoise:
     height_m: float = 0.0
     #: time constant (s) of the errors' drift over a flight; 0: independent per frame
     correlation_s: float = 0.0
+    #: one sigma (m/s, per axis) of the vessel's velocity, and (deg/s) of its rate of turn,
+    #: where a frame gives them
+    velocity_mps: float = 0.0
+    yaw_rate_deg_s: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("gps_m", "heading_deg", "height_m"):
+        for name in ("gps_m", "heading_deg", "height_m", "velocity_mps", "yaw_rate_deg_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
                 raise ValueError(f"{name} must be a number from 0 to 1000, got {value}")
@@ -67,6 +76,10 @@ class PoseNoise:
         data = {"gps_m": self.gps_m, "heading_deg": self.heading_deg, "height_m": self.height_m}
         if self.correlation_s:
             data["correlation_s"] = self.correlation_s
+        if self.velocity_mps:
+            data["velocity_mps"] = self.velocity_mps
+        if self.yaw_rate_deg_s:
+            data["yaw_rate_deg_s"] = self.yaw_rate_deg_s
         return data
 
 
@@ -121,6 +134,23 @@ def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Gener
         "vessel_en_m": [round(float(v), 4) for v in vessel_en],
         "vessel_heading_deg": round(float(heading_error), 4),
     }
+    if noise.velocity_mps and vessel.get("velocity_en_mps") is not None:
+        velocity_en = rng.normal(0.0, noise.velocity_mps, 2)
+        if previous is not None and rho > 0.0 and "vessel_velocity_en_mps" in previous:
+            fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
+            velocity_en = rho * np.asarray(previous["vessel_velocity_en_mps"], float) + fresh * velocity_en
+        vessel["velocity_en_mps"] = [float(v) + float(e)
+                                     for v, e in zip(vessel["velocity_en_mps"], velocity_en, strict=True)]
+        vessel["velocity_sigma_mps"] = noise.velocity_mps
+        truth["pose_errors"]["vessel_velocity_en_mps"] = [round(float(v), 4) for v in velocity_en]
+    if noise.yaw_rate_deg_s and vessel.get("yaw_rate_deg_s") is not None:
+        turn_error = float(rng.normal(0.0, noise.yaw_rate_deg_s))
+        if previous is not None and rho > 0.0 and "vessel_yaw_rate_deg_s" in previous:
+            fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
+            turn_error = rho * float(previous["vessel_yaw_rate_deg_s"]) + fresh * turn_error
+        vessel["yaw_rate_deg_s"] = float(vessel["yaw_rate_deg_s"]) + turn_error
+        vessel["yaw_rate_sigma_deg_s"] = noise.yaw_rate_deg_s
+        truth["pose_errors"]["vessel_yaw_rate_deg_s"] = round(turn_error, 4)
     return noisy
 
 

@@ -26,6 +26,7 @@ time (NaN, or outside the frame's 0-1000 limit) is left out of the frame, never 
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -37,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from harborsight.errors import InputError, brief
 from harborsight.geometry.sensor_sigmas import MAX_DEAD_RECKONED_S
 from harborsight.telemetry.accuracy import MAX_SIGMA_M
-from harborsight.telemetry.track import Track
+from harborsight.telemetry.track import AT_REST_MPS, Track
 
 MOUNTS = ("auto", "gimbal", "stabilised", "rigid")
 #: the frame fields written from each track's accuracy figures: (section, key, track quantity)
@@ -274,6 +275,7 @@ def frames_at_times(
         })
         if frame_camera["fx"] != camera["fx"]:
             frames[-1]["telemetry"]["digital_zoom"] = ratio
+        frames[-1]["vessel"].update(own_motion_fields(ship, i))
         reckoned_s = ship.get("dead_reckoned_s")
         if reckoned_s is not None and reckoned_s[i] > 0:   # between reports: the bars widen
             frames[-1]["vessel"]["dead_reckoned_s"] = round(float(reckoned_s[i]), 3)
@@ -283,6 +285,26 @@ def frames_at_times(
                 if value is not None:
                     frames[-1][section][key] = value
     return FrameMetadataResult(frames, skipped, mount.resolve(drone))
+
+
+def own_motion_fields(ship: dict, i: int) -> dict:
+    """The vessel's ground velocity (east, north; m/s) from the speed and course over ground
+    its log gives at sample ``i`` (NMEA RMC, AIS), and its rate of turn (AIS), as frame
+    fields (``velocity_en_mps``, ``yaw_rate_deg_s``; :mod:`harborsight.clearance.own_motion`
+    gives them their default sigmas). A speed at rest without a course is a velocity of 0."""
+    fields: dict = {}
+    sog, cog = ship.get("sog_mps"), ship.get("cog_deg")
+    if sog is not None and np.isfinite(sog[i]) and sog[i] >= 0:
+        if cog is not None and np.isfinite(cog[i]):
+            course = math.radians(float(cog[i]))
+            fields["velocity_en_mps"] = [round(float(sog[i]) * math.sin(course), 4),
+                                         round(float(sog[i]) * math.cos(course), 4)]
+        elif sog[i] < AT_REST_MPS:
+            fields["velocity_en_mps"] = [0.0, 0.0]
+    rot = ship.get("rot_deg_s")
+    if rot is not None and np.isfinite(rot[i]):
+        fields["yaw_rate_deg_s"] = round(float(rot[i]), 4)
+    return fields
 
 
 #: how far a frame's focal length may differ from the camera's (a share)

@@ -10,6 +10,7 @@ and HDT 0.01 degree. The NMEA sentences are built by pynmea2 (checksums included
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -21,6 +22,7 @@ import pynmea2
 from harborsight.errors import InputError
 from harborsight.frame import FrameMetadata, load_frame_metadata
 from harborsight.telemetry.metadata import parse_utc_time
+from harborsight.telemetry.track import KNOT_MPS
 
 
 @dataclass(frozen=True)
@@ -74,15 +76,28 @@ def _nmea_angle(value_deg: float, degree_digits: int) -> str:
     return f"{degrees:0{degree_digits}d}{minutes:08.5f}"
 
 
+def _speed_and_course(meta: FrameMetadata) -> tuple[str, str]:
+    """RMC's speed (knots) and course (degrees true) over ground from the frame's vessel
+    velocity; empty fields without one, and no course at rest."""
+    if meta.vessel_velocity_en_mps is None:
+        return "", ""
+    east, north = meta.vessel_velocity_en_mps
+    speed_mps = math.hypot(east, north)
+    if speed_mps < 1e-6:
+        return "0.00", ""
+    return f"{speed_mps / KNOT_MPS:.2f}", f"{math.degrees(math.atan2(east, north)) % 360:.1f}"
+
+
 def nmea_lines(metas: Sequence[FrameMetadata], times_utc: Sequence[datetime]) -> list[str]:
-    """An RMC fix and an HDT true heading per frame, in time order."""
+    """An RMC fix (with the speed and course over ground of the frame's vessel velocity,
+    where it gives one) and an HDT true heading per frame, in time order."""
     lines = []
     for meta, when in zip(metas, times_utc, strict=True):
         lat, lon = meta.vessel_lat_deg, meta.vessel_lon_deg
         rmc = pynmea2.RMC("GP", "RMC", (
             f"{when:%H%M%S}.{when.microsecond // 10_000:02d}", "A",
             _nmea_angle(lat, 2), "N" if lat >= 0 else "S", _nmea_angle(lon, 3),
-            "E" if lon >= 0 else "W", "0.8", f"{meta.vessel_heading_deg % 360:.1f}",
+            "E" if lon >= 0 else "W", *_speed_and_course(meta),
             f"{when:%d%m%y}", "", ""))
         hdt = pynmea2.HDT("HE", "HDT", (f"{meta.vessel_heading_deg % 360:.2f}", "T"))
         lines += [rmc.render(), hdt.render()]
