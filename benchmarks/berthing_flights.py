@@ -9,7 +9,9 @@ labels and on the default model's masks, exact poses unless `--pose-noise` is gi
 by `harborsight evaluate flight` (every `ok` section with a true distance, from each
 flight's fourth frame; the closest section's closing speed against the central difference
 of its true distance). Prints a Markdown table with the target's ratio (target / actual: at
-least 1 meets it) measured in this run.
+least 1 meets it) measured in this run. The frames give the vessel's velocity and rate of
+turn, as the simulator writes them (with `--pose-noise`, perturbed at add-pose-noise's
+defaults, 0.05 m/s and 0.1 deg/s); `--own-motion on,off` also measures without them.
 
     .venv/bin/python benchmarks/berthing_flights.py [--work /tmp/harborsight-flights]
         [--heights 30,60,100] [--pose-noise standalone,2,1] [--masks labels,model]
@@ -72,6 +74,9 @@ def main() -> None:
     parser.add_argument("--segment-gsd-m", default="default", metavar="G[,G...]",
                         help="the model's masks at each of these `run --segment-gsd-m` (0: off; "
                         "default: run's own)")
+    parser.add_argument("--own-motion", default="on", metavar="on|off|on,off",
+                        help="measure with the frames' vessel velocity (run's default, on) "
+                        "and/or without it (`run --no-own-motion`)")
     parser.add_argument("--seed", type=int, default=FLIGHT_SEED, help="the harbour's seed")
     parser.add_argument("--workers", type=int, default=2, help="render processes")
     parser.add_argument("--json", type=Path, default=None, help="also write the scores here")
@@ -79,6 +84,12 @@ def main() -> None:
     work = args.work.resolve()
     flights = [render_flight(work / f"flight-{h}m", float(h), args.seed, args.workers)
                for h in args.heights.split(",")]
+    for flight in flights:
+        first = json.loads(next((flight / "frames").glob("*.json")).read_text())
+        if "on" in args.own_motion.split(",") and "velocity_en_mps" not in first["vessel"]:
+            print(f"warning: {flight} was rendered before flights gave the vessel's velocity: "
+                  "its runs measure without own motion (render it again into a new --work)",
+                  flush=True)
     if args.pose_noise:
         gps, heading_deg, height_m = args.pose_noise.split(",")
         noisy = []
@@ -93,13 +104,17 @@ def main() -> None:
     rows: list[tuple[str, FlightScore]] = []
     for flight in flights:
         for masks in args.masks.split(","):
-            for gsd in (args.segment_gsd_m.split(",") if masks == "model" else ["default"]):
-                name = masks if gsd == "default" else f"{masks}@{gsd}"
-                out = work / "runs" / f"{flight.name}{'-noisy' if args.pose_noise else ''}-{name}"
+            for gsd, own in ((g, o) for g in (args.segment_gsd_m.split(",") if masks == "model"
+                                              else ["default"])
+                             for o in args.own_motion.split(",")):
+                name = (masks if gsd == "default" else f"{masks}@{gsd}") + (
+                    ", no own motion" if own == "off" else "")
+                out = work / "runs" / (f"{flight.name}{'-noisy' if args.pose_noise else ''}-"
+                                       + name.replace(", no own motion", "-no-own-motion"))
                 source = (["--masks", str(flight / "labels")] if masks == "labels"
                           else [] if gsd == "default" else ["--segment-gsd-m", gsd])
                 call(["run", str(flight), *source, "--out", str(out), "--no-overlays",
-                      "--no-video"])
+                      "--no-video", *(["--no-own-motion"] if own == "off" else [])])
                 rows += [(name, s) for s in score_flight(flight, out / "sections.csv")]
     print(f"\nberthing flights, {'noise ' + args.pose_noise if args.pose_noise else 'exact poses'};"
           f" target: the model's filtered MAE at most {TARGET_MAE_M} m up to "
@@ -113,7 +128,7 @@ def main() -> None:
         args.json.write_text(json.dumps({
             "script": "benchmarks/berthing_flights.py", "machine": platform.machine(),
             "cpus": os.cpu_count(), "pose_noise": args.pose_noise, "seed": args.seed,
-            "segment_gsd_m": args.segment_gsd_m,
+            "segment_gsd_m": args.segment_gsd_m, "own_motion": args.own_motion,
             "target_mae_m": TARGET_MAE_M, "target_closing_mps": TARGET_CLOSING_MPS,
             "rows": [{"masks": masks, **dataclasses.asdict(s)} for masks, s in rows]},
             indent=1, allow_nan=False) + "\n")

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from harborsight.frame import parse_frame_metadata
 from harborsight.live.feed import FeedPlan, play_flight
 from harborsight.live.mavlink_in import MavlinkDrone
 from harborsight.live.nmea_in import NmeaVessel, parse_nmea_address
@@ -810,3 +811,20 @@ def test_a_replayed_ais_report_carries_the_second_it_goes_out_at():
         2026, 5, 1, 12, 0, 0, tzinfo=UTC)
     assert receiver_time(f"2026-05-01T12:00:01Z {sentence}") == datetime(2026, 5, 1, 12, 0, 1, tzinfo=UTC)
     assert receiver_time(sentence) is None and receiver_time("no sentence") is None
+
+
+def test_a_live_frame_carries_the_vessels_speed_and_course_as_its_velocity():
+    """The vessel's feed gives speed and course over ground (an RMC): the composed frame
+    gives the ground velocity the tracker takes the vessel's own motion from."""
+    drone, vessel = LiveTrack("drone", "mavlink"), LiveTrack("vessel", "nmea")
+    for k in range(5):
+        drone.add_position(10.0 + 0.5 * k, 56.0, 10.0, 50.0)
+        drone.add_attitude(10.0 + 0.5 * k, 0.0, -90.0, 0.0, "gimbal")
+    for k in range(3):
+        vessel.add_position(10.0 + k, 56.0001, 10.0 + 1e-5 * k, sog_mps=0.6, cog_deg=90.0)
+        vessel.add_heading(10.0 + k, 80.0)
+    frame, why = FrameComposer(drone, vessel, camera_for=_camera).compose(3, 11.5, 640, 360)
+    assert why is None
+    assert frame["vessel"]["velocity_en_mps"] == pytest.approx([0.6, 0.0], abs=1e-4)
+    meta = parse_frame_metadata(frame, "live")
+    assert meta.vessel_velocity_en_mps == pytest.approx((0.6, 0.0), abs=1e-4)
