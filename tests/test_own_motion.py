@@ -190,3 +190,44 @@ def test_run_tracks_the_flight_with_its_own_motion_and_can_leave_it_out(tmp_path
     assert json.loads((tmp_path / "on" / "run.json").read_text())["settings"]["own_motion"]
     with open(tmp_path / "off" / "sections.csv") as handle:
         assert not any(r["own_closing_mps"] for r in csv.DictReader(handle))
+
+
+def _nmea(body: str) -> str:
+    """A sentence with its checksum."""
+    checksum = 0
+    for char in body:
+        checksum ^= ord(char)
+    return f"${body}*{checksum:02X}"
+
+
+def test_an_nmea_logs_rate_of_turn_reaches_the_track_and_the_frames(tmp_path):
+    """ROT (degrees per minute, status A) beside the fixes: the track's rate of turn in deg/s
+    at each fix, and a frame's ``vessel.yaw_rate_deg_s``; ROT status V is skipped."""
+    from harborsight.telemetry.vessel_track import read_vessel_track
+
+    lines = []
+    for k in range(6):
+        clock = f"1200{k:02d}.00"
+        lines += [_nmea(f"GPRMC,{clock},A,5609.10200,N,01013.69800,E,1.00,90.0,010526,,"),
+                  _nmea("HEHDT,90.00,T"),
+                  _nmea(f"HEROT,{-30.0 if k < 3 else 60.0:.1f},{'A' if k != 4 else 'V'}")]
+    path = tmp_path / "ship.nmea"
+    path.write_text("\n".join(lines) + "\n")
+    track = read_vessel_track(path)
+    np.testing.assert_allclose(track.rot_deg_s, [-0.5, -0.5, -0.5, 1.0, 1.0, 1.0])
+    assert any("ROT status V" in note for note in track.notes)
+    fields = own_motion_fields(track.sample(np.array([1.0]), max_gap_s=1.0), 0)
+    assert fields["yaw_rate_deg_s"] == -0.5
+    assert fields["velocity_en_mps"] == pytest.approx([1.0 * 1852 / 3600, 0.0], abs=1e-4)
+
+
+def test_a_live_nmea_feeds_rate_of_turn_joins_its_newest_fix():
+    from harborsight.live.nmea_in import NmeaVessel
+    from harborsight.live.telemetry import LiveTrack
+
+    vessel = NmeaVessel(LiveTrack("vessel", "nmea"))
+    vessel.feed(_nmea("GPRMC,120000.00,A,5609.10200,N,01013.69800,E,1.00,90.0,010526,,"), 10.0)
+    vessel.feed(_nmea("HEHDT,90.00,T"), 10.05)
+    vessel.feed(_nmea("HEROT,12.0,A"), 10.1)
+    track = vessel.track.track()
+    assert track.rot_deg_s is not None and track.rot_deg_s[-1] == pytest.approx(0.2)

@@ -25,7 +25,7 @@ from datetime import UTC, datetime
 from harborsight.errors import InputError
 from harborsight.live.telemetry import LiveTrack
 from harborsight.telemetry.accuracy import GGA_QUALITY_CLASSES, per_axis_from_class_m
-from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder
+from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder, RateOfTurn
 from harborsight.telemetry.track import POSITION_GAP_DEAD_RECKON_S
 
 #: a heading sensor heard within this many seconds keeps a worse one's headings out
@@ -127,6 +127,9 @@ class NmeaVessel:
                 degrees = event.deg if event.true else self._made_true(event.deg)
                 if degrees is not None:
                     self.track.add_heading(now_s + self._fix_delay_s, degrees % 360.0)
+            elif isinstance(event, RateOfTurn):
+                if self._last_fix_t_s is not None:     # the newest fix's rate of turn
+                    self.track.add_turn(self._last_fix_t_s, event.deg_s)
             elif isinstance(event, Gst):
                 pass                      # live: the GGA's class stands (module docstring)
         if self.decoder.bad_count + sum(self.decoder.skipped.values()) != bad_before:

@@ -180,6 +180,14 @@ class LiveTrack:
                 row = self._positions[-1]
                 self._positions[-1] = (*row[:5], sog_mps, cog_deg, *row[7:])
 
+    def add_turn(self, t_s: float, rot_deg_s: float) -> None:
+        """The rate of turn (deg/s) of the position held at ``t_s`` (an NMEA ROT after the
+        epoch's fix); nothing where the newest position is of another time."""
+        with self._lock:
+            if self._positions and self._positions[-1][0] == t_s:
+                row = self._positions[-1]
+                self._positions[-1] = (*row[:7], rot_deg_s)
+
     def add_attitude(self, t_s: float, yaw_deg: float, pitch_deg: float, roll_deg: float,
                      of: str) -> None:
         """Camera (``gimbal``) or airframe (``vehicle``) attitude; a gimbal's replaces the

@@ -21,6 +21,8 @@ time) and turns each line into events:
   and variation), ``HDM`` and ``HDG`` without variation (``true`` False: magnetic, deviation
   applied). Headings before the first fix are counted, not emitted.
 * :class:`Gst`: the latitude/longitude error RMS (per axis, m) of the fix at ``clock``.
+* :class:`RateOfTurn`: ``ROT`` with status A (degrees per minute in the sentence, deg/s in the
+  event; status V counted as skipped); like headings, none before the first fix.
 
 Sentences that are not measurements are counted in ``skipped`` (RMC status V or mode E/M/S/N,
 GGA quality 0/6/7/8 or undefined, THS mode other than A); unreadable lines (bad checksum,
@@ -111,7 +113,18 @@ class Gst:
     sigma_m: float                   # per horizontal axis
 
 
-Event = Fix | Heading | Gst
+@dataclass(frozen=True)
+class RateOfTurn:
+    """A ``ROT`` sentence's rate of turn (a rate gyro's, or a gyrocompass's), deg/s; negative
+    when the bow turns to port."""
+
+    deg_s: float
+
+
+Event = Fix | Heading | Gst | RateOfTurn
+
+#: the largest rate of turn (deg/min) a ROT sentence is read with: beyond, a corrupt field
+MAX_ROT_DEG_MIN = 10_000.0
 
 
 @functools.cache
@@ -168,7 +181,8 @@ class NmeaDecoder:
     skipped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
         ["RMC status V (no fix)", *RMC_MODES_NOT_MEASURED.values(),
          *GGA_QUALITIES_NOT_MEASURED.values(), *THS_MODES_NOT_MEASURED.values(),
-         "GGA quality code the standard does not define", "headings before the first fix"], 0))
+         "GGA quality code the standard does not define", "headings before the first fix",
+         "ROT status V or no rate (not valid)", "rates of turn before the first fix"], 0))
 
     def __post_init__(self) -> None:
         teach_pynmea2_ths()
@@ -272,6 +286,15 @@ class NmeaDecoder:
             if isinstance(sentence.timestamp, time) and math.isfinite(sigma_m):
                 return [Gst(sentence.timestamp, sigma_m)]
             self.unusable_gst += 1
+        elif kind == "ROT":
+            rate = number(getattr(sentence, "rate_of_turn", None))
+            if (sentence.status or "").strip()[:1] != "A" or not (
+                    math.isfinite(rate) and abs(rate) <= MAX_ROT_DEG_MIN):
+                skipped["ROT status V or no rate (not valid)"] += 1
+            elif self.last_fix_utc is None:
+                skipped["rates of turn before the first fix"] += 1
+            else:
+                return [RateOfTurn(rate / 60.0)]
         elif kind == "THS" and (sentence.mode or "").strip()[:1] != "A":
             skipped[THS_MODES_NOT_MEASURED.get((sentence.mode or "").strip()[:1],
                                                "THS mode V (heading not valid)")] += 1

@@ -64,7 +64,7 @@ from harborsight.telemetry.declination import (
     magnetic_declination_deg,
     wmm_model_name,
 )
-from harborsight.telemetry.nmea import Fix, Heading, NmeaDecoder
+from harborsight.telemetry.nmea import Fix, Gst, Heading, NmeaDecoder, RateOfTurn
 from harborsight.telemetry.track import POSITION_GAP_DEAD_RECKON_S, Track
 
 
@@ -131,6 +131,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     qualities: dict[int, tuple[int, float]] = {}          # fix index: GGA quality, HDOP
     errors: list[tuple[int, time, float]] = []            # GST: last fix index, time, sigma m
     motion: dict[int, tuple[float, float]] = {}           # fix index: RMC speed, course
+    turns: list[tuple[int, float]] = []                   # ROT: last fix index, deg/s
     for number, line in enumerate(lines, start=1):
         for event in decoder.feed(line, number):
             if isinstance(event, Fix):
@@ -142,7 +143,9 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
                     qualities[len(fixes) - 1] = (event.quality, event.hdop)
             elif isinstance(event, Heading):
                 (headings if event.true else magnetic).append((len(fixes) - 1, event.deg, event.source))
-            else:
+            elif isinstance(event, RateOfTurn):
+                turns.append((len(fixes) - 1, event.deg_s))
+            elif isinstance(event, Gst):
                 errors.append((len(fixes) - 1, event.clock, event.sigma_m))
     if not fixes:
         raise InputError(path, None, "no NMEA position fix with a date (RMC, or GGA after an "
@@ -181,9 +184,14 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     ordered = [fixes[i] for i in fix_order]
     sog, cog = (np.array([motion.get(i, (np.nan, np.nan))[k] for i in fix_order])
                 for k in (0, 1))
+    rot = _rates_of_turn(turns, arrival_t, fix_t, max_heading_gap_s)
+    if np.isfinite(rot).any():
+        notes.append(f"{int(np.isfinite(rot).sum())} of {len(rot)} fix(es) have a rate of turn "
+                     "(ROT) within reach: the vessel's own motion of each clearance takes it")
     track = _track(path, "nmea", [f[0] for f in ordered], [f[1] for f in ordered],
                    [f[2] for f in ordered], heading, notes,
-                   position_sigma_m=position_sigma[fix_order], sog_mps=sog, cog_deg=cog)
+                   position_sigma_m=position_sigma[fix_order], sog_mps=sog, cog_deg=cog,
+                   rot_deg_s=rot)
     if track.sog_mps is not None:           # a fix dropped out: carried by the RMC before it
         track.dead_reckon_s = NMEA_DEAD_RECKON_S
         notes.append(f"{int(np.isfinite(sog).sum())} of {len(sog)} fix(es) give speed and "
@@ -300,6 +308,24 @@ def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datet
     if len(true) < len(magnetic):
         note += f"; {len(magnetic) - len(true)} left out: {failed}"
     return true, note
+
+
+def _rates_of_turn(turns: list[tuple[int, float]], arrival_t: np.ndarray, fix_t: np.ndarray,
+                   max_gap_s: float) -> np.ndarray:
+    """The rate of turn (deg/s) at each fix (``fix_t``, in time order) from the ROT sentences,
+    placed in time as headings are (:func:`_heading_times`) and interpolated; NaN where none
+    lies within ``max_gap_s``."""
+    if not turns:
+        return np.full(len(fix_t), np.nan)
+    turn_t = _heading_times(arrival_t, [epoch for epoch, _ in turns])
+    order = np.argsort(turn_t, kind="stable")
+    turn_t, rates = turn_t[order], np.array([rate for _, rate in turns])[order]
+    rot = np.interp(fix_t, turn_t, rates)
+    index = np.searchsorted(turn_t, fix_t)
+    nearest = np.minimum(np.abs(fix_t - turn_t[np.clip(index - 1, 0, len(turn_t) - 1)]),
+                         np.abs(turn_t[np.clip(index, 0, len(turn_t) - 1)] - fix_t))
+    rot[nearest > max_gap_s] = np.nan
+    return rot
 
 
 def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
