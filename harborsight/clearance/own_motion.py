@@ -61,19 +61,20 @@ def add_own_rates(sections: list[SectionClearance], antenna_enu: np.ndarray,
     sigma_turn = math.radians(UNMEASURED_TURN_DEG_S if yaw_rate_deg_s is None
                               else YAW_RATE_SIGMA_DEG_S if yaw_rate_sigma_deg_s is None
                               else yaw_rate_sigma_deg_s)
-    centre = np.asarray(antenna_enu, float)[:2]
-    for section in sections:
-        if (section.status != STATUS_OK or section.hull_point_enu is None
-                or section.obstacle_point_enu is None):
-            continue
-        hull = np.asarray(section.hull_point_enu, float)
-        gap = np.asarray(section.obstacle_point_enu, float) - hull
-        length = float(np.hypot(*gap))
-        if not (length >= MIN_GAP_M and np.isfinite(hull).all()):
-            continue
-        n_e, n_n = gap / length
-        r_e, r_n = hull - centre
-        lever = r_n * n_e - r_e * n_n                 # d(v_h · n) / dψ̇
-        moving = velocity[0] * n_e + velocity[1] * n_n + turn * lever
-        section.own_rate_mps = -float(moving)
-        section.own_rate_sigma_mps = math.hypot(sigma_v, lever * sigma_turn)
+    chosen = [s for s in sections if s.status == STATUS_OK and s.hull_point_enu is not None
+              and s.obstacle_point_enu is not None]
+    if not chosen:
+        return
+    hull = np.array([s.hull_point_enu for s in chosen], float)[:, :2]
+    gap = np.array([s.obstacle_point_enu for s in chosen], float)[:, :2] - hull
+    length = np.hypot(gap[:, 0], gap[:, 1])
+    usable = (length >= MIN_GAP_M) & np.isfinite(hull).all(axis=1)
+    n = gap / np.where(usable, length, 1.0)[:, None]
+    r = hull - np.asarray(antenna_enu, float)[:2]
+    lever = r[:, 1] * n[:, 0] - r[:, 0] * n[:, 1]              # d(v_h · n) / dψ̇
+    rate = -(n @ velocity + turn * lever)
+    sigma = np.hypot(sigma_v, lever * sigma_turn)
+    for section, ok, rate_mps, sigma_mps in zip(chosen, usable.tolist(), rate.tolist(),
+                                                sigma.tolist(), strict=True):
+        if ok:
+            section.own_rate_mps, section.own_rate_sigma_mps = rate_mps, sigma_mps
