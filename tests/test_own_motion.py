@@ -26,6 +26,7 @@ from harborsight.sim.pose_noise import PoseNoise, add_pose_noise
 from harborsight.sim.samples import flight_config, write_example_vessel
 from harborsight.telemetry.metadata import own_motion_fields
 from harborsight.vessel.spec import load_vessel_spec
+from tests.test_telemetry import _nmea
 
 SAMPLES = Path(__file__).resolve().parents[1] / "harborsight" / "data" / "samples"
 
@@ -190,14 +191,6 @@ def test_run_tracks_the_flight_with_its_own_motion_and_can_leave_it_out(tmp_path
     assert json.loads((tmp_path / "on" / "run.json").read_text())["settings"]["own_motion"]
     with open(tmp_path / "off" / "sections.csv") as handle:
         assert not any(r["own_closing_mps"] for r in csv.DictReader(handle))
-
-
-def _nmea(body: str) -> str:
-    """A sentence with its checksum."""
-    checksum = 0
-    for char in body:
-        checksum ^= ord(char)
-    return f"${body}*{checksum:02X}"
 
 
 def test_an_nmea_logs_rate_of_turn_reaches_the_track_and_the_frames(tmp_path):

@@ -81,10 +81,12 @@ def test_a_nearer_reading_seen_once_and_contradicted_at_once_is_dropped():
     assert held.state == "held" and held.distance_m == pytest.approx(1.8, abs=0.05)
 
 
-def test_a_passing_boat_does_not_corrupt_the_quays_closing_speed():
+@pytest.mark.parametrize("own", [(None, None), (-0.3, 0.02)], ids=["image", "own-rate"])
+def test_a_passing_boat_does_not_corrupt_the_quays_closing_speed(own):
     """The quay closes at 0.3 m/s; a boat crosses the band 2 m nearer for 3 s, moving fast
     (its distance falls by 1 m/s). After it has gone the quay's track resumes with its own
-    speed, and the readings return to it."""
+    speed, and the readings return to it. The same where the readings carry the vessel's
+    own rate (the 0.3 m/s is its own motion)."""
     times = np.arange(0, 30, 0.5)
     quay = 12.0 - 0.3 * times
     tracker = SectionTracker()
@@ -92,7 +94,7 @@ def test_a_passing_boat_does_not_corrupt_the_quays_closing_speed():
     for t, d_quay in zip(times, quay, strict=True):
         boat = 10 <= t < 13
         distance = d_quay - 2.0 - 1.0 * (t - 10) if boat else d_quay
-        estimate = tracker.step(float(t), Reading(float(distance), 0.05, 0.05))
+        estimate = tracker.step(float(t), Reading(float(distance), 0.05, 0.05, *own))
         if boat:
             during.append((estimate, distance))
         elif t >= 16:
@@ -617,25 +619,6 @@ def test_a_boat_moving_on_its_own_is_not_hidden_by_the_vessels_own_rate():
         estimate = tracker.step(float(t), Reading(12.0 - 1.0 * float(t), 0.05, 0.05, 0.0, 0.03))
     assert estimate.closing_speed_mps == pytest.approx(1.0, abs=0.05)
     assert estimate.time_to_contact_s == pytest.approx(estimate.distance_m / 1.0, rel=0.1)
-
-
-def test_a_passing_boat_with_the_vessels_own_rate():
-    """As the passing-boat test above, the vessel closing on the quay at 0.3 m/s by its own
-    motion, which the readings now carry."""
-    times = np.arange(0, 30, 0.5)
-    quay = 12.0 - 0.3 * times
-    tracker = SectionTracker()
-    during, after = [], []
-    for t, d_quay in zip(times, quay, strict=True):
-        boat = 10 <= t < 13
-        distance = d_quay - 2.0 - 1.0 * (t - 10) if boat else d_quay
-        estimate = tracker.step(float(t), Reading(float(distance), 0.05, 0.05, -0.3, 0.02))
-        (during if boat else after if t >= 16 else []).append((estimate, distance))
-    assert all(abs(e.distance_m - d) < 0.1 for e, d in during)
-    assert during[-1][0].closing_speed_mps == pytest.approx(1.3, abs=0.15)
-    assert len({e.track for e, _ in after}) == 1
-    assert after[0][0].closing_speed_mps == pytest.approx(0.3, abs=0.03)
-    assert after[-1][0].closing_speed_mps == pytest.approx(0.3, abs=0.01)
 
 
 def test_the_rate_carries_over_when_the_own_rate_comes_and_goes():
