@@ -224,3 +224,22 @@ def test_a_live_nmea_feeds_rate_of_turn_joins_its_newest_fix():
     vessel.feed(_nmea("HEROT,12.0,A"), 10.1)
     track = vessel.track.track()
     assert track.rot_deg_s is not None and track.rot_deg_s[-1] == pytest.approx(0.2)
+
+
+def test_the_sigma_widens_where_the_points_are_loose():
+    """Moving along a quay 1 m off at 1 m/s: a pixel's tilt of the gap's direction
+    (gsd 0.2 m over 1 m: 0.2 rad) reads up to 0.2 m/s that the vessel does not close; and a
+    turn of 1 deg/s closes one end of a 6 m section and opens the other by 0.05 m/s."""
+    along = _section((0.0, 0.0), (1.0, 0.0))         # quay to the east, moving north
+    add_own_rates([along], np.zeros(2), (0.0, 1.0), 0.05, 1.0, 0.1,
+                  half_lengths_m=np.array([3.0]), gsd_m_per_px=0.2)
+    assert along.own_rate_mps == pytest.approx(0.0, abs=1e-12)
+    turn, turn_sigma = math.radians(1.0), math.radians(0.1)
+    assert along.own_rate_sigma_mps == pytest.approx(math.sqrt(
+        0.05 ** 2 + (3.0 * turn) ** 2 + (3.0 * turn_sigma) ** 2 + (1.0 * 0.2) ** 2))
+    # closing head on: the tilt does not matter (no speed across the gap)
+    head_on = _section((0.0, 0.0), (1.0, 0.0))
+    add_own_rates([head_on], np.zeros(2), (1.0, 0.0), 0.05, gsd_m_per_px=0.2, yaw_rate_deg_s=0.0,
+                  yaw_rate_sigma_deg_s=0.0)
+    assert head_on.own_rate_mps == pytest.approx(-1.0)
+    assert head_on.own_rate_sigma_mps == pytest.approx(0.05)

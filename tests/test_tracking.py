@@ -644,3 +644,59 @@ def test_an_own_rate_that_is_not_a_number_or_has_no_sigma_is_left_out():
                                        0.05 if t < 2 else None))
     assert b.closing_speed_mps == a.closing_speed_mps
     assert b.distance_m == a.distance_m
+
+
+def _approach_with_own(own_of, speed=0.5, seed=3):
+    """A steady approach at ``speed`` for 15 s, whose readings (0.05 m) carry ``own_of(t)``."""
+    rng = np.random.default_rng(seed)
+    tracker, out = SectionTracker(), []
+    for t in np.arange(0, 15, 0.5):
+        d = 20.0 - speed * float(t)
+        out.append((float(t), tracker.step(float(t), Reading(d + float(rng.normal(0, 0.05)), 0.05,
+                                                             0.05, *own_of(float(t))))))
+    return out
+
+
+def test_a_velocity_no_vessel_can_reach_is_not_taken():
+    """A course read 180° off for one frame (a closing 0.5 m/s read as opening 0.5 m/s: 2 m/s²
+    beyond any vessel's stop) is left out: the closing speed stays, and the next frames go on."""
+    run = _approach_with_own(lambda t: ((0.5 if t == 8.0 else -0.5), 0.05))
+    for t, estimate in run[12:]:
+        assert estimate.closing_speed_mps == pytest.approx(0.5, abs=0.05), t
+        assert estimate.track == run[0][1].track
+
+
+def test_a_stop_is_followed_when_the_velocity_is_missing_on_the_frame_of_the_stop():
+    """The vessel stops at 6 s; the frame at 6 s has no velocity, the next ones say 0: the own
+    rate is held over the gap, not folded into the obstacle's motion, and the stop shows on
+    the next frame (folded, 0.29 m/s was still shown 2 s later)."""
+    rng = np.random.default_rng(4)
+    tracker = SectionTracker()
+    after = []
+    for t in np.arange(0, 12, 0.5):
+        d = 20.0 - 0.5 * min(t, 6.0)
+        own = (None, None) if t == 6.0 else (-0.5 if t < 6.0 else 0.0, 0.05)
+        estimate = tracker.step(float(t), Reading(d + float(rng.normal(0, 0.05)), 0.05, 0.05, *own))
+        if t == 6.5:
+            assert abs(estimate.closing_speed_mps) < 0.05
+        if t >= 7.0:
+            after.append(abs(estimate.closing_speed_mps))
+    assert max(after) < 0.15 and np.median(after) < 0.03
+
+
+def test_a_frame_delivered_twice_does_not_take_its_velocity_twice():
+    once, twice = SectionTracker(), SectionTracker()
+    for t in np.arange(0, 5, 0.5):
+        reading = Reading(10.0 - 0.4 * float(t), 0.05, 0.05, -0.4, 0.05)
+        a = once.step(float(t), reading)
+        twice.step(float(t), reading)
+        b = twice.step(float(t), reading)
+    assert b.closing_speed_sigma_mps == pytest.approx(a.closing_speed_sigma_mps)
+    assert b.closing_speed_mps == pytest.approx(a.closing_speed_mps)
+
+
+def test_an_own_rate_stated_exact_is_given_a_floor():
+    tracker = SectionTracker()
+    for t in np.arange(0, 3, 0.5):
+        estimate = tracker.step(float(t), Reading(10.0 - 0.4 * float(t), 0.05, 0.05, -0.4, 0.0))
+    assert estimate.closing_speed_sigma_mps >= 0.01

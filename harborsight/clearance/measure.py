@@ -782,9 +782,12 @@ def measure_clearance(
         add_nadir_approximation(results)
     _bound_by_what_was_seen(results)
     if velocities is not None and settings.own_motion:
+        ends = sections_v.section_endpoints()
         add_own_rates(results, geometry.vessel_position_enu, velocities.vessel_en_mps,
                       velocities.vessel_sigma_mps, velocities.vessel_yaw_rate_deg_s,
-                      velocities.vessel_yaw_rate_sigma_deg_s)
+                      velocities.vessel_yaw_rate_sigma_deg_s,
+                      half_lengths_m=0.5 * np.hypot(*(ends[:, 1] - ends[:, 0]).T),
+                      gsd_m_per_px=gsd)
     if refinement.sensors_contradicted:
         _distrust(results)
     return ClearanceReport(

@@ -7,13 +7,24 @@ GNSS receiver's, at the antenna ``c``) and turns with the vessel's rate of turn 
 heading's: clockwise, rad/s) about the antenna, ``v_h = v + ψ̇ (r_n, -r_e)`` with
 ``r = h - c``. Were the obstacle fixed, the clearance changes at
 
-    ḋ_own = -v_h · n,     σ² = σ_v² + ((r_n n_e - r_e n_n) σ_ψ̇)²
+    ḋ_own = -v_h · n,
+    σ² = σ_v² + ((r_n n_e - r_e n_n) σ_ψ̇)² + (ℓ ψ̇)² + (ℓ σ_ψ̇)² + ((v_h · t) σ_θ)²
 
 ``σ_v`` the velocity's sigma per axis (the same on every axis, so its part along ``n`` is
-``σ_v``), ``σ_ψ̇`` the turn's. The tracker (:mod:`harborsight.flight.tracking`) takes
-``ḋ_own`` as the vessel's part of each distance's rate; what the readings show beyond it is
-the obstacle's own motion (a boat under way), so a quay's closing speed follows the
-vessel's own speed at once, a stop included, and a moving boat's is still measured.
+``σ_v``), ``σ_ψ̇`` the turn's. Two more terms cover where the points are not known:
+
+* where a straight stretch of hull runs parallel to the obstacle, any of its points is
+  nearest, and a turn closes the gap at one end of it while opening it at the other:
+  ``ℓ`` is half the section's length (its chord), so ``ℓ ψ̇`` bounds what the choice of
+  point changes;
+* the obstacle point is a pixel of an edge, and along a straight edge its place is loose by
+  about a pixel, which tilts ``n`` by ``σ_θ = gsd / |o - h|`` (at most 1 rad): a vessel moving
+  along the quay at ``v_h · t`` (``t`` across ``n``) then reads a rate it does not have.
+
+The tracker (:mod:`harborsight.flight.tracking`) takes ``ḋ_own`` as the vessel's part of
+each distance's rate; what the readings show beyond it is the obstacle's own motion (a boat
+under way), so a quay's closing speed follows the vessel's own speed at once, a stop
+included, and a moving boat's is still measured.
 
 Sigmas: the frame's own (``vessel.velocity_sigma_mps``, ``vessel.yaw_rate_sigma_deg_s``),
 else :data:`VELOCITY_SIGMA_MPS` for a velocity (a receiver's Doppler speed: 0.05 m/s is a
@@ -49,10 +60,12 @@ MIN_GAP_M = 0.05
 def add_own_rates(sections: list[SectionClearance], antenna_enu: np.ndarray,
                   velocity_en_mps: tuple[float, float] | None,
                   velocity_sigma_mps: float | None = None, yaw_rate_deg_s: float | None = None,
-                  yaw_rate_sigma_deg_s: float | None = None) -> None:
+                  yaw_rate_sigma_deg_s: float | None = None, *,
+                  half_lengths_m: np.ndarray | None = None, gsd_m_per_px: float = 0.0) -> None:
     """Set ``own_rate_mps`` and ``own_rate_sigma_mps`` of every ``ok`` section (module
     docstring) from the vessel's ground velocity (east, north; m/s) at its antenna
-    ``antenna_enu``; nothing without a velocity."""
+    ``antenna_enu``; nothing without a velocity. ``half_lengths_m``: half of each section's
+    length, by section index; ``gsd_m_per_px``: the frame's ground sampling distance."""
     if velocity_en_mps is None:
         return
     velocity = np.asarray(velocity_en_mps, float)
@@ -72,8 +85,14 @@ def add_own_rates(sections: list[SectionClearance], antenna_enu: np.ndarray,
     n = gap / np.where(usable, length, 1.0)[:, None]
     r = hull - np.asarray(antenna_enu, float)[:2]
     lever = r[:, 1] * n[:, 0] - r[:, 0] * n[:, 1]              # d(v_h · n) / dψ̇
-    rate = -(n @ velocity + turn * lever)
-    sigma = np.hypot(sigma_v, lever * sigma_turn)
+    hull_velocity = velocity + turn * np.column_stack((r[:, 1], -r[:, 0]))
+    rate = -np.einsum("ij,ij->i", hull_velocity, n)
+    half = (np.zeros(len(chosen)) if half_lengths_m is None
+            else np.asarray(half_lengths_m, float)[[s.index for s in chosen]])
+    across = hull_velocity[:, 1] * n[:, 0] - hull_velocity[:, 0] * n[:, 1]   # v_h · t
+    tilt = np.minimum(gsd_m_per_px / np.where(usable, length, 1.0), 1.0)
+    sigma = np.sqrt(sigma_v ** 2 + (lever * sigma_turn) ** 2 + (half * turn) ** 2
+                    + (half * sigma_turn) ** 2 + (across * tilt) ** 2)
     for section, ok, rate_mps, sigma_mps in zip(chosen, usable.tolist(), rate.tolist(),
                                                 sigma.tolist(), strict=True):
         if ok:

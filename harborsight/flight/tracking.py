@@ -203,6 +203,8 @@ class _Track:
     obstacle_q: float = 0.0
     own_q: float = 0.0
     own_gate: float = 3.0
+    #: the time of the reading whose own rate ``r`` last took
+    own_time_s: float = 0.0
     #: how far the vessel's own motion has moved the distance since the track began (m), the
     #: filtered ``r`` integrated between readings: ``z - own_travel_m`` is what the obstacle's
     #: own motion and the readings' noise leave
@@ -258,14 +260,35 @@ class _Track:
             return None
         return (1.4826 * statistics.median(kept)) ** 2
 
+    def own_use(self, time_s: float, own: tuple[float, float] | None, x: np.ndarray,
+                P: np.ndarray) -> str:
+        """How the reading's own rate ``own`` at ``time_s`` is taken by a track predicted to
+        ``x, P`` there: ``update`` (a Kalman update of ``r``), ``jump`` (beyond the gate, yet
+        a change a vessel can make since ``r`` last took one, at most
+        :data:`MAX_OWN_ACCEL_MPS2` plus the gate: a stop, a push), ``ignore`` (beyond that:
+        a course read 180° off, a velocity that went wrong; ``r`` is held) or ``none``
+        (no own rate, a track without one, or no time since ``r`` took its last: a frame
+        delivered twice or late must not count the same velocity again)."""
+        if own is None or not self.has_own or time_s <= self.own_time_s:
+            return "none"
+        rate, sigma = own
+        innovation = abs(rate - float(x[2]))
+        spread = self.own_gate * math.sqrt(max(float(P[2, 2]), 0.0) + sigma * sigma)
+        if innovation <= spread:
+            return "update"
+        if innovation <= spread + MAX_OWN_ACCEL_MPS2 * (time_s - self.own_time_s):
+            return "jump"
+        return "ignore"
+
     def predicted(self, time_s: float, own: tuple[float, float] | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
         """State and covariance at ``time_s`` (module docstring, "The vessel's own motion"):
         ``F = [[1, Δt, Δt], [0, 1, 0], [0, 0, 1]]`` with white accelerations of ``w`` and
-        ``r``; then, for a track with an own rate, the reading's ``own = (r, σ)`` taken
-        (a Kalman update of ``r``), or, beyond the gate, taken whole as a change of the
-        vessel's speed somewhere in the interval: ``d`` moves by ``Δr Δt / 2`` with variance
-        ``(Δr Δt)² / 12`` and ``r`` forgets what it knew."""
+        ``r``; then the reading's ``own = (r, σ)`` as :meth:`own_use` says: a Kalman update
+        of ``r``, or a jump, taken whole as a change of the vessel's speed somewhere in the
+        interval: ``d`` moves by ``Δr Δt / 2`` with variance ``(Δr Δt)² / 12``, ``r`` forgets
+        what it knew, and ``w`` gets :data:`JUMP_W_SHARE` of ``Δr²`` as variance, so that the
+        readings arbitrate between a vessel that changed speed and a velocity gone wrong."""
         dt = max(time_s - self.time_s, 0.0)
         F = np.array([[1.0, dt, dt], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
         qw = self.obstacle_q if self.has_own else self.accel_q
@@ -274,34 +297,38 @@ class _Track:
         Q = np.array([[(qw + qr) * a, qw * b, qr * b], [qw * b, qw * c, 0.0], [qr * b, 0.0, qr * c]])
         x = F @ self.state
         P = F @ self.covariance @ F.T + Q
-        if own is None or not self.has_own:
-            return x, P
-        rate, sigma = own
-        innovation = rate - x[2]
-        total = P[2, 2] + sigma * sigma
-        if total > 0.0 and innovation * innovation <= self.own_gate ** 2 * total:
-            gain = P[:, 2] / total
-            return x + gain * innovation, P - np.outer(gain, P[2, :])
-        step = innovation * dt
-        x[0] += step / 2.0
-        x[2] = rate
-        P[0, 0] += step * step / 12.0
-        P[2, :] = 0.0
-        P[:, 2] = 0.0
-        P[2, 2] = sigma * sigma
+        use = self.own_use(time_s, own, x, P)
+        if use == "update":
+            rate, sigma = own
+            gain = P[:, 2] / (P[2, 2] + sigma * sigma)
+            return x + gain * (rate - x[2]), P - np.outer(gain, P[2, :])
+        if use == "jump":
+            rate, sigma = own
+            change = rate - x[2]
+            step = change * dt
+            x[0] += step / 2.0
+            x[2] = rate
+            P[0, 0] += step * step / 12.0
+            P[1, 1] += JUMP_W_SHARE * change * change
+            P[2, :] = 0.0
+            P[:, 2] = 0.0
+            P[2, 2] = sigma * sigma
         return x, P
 
-    def set_own_rate(self, own: tuple[float, float] | None) -> None:
-        """After a reading is taken: a reading without an own rate makes ``w`` the whole rate
-        again (``w + r``, ``r`` dropped); a first one starts ``r`` at it (``w`` becomes the
-        rate less it, ``Var w + σ²``, ``Cov(w, r) = -σ²``). Either way the rate itself carries
-        over."""
-        if own is None and self.has_own:
-            T = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
-            self.state = T @ self.state
-            self.covariance = T @ self.covariance @ T.T
-            self.has_own = False
-        elif own is not None and not self.has_own:
+    def set_own_rate(self, time_s: float, own: tuple[float, float] | None, use: str) -> None:
+        """After a reading at ``time_s`` is taken (``use``: what :meth:`own_use` said of its own
+        rate before): a first own rate starts ``r`` at it (``w`` becomes the rate less it,
+        ``Var w + σ²``, ``Cov(w, r) = -σ²``); a reading without one holds ``r`` for
+        :data:`OWN_HOLD_S` after the last (a velocity missing for a frame at the moment of a
+        stop), then makes ``w`` the whole rate again (``w + r``, ``r`` dropped). Either way
+        the rate itself carries over."""
+        if own is None:
+            if self.has_own and time_s - self.own_time_s > OWN_HOLD_S:
+                T = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+                self.state = T @ self.state
+                self.covariance = T @ self.covariance @ T.T
+                self.has_own = False
+        elif not self.has_own:
             rate, sigma = own
             self.state[1] -= rate
             self.state[2] = rate
@@ -311,6 +338,9 @@ class _Track:
             self.covariance[0, 2] = self.covariance[2, 0] = 0.0
             self.covariance[2, 2] = variance
             self.has_own = True
+            self.own_time_s = time_s
+        elif use in ("update", "jump"):
+            self.own_time_s = time_s
 
     def own_travel_to(self, time_s: float, x: np.ndarray) -> float:
         """The own travel at ``time_s`` with ``x`` the state predicted there: the mean of the
@@ -327,6 +357,16 @@ class _Track:
 MANOEUVRE_WINDOW_S = 1.0
 MANOEUVRE_MIN_SPAN_S = 0.4
 MANOEUVRE_MAX_READINGS = 64
+#: the largest change of a vessel's own rate (m/s a second, beyond the gate) taken as real:
+#: a tug stops from 0.5 m/s in 2-3 s; 2 m/s in half a second (a course read 180° off) is not
+MAX_OWN_ACCEL_MPS2 = 1.0
+#: the share of a jump of the own rate, squared, given to the variance of ``w``
+JUMP_W_SHARE = 0.25
+#: how long (s) a track holds its own rate through readings without one before it makes the
+#: whole rate ``w`` again
+OWN_HOLD_S = 2.0
+#: the least one-sigma (m/s) of an own rate (a stated 0 would make the filter blind to the image)
+MIN_OWN_RATE_SIGMA_MPS = 0.01
 #: the line restarts a track only when its speed differs from the track's by this many of
 #: its own sigmas, under the readings' measured scatter (a line through readings that
 #: scatter by 0.3 m over a second says the speed to 0.4 m/s: on a steady approach, two such
@@ -384,7 +424,7 @@ def _own(reading: Reading | None) -> tuple[float, float] | None:
     """A (sane) reading's own rate and its sigma, or None."""
     if reading is None or reading.own_rate_mps is None or reading.own_rate_sigma_mps is None:
         return None
-    return reading.own_rate_mps, reading.own_rate_sigma_mps
+    return reading.own_rate_mps, max(reading.own_rate_sigma_mps, MIN_OWN_RATE_SIGMA_MPS)
 
 
 def seen_clear(section) -> tuple[float, float] | None:
@@ -466,6 +506,7 @@ class SectionTracker:
                        own_q=s.accel_sigma_mps2 ** 2, own_gate=s.gate_sigma)
         if own is not None:
             track.state[2], track.covariance[2, 2], track.has_own = own[0], own[1] ** 2, True
+            track.own_time_s = time_s
         track.remember(time_s, reading.distance_m)
         self._next_id += 1
         self.tracks.append(track)
@@ -617,6 +658,7 @@ class SectionTracker:
         rate ``r`` as predicted, ``reading`` taken."""
         _, systematic = self._reading_variance(reading, time_s - track.time_s, track)
         x, P = self._predicted(track, time_s)
+        use = track.own_use(time_s, self._own, *track.predicted(time_s))
         track.own_travel_m = track.own_travel_to(time_s, x)
         (distance, w), line_covariance = restart
         track.state = np.array([distance, w, x[2]])
@@ -624,7 +666,7 @@ class SectionTracker:
         track.covariance[:2, :2] = line_covariance
         track.covariance[2, 2] = P[2, 2]
         track.surprises.clear()
-        track.set_own_rate(self._own)
+        track.set_own_rate(time_s, self._own, use)
         track.took(time_s, reading, systematic)
 
     def _two_point_start(self, time_s: float, reading: Reading) -> _Track | None:
@@ -645,6 +687,7 @@ class SectionTracker:
         first = best.covariance[0, 0]
         variance, systematic = self._reading_variance(reading, dt, best, measured=False)
         x, P = self._predicted(best, time_s)
+        use = best.own_use(time_s, self._own, *best.predicted(time_s))
         best.own_travel_m = best.own_travel_to(time_s, x)
         own_rate, own_variance = x[2], P[2, 2]          # 0 without an own rate
         rate = (reading.distance_m - best.state[0]) / dt
@@ -653,7 +696,7 @@ class SectionTracker:
             [variance, variance / dt, 0.0],
             [variance / dt, (first + variance) / dt ** 2 + own_variance, -own_variance],
             [0.0, -own_variance, own_variance]])
-        best.set_own_rate(self._own)
+        best.set_own_rate(time_s, self._own, use)
         best.took(time_s, reading, systematic)
         return best
 
@@ -688,6 +731,7 @@ class SectionTracker:
         # prediction would cover that stretch twice and bend the closing speed
         time_s = max(time_s, track.time_s)
         x, P = self._predicted(track, time_s)
+        use = track.own_use(time_s, self._own, *track.predicted(time_s))
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
         innovation = reading.distance_m - x[0]
@@ -702,7 +746,7 @@ class SectionTracker:
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * innovation
         track.covariance = P - np.outer(gain, P[0, :])
-        track.set_own_rate(self._own)
+        track.set_own_rate(time_s, self._own, use)
         track.took(time_s, reading, systematic)
 
     def _estimate(self, time_s: float, state: str) -> SectionEstimate:
