@@ -361,7 +361,7 @@ MANOEUVRE_MAX_READINGS = 64
 #: a tug stops from 0.5 m/s in 2-3 s; 2 m/s in half a second (a course read 180° off) is not
 MAX_OWN_ACCEL_MPS2 = 1.0
 #: the share of a jump of the own rate, squared, given to the variance of ``w``
-JUMP_W_SHARE = 0.25
+JUMP_W_SHARE = 0.1
 #: how long (s) a track holds its own rate through readings without one before it makes the
 #: whole rate ``w`` again
 OWN_HOLD_S = 2.0
