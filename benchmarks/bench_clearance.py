@@ -3,8 +3,9 @@
 Targets: at most 2 ms per frame without pose refinement (issue #2), at most 5 ms with it,
 from a pose 2.3 m and 2.5 degrees off (issue #27), also when the mask comes from a model and
 its probabilities widen the sigmas (a stand-in: logits from the labels blurred by 1.5 px).
-Prints the median time per frame for each scene and configuration, and its ratio to the
-target, measured in one run.
+The last configuration adds the vessel's velocity and rate of turn (each section's own rate,
+clearance.own_motion). Prints the median time per frame for each scene and configuration,
+and its ratio to the target, measured in one run.
 
     .venv/bin/python benchmarks/bench_clearance.py [--repeats 300]
 """
@@ -25,6 +26,7 @@ import numpy as np
 
 from harborsight.clearance import ClearanceSettings, measure_clearance
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, corrected_geometry
+from harborsight.clearance.uncertainty import FrameVelocities
 from harborsight.perception.confidence import SolidConfidence
 from harborsight.sim.schematic import render, sample_scene
 from harborsight.vessel.spec import load_vessel_spec
@@ -65,19 +67,24 @@ def main() -> None:
         configurations = [
             (f"{method}, exact pose", geometry, ClearanceSettings(method=method, pose_refinement=fixed),
              TARGET_MS) for method in ("ground_plane", "gsd")]
-        configurations = [(*c, None) for c in configurations]
+        configurations = [(*c, None, None) for c in configurations]
         off_pose = corrected_geometry(geometry, SENSOR_ERROR)
         configurations.append(("ground_plane, refined from 2.3 m off", off_pose,
-                               ClearanceSettings(), REFINED_TARGET_MS, None))
+                               ClearanceSettings(), REFINED_TARGET_MS, None, None))
         configurations.append(("  and the model's doubt", off_pose, ClearanceSettings(),
-                               REFINED_TARGET_MS, model_like_confidence(labels)))
-        for name_of, frame_geometry, settings, target, confidence in configurations:
+                               REFINED_TARGET_MS, model_like_confidence(labels), None))
+        configurations.append(("  and the vessel's velocity", off_pose, ClearanceSettings(),
+                               REFINED_TARGET_MS, model_like_confidence(labels),
+                               FrameVelocities(None, (0.3, -0.2), 0.05, 0.5, 0.1)))
+        for name_of, frame_geometry, settings, target, confidence, velocities in configurations:
             for _ in range(10):
-                measure_clearance(labels, frame_geometry, vessel, settings, confidence=confidence)
+                measure_clearance(labels, frame_geometry, vessel, settings, confidence=confidence,
+                                  velocities=velocities)
             times = []
             for _ in range(args.repeats):
                 t0 = time.perf_counter()
-                measure_clearance(labels, frame_geometry, vessel, settings, confidence=confidence)
+                measure_clearance(labels, frame_geometry, vessel, settings, confidence=confidence,
+                                  velocities=velocities)
                 times.append(time.perf_counter() - t0)
             ms = 1000 * float(np.median(times))
             name = f"{scenario} {altitude} m {tilt} deg"
