@@ -243,3 +243,24 @@ def test_the_sigma_widens_where_the_points_are_loose():
                   yaw_rate_sigma_deg_s=0.0)
     assert head_on.own_rate_mps == pytest.approx(-1.0)
     assert head_on.own_rate_sigma_mps == pytest.approx(0.05)
+
+
+def test_a_rate_of_turn_fitted_to_the_headings_where_the_log_gives_none():
+    """A gyro's headings at 10 Hz (0.3° of noise) while the vessel turns at 2 deg/s through
+    north: the fitted rate is unbiased and its stated sigma honest (about 95 % of the errors
+    within two sigma over 20 flights)."""
+    from harborsight.telemetry.track import Track
+
+    ratios, errors = [], []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        t = np.arange(0, 30, 0.1)
+        heading = (350.0 + 2.0 * t + rng.normal(0, 0.3, len(t))) % 360.0
+        track = Track(source=Path("gyro"), kind="csv", t_s=t, lat_deg=np.zeros(len(t)),
+                      lon_deg=np.zeros(len(t)), heading_deg=heading)
+        rate, sigma = track.heading_rate(np.arange(2.0, 28.0, 0.5))
+        errors += list(rate - 2.0)
+        ratios += list(np.abs(rate - 2.0) / sigma)
+    assert abs(np.mean(errors)) < 0.01
+    assert 0.9 < np.mean(np.array(ratios) < 2) < 0.99 and np.mean(np.array(ratios) < 3) > 0.98
+    assert np.isnan(track.heading_rate(np.array([-5.0]))[0][0])      # no headings around it

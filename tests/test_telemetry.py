@@ -1058,7 +1058,14 @@ def test_frames_carry_the_logs_accuracy(tmp_path):
     plain = build_video_metadata(srt, csv_vessel, camera, 5, 1.0, water_level_m=-5.0,
                                  mount=CameraMount(yaw_deg=30.0))
     assert len(plain.frames) == 5
-    for frame in plain.frames:
+    for k, frame in enumerate(plain.frames):
+        # the rate of turn fitted to the CSV's headings (1 deg/s, 3 s of them around the
+        # frame: none at the log's first second) brings its own sigma; the log states no
+        # sensor's accuracy
+        assert frame["vessel"].pop("yaw_rate_deg_s", None) == (
+            None if k == 0 else pytest.approx(1.0, abs=1e-3))
+        assert frame["vessel"].pop("yaw_rate_sigma_deg_s", None) == (
+            None if k == 0 else pytest.approx(0.05))
         assert not any("sigma" in key for section in ("uav", "camera_attitude", "vessel")
                        for key in frame[section])
         assert parse_frame_metadata({**frame, "image": "video"}).sensor_sigmas == {}

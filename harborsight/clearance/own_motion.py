@@ -32,8 +32,9 @@ consumer module's datasheet figure, an NMEA or AIS speed is given to 0.1 kn),
 :data:`YAW_RATE_SIGMA_DEG_S` for a rate of turn and, for a frame without one, the vessel
 taken as not turning within :data:`UNMEASURED_TURN_DEG_S`: at 15 m from the antenna that is
 0.13 m/s. Telemetry logs give the velocity from the speed and course over ground (NMEA RMC,
-AIS) and the rate of turn from NMEA ROT or AIS
-(:func:`harborsight.telemetry.metadata.own_motion_fields`). A contact (the
+AIS) and the rate of turn from NMEA ROT or AIS, else fitted to their headings
+(:func:`harborsight.telemetry.metadata.own_motion_fields`, :meth:`Track.heading_rate
+<harborsight.telemetry.track.Track.heading_rate>`). A contact (the
 points under :data:`MIN_GAP_M` apart) has no direction and no own rate.
 """
 

@@ -230,6 +230,7 @@ def frames_at_times(
     digital = uav.get("digital_zoom")
     reference_focal = camera.get("focal_35mm_mm") or _first_focal(drone)
     ship = vessel.sample(vessel_t, max_gap_s, hold_s)
+    turn, turn_sigma = vessel.heading_rate(vessel_t)        # where the log gives no ROT
     yaw, pitch, roll = camera_attitude_deg(drone, uav, mount)
     frames, skipped = [], []
     for i in range(n_frames):
@@ -275,7 +276,7 @@ def frames_at_times(
         })
         if frame_camera["fx"] != camera["fx"]:
             frames[-1]["telemetry"]["digital_zoom"] = ratio
-        frames[-1]["vessel"].update(own_motion_fields(ship, i))
+        frames[-1]["vessel"].update(own_motion_fields(ship, i, turn[i], turn_sigma[i]))
         reckoned_s = ship.get("dead_reckoned_s")
         if reckoned_s is not None and reckoned_s[i] > 0:   # between reports: the bars widen
             frames[-1]["vessel"]["dead_reckoned_s"] = round(float(reckoned_s[i]), 3)
@@ -287,11 +288,14 @@ def frames_at_times(
     return FrameMetadataResult(frames, skipped, mount.resolve(drone))
 
 
-def own_motion_fields(ship: dict, i: int) -> dict:
+def own_motion_fields(ship: dict, i: int, heading_rate_deg_s: float = math.nan,
+                      heading_rate_sigma_deg_s: float = math.nan) -> dict:
     """The vessel's ground velocity (east, north; m/s) from the speed and course over ground
-    its log gives at sample ``i`` (NMEA RMC, AIS), and its rate of turn (AIS), as frame
-    fields (``velocity_en_mps``, ``yaw_rate_deg_s``; :mod:`harborsight.clearance.own_motion`
-    gives them their default sigmas). A speed at rest without a course is a velocity of 0."""
+    its log gives at sample ``i`` (NMEA RMC, AIS), and its rate of turn (NMEA ROT, AIS; else
+    ``heading_rate_deg_s``, fitted to the headings, with its sigma), as frame fields
+    (``velocity_en_mps``, ``yaw_rate_deg_s``, ``yaw_rate_sigma_deg_s``;
+    :mod:`harborsight.clearance.own_motion` gives the rest their default sigmas). A speed at
+    rest without a course is a velocity of 0."""
     fields: dict = {}
     sog, cog = ship.get("sog_mps"), ship.get("cog_deg")
     if sog is not None and np.isfinite(sog[i]) and sog[i] >= 0:
@@ -304,6 +308,9 @@ def own_motion_fields(ship: dict, i: int) -> dict:
     rot = ship.get("rot_deg_s")
     if rot is not None and np.isfinite(rot[i]):
         fields["yaw_rate_deg_s"] = round(float(rot[i]), 4)
+    elif math.isfinite(heading_rate_deg_s) and math.isfinite(heading_rate_sigma_deg_s):
+        fields["yaw_rate_deg_s"] = round(float(heading_rate_deg_s), 4)
+        fields["yaw_rate_sigma_deg_s"] = round(float(heading_rate_sigma_deg_s), 4)
     return fields
 
 

@@ -71,6 +71,11 @@ STEPS = frozenset({"focal_35mm_mm", "digital_zoom"})
 ATTITUDE = ("yaw_deg", "pitch_deg", "roll_deg")
 ORIENTATION = (*ATTITUDE, "heading_deg", "heading_sigma_deg")
 
+#: the window (s) of headings a rate of turn is fitted to where a log gives none
+HEADING_RATE_WINDOW_S = 3.0
+#: the least one-sigma (deg/s) of such a rate
+HEADING_RATE_MIN_SIGMA_DEG_S = 0.05
+
 
 @dataclass
 class Track:
@@ -152,6 +157,36 @@ class Track:
 
     def __len__(self) -> int:
         return len(self.t_s)
+
+    def heading_rate(self, times_s: np.ndarray, window_s: float = HEADING_RATE_WINDOW_S
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """The rate of turn (deg/s, clockwise) at ``times_s`` from the headings themselves,
+        and its sigma: the least-squares slope of the unwrapped headings within
+        ``window_s / 2`` of each time, ``Σ(t - t̄)(h - h̄) / Σ(t - t̄)²``, its sigma the
+        residuals' RMS over ``sqrt(Σ(t - t̄)²)`` (at least :data:`HEADING_RATE_MIN_SIGMA_DEG_S`:
+        a heading given to 0.1° at 1 Hz); NaN where fewer than 3 headings span half the
+        window. For logs that give no rate of turn (an HDT without a ROT)."""
+        times_s = np.atleast_1d(np.asarray(times_s, dtype=float))
+        rate = np.full(times_s.shape, np.nan)
+        sigma = np.full(times_s.shape, np.nan)
+        if self.heading_deg is None:
+            return rate, sigma
+        t = self._times_of("heading_deg")
+        finite = np.isfinite(self.heading_deg)
+        t, h = t[finite], np.rad2deg(np.unwrap(np.deg2rad(self.heading_deg[finite])))
+        for k, at in enumerate(times_s):
+            near = np.abs(t - at) <= window_s / 2
+            if near.sum() < 3 or np.ptp(t[near]) < window_s / 2:
+                continue
+            tk, hk = t[near], h[near]
+            lead = tk - tk.mean()
+            spread = float(np.sum(lead * lead))
+            slope = float(np.sum(lead * (hk - hk.mean()))) / spread
+            residual = hk - hk.mean() - slope * lead
+            scatter = math.sqrt(float(np.sum(residual * residual)) / max(len(tk) - 2, 1))
+            rate[k] = slope
+            sigma[k] = max(scatter / math.sqrt(spread), HEADING_RATE_MIN_SIGMA_DEG_S)
+        return rate, sigma
 
     @property
     def duration_s(self) -> float:
