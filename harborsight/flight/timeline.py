@@ -218,7 +218,8 @@ class ClearanceTimeline:
         return writer
 
     def plot(self, path: Path, alarm_m: float = 2.0, warn_m: float = 5.0) -> bool:
-        """Distance of every section over time, and the closing speed of the closest one.
+        """Distance of every section over time, and the closing speed of the closest one
+        (with, where the frames give the vessel's velocity, the part its own motion makes).
         Returns False (and writes nothing) when no section was ever measured."""
         measured = [r for r in self.rows if r["distance_m"] is not None]
         if not measured:
@@ -264,6 +265,12 @@ class ClearanceTimeline:
         ax_v.fill_between(x, speed - spread, speed + spread, color="grey", alpha=0.25, lw=0,
                           label="± one sigma")
         ax_v.plot(x, speed, "k.-", ms=3, lw=1, label="filtered")
+        own = [(r[x_key], r["own_closing_mps"]) for r in rows if r.get("own_closing_mps") is not None]
+        if own:     # what the vessel's own motion alone makes of it (the frames' velocity)
+            ax_v.plot(*zip(*own, strict=True), "--", color="tab:blue", lw=1,
+                      label="the vessel's own motion")
+        if rows:
+            ax_v.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         ax_v.axhline(0, color="grey", lw=0.8)
         ax_v.set_ylabel("closing speed of the\nclosest section (m/s)")
         ax_v.set_xlabel(x_label)
