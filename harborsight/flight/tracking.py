@@ -173,7 +173,7 @@ class Reading:
     """One frame's clearance of one section: distance and its sigma (total and random part),
     and the rate (m/s, negative closing) at which the vessel's own motion changes it were the
     obstacle fixed, with its sigma, when the frame gives the vessel's velocity
-    (:func:`harborsight.clearance.own_motion.own_rates`)."""
+    (:func:`harborsight.clearance.own_motion.add_own_rates`)."""
 
     distance_m: float
     sigma_m: float | None = None
@@ -282,7 +282,13 @@ class _Track:
 
     def predicted(self, time_s: float, own: tuple[float, float] | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
-        """State and covariance at ``time_s`` (module docstring, "The vessel's own motion"):
+        """State and covariance at ``time_s`` with ``own`` taken (:meth:`advance`)."""
+        return self.advance(time_s, own)[:2]
+
+    def advance(self, time_s: float, own: tuple[float, float] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, str]:
+        """State, covariance and what :meth:`own_use` made of ``own`` at ``time_s`` (module
+        docstring, "The vessel's own motion"):
         ``F = [[1, Δt, Δt], [0, 1, 0], [0, 0, 1]]`` with white accelerations of ``w`` and
         ``r``; then the reading's ``own = (r, σ)`` as :meth:`own_use` says: a Kalman update
         of ``r``, or a jump, taken whole as a change of the vessel's speed somewhere in the
@@ -301,7 +307,7 @@ class _Track:
         if use == "update":
             rate, sigma = own
             gain = P[:, 2] / (P[2, 2] + sigma * sigma)
-            return x + gain * (rate - x[2]), P - np.outer(gain, P[2, :])
+            return x + gain * (rate - x[2]), P - np.outer(gain, P[2, :]), use
         if use == "jump":
             rate, sigma = own
             change = rate - x[2]
@@ -313,7 +319,7 @@ class _Track:
             P[2, :] = 0.0
             P[:, 2] = 0.0
             P[2, 2] = sigma * sigma
-        return x, P
+        return x, P, use
 
     def set_own_rate(self, time_s: float, own: tuple[float, float] | None, use: str) -> None:
         """After a reading at ``time_s`` is taken (``use``: what :meth:`own_use` said of its own
@@ -657,8 +663,7 @@ class SectionTracker:
         """The track restarted from :meth:`_manoeuvre`'s line (distance and ``w``), its own
         rate ``r`` as predicted, ``reading`` taken."""
         _, systematic = self._reading_variance(reading, time_s - track.time_s, track)
-        x, P = self._predicted(track, time_s)
-        use = track.own_use(time_s, self._own, *track.predicted(time_s))
+        x, P, use = track.advance(time_s, self._own)
         track.own_travel_m = track.own_travel_to(time_s, x)
         (distance, w), line_covariance = restart
         track.state = np.array([distance, w, x[2]])
@@ -686,8 +691,7 @@ class SectionTracker:
             return None
         first = best.covariance[0, 0]
         variance, systematic = self._reading_variance(reading, dt, best, measured=False)
-        x, P = self._predicted(best, time_s)
-        use = best.own_use(time_s, self._own, *best.predicted(time_s))
+        x, P, use = best.advance(time_s, self._own)
         best.own_travel_m = best.own_travel_to(time_s, x)
         own_rate, own_variance = x[2], P[2, 2]          # 0 without an own rate
         rate = (reading.distance_m - best.state[0]) / dt
@@ -730,8 +734,7 @@ class SectionTracker:
         # is taken at the track's own time: its clock never goes back, or the next
         # prediction would cover that stretch twice and bend the closing speed
         time_s = max(time_s, track.time_s)
-        x, P = self._predicted(track, time_s)
-        use = track.own_use(time_s, self._own, *track.predicted(time_s))
+        x, P, use = track.advance(time_s, self._own)
         dt = time_s - track.time_s
         variance, systematic = self._reading_variance(reading, dt, track)
         innovation = reading.distance_m - x[0]
