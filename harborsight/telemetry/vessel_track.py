@@ -173,11 +173,7 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     head = np.rad2deg(np.unwrap(np.deg2rad(np.array([h for _, h in headings])[order])))
     fix_order = np.argsort(arrival_t, kind="stable")
     fix_t = arrival_t[fix_order]
-    heading = np.interp(fix_t, head_t, head) % 360.0
-    index = np.searchsorted(head_t, fix_t)
-    nearest = np.minimum(np.abs(fix_t - head_t[np.clip(index - 1, 0, len(head_t) - 1)]),
-                         np.abs(head_t[np.clip(index, 0, len(head_t) - 1)] - fix_t))
-    heading[nearest > max_heading_gap_s] = np.nan
+    heading = _interp_within(fix_t, head_t, head, max_heading_gap_s) % 360.0
     if np.isnan(heading).any():
         notes.append(f"{int(np.isnan(heading).sum())} fix(es) with no heading within "
                      f"{max_heading_gap_s:g} s")
@@ -310,6 +306,19 @@ def _magnetic_to_true(magnetic: list[tuple[int, float]], fixes: list[tuple[datet
     return true, note
 
 
+def _interp_within(at_t: np.ndarray, sample_t: np.ndarray, values: np.ndarray,
+                   max_gap_s: float) -> np.ndarray:
+    """``values`` (at the sorted times ``sample_t``) interpolated at ``at_t``; NaN where the
+    nearest sample is more than ``max_gap_s`` away."""
+    out = np.interp(at_t, sample_t, values)
+    index = np.searchsorted(sample_t, at_t)
+    last = len(sample_t) - 1
+    nearest = np.minimum(np.abs(at_t - sample_t[np.clip(index - 1, 0, last)]),
+                         np.abs(sample_t[np.clip(index, 0, last)] - at_t))
+    out[nearest > max_gap_s] = np.nan
+    return out
+
+
 def _rates_of_turn(turns: list[tuple[int, float]], arrival_t: np.ndarray, fix_t: np.ndarray,
                    max_gap_s: float) -> np.ndarray:
     """The rate of turn (deg/s) at each fix (``fix_t``, in time order) from the ROT sentences,
@@ -319,13 +328,8 @@ def _rates_of_turn(turns: list[tuple[int, float]], arrival_t: np.ndarray, fix_t:
         return np.full(len(fix_t), np.nan)
     turn_t = _heading_times(arrival_t, [epoch for epoch, _ in turns])
     order = np.argsort(turn_t, kind="stable")
-    turn_t, rates = turn_t[order], np.array([rate for _, rate in turns])[order]
-    rot = np.interp(fix_t, turn_t, rates)
-    index = np.searchsorted(turn_t, fix_t)
-    nearest = np.minimum(np.abs(fix_t - turn_t[np.clip(index - 1, 0, len(turn_t) - 1)]),
-                         np.abs(turn_t[np.clip(index, 0, len(turn_t) - 1)] - fix_t))
-    rot[nearest > max_gap_s] = np.nan
-    return rot
+    return _interp_within(fix_t, turn_t[order], np.array([rate for _, rate in turns])[order],
+                          max_gap_s)
 
 
 def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
