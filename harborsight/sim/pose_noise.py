@@ -108,13 +108,21 @@ def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Gener
     uav_height = float(rng.normal(0.0, noise.height_m)) if noise.height_m else 0.0
     yaw_error, heading_error = (rng.normal(0.0, noise.heading_deg, 2) if noise.heading_deg
                                 else np.zeros(2))
-    if previous is not None and rho > 0.0:
-        fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
-        uav_en = rho * np.asarray(previous["uav_en_m"], float) + fresh * uav_en
-        vessel_en = rho * np.asarray(previous["vessel_en_m"], float) + fresh * vessel_en
-        uav_height = rho * float(previous["uav_height_m"]) + fresh * uav_height
-        yaw_error = rho * float(previous["camera_yaw_deg"]) + fresh * float(yaw_error)
-        heading_error = rho * float(previous["vessel_heading_deg"]) + fresh * float(heading_error)
+    fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
+
+    def continued(draw, key: str):
+        """This frame's draw continuing the previous frame's error ``key``, where there is one:
+        ``rho previous + sqrt(1 - rho²) draw``."""
+        if previous is None or rho <= 0.0 or key not in previous:
+            return draw
+        if np.ndim(draw) == 0:
+            return rho * float(previous[key]) + fresh * float(draw)
+        return rho * np.asarray(previous[key], float) + fresh * draw
+
+    uav_en, vessel_en = continued(uav_en, "uav_en_m"), continued(vessel_en, "vessel_en_m")
+    uav_height = continued(uav_height, "uav_height_m")
+    yaw_error = continued(yaw_error, "camera_yaw_deg")
+    heading_error = continued(heading_error, "vessel_heading_deg")
     uav["lat"], uav["lon"] = _moved(uav["lat"], uav["lon"], uav["alt_m"], *uav_en)
     uav["alt_m"] = uav["alt_m"] + uav_height
     attitude["yaw_deg"] = (attitude["yaw_deg"] + float(yaw_error)) % 360.0
@@ -135,19 +143,13 @@ def add_pose_noise(frame: dict[str, Any], noise: PoseNoise, rng: np.random.Gener
         "vessel_heading_deg": round(float(heading_error), 4),
     }
     if noise.velocity_mps and vessel.get("velocity_en_mps") is not None:
-        velocity_en = rng.normal(0.0, noise.velocity_mps, 2)
-        if previous is not None and rho > 0.0 and "vessel_velocity_en_mps" in previous:
-            fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
-            velocity_en = rho * np.asarray(previous["vessel_velocity_en_mps"], float) + fresh * velocity_en
+        velocity_en = continued(rng.normal(0.0, noise.velocity_mps, 2), "vessel_velocity_en_mps")
         vessel["velocity_en_mps"] = [float(v) + float(e)
                                      for v, e in zip(vessel["velocity_en_mps"], velocity_en, strict=True)]
         vessel["velocity_sigma_mps"] = noise.velocity_mps
         truth["pose_errors"]["vessel_velocity_en_mps"] = [round(float(v), 4) for v in velocity_en]
     if noise.yaw_rate_deg_s and vessel.get("yaw_rate_deg_s") is not None:
-        turn_error = float(rng.normal(0.0, noise.yaw_rate_deg_s))
-        if previous is not None and rho > 0.0 and "vessel_yaw_rate_deg_s" in previous:
-            fresh = math.sqrt(max(0.0, 1.0 - rho * rho))
-            turn_error = rho * float(previous["vessel_yaw_rate_deg_s"]) + fresh * turn_error
+        turn_error = continued(float(rng.normal(0.0, noise.yaw_rate_deg_s)), "vessel_yaw_rate_deg_s")
         vessel["yaw_rate_deg_s"] = float(vessel["yaw_rate_deg_s"]) + turn_error
         vessel["yaw_rate_sigma_deg_s"] = noise.yaw_rate_deg_s
         truth["pose_errors"]["vessel_yaw_rate_deg_s"] = round(turn_error, 4)
