@@ -783,8 +783,21 @@ def test_independent_count():
     from harborsight.flight.tracking import EVIDENCE_STEP_S, independent_count
 
     assert independent_count(3, 2 * EVIDENCE_STEP_S) == 3             # 2 Hz: each counts
+    assert independent_count(2, 0.6 - 0.1) == 2                       # a clock's rounding
     assert independent_count(11, 1.0) == pytest.approx(1.0 + 1.0 / EVIDENCE_STEP_S)   # 10 Hz
     assert independent_count(2, 0.0) == pytest.approx(1.0)
+
+
+def test_the_manoeuvre_rule_weighs_readings_at_video_rate_by_their_span():
+    """Eleven readings in one second, each 1.2 sigma nearer than predicted: as independent
+    looks ``|Σν|/√n`` = 3.98 would be a manoeuvre; worth three (``1 + 1 s / 0.5 s``), the
+    mean times √3 is 2.08, none. Three readings at 2 Hz, 2 sigma each (3.46), still are."""
+    from harborsight.flight.tracking import manoeuvre_readings
+
+    video = [(20.0 + 0.1 * k, 10.0, -1.2) for k in range(11)]
+    assert manoeuvre_readings(video, 3.25, 3.0) == 0
+    two_hz = [(20.0 + 0.5 * k, 10.0, -2.0) for k in range(3)]
+    assert manoeuvre_readings(two_hz, 3.25, 3.0) == 3
 
 
 def _still_quay_at_video_rate(seed, rate_hz=10.0, seconds=200.0, correlation_s=1.0):

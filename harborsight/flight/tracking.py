@@ -124,10 +124,10 @@ residuals of readings 0.1 s apart measuring almost no noise), against 1.4 % at 2
 readings closer together than :data:`EVIDENCE_STEP_S` (0.5 s) count in proportion: ``n``
 of them spanning ``T`` are worth ``min(n, 1 + T / EVIDENCE_STEP_S)`` to the manoeuvre rule
 (its ``|Σν| / √n`` becomes the mean ``ν`` times the square root of that, and the line's
-slope sigma grows alike), a reading ``Δt`` after the track's last weighs
+variances grow by ``n / n_eff``), a reading ``Δt`` after the track's last weighs
 ``a = min(1, Δt / EVIDENCE_STEP_S)`` in the drift test's sums, and the three-point residuals
-take readings at least :data:`NOISE_SPACING_S` apart. At 2 Hz nothing changes; at 10 Hz
-that quay shows 7 %.
+take readings at least :data:`NOISE_SPACING_S` apart. Readings 0.5 s or more apart are
+taken as before, to the bit; at 10 Hz that quay shows 7 %.
 """
 
 from __future__ import annotations
@@ -280,7 +280,7 @@ class _Track:
         window. The residuals take readings at least :data:`NOISE_SPACING_S` apart (module
         docstring, "Frame rate")."""
         self.recent.append((time_s, distance_m, self.own_travel_m))
-        if self.spaced and time_s - self.spaced[-1][0] < NOISE_SPACING_S:
+        if self.spaced and time_s - self.spaced[-1][0] < NOISE_SPACING_S - 1e-9:
             return
         self.spaced.append((time_s, distance_m, self.own_travel_m))
         if len(self.spaced) < 3:
@@ -381,7 +381,7 @@ class _Track:
         if not self.has_own:
             return None
         nu = max(-cap, min(cap, surprise))
-        weight = min(1.0, max(time_s - self.time_s, 0.0) / EVIDENCE_STEP_S)
+        weight = min(1.0, max(time_s - self.time_s, 0.0) / EVIDENCE_STEP_S + 1e-9)
         fired = None
         for k, signed in enumerate((-nu, nu)):     # nearer (ν < 0), farther (ν > 0)
             if self.drift_sums[k] == 0.0:
@@ -460,8 +460,8 @@ DRIFT_AGILE_S = 3.0
 #: repeats from one video frame to the next (module docstring, "Frame rate")
 EVIDENCE_STEP_S = 0.5
 #: the three-point noise residuals take readings at least this far apart (s): all of them at
-#: 2 Hz with a tenth of a second of jitter, every fourth at 10 Hz
-NOISE_SPACING_S = 0.8 * EVIDENCE_STEP_S
+#: 2 Hz with up to 0.05 s of jitter, every fifth at 10 Hz
+NOISE_SPACING_S = 0.9 * EVIDENCE_STEP_S
 #: the line restarts a track only when its speed differs from the track's by this many of
 #: its own sigmas, under the readings' measured scatter (a line through readings that
 #: scatter by 0.3 m over a second says the speed to 0.4 m/s: on a steady approach, two such
@@ -705,7 +705,9 @@ class SectionTracker:
         stopped vessel's readings soon leave a steady approach's gate): a straight line
         fitted to them, slope ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²`` of variance
         ``R / Σ(t - t̄)²``, the distance at ``time_s`` of variance
-        ``R (1/n + (time_s - t̄)² / Σ(t - t̄)²)``. None without one; when the line's speed
+        ``R (1/n + (time_s - t̄)² / Σ(t - t̄)²)``, ``R`` times ``n / n_eff`` where the
+        readings come faster than one in :data:`EVIDENCE_STEP_S` (:func:`independent_count`).
+        None without one; when the line's speed
         differs from the track's by less than :data:`MANOEUVRE_SPEED_SIGMA` of its own sigma
         under the readings' measured scatter, or by more than
         :attr:`TrackerSettings.manoeuvre_max_mps`; or when the line, taken back to the last
@@ -734,7 +736,11 @@ class SectionTracker:
         # (R itself takes twice that, an upper bound for the filter)
         white = track.white_variance(self.settings.min_noise_residuals)
         scatter = variance if white is None else min(variance, white)
-        scatter *= n / independent_count(n, float(t[-1] - t[0]))     # readings that come fast
+        # readings that come faster than one in EVIDENCE_STEP_S say the line no better than
+        # n_eff of them would: its variances (check, gate and restart) grow by n / n_eff
+        fast = n / independent_count(n, float(t[-1] - t[0]))
+        scatter *= fast
+        variance *= fast
         if (change > self.settings.manoeuvre_max_mps
                 or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / spread)):
             return None
