@@ -189,22 +189,6 @@ class Track:
             rate[k] = slope
             sigma[k] = max(scatter / math.sqrt(spread), HEADING_RATE_MIN_SIGMA_DEG_S)
         return rate, sigma
-        t = self._times_of("heading_deg")
-        finite = np.isfinite(self.heading_deg)
-        t, h = t[finite], np.rad2deg(np.unwrap(np.deg2rad(self.heading_deg[finite])))
-        for k, at in enumerate(times_s):
-            near = np.abs(t - at) <= window_s / 2
-            if near.sum() < 3 or np.ptp(t[near]) < window_s / 2:
-                continue
-            tk, hk = t[near], h[near]
-            lead = tk - tk.mean()
-            spread = float(np.sum(lead * lead))
-            slope = float(np.sum(lead * (hk - hk.mean()))) / spread
-            residual = hk - hk.mean() - slope * lead
-            scatter = math.sqrt(float(np.sum(residual * residual)) / max(len(tk) - 2, 1))
-            rate[k] = slope
-            sigma[k] = max(scatter / math.sqrt(spread), HEADING_RATE_MIN_SIGMA_DEG_S)
-        return rate, sigma
 
     @property
     def duration_s(self) -> float:
