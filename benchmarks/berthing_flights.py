@@ -121,8 +121,8 @@ def main() -> None:
           f"{TARGET_UP_TO_M:.0f} m, closing speed within {TARGET_CLOSING_MPS} m/s\n")
     print("| height | masks | sections | MAE per frame | MAE filtered | target/actual | "
           "closing speed (true) | its error (frames) | target/actual | shown while still "
-          "(frames) | within 2σ | ≥ lower bound |")
-    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "(frames) | within 1σ | within 2σ | ≥ lower bound |")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     rows.sort(key=lambda r: (r[1].altitude_m, r[0]))
     if args.json:
         args.json.write_text(json.dumps({
@@ -142,7 +142,8 @@ def main() -> None:
                  f"{_ratio(TARGET_CLOSING_MPS, closing.median_abs_error_mps)} |")
               + (" — |" if s.still_speed_mps is None else
                  f" {s.still_speed_mps:.3f} ({s.still_frames}) |")
-              + f" {_share(s.within_2_sigma_share)} | {_share(s.lower_bound_share)} |")
+              + f" {_share(s.within_sigma_share)} | {_share(s.within_2_sigma_share)} |"
+              f" {_share(s.lower_bound_share)} |")
 
 
 def _m(value: float | None) -> str:

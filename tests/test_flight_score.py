@@ -82,6 +82,23 @@ def test_errors_bars_and_speeds_are_scored_per_scene_from_the_chosen_frame(tmp_p
     assert second.closing.true_mps == pytest.approx(1.0)
 
 
+def test_the_share_within_one_sigma_is_scored_beside_two(tmp_path):
+    """Frames 0-4 of one scene read 0.1 m long with sigmas 0.2, 0.08, 0.2, 0.04 and 0.05 m:
+    within one sigma 2 of 5 (0.1 <= 0.2), within two sigma 4 of 5 (0.1 <= 0.16, 0.1 <= 0.1;
+    not 0.08)."""
+    images = _flight(tmp_path, [(10.0, 0.4, 30.0)])
+    rows = [{"image": image, "section": 0, "status": "ok", "distance_m": 10.0 - 0.2 * k + 0.1,
+             "sigma_m": sigma, "distance_lower_m": 0.0, "pose_contradicted": 0}
+            for k, (image, sigma) in enumerate(
+                zip(images, (0.2, 0.08, 0.2, 0.04, 0.05), strict=True))]
+    rows += [{"image": image, "section": 1, "status": "clear", "pose_contradicted": 0}
+             for image in images]
+    score, = score_flight(tmp_path, _csv(tmp_path / "s.csv", rows), from_frame=0)
+    assert score.estimates == 5
+    assert score.within_sigma_share == pytest.approx(0.4)
+    assert score.within_2_sigma_share == pytest.approx(0.8)
+
+
 def test_a_missed_obstacle_and_a_contradicted_pose_are_counted_apart(tmp_path):
     """A clear section with an obstacle in the truth is missed; a frame whose pose the image
     contradicts counts in the error but not in the bars' shares."""

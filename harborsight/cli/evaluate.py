@@ -388,7 +388,8 @@ def evaluate_flight_command(
                  f"  distance: MAE {fmt_number(s.mae_m, 3)} m per frame, "
                  f"{fmt_number(s.mae_filtered_m, 3)} m filtered; median "
                  f"{fmt_number(s.median_abs_error_m, 3)}, p95 {fmt_number(s.p95_abs_error_m, 3)} m",
-                 f"  bars: truth within 2 sigma {_percent(s.within_2_sigma_share)} %, at or "
+                 f"  bars: truth within 1 sigma {_percent(s.within_sigma_share)} % (68 for a "
+                 f"Gaussian), 2 sigma {_percent(s.within_2_sigma_share)} %, at or "
                  f"above the lower bound {_percent(s.lower_bound_share)} %"]
         if s.closing is None:
             lines.append("  closing speed: no frame to compare")

@@ -7,8 +7,10 @@ are sections the run calls ``clear`` with an obstacle in the truth, ``false`` th
 measures with none. The frames before ``from_frame`` of each scene are left out: a tracker
 starts from its first readings. The errors are ``|distance_m - d|`` (per frame) and
 ``|filtered_distance_m - d|`` (the tracker's), ``d`` the true distance; the bars' shares are
-those of ``evaluate distance`` (the truth within ``distance_m ± 2 sigma_m``, and at or above
-``distance_lower_m``), over frames whose pose the image does not contradict.
+those of ``evaluate distance`` (the truth within ``distance_m ± sigma_m`` and ``± 2 sigma_m``,
+and at or above ``distance_lower_m``), over frames whose pose the image does not contradict:
+with a right Gaussian sigma 68 % and 95 % lie within one and two sigma, and a bar sized for
+rare gross errors shows as far more than 68 % within one.
 
 **Closing speeds.** The true closing speed of section k between frames i-1 and i+1 is the
 central difference of its ground-truth clearance, ``-(d_k[i+1] - d_k[i-1]) / (t[i+1] -
@@ -66,6 +68,9 @@ class FlightScore:
     #: truth has no speed, from ``from_frame``): median of its magnitude, and how many frames
     still_speed_mps: float | None = None
     still_frames: int = 0
+    #: share of the estimates within one reported sigma of the truth (0.68 for a right
+    #: Gaussian sigma)
+    within_sigma_share: float | None = None
 
 
 @dataclass(frozen=True)
@@ -231,7 +236,7 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
     scores = []
     for scene in sorted({t.scene for t in truth.values()}):
         images = {image for image, t in truth.items() if t.scene == scene}
-        errors, filtered, within, above = [], [], [], []
+        errors, filtered, within, within_one, above = [], [], [], [], []
         missed = false = 0
         for row in rows:
             here = truth[row["image"]]
@@ -259,6 +264,7 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
                 lower = _number(row, "distance_lower_m", sections_csv)
                 if sigma is not None:
                     within.append(abs(distance - d_true) <= 2.0 * sigma)
+                    within_one.append(abs(distance - d_true) <= sigma)
                 if lower is not None:
                     above.append(d_true >= lower)
         heights = [truth[image].height_m for image in images]
@@ -274,5 +280,6 @@ def score_flight(flight_dir: Path, sections_csv: Path, from_frame: int = 3) -> l
             lower_bound_share=float(np.mean(above)) if above else None,
             missed=missed, false=false,
             closing=_closing_speeds(truth, rows, sections_csv, scene),
-            **_still_speed(truth, rows, sections_csv, scene, from_frame)))
+            **_still_speed(truth, rows, sections_csv, scene, from_frame),
+            within_sigma_share=float(np.mean(within_one)) if within_one else None))
     return scores
