@@ -29,11 +29,8 @@ from harborsight.clearance.alignment import (
 )
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance, measure_frame
 from harborsight.clearance.obstacles import IGNORE, SHIP
-from harborsight.clearance.pose_refinement import (
-    PoseRefinementSettings,
-    _translation_search,
-    refine_vessel_pose,
-)
+from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
+from harborsight.clearance.prior_search import translation_search
 from harborsight.cli import app
 from harborsight.frame import FrameGeometry
 from harborsight.sim.schematic import DEFAULT_INTRINSICS, ground_truth, render, sample_scene
@@ -94,7 +91,7 @@ def test_a_pose_two_sigma_off_is_found_by_the_translation_search(seed, scenario,
     align = Alignment(wrong, SignedDistance(labels == SHIP, (0, 0)))
     hull_h = homogeneous(TUG.hull_points)
     outline = outline_points(hull_h, align.pixels(hull_h, np.zeros(4)))
-    starts = _translation_search(align, outline, PoseRefinementSettings(), [np.zeros(4)])
+    starts = translation_search(align, outline, PoseRefinementSettings(), [np.zeros(4)])
     # the best cell lies within a grid step's diagonal (1.4 m) of the error undone
     assert np.hypot(*(np.array(starts[0]) + error[:2])) < 1.5
 
@@ -260,7 +257,7 @@ def test_only_a_hull_mostly_in_view_can_contradict_the_sensors():
     """Of a bow alone a wrong height and shift fit as well as the truth: a 30 m bench frame
     with 36 % of its hull in view "found" its height 10.7 m off, with every outline point
     in view on an edge. The same fit of a hull 70 % or more in view contradicts."""
-    from harborsight.clearance.pose_refinement import contradicts_sensors
+    from harborsight.clearance.gross_errors import contradicts_sensors
 
     settings = PoseRefinementSettings()
     assert not contradicts_sensors(0.49, 1.0, 0.999, 0.29, settings, in_view=0.36)
@@ -507,7 +504,7 @@ def test_the_add_pose_noise_command_skips_a_bad_frame_and_writes_the_rest(tmp_pa
 
 
 def test_a_batch_summary_counts_the_frames_and_the_reasons():
-    from harborsight.clearance.pose_refinement import refinement_summary
+    from harborsight.clearance.refinement_summary import refinement_summary
 
     assert refinement_summary([{"applied": False, "reason": "off"}, None]) is None
     line = refinement_summary([

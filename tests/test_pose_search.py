@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from shapely.geometry import MultiPoint
 
-from harborsight.clearance import pose_refinement
+from harborsight.clearance import gross_errors, pose_refinement, prior_search, sister_hulls
 from harborsight.clearance.alignment import Silhouette, corrected_geometry
 from harborsight.clearance.measure import ClearanceSettings, measure_clearance
 from harborsight.clearance.pose_refinement import PoseRefinementSettings, refine_vessel_pose
@@ -25,6 +25,7 @@ from harborsight.clearance.pose_search import (
     silhouette_overlap,
     whole_image_alignment,
 )
+from harborsight.clearance.refinement_summary import refinement_summary
 from harborsight.geometry.sensor_sigmas import SensorSigmas
 from harborsight.sim.ground_truth import vessel_silhouette_px
 from harborsight.sim.schematic import ground_truth, render, sample_scene
@@ -215,8 +216,8 @@ def test_a_right_pose_is_neither_searched_nor_flagged(monkeypatch, seed, scenari
     scene, labels = scene_and_labels(seed, scenario, altitude_m)
     noisy = corrected_geometry(scene.geometry(), np.array([1.2, -0.9, math.radians(1.5), 0.0]))
     called = []
-    original = pose_refinement.place_hull
-    monkeypatch.setattr(pose_refinement, "place_hull", lambda *a, **k: called.append(1) or original(*a, **k))
+    original = gross_errors.place_hull
+    monkeypatch.setattr(gross_errors, "place_hull", lambda *a, **k: called.append(1) or original(*a, **k))
     _, refinement = refine_vessel_pose(labels, noisy, TUG)
     assert refinement.applied and not refinement.sensors_contradicted
     assert called == [] or scenario == "touching"
@@ -256,7 +257,7 @@ def test_a_hull_on_another_ship_does_not_contradict_a_pose_on_its_own(monkeypatc
     labels = _with_a_twin(labels, true)
     _, refinement = refine_vessel_pose(labels, true, TUG)
     assert not refinement.sensors_contradicted, refinement.reason
-    monkeypatch.setattr(pose_refinement, "SAME_SHIP_OVERLAP", 0.0)     # without the rule
+    monkeypatch.setattr(gross_errors, "SAME_SHIP_OVERLAP", 0.0)     # without the rule
     _, refinement = refine_vessel_pose(labels, true, TUG)
     assert refinement.sensors_contradicted
 
@@ -294,7 +295,7 @@ def test_a_fix_on_a_larger_neighbour_does_not_hold_the_hull_there(monkeypatch):
     drawn_px = np.asarray(report.pose_refinement["image_hull_px"], np.float32)
     own_px = silhouette(np.zeros(2)).astype(np.float32)
     assert cv2.contourArea(drawn_px) == pytest.approx(cv2.contourArea(own_px), rel=0.03)
-    monkeypatch.setattr(pose_refinement, "HELD_FROM_SHARE", 0.0)     # any filled pose holds
+    monkeypatch.setattr(gross_errors, "HELD_FROM_SHARE", 0.0)     # any filled pose holds
     held = measure_clearance(with_neighbour, told, TUG)
     assert not held.sensors_contradicted and held.min_distance_m is not None
 
@@ -322,12 +323,12 @@ def _rafted_between_sisters(labels: np.ndarray, true) -> np.ndarray:
 def _compare_no_solved_candidates(patch: pytest.MonkeyPatch) -> None:
     """Have the twin check leave out the candidates the refinement solved before it (as it
     did before the forty-third session), so a test shows what its own check catches."""
-    twin_alongside = pose_refinement._twin_alongside
+    twin_alongside = pose_refinement.twin_alongside
 
     def without_solved(*args, **kwargs):
         return twin_alongside(*args, **{**kwargs, "solved": ()})
 
-    patch.setattr(pose_refinement, "_twin_alongside", without_solved)
+    patch.setattr(pose_refinement, "twin_alongside", without_solved)
 
 
 def _laid_a_berth_over_without(rule_away, labels, told, true, off_m: float,
@@ -364,8 +365,8 @@ def test_a_vessel_rafted_between_sister_hulls_is_not_laid_on_one_of_them(seed, a
     assert refinement.applied, refinement.reason
     assert pose_error(found, true)[0] < 0.3
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "TWIN_DEEP_SHARE", 1.01)        # no twin check
-        patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))
+        patch.setattr(sister_hulls, "TWIN_DEEP_SHARE", 1.01)        # no twin check
+        patch.setattr(sister_hulls, "TWIN_BLOB_AREA", (0.4, 99.0))
         _compare_no_solved_candidates(patch)
         laid, unchecked = refine_vessel_pose(rafted, corrected_geometry(true, error), TUG)
     assert unchecked.applied and not unchecked.sensors_contradicted
@@ -383,11 +384,11 @@ def test_sister_hulls_the_sensors_cannot_tell_apart_keep_the_sensors_pose():
     told = corrected_geometry(true, np.array([*(5.4 * _abeam_m(true)), 0.0, 0.0]))
     _, refinement = refine_vessel_pose(rafted, told, TUG)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert refinement.reason.startswith(sister_hulls.TWIN_ALIKE)
     assert "10.7 m abeam" in refinement.reason
     report = measure_clearance(rafted, told, TUG)
     assert not report.sensors_contradicted and not report.pose_refinement["applied"]
-    assert report.pose_refinement["reason"].startswith(pose_refinement.TWIN_ALIKE)
+    assert report.pose_refinement["reason"].startswith(sister_hulls.TWIN_ALIKE)
     assert report.min_distance_m is not None          # measured, with the sensors' bars
     truth = {s.index: s for s in measure_clearance(rafted, true, TUG).sections if s.status == "ok"}
     bounded = [(s.distance_lower_m, truth[s.index].distance_m) for s in report.sections
@@ -431,14 +432,14 @@ def test_a_yacht_in_a_row_of_sisters_is_not_laid_on_the_next_berth(seed, altitud
     labels, true = _yacht_in_a_row(seed, altitude_m)
     told = corrected_geometry(true, np.array([*(3.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "TWIN_BLOB_STARTS", 0)        # no other blob fitted
+        patch.setattr(sister_hulls, "TWIN_BLOB_STARTS", 0)        # no other blob fitted
         laid, unchecked = refine_vessel_pose(labels, told, YACHT)
     assert unchecked.applied and not unchecked.sensors_contradicted
     assert pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, YACHT)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
-    said = refinement.reason[len(pose_refinement.TWIN_ALIKE):]
+    assert refinement.reason.startswith(sister_hulls.TWIN_ALIKE)
+    said = refinement.reason[len(sister_hulls.TWIN_ALIKE):]
     apart_m = float(said.split(" m abeam (a vessel alike alongside)")[0])
     assert apart_m == pytest.approx(YACHT_BERTH_M, abs=0.3)
     report = measure_clearance(labels, told, YACHT)
@@ -455,17 +456,17 @@ def test_a_prior_of_a_kilometre_still_finds_the_sisters_blobs():
     labels, true = _yacht_in_a_row(3, 60)
     told = corrected_geometry(true, np.array([2.49, 3.26, 0.0, -1.96]))
     settings = PoseRefinementSettings(prior_shift_m=1000.0, prior_heading_deg=1000.0)
-    blob_starts = pose_refinement._blob_starts
+    blob_starts = sister_hulls._blob_starts
 
     def stepped_by_the_prior(params, align, silhouette, ship, prior_diagonal, step_m, apart_m,
                              max_shift_m=math.inf):
         return blob_starts(params, align, silhouette, ship, prior_diagonal,
-                           pose_refinement.SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, apart_m)
+                           prior_search.SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, apart_m)
 
-    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "_blob_starts",
+    _laid_a_berth_over_without(lambda patch: patch.setattr(sister_hulls, "_blob_starts",
                                                            stepped_by_the_prior),
                                labels, told, true, 4.5, settings)
-    _kept_for(pose_refinement.TWIN_ALIKE, labels, told, settings)
+    _kept_for(sister_hulls.TWIN_ALIKE, labels, told, settings)
 
 
 def test_sister_yachts_are_checked_where_the_outline_has_few_points():
@@ -475,9 +476,9 @@ def test_sister_yachts_are_checked_where_the_outline_has_few_points():
     labels, true = _yacht_in_a_row(5, 84)
     told = corrected_geometry(true, np.array([*(3.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     _, refinement = refine_vessel_pose(labels, told, YACHT)
-    assert not refinement.applied and refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert not refinement.applied and refinement.reason.startswith(sister_hulls.TWIN_ALIKE)
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "TWIN_BLOB_POINTS", 40)
+        patch.setattr(sister_hulls, "TWIN_BLOB_POINTS", 40)
         laid, scored_short = refine_vessel_pose(labels, told, YACHT)
     assert scored_short.applied and pose_error(laid, true)[0] > 4.5
 
@@ -500,13 +501,13 @@ def test_sister_yachts_leaning_into_one_blob_far_from_the_nadir_are_told_apart()
     assert cv2.connectedComponents((labels == 1).astype(np.uint8))[0] == 2      # one blob
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "TWIN_BLOB_AREA", (0.4, 99.0))      # no blob too large
+        patch.setattr(sister_hulls, "TWIN_BLOB_AREA", (0.4, 99.0))      # no blob too large
         _compare_no_solved_candidates(patch)
         laid, unchecked = refine_vessel_pose(labels, told, YACHT)
     assert unchecked.applied and pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, YACHT)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert refinement.reason.startswith(sister_hulls.TWIN_ALIKE)
     assert "m abeam (a vessel alike alongside)" in refinement.reason
 
 
@@ -528,16 +529,16 @@ def test_a_sister_between_two_others_half_a_metre_apart_is_one_of_the_row():
     told = corrected_geometry(true, np.array([*(-3.0 * abeam - 2.0 * ahead), math.radians(1.0), 0.5]))
 
     def rings_alone(best, found, align, silhouette, ship):
-        return (pose_refinement._ring_ship_share(best, align, silhouette, ship),
-                pose_refinement._ring_ship_share(found, align, silhouette, ship))
+        return (sister_hulls._ring_ship_share(best, align, silhouette, ship),
+                sister_hulls._ring_ship_share(found, align, silhouette, ship))
 
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "_row_rings", rings_alone)
+        patch.setattr(sister_hulls, "_row_rings", rings_alone)
         laid, ringed_alone = refine_vessel_pose(labels, told, yacht14)
     assert ringed_alone.applied and pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, yacht14)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert refinement.reason.startswith(sister_hulls.TWIN_ALIKE)
 
 
 def _row_of_three_seen_from_aside(seed: int, altitude_m: float, sisters: bool = True,
@@ -571,12 +572,12 @@ def test_a_yacht_the_border_cuts_is_not_laid_on_a_sister_in_full_view():
     error = np.array([*(2.0 * ahead), math.radians(1.0), 0.5])
     told = corrected_geometry(true, error)
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "CUT_IN_VIEW", 0.0)          # no hull counts as cut
+        patch.setattr(sister_hulls, "CUT_IN_VIEW", 0.0)          # no hull counts as cut
         laid, unchecked = refine_vessel_pose(labels, told, YACHT)
     assert unchecked.applied and pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, YACHT)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith(pose_refinement.CUT_ALIKE), refinement.reason
+    assert refinement.reason.startswith(sister_hulls.CUT_ALIKE), refinement.reason
     assert "of its outline in view, fitting the mask there" in refinement.reason
     report = measure_clearance(labels, told, YACHT)
     assert not report.sensors_contradicted and report.min_distance_m is not None
@@ -597,10 +598,10 @@ def test_a_yacht_rafted_between_two_sisters_is_not_laid_on_an_outer_one():
     true = scene.geometry()
     _paint_sisters(labels, true, YACHT, (-4.0, 4.0))
     told = corrected_geometry(true, np.array([*(2.0 * _abeam_m(true)), math.radians(1.0), 0.5]))
-    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "ALIKE_MIN_TELLING",
-                                                           pose_refinement.MIN_EDGE_POINTS),
+    _laid_a_berth_over_without(lambda patch: patch.setattr(sister_hulls, "ALIKE_MIN_TELLING",
+                                                           sister_hulls.MIN_EDGE_POINTS),
                                labels, told, true, 3.5)
-    _kept_for(pose_refinement.TWIN_ALIKE, labels, told)
+    _kept_for(sister_hulls.TWIN_ALIKE, labels, told)
 
 
 def test_a_cut_hull_whose_fit_from_the_sensors_fails_is_found_from_the_grid():
@@ -615,12 +616,12 @@ def test_a_cut_hull_whose_fit_from_the_sensors_fails_is_found_from_the_grid():
     ahead = np.array([-abeam[1], abeam[0]])
     told = corrected_geometry(true, np.array([*(2.0 * abeam + 2.0 * ahead), math.radians(1.0), 0.5]))
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "CUT_STARTS", 0)
+        patch.setattr(sister_hulls, "CUT_STARTS", 0)
         laid, unchecked = refine_vessel_pose(labels, told, YACHT)
     assert unchecked.applied and pose_error(laid, true)[0] > 4.5
     _, refinement = refine_vessel_pose(labels, told, YACHT)
     assert not refinement.applied and not refinement.sensors_contradicted
-    assert refinement.reason.startswith((pose_refinement.CUT_ALIKE, pose_refinement.TWIN_ALIKE))
+    assert refinement.reason.startswith((sister_hulls.CUT_ALIKE, sister_hulls.TWIN_ALIKE))
 
 
 def test_a_cut_hull_fitted_with_an_end_over_water_still_joins_the_comparison():
@@ -633,9 +634,9 @@ def test_a_cut_hull_fitted_with_an_end_over_water_still_joins_the_comparison():
     joins, and the prior cannot choose."""
     labels, true = _row_of_three_seen_from_aside(8, 100, ahead=True)
     told = corrected_geometry(true, np.array([-0.34, 2.05, -0.01, 0.81]))
-    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "CUT_FILL_SHARE", 1.0),
+    _laid_a_berth_over_without(lambda patch: patch.setattr(sister_hulls, "CUT_FILL_SHARE", 1.0),
                                labels, told, true, 4.5)
-    kept, refinement = _kept_for(pose_refinement.CUT_ALIKE, labels, told)
+    kept, refinement = _kept_for(sister_hulls.CUT_ALIKE, labels, told)
     assert "fitting the mask there" in refinement.reason
     assert pose_error(kept, true)[0] < 2.5
 
@@ -651,7 +652,7 @@ def test_a_placement_solved_a_beam_over_is_compared_with_the_sister():
     labels, true = _row_of_three_seen_from_aside(3, 30, ahead=True)
     told = corrected_geometry(true, np.array([-0.56, -2.8, 0.04, -0.08]))
     _laid_a_berth_over_without(_compare_no_solved_candidates, labels, told, true, 4.5)
-    _kept_for(pose_refinement.TWIN_ALIKE, labels, told)
+    _kept_for(sister_hulls.TWIN_ALIKE, labels, told)
 
 
 def test_a_cut_hull_whose_fit_runs_off_in_height_is_fitted_again_at_the_sensors_height():
@@ -663,12 +664,12 @@ def test_a_cut_hull_whose_fit_runs_off_in_height_is_fitted_again_at_the_sensors_
     sensors' pose is kept."""
     labels, true = _row_of_three_seen_from_aside(8, 30, ahead=True, tilt_deg=15.0)
     told = corrected_geometry(true, np.array([0.99, 1.45, -0.11, 0.95]))
-    cut_starts = pose_refinement._cut_starts
+    cut_starts = sister_hulls._cut_starts
 
     def grid_only(align, outline, params, prior_diagonal, apart_m, fitted=None):
         return cut_starts(align, outline, params, prior_diagonal, apart_m)
 
-    _laid_a_berth_over_without(lambda patch: patch.setattr(pose_refinement, "_cut_starts", grid_only),
+    _laid_a_berth_over_without(lambda patch: patch.setattr(sister_hulls, "_cut_starts", grid_only),
                                labels, told, true, 4.5)
     kept, _ = _kept_for("", labels, told)
     assert pose_error(kept, true)[0] < 2.5
@@ -694,9 +695,9 @@ def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():
     assert refinement.applied, refinement.reason
     assert pose_error(found, true)[0] < 0.3
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "TWIN_BLOB_RING", 99.0)          # no ring test
+        patch.setattr(sister_hulls, "TWIN_BLOB_RING", 99.0)          # no ring test
         _, unringed = refine_vessel_pose(labels, told, YACHT)
-    assert not unringed.applied and unringed.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert not unringed.applied and unringed.reason.startswith(sister_hulls.TWIN_ALIKE)
 
 
 def test_a_tighter_prior_tells_sister_yachts_apart():
@@ -707,7 +708,7 @@ def test_a_tighter_prior_tells_sister_yachts_apart():
     labels, true = _yacht_in_a_row(3, 60)
     told = corrected_geometry(true, np.array([*(1.5 * _abeam_m(true)), 0.0, 0.0]))
     _, default = refine_vessel_pose(labels, told, YACHT)
-    assert not default.applied and default.reason.startswith(pose_refinement.TWIN_ALIKE)
+    assert not default.applied and default.reason.startswith(sister_hulls.TWIN_ALIKE)
     found, tight = refine_vessel_pose(labels, told, YACHT, PoseRefinementSettings(prior_shift_m=1.0))
     assert tight.applied, tight.reason
     assert pose_error(found, true)[0] < 0.3
@@ -726,10 +727,10 @@ def test_a_vessel_rafted_between_two_others_is_held_there_by_its_ends():
     true = scene.geometry()
     rafted = _with_a_twin(_rafted_between_sisters(labels, true), true)
     _, refinement = refine_vessel_pose(rafted, true, TUG)
-    assert refinement.edge_share < pose_refinement.HELD_FROM_SHARE
+    assert refinement.edge_share < gross_errors.HELD_FROM_SHARE
     assert not refinement.sensors_contradicted, refinement.reason
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pose_refinement, "ENDS_ON_EDGES_SHARE", 1.01)        # by the share alone
+        patch.setattr(gross_errors, "ENDS_ON_EDGES_SHARE", 1.01)        # by the share alone
         _, by_share = refine_vessel_pose(rafted, true, TUG)
     assert by_share.sensors_contradicted
 
@@ -854,7 +855,7 @@ def test_a_tilt_given_wrong_over_a_vessel_against_its_neighbour_is_flagged(monke
     assert report.pose_refinement["reason"].startswith("the image puts the hull 2")
     assert report.pose_refinement["image_hull_px"]
     original = pose_search.place_hull
-    monkeypatch.setattr(pose_refinement, "place_hull", lambda *args, slide=False, gross_errors=None, **kw:
+    monkeypatch.setattr(gross_errors, "place_hull", lambda *args, slide=False, gross_errors=None, **kw:
                         original(*args, **kw))
     without = measure_clearance(labels, told, TUG).pose_refinement
     assert not without["reason"].startswith("the image puts the hull") and not without["image_hull_px"]
@@ -887,12 +888,12 @@ def test_frames_kept_for_sister_hulls_are_one_kind_in_the_batch_line():
     """A flight beside sister hulls keeps the sensors' pose on many frames, each with its own
     distance and odds: the batch line counts them as one reason, and no frame is said to
     contradict the sensors."""
-    kept = [{"applied": False, "reason": f"{pose_refinement.TWIN_ALIKE}{apart} m abeam (a vessel "
+    kept = [{"applied": False, "reason": f"{sister_hulls.TWIN_ALIKE}{apart} m abeam (a vessel "
              f"alike alongside), and the sensors' pose tells them apart only {odds} to 1 (at "
              "least 20 to 1 needed)", "sensors_contradicted": False}
             for apart, odds in (("10.7", "2.2"), ("10.9", "11.0"), ("8.4", "16.8"))]
     applied = [{"applied": True, "reason": None, "sensors_contradicted": False}]
-    line = pose_refinement.refinement_summary(kept + applied)
+    line = refinement_summary(kept + applied)
     assert line.startswith("pose refined on 1 of 4 frame(s)")
     assert "the sensors' pose kept on 3 (3x the hull fits the mask as well" in line
     assert "contradicts" not in line

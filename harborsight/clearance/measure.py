@@ -476,7 +476,7 @@ def alignment_settings(settings: ClearanceSettings, sigmas: SensorSigmas,
     the same height and offset. Default sensors keep the default priors; DGPS on both
     receivers narrows the shift's to about 1 m, RTK to 0.8 m (the camera's attitude is left),
     a pose carried by dead reckoning widens it. The prior decides between sister hulls the
-    image cannot tell apart (:func:`~harborsight.clearance.pose_refinement._twin_alongside`),
+    image cannot tell apart (:func:`~harborsight.clearance.sister_hulls.twin_alongside`),
     so it must say what the sensors can.
 
     The height's prior is the frame's own scale sigma, its height's and its focal length's

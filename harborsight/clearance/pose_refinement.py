@@ -48,10 +48,20 @@ the sensors' pose and the report says why.
 **Starts.** Huber from the sensors' pose first; when that leaves the outline or the
 silhouette short, graduated Tukey from the sensors' pose, from the prior's reach to either
 side across the hull and from the best cells of a coarse translation search
-(:func:`_translation_search`), and the lowest final Tukey cost among the filled candidates
-wins. When the pose kept or applied leaves its outline short of ship edges, the whole image
-is searched for the hull (:mod:`harborsight.clearance.pose_search`): a placement it finds
-within the limits is one more start, run whatever the first start left.
+(:func:`prior_search.translation_search`), and the lowest final Tukey cost among the
+filled candidates wins. When the pose kept or applied leaves its outline short of ship
+edges, the whole image is searched for the hull (:mod:`harborsight.clearance.pose_search`):
+a placement it finds within the limits is one more start, run whatever the first start
+left.
+
+**Where the parts live.** This module runs the refinement and decides what is applied;
+:mod:`~harborsight.clearance.alignment` holds the signed distance, the projection and
+Gauss-Newton; :mod:`~harborsight.clearance.prior_search` the window the outline can reach
+and the coarse grid over the prior; :mod:`~harborsight.clearance.sister_hulls` the checks
+for identical vessels that fit the mask as well and for a hull the border cuts;
+:mod:`~harborsight.clearance.gross_errors` when the image contradicts the sensors (a
+correction beyond the limits, the whole-image search's placement);
+:mod:`~harborsight.clearance.refinement_summary` the line a batch prints.
 """
 
 from __future__ import annotations
@@ -64,7 +74,6 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.alignment import (
-    DEEP_PX,
     MIN_EDGE_POINTS,
     SCHEDULES,
     Alignment,
@@ -72,20 +81,26 @@ from harborsight.clearance.alignment import (
     Silhouette,
     corrected_geometry,
     gauss_newton,
-    homogeneous,
     outline_fit,
     ship_fill,
-    tukey_cost,
 )
 from harborsight.clearance.camera_errors import camera_tilt_explaining, camera_yaw_explains
-from harborsight.clearance.obstacles import IGNORE, SHIP
-from harborsight.clearance.pose_search import (
-    Placement,
-    edge_share,
-    place_hull,
-    silhouette_overlap,
-    whole_image_alignment,
+from harborsight.clearance.gross_errors import (
+    BEYOND_LIMITS,
+    CONTRADICTION_MIN_IN_VIEW,
+    SEARCH_BELOW_SHARE,
+    UNCONFIRMED_BELOW_SHARE,
+    beyond,
+    clean_fit,
+    contradicts_sensors,
+    correction_sizes,
+    gross_error,
+    gross_parts,
 )
+from harborsight.clearance.obstacles import IGNORE, SHIP
+from harborsight.clearance.pose_search import edge_share
+from harborsight.clearance.prior_search import prior_reach, search_window, translation_search
+from harborsight.clearance.sister_hulls import CUT_ALIKE, TWIN_ALIKE, cut_hull, twin_alongside
 from harborsight.errors import require_positive
 from harborsight.frame import FrameGeometry
 from harborsight.vessel.spec import VesselSpec
@@ -157,8 +172,9 @@ class PoseRefinement:
     reason: str | None = None
     #: the sensors' pose fits the mask badly and a correction beyond the limits fits it well:
     #: the image says the sensors are off by more than the refinement may correct
-    #: (:func:`contradicts_sensors`, or the whole-image search: :func:`_gross_error`); or the
-    #: image shows no vessel where the sensors put it, and nowhere else (:func:`_unconfirmed`)
+    #: (:func:`gross_errors.contradicts_sensors`, or the whole-image search:
+    #: :func:`gross_errors.gross_error`); or the image shows no vessel where the sensors put
+    #: it, and nowhere else (:func:`_unconfirmed`)
     sensors_contradicted: bool = False
     #: the share of the outline's points in view on a ship edge at the pose kept or applied
     #: (:func:`pose_search.edge_share`; None when nothing was aligned): what decides whether
@@ -201,113 +217,6 @@ class PoseRefinement:
 OFF = PoseRefinement(applied=False, reason="off")
 
 
-def _search_window(uv: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
-                   settings: PoseRefinementSettings, shape: tuple[int, int]
-                   ) -> tuple[slice, slice] | None:
-    """The part of the image the outline can reach within the search bounds."""
-    finite = uv[np.isfinite(uv).all(axis=1)]
-    if not len(finite):
-        return None
-    intr = geometry.camera.intrinsics
-    height_m = max(float(geometry.camera.position_enu[2]), 1e-3)
-    # 2.5 sigma of the prior: a correction beyond it needs edges the window still holds
-    shift_m, rotation_deg, _ = _reach(settings)
-    reach_m = shift_m + 0.5 * vessel.length_m * math.radians(rotation_deg)
-    reach_px = min(reach_m * max(intr.fx, intr.fy) / height_m, max(shape)) + 4
-    lo = np.floor(finite.min(axis=0) - reach_px).astype(int)
-    hi = np.ceil(finite.max(axis=0) + reach_px).astype(int)
-    u0, v0 = max(lo[0], 0), max(lo[1], 0)
-    u1, v1 = min(hi[0] + 1, shape[1]), min(hi[1] + 1, shape[0])
-    if u1 - u0 < 2 or v1 - v0 < 2:
-        return None
-    return slice(v0, v1), slice(u0, u1)
-
-
-#: the coarse translation search's grid step, as a share of the prior's sigma; how many of
-#: its best cells start a Gauss-Newton run; at most this many outline points score a cell;
-SEARCH_STEP_SIGMA = 1 / 3
-SEARCH_STARTS = 2
-SEARCH_POINTS = 120
-#: the Tukey scale (px) a search cell is scored at: the second schedule's first
-SEARCH_TUKEY_PX = SCHEDULES[1][0][1]
-
-
-def _shift_costs(align: Alignment, outline: np.ndarray, params: np.ndarray, de: np.ndarray,
-                 dn: np.ndarray, points: int = SEARCH_POINTS) -> np.ndarray | None:
-    """The Tukey cost at :data:`SEARCH_TUKEY_PX` of up to ``points`` outline points
-    (every k-th) under the correction ``params`` moved by each horizontal shift
-    ``(de, dn)`` (metres; points that leave the view count as outliers), one per shift
-    (:func:`_shifted_window_xy`). None when too few points project."""
-    if outline.shape[1] == 0:
-        return None
-    outline = outline[:, ::-(-outline.shape[1] // points)]    # every k-th point
-    shifted = _shifted_window_xy(align, outline, params, de, dn)
-    if shifted is None or shifted[0].shape[1] < MIN_EDGE_POINTS:
-        return None
-    xy, seen = shifted
-    values = np.full(seen.shape, np.inf)
-    values[seen] = align.sdf.sample(xy[seen].T)[0]
-    return tukey_cost(values, SEARCH_TUKEY_PX).sum(axis=1)    # |inf| -> the outlier cost
-
-
-def _shifted_window_xy(align: Alignment, outline: np.ndarray, params: np.ndarray,
-                       de: np.ndarray, dn: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Window positions ``(shifts, points, 2)`` of the outline's points that project under
-    the correction ``params`` moved by each horizontal shift ``(de, dn)`` (metres), and
-    which of them are in view and in the window. To first order, ``uv(t) = uv(0) + J t``,
-    ``J`` from the projections at 1 m east and 1 m north: one projection per axis instead
-    of one per shift. None when no point projects."""
-    base = align.pixels(outline, params)
-    east = align.pixels(outline, params + np.array([1.0, 0.0, 0.0, 0.0])) - base
-    north = align.pixels(outline, params + np.array([0.0, 1.0, 0.0, 0.0])) - base
-    keep = np.isfinite(base).all(axis=1) & np.isfinite(east).all(axis=1) & np.isfinite(north).all(axis=1)
-    if not keep.any():
-        return None
-    base, east, north = base[keep], east[keep], north[keep]
-    xy = (base[None] + de[:, None, None] * east[None] + dn[:, None, None] * north[None]
-          - align.origin.T[None])
-    seen = ((xy[..., 0] >= align.lo[0]) & (xy[..., 0] <= align.hi[0])
-            & (xy[..., 1] >= align.lo[1]) & (xy[..., 1] <= align.hi[1]))
-    return xy, seen
-
-
-def _translation_search(align: Alignment, outline: np.ndarray, settings: PoseRefinementSettings,
-                        taken: list[np.ndarray]) -> list[tuple[float, float]]:
-    """The best horizontal shifts ``(de, dn)`` (metres) of a grid over the prior's reach
-    (within ``min(max_shift_m, 2.5 prior_shift_m)``, steps of :data:`SEARCH_STEP_SIGMA`
-    sigma): starts for the Gauss-Newton runs when the sensors are so far off that their
-    neighbourhood holds the wrong basin (a start 5 m off with a 3 m prior, docs/results.md).
-
-    A cell is scored by the Tukey cost, at the second schedule's first scale
-    (:data:`SEARCH_TUKEY_PX`, the basin its run starts with), of the outline's points
-    (:func:`_shift_costs`). At most :data:`SEARCH_STARTS` cells, each cheaper than the
-    sensors' pose and more than 1.5 steps from the other starts (``taken``, the sensors'
-    pose among them) and from each other; none when no cell beats the sensors' pose."""
-    reach_m = _reach(settings)[0]
-    step_m = SEARCH_STEP_SIGMA * settings.prior_shift_m
-    n = int(reach_m // step_m)
-    if n < 1:
-        return []
-    offsets = np.arange(-n, n + 1) * step_m
-    de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
-    inside = np.hypot(de, dn) <= reach_m + 1e-9
-    de, dn = de[inside], dn[inside]
-    cost = _shift_costs(align, outline, np.zeros(4), de, dn)
-    if cost is None:
-        return []
-    centre = cost[np.flatnonzero((de == 0) & (dn == 0))[0]]
-    found: list[tuple[float, float]] = []
-    others = [(float(t[0]), float(t[1])) for t in taken]
-    for cell in np.argsort(cost, kind="stable"):
-        if cost[cell] >= centre:
-            break
-        shift = (float(de[cell]), float(dn[cell]))
-        if all(math.hypot(shift[0] - e, shift[1] - n_) > 1.5 * step_m for e, n_ in others + found):
-            found.append(shift)
-            if len(found) == SEARCH_STARTS:
-                break
-    return found
-
 
 def refine_vessel_pose(
     labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
@@ -317,25 +226,25 @@ def refine_vessel_pose(
 
     Returns the geometry to measure with (refined, or the given one when the alignment is
     not trustworthy) and what was found. When the pose kept or applied leaves its outline
-    short of ship edges, the whole image is searched for the hull (:func:`_gross_error`). A
-    placement found there within the limits becomes one more start of the refinement (whose
-    result replaces the first only when it applies a correction); one beyond them in exactly
-    one of shift, rotation and height, with the other two within the refinement's reach
-    (2.5 sigma of the prior for shift and rotation, the limit for height), contradicts the
-    sensors; a shift and a turn that one camera yaw error explains count as one
+    short of ship edges, the whole image is searched for the hull
+    (:func:`gross_errors.gross_error`). A placement found there within the limits becomes
+    one more start of the refinement (whose result replaces the first only when it applies
+    a correction); one beyond them in exactly one of shift, rotation and height, with the
+    other two within the refinement's reach (2.5 sigma of the prior for shift and rotation,
+    the limit for height), contradicts the sensors; a shift and a turn that one camera yaw
+    error explains count as one
     (:func:`~harborsight.clearance.camera_errors.camera_yaw_explains`), and so do a shift
     and a height change (with a turn) that one camera tilt explains
     (:func:`~harborsight.clearance.camera_errors.camera_tilt_explaining`). Beyond in two at
     once, it is more often a bad mask than two gross sensor errors (on the bench with the
     default model, 6 of 130 frames with 2 m and 2 degree sensors had such placements); a
-    height counts as gross only beyond
-    :data:`GROSS_HEIGHT_SHARE` of the camera's height. When the search changes nothing and the
-    sensors' pose kept leaves its outline off the ship's edges, that contradicts the sensors
-    too (:func:`_unconfirmed`). A pose kept because vessels alike fit the mask as well, or
-    because the hull where the sensors put it is cut by the image's border and a placement
-    elsewhere cannot be told from it (:func:`_twin_alongside`), is not searched: the search
-    would find one of them. Never
-    raises for a failed alignment.
+    height counts as gross only beyond :data:`gross_errors.GROSS_HEIGHT_SHARE` of the
+    camera's height. When the search changes nothing and the sensors' pose kept leaves its
+    outline off the ship's edges, that contradicts the sensors too (:func:`_unconfirmed`).
+    A pose kept because vessels alike fit the mask as well, or because the hull where the
+    sensors put it is cut by the image's border and a placement elsewhere cannot be told
+    from it (:func:`sister_hulls.twin_alongside`), is not searched: the search would find
+    one of them. Never raises for a failed alignment.
     """
     if not settings.enabled:
         return geometry, OFF
@@ -351,9 +260,10 @@ def refine_vessel_pose(
 
 def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselSpec) -> PoseRefinement:
     """``found``, flagged ``sensors_contradicted`` when the sensors' pose is kept although
-    under :data:`UNCONFIRMED_BELOW_SHARE` of its outline's points in view lie on a ship edge
-    with the hull mostly in view (:data:`CONTRADICTION_MIN_IN_VIEW`) and the whole-image
-    search placed it nowhere: the image does not show the vessel where the sensors put it.
+    under :data:`gross_errors.UNCONFIRMED_BELOW_SHARE` of its outline's points in view lie
+    on a ship edge with the hull mostly in view
+    (:data:`gross_errors.CONTRADICTION_MIN_IN_VIEW`) and the whole-image search placed it
+    nowhere: the image does not show the vessel where the sensors put it.
     Either the pose is off by more than the search could tell (on the bench: a fix 14 m
     off, a heading reversed, a camera yaw 60 degrees off, with a model's mask) or the mask
     misses the vessel; the distances are untrustworthy either way."""
@@ -381,11 +291,11 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
     """What the whole-image search makes of the refinement's result (``refined``, ``found``):
     that result, unchanged, unless a placement corrects or contradicts it
     (:func:`refine_vessel_pose`)."""
-    placement = _gross_error(labels, geometry, found, vessel, settings)
+    placement = gross_error(labels, geometry, found, vessel, settings)
     if placement is None:
         return refined, found
-    shift_m, rotation_deg, height_change_m = _sizes(placement.params)
-    limits = _beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg,
+    shift_m, rotation_deg, height_change_m = correction_sizes(placement.params)
+    limits = beyond(placement.params, settings.max_shift_m, settings.max_rotation_deg,
                      settings.max_height_change_m)
     if not any(limits):
         # within the limits, beyond the refinement's basin: refine again from there, and keep
@@ -394,9 +304,9 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
         params[2] = math.radians(rotation_deg)
         again = _refine_within_prior(labels, geometry, vessel, settings, extra_start=params)
         return again if again[1].applied else (refined, found)
-    gross = _gross(placement.params, geometry, settings)
-    reach_shift_m, reach_rotation_deg, reach_height_m = _reach(settings)
-    reach = _beyond(placement.params, reach_shift_m, reach_rotation_deg, reach_height_m)
+    gross = gross_parts(placement.params, geometry, settings)
+    reach_shift_m, reach_rotation_deg, reach_height_m = prior_reach(settings)
+    reach = beyond(placement.params, reach_shift_m, reach_rotation_deg, reach_height_m)
     camera_yaw = (gross[0] or gross[1]) and camera_yaw_explains(placement.params, geometry, reach_shift_m)
     # the reason names the camera's yaw where the shift alone is beyond the reach (a turn with
     # a small shift is as well a heading's error)
@@ -452,171 +362,10 @@ def _silhouette_px(geometry: FrameGeometry, vessel: VesselSpec, params: np.ndarr
     return [[round(float(u), 1), round(float(v), 1)] for u, v in corners]
 
 
-def _reach(settings: PoseRefinementSettings) -> tuple[float, float, float]:
-    """The refinement's reach: 2.5 sigma of its prior for the shift (m) and the rotation (deg),
-    within the limits, and the height's limit (m)."""
-    return (min(settings.max_shift_m, 2.5 * settings.prior_shift_m),
-            min(settings.max_rotation_deg, 2.5 * settings.prior_heading_deg),
-            settings.max_height_change_m)
-
-
-def _as_params(found: PoseRefinement) -> np.ndarray:
-    """A refinement's correction as ``(de, dn, dpsi rad, dh)``."""
-    return np.array([*found.shift_m, math.radians(found.rotation_deg), found.height_change_m])
-
-
-def _gross(params: np.ndarray, geometry: FrameGeometry, settings: PoseRefinementSettings) -> list[bool]:
-    """Which of shift, rotation and height of a correction are gross: beyond the limits, the
-    height also beyond :data:`GROSS_HEIGHT_SHARE` of the camera's height."""
-    return _beyond(params, settings.max_shift_m, settings.max_rotation_deg, max(
-        settings.max_height_change_m, GROSS_HEIGHT_SHARE * float(geometry.camera.position_enu[2])))
-
-
-def _sizes(params: np.ndarray) -> tuple[float, float, float]:
-    """``(shift m, rotation deg in [-180, 180), height change m)`` of a correction."""
-    turn = (float(params[2]) + math.pi) % (2 * math.pi) - math.pi
-    return float(np.hypot(*params[:2])), math.degrees(turn), float(params[3])
-
-
-def _beyond(params: np.ndarray, shift_m: float, rotation_deg: float, height_m: float) -> list[bool]:
-    """Which of a correction's shift, rotation and height change exceed ``shift_m``,
-    ``rotation_deg`` and ``height_m``."""
-    shift, rotation, height = _sizes(params)
-    return [shift > shift_m, abs(rotation) > rotation_deg, abs(height) > height_m]
-
-
-#: a height change found by the whole-image search counts as a gross error only beyond this
-#: share of the camera's height as well as the limit: a model's mask a pixel or two narrow
-#: all round shrinks a hull 60 px long by several per cent (a 120 m bench frame "found" its
-#: height 10 m off, 9 %; ellipsoidal heights read as heights above the water were 23 % and
-#: more of the bench's altitudes)
-GROSS_HEIGHT_SHARE = 0.15
-
 
 #: the refinement's reasons when the hull is not in view at the sensors' pose: nothing to
 #: search for (a ship in view is another)
 NOT_IN_VIEW = ("the hull does not project into the image", "the hull is not in the image")
-#: the whole image is searched when the pose kept or applied puts fewer of the outline's
-#: points in view on a ship edge than this (:func:`pose_search.edge_share`)
-SEARCH_BELOW_SHARE = 0.8
-#: and slides the predicted silhouette over the whole image (a chamfer match of its outline,
-#: :func:`pose_search._sliding_starts`) when the pose leaves under this share there: the
-#: outline is then off its ship altogether, not pressed against a neighbour
-SLIDE_BELOW_SHARE = 0.5
-#: a sensors' pose kept with under this share of its outline's points in view on a ship
-#: edge, and placed nowhere else by the search, is not borne out by the image (:func:`_unconfirmed`)
-UNCONFIRMED_BELOW_SHARE = 0.2
-#: a placement must put this much more of its outline on ship edges than the pose kept or
-#: applied (a reversed heading applied at 100-140 m still put 75-79 % of its small outline
-#: on edges; at 0.15, 0 of 390 bench frames with 2 m and 2 degree sensors were flagged)
-SEARCH_GAIN = 0.15
-#: when the pose kept or applied sits on ship pixels, a placement must overlap it by this
-#: share of the smaller silhouette (the same ship, seen larger or turned): a hull laid on
-#: another, smaller boat fits it as well (a bench frame "found" its hull 26 m away, turned
-#: 177 degrees and 72 m higher, on a neighbour)
-SAME_SHIP_OVERLAP = 0.5
-#: ... but only a pose with at least this share of its outline's points in view on ship edges
-#: (or both its ends) sits on a ship: one that fills ship pixels with most of its outline
-#: inside the blob (the hull laid over part of a larger neighbour, 17-25 m from the own
-#: vessel, by a camera tilt given wrong) does not hold the hull there (on the bench, with
-#: the pitch given as -90, three frames so held read sections 8-25 m long; their poses put
-#: 45-49 % of the outline on edges, the own vessel's placement 99-100 %)
-HELD_FROM_SHARE = 0.5
-#: ... or with both its ends on edges: the outline's points within this share of the hull's
-#: length from the bow, and from the stern, at least :data:`ENDS_ON_EDGES_SHARE` of each end's
-#: points in view on an edge (and :data:`ENDS_MIN_POINTS` of them): a vessel rafted between
-#: two others shows its bow and stern though its sides lie against theirs (40-43 % of its
-#: outline on edges; its ends 56-100 %), while a hull laid over part of a longer neighbour
-#: has an end inside it (on the bench, one end at 0-35 %)
-HULL_END_SHARE = 0.15
-ENDS_ON_EDGES_SHARE = 0.5
-ENDS_MIN_POINTS = 3
-
-
-def _ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray,
-                   against_neighbours: bool = False, unseen_ok: bool = False) -> bool:
-    """Whether the outline under the correction ``params`` has both its ends on ship edges
-    (:data:`HULL_END_SHARE`, :data:`ENDS_ON_EDGES_SHARE`; an end with fewer than
-    :data:`ENDS_MIN_POINTS` points in view is not on edges). ``against_neighbours``: an end's
-    points deep inside ship pixels (:data:`~harborsight.clearance.alignment.DEEP_PX`) are
-    left out of its share, as for a stern whose quarters lie against the sterns of vessels
-    rafted alongside; an end all deep inside is still not on edges. ``unseen_ok``: an end
-    mostly out of the picture (fewer than :data:`ENDS_MIN_POINTS` of its points, and under
-    half, in view) neither confirms nor denies; the other end must be on edges."""
-    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
-    if outline.shape[1] == 0:
-        return False
-    x = silhouette.points_h[0]
-    reach = HULL_END_SHARE * float(x.max() - x.min())
-    unseen = 0
-    for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
-        values = align.residuals(end, params)
-        if unseen_ok and len(values) < min(ENDS_MIN_POINTS, 0.5 * end.shape[1]):
-            unseen += 1
-            continue
-        if against_neighbours:
-            values = values[values > -DEEP_PX]
-        if len(values) < ENDS_MIN_POINTS or edge_share(values) < ENDS_ON_EDGES_SHARE:
-            return False
-    return unseen < 2
-
-
-def _gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
-                 vessel: VesselSpec, settings: PoseRefinementSettings) -> Placement | None:
-    """The image's own placement of the hull (:func:`pose_search.place_hull`) when it shows
-    the pose the refinement kept or applied wrong: that pose puts under
-    :data:`SEARCH_BELOW_SHARE` of its outline's points in view on a ship edge, and the
-    placement puts :data:`SEARCH_GAIN` more there (and at least that share), passes
-    every test of fit, has at least :data:`CONTRADICTION_MIN_IN_VIEW` of its outline in view
-    and, when the pose sits on a ship (fills ship pixels and has :data:`HELD_FROM_SHARE` of
-    its outline on edges, or both its ends: :func:`_ends_on_edges`), overlaps it
-    (:data:`SAME_SHIP_OVERLAP`). None otherwise."""
-    share = found.edge_share or 0.0
-    if share >= SEARCH_BELOW_SHARE:
-        return None
-    ship = labels == SHIP
-    if not ship.any():
-        return None
-    align = whole_image_alignment(ship, geometry)
-    silhouette = Silhouette(vessel.alignment_layers)
-    chosen = _as_params(found) if found.applied else np.zeros(4)
-    known = labels != IGNORE
-    # the refinement's own correction, refused for its size, is a start too: the search's
-    # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)
-    refused = (_as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
-    chosen_uv = align.pixels(silhouette.points_h, chosen)
-    whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
-    on_a_ship = ((share >= HELD_FROM_SHARE or _ends_on_edges(align, silhouette, chosen))
-                 and ship_fill(silhouette.layers_uv(chosen_uv), whole, ship, known)
-                 >= settings.min_ship_fill)
-
-    def elsewhere(params: np.ndarray) -> bool:
-        """The pose sits on a ship, and ``params`` lay the hull on another one."""
-        return on_a_ship and silhouette_overlap(
-            chosen_uv, align.pixels(silhouette.points_h, params)) < SAME_SHIP_OVERLAP
-
-    reach_shift_m = _reach(settings)[0]
-
-    def gross_errors(params: np.ndarray) -> int:
-        gross = _gross(params, geometry, settings)
-        if (gross[0] or gross[1]) and camera_yaw_explains(params, geometry, reach_shift_m):
-            return 1 + gross[2]             # shift and turn are one error: the camera's yaw
-        return sum(gross)
-
-    placement = place_hull(align, silhouette, ship, known, settings.edge_sigma_px ** -2.0,
-                           settings.min_ship_fill, against=chosen, extra_starts=refused,
-                           slide=share < SLIDE_BELOW_SHARE, slide_beyond_m=reach_shift_m,
-                           gross_errors=gross_errors,
-                           count_share=SEARCH_BELOW_SHARE)
-    if (placement is None or placement.edge_share < max(share + SEARCH_GAIN, SEARCH_BELOW_SHARE)
-            or placement.in_view < CONTRADICTION_MIN_IN_VIEW
-            or placement.inlier_fraction < settings.min_inlier_fraction
-            or placement.ship_fill < settings.min_ship_fill
-            or placement.residual_px is None or placement.residual_px > settings.max_residual_px):
-        return None
-    if elsewhere(placement.params):
-        return None     # the pose sits on a ship, the placement on another one
-    return placement
 
 
 #: the hull's size in the image disagrees with the frame's scale (its height and focal
@@ -697,7 +446,7 @@ def _refine_within_prior(
     if extra_start is not None:
         moved = corrected_geometry(geometry, extra_start)
         uv0 = np.vstack((uv0, moved.camera.project(moved.vessel_to_enu(outline[:3].T))[0]))
-    window = _search_window(uv0, geometry, vessel, settings, labels.shape)
+    window = search_window(uv0, geometry, vessel, settings, labels.shape)
     if window is None:
         return geometry, PoseRefinement(False, reason=NOT_IN_VIEW[1])
     ship = labels[window] == SHIP
@@ -736,7 +485,7 @@ def _refine_within_prior(
         across = np.array([math.cos(h), -math.sin(h), 0.0, 0.0]) * settings.prior_shift_m
         starts = [np.zeros(4), across, -across]
         starts += [np.array([de, dn, 0.0, 0.0])
-                   for de, dn in _translation_search(align, outline, settings, starts)]
+                   for de, dn in translation_search(align, outline, settings, starts)]
         for start in starts:
             found = solve(SCHEDULES[1], start)
             candidates.append((*found, fill(found[0])))
@@ -761,9 +510,9 @@ def _refine_within_prior(
             found = solve(SCHEDULES[1], start)
             return (*found, fill(found[0]))
 
-        cut = _cut_hull(align, silhouette, outline, at_sensors, params, prior_diagonal,
+        cut = cut_hull(align, silhouette, outline, at_sensors, params, prior_diagonal,
                         edge_weight, fill, settings)
-        best, twin_alike = _twin_alongside(best, align, silhouette, geometry, settings,
+        best, twin_alike = twin_alongside(best, align, silhouette, geometry, settings,
                                            prior_diagonal, solve_and_fill, fill, ship, cut,
                                            solved=candidates)
         params, information, _, value, fill_share = best
@@ -833,634 +582,3 @@ def _refine_within_prior(
         return geometry, replace(found, reason=reason, edge_share=edge_share(at_sensors),
                                  sensors_contradicted=contradicted, image_hull_px=image_hull_px)
     return corrected_geometry(geometry, params), replace(found, applied=True, edge_share=edge_share(value))
-
-
-#: a pose is checked for a twin alongside when this share of its outline's points in view
-#: lies deep inside ship pixels (:data:`~harborsight.clearance.alignment.DEEP_PX`): a side
-#: pressed against a neighbour's
-TWIN_DEEP_SHARE = 0.2
-#: a twin is another placement this share of the hull's beam or more from the pose
-TWIN_APART_BEAMS = 0.5
-#: placements that fit the mask alike are told apart by the prior alone, and only when their
-#: squared prior distances differ by this much (odds of 20 to 1)
-TWIN_ODDS_D2 = 2.0 * math.log(20.0)
-#: how the reason for a pose kept for want of telling twins apart begins
-TWIN_ALIKE = "the hull fits the mask as well "
-#: another ship blob may hold a twin when its area is within these shares of the hull's
-#: silhouette's (both in the window, both eroded and halved alike): less is a buoy, a tender
-#: or a twin mostly out of view; more, a larger vessel, inside which the hull would fit with
-#: its sides and one end on nothing. Low, for a model's masks: a yacht's blob eroded 2 px
-#: at 150 m keeps under half its area
-TWIN_BLOB_AREA = (0.4, 1.6)
-#: at most this many such blobs are fitted, the likeliest under the prior first
-TWIN_BLOB_STARTS = 3
-#: a placement on another blob is a sister's when its outline's inlier share is at most
-#: this much under the chosen pose's (a 12 m yacht's outline on a 14 m yacht's blob, or on a
-#: box's, fits alike by the acceptance tests alone)
-TWIN_BLOB_FRACTION = 0.15
-#: the same for a candidate the refinement solved before the twin check: one with 0.90 of
-#: its outline on edges, 7 m along a hull whose placement had 1.0, was no sister (a bench
-#: frame of a marina: the first pass had applied it, and the twin reason left it so)
-TWIN_SOLVED_FRACTION = 0.05
-#: ... or this many more of its telling points off an edge, where that is more (of 19
-#: telling points one off is 0.05: a hull rafted at the border, partly out of view)
-TWIN_SOLVED_MISSES = 2
-#: a placement on another blob is a sister's only when the ring of pixels just outside its
-#: silhouette (:data:`RING_PX`) holds at most this much more ship than the chosen pose's:
-#: a 12 x 4 m box's corners lie outside a yacht's outline laid inside it
-TWIN_BLOB_RING = 0.1
-RING_PX = 1
-#: outline points that score a cell on such a blob (every k-th of the outline, so half as
-#: many at least: never under the :data:`MIN_EDGE_POINTS` a score needs; at 40, an outline
-#: of 41-46 points kept 21-23, and no sister was tried at 80-92 m); a start need only be in
-#: the basin of the alignment's first scale
-TWIN_BLOB_POINTS = 2 * MIN_EDGE_POINTS
-
-
-#: a placement fits alike with :data:`MIN_EDGE_POINTS` of its outline's points able to tell
-#: (not deep in ship pixels), or this many, half that, when they are at least
-#: :data:`ALIKE_MIN_TELLING_SHARE` of its points in view (and :data:`MIN_EDGE_POINTS` are in
-#: view): a yacht rafted between two sisters has its sides deep in theirs, and with the 24
-#: an alignment needs its true placement (23 telling of about 50 at 100 m) lost to an outer
-#: sister, which has a free side (34 of 144 frames laid 4 m over, a reviewer's probe). A
-#: tug laid a beam over inside a larger moored ship's blob on a bench frame (a model's
-#: mask) kept 20 telling of 102: no sister, and the share tells it apart
-ALIKE_MIN_TELLING = MIN_EDGE_POINTS // 2
-ALIKE_MIN_TELLING_SHARE = 1.0 / 3.0
-
-
-def _fits_alike(candidate: tuple, align: Alignment, silhouette: Silhouette,
-                settings: PoseRefinementSettings) -> bool:
-    """Whether a candidate ``(params, information, cost, signed distances, fill)`` fits the
-    mask as a placement of the hull would be accepted: within the limits, the outline's
-    points that can tell on edges (:data:`ALIKE_MIN_TELLING`), the silhouette filled, both
-    ends on edges where they are not against a neighbour's or out of the picture (a
-    sister's stern cut by the image's border, or the vessel's own, does not rule the
-    placement out)."""
-    params, _, _, value, fill_share = candidate
-    if not np.isfinite(params).all() or fill_share < settings.min_ship_fill:
-        return False
-    if any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
-                   settings.max_height_change_m)):
-        return False
-    fraction, residual_px, n_edge = outline_fit(value)
-    telling = n_edge >= MIN_EDGE_POINTS or (
-        n_edge >= ALIKE_MIN_TELLING and n_edge >= ALIKE_MIN_TELLING_SHARE * len(value))
-    return (len(value) >= MIN_EDGE_POINTS and telling and fraction >= settings.min_inlier_fraction
-            and residual_px is not None and residual_px <= settings.max_residual_px
-            and _ends_on_edges(align, silhouette, params, against_neighbours=True, unseen_ok=True))
-
-
-def _drawn_in_window(params: np.ndarray, align: Alignment, silhouette: Silhouette,
-                     shape: tuple[int, int]) -> np.ndarray | None:
-    """The convex hull of the silhouette's pixels under ``params``, drawn (1) in an array
-    of the signed distance's window ``shape``; None when fewer than three points project."""
-    uv = align.pixels(silhouette.points_h, params)
-    uv = uv[np.isfinite(uv).all(axis=1)]
-    if len(uv) < 3:
-        return None
-    drawn = np.zeros(shape, np.uint8)
-    hull = cv2.convexHull(np.round((uv - align.origin.ravel()) * 16).astype(np.int32))
-    cv2.fillConvexPoly(drawn, hull, 1, lineType=cv2.LINE_8, shift=4)
-    return drawn
-
-
-def _ring_ship_share(params: np.ndarray, align: Alignment, silhouette: Silhouette,
-                     ship: np.ndarray, row: tuple[np.ndarray, ...] = ()) -> float:
-    """Share of ship pixels in the ring :data:`RING_PX` wide just outside the silhouette
-    under ``params`` (in the signed distance's window ``ship``): water round a hull alone on
-    the water, ship where the blob holds more than the hull. With ``row`` (corrections:
-    sisters' placements), the lower of that share and the share with the ring pixels
-    inside their silhouettes left out: the row can only admit a placement."""
-    drawn = _drawn_in_window(params, align, silhouette, ship.shape)
-    if drawn is None:
-        return 1.0
-    size = 2 * RING_PX + 1
-    ring = (cv2.dilate(drawn, np.ones((size, size), np.uint8)) > drawn)
-
-    def share() -> float:
-        total = np.count_nonzero(ring)
-        return float(np.count_nonzero(ring & ship) / total) if total else 1.0
-
-    alone = share()
-    if not row:
-        return alone
-    for other in row:
-        sister = _drawn_in_window(other, align, silhouette, ship.shape)
-        if sister is not None:
-            ring &= sister == 0
-    return min(alone, share())
-
-
-def _row_rings(best: np.ndarray, found: np.ndarray, align: Alignment, silhouette: Silhouette,
-               ship: np.ndarray) -> tuple[float, float]:
-    """The ring ship shares (:func:`_ring_ship_share`) of the pose ``best`` and of a
-    placement ``found`` on a sister's blob, the latter's the lower of its own and its less
-    the pixels a row of sisters at their spacing ``d = found - best`` would cover (hulls at
-    ``best - d``, ``best`` and ``found + d``): the row can only admit a placement (taken
-    out of both rings, it moved the shares apart: 0.032 / 0.113 became 0.009 / 0.122, and a
-    real sister 4.8 m abeam was turned away). Sisters moored half a metre apart touch the
-    ring along their sides, the middle one's on both: without the row, the true pose
-    between two sisters read 0.3 more ship in its ring than an outer sister's, and a 14 m
-    yacht in a row was laid a berth over (21 of 108 frames at 95-105 m). A box's corners
-    beyond the hull's outline lie under no sister's placement and still count."""
-    spacing = found - best
-    spacing[2:] = 0.0
-    return (_ring_ship_share(best, align, silhouette, ship),
-            _ring_ship_share(found, align, silhouette, ship, (best - spacing, best, found + spacing)))
-
-
-def _shift_d2(params: np.ndarray, prior_diagonal: np.ndarray) -> float:
-    """``p^T diag(prior) p`` of a correction's horizontal shift alone: what tells sister
-    placements apart. Their turns and heights are one vessel's, fitted twice; a mask's edge
-    bias moved the fitted height between them, and with it the odds (2 px of erosion: 25 of
-    144 frames of a yacht in a row laid a berth over, 13 on the shift alone)."""
-    return float(params[0] ** 2 * prior_diagonal[0] + params[1] ** 2 * prior_diagonal[1])
-
-
-def _blob_starts(params: np.ndarray, align: Alignment, silhouette: Silhouette, ship: np.ndarray,
-                 prior_diagonal: np.ndarray, step_m: float, apart_m: float,
-                 max_shift_m: float = math.inf) -> tuple[list[np.ndarray], bool]:
-    """Starts of the alignment on the mask's other ship blobs, for identical vessels
-    moored apart (a marina's row of charter yachts).
-
-    The blobs are the connected components of the window's ship pixels (``ship``) eroded
-    by a 3x3 square and at half the resolution, a pixel ship where all four under it are
-    (which parts blobs joined by a pixel or two: a metre of water at 150 m).
-    Shifts of the pose ``params`` on a grid of ``step_m`` are kept where the prior cannot
-    rule them out (:func:`_shift_d2`, the shift shortened by a step, within
-    :data:`TWIN_ODDS_D2` of ``params``'; no farther from the sensors' pose than
-    ``max_shift_m``, the most a correction may be: a prior of a kilometre, a receiver
-    without a fix, would grid millions of cells at a step of half a beam), ``apart_m`` or
-    more from it, and where the hull's centre falls on a blob other than its own whose
-    area is within :data:`TWIN_BLOB_AREA` of the silhouette's (drawn in the window and
-    parted as the blobs are); per blob the
-    cell whose outline fits best (:func:`_shift_costs`) is a start. At most
-    :data:`TWIN_BLOB_STARTS`, the likeliest under the prior first. Blobs clipped by the
-    window are so started within a step of their best placement (their centroids are not:
-    a hull half out of the window moves it by metres). Also whether the blob under the
-    hull's centre is larger than :data:`TWIN_BLOB_AREA` allows a hull alone: sisters whose
-    silhouettes lean into one another far from the nadir make one blob (a row of three
-    yachts 1 m apart at 100 m, seen 65 m off the nadir: 2.4 hulls' area)."""
-    uv = align.pixels(silhouette.points_h, params)
-    uv = uv[np.isfinite(uv).all(axis=1)]
-    rows, cols = ship.shape[0] // 2 * 2, ship.shape[1] // 2 * 2
-    if len(uv) < 3 or min(rows, cols) < 4 or np.count_nonzero(ship) < 1.1 * cv2.contourArea(
-            cv2.convexHull(uv.astype(np.float32))):
-        return [], False    # too few ship pixels in the window for the hull and a twin
-
-    def parted(mask: np.ndarray) -> np.ndarray:
-        # eroded once, and at half the resolution a pixel set only where all four under it
-        # are: blobs joined by a pixel or two part, and the labelling costs a quarter
-        eroded = cv2.erode(mask, np.ones((3, 3), np.uint8))[:rows, :cols]
-        return eroded[::2, ::2] & eroded[1::2, ::2] & eroded[::2, 1::2] & eroded[1::2, 1::2]
-
-    drawn = _drawn_in_window(params, align, silhouette, ship.shape)
-    area_px = float(np.count_nonzero(parted(drawn)))      # the hull's, in the window, as a blob's
-    least_px, most_px = TWIN_BLOB_AREA[0] * area_px, TWIN_BLOB_AREA[1] * area_px
-    if area_px < 1.0:
-        return [], False
-    count, blobs, stats, _ = cv2.connectedComponentsWithStats(parted(ship.view(np.uint8)), connectivity=8)
-    point = homogeneous(np.array([silhouette.points_h[:3].mean(axis=1)]))
-    at = align.pixels(point, params)[0] - align.origin.ravel()
-    jacobian = np.column_stack([align.pixels(point, params + step)[0] - align.origin.ravel() - at
-                                for step in (np.array([1.0, 0, 0, 0]), np.array([0, 1.0, 0, 0]))])
-    if not (np.isfinite(at).all() and np.isfinite(jacobian).all()):
-        return [], False
-
-    def blob_at(de: np.ndarray, dn: np.ndarray) -> np.ndarray:
-        col = np.floor(0.5 * (at[0] + jacobian[0, 0] * de + jacobian[0, 1] * dn)).astype(int)
-        row = np.floor(0.5 * (at[1] + jacobian[1, 0] * de + jacobian[1, 1] * dn)).astype(int)
-        inside = (row >= 0) & (row < blobs.shape[0]) & (col >= 0) & (col < blobs.shape[1])
-        out = np.zeros(len(de), int)
-        out[inside] = blobs[row[inside], col[inside]]
-        return out
-
-    own = int(blob_at(np.zeros(1), np.zeros(1))[0])
-    areas = stats[:, cv2.CC_STAT_AREA]
-    merged = own > 0 and areas[own] > most_px
-    if count <= 2:
-        return [], merged
-    d2_best = _shift_d2(params, prior_diagonal)
-    reach_m = min(prior_diagonal[0] ** -0.5 * math.sqrt(d2_best + TWIN_ODDS_D2), max_shift_m) + step_m
-    n = math.ceil(reach_m / step_m)
-    offsets = np.arange(-n, n + 1) * step_m
-    east, north = (g.ravel() for g in np.meshgrid(offsets, offsets))      # shifts from the sensors'
-    shortened = np.maximum(np.hypot(east, north) - step_m, 0.0)
-    de, dn = east - params[0], north - params[1]                          # from the pose
-    keep = (shortened ** 2 * prior_diagonal[0] < d2_best + TWIN_ODDS_D2) & (np.hypot(de, dn) >= apart_m)
-    de, dn, shortened = de[keep], dn[keep], shortened[keep]
-    label = blob_at(de, dn)
-    alike = (areas >= least_px) & (areas <= most_px)
-    on_other = (label > 0) & (label != own) & alike[label]
-    if not on_other.any():
-        return [], merged
-    de, dn, shortened, label = de[on_other], dn[on_other], shortened[on_other], label[on_other]
-    outline = silhouette.outline(align.pixels(silhouette.points_h, params))
-    cost = _shift_costs(align, outline, params, de, dn, TWIN_BLOB_POINTS)
-    if cost is None:
-        return [], merged
-    starts = []
-    for blob in np.unique(label):
-        cells = np.flatnonzero(label == blob)
-        cell = cells[np.argmin(cost[cells])]
-        starts.append((float(shortened[cell]), params + np.array([de[cell], dn[cell], 0.0, 0.0])))
-    starts.sort(key=lambda item: item[0])
-    return [start for _, start in starts[:TWIN_BLOB_STARTS]], merged
-
-
-#: the hull at the sensors' pose is cut by the image's border when under this share of its
-#: outline's samples are in view
-CUT_IN_VIEW = 0.9
-#: a hull so cut is aligned from this many outline points in view (half what an alignment
-#: needs), to see whether what is in view fits the mask
-CUT_MIN_POINTS = MIN_EDGE_POINTS // 2
-#: how the reason for a pose kept because the hull where the sensors put it is cut by the
-#: image's border, and cannot be told from the alignment's placement, begins
-CUT_ALIKE = "the hull where the sensors put it runs out of the picture "
-
-
-def _cut_hull(align: Alignment, silhouette: Silhouette, outline: np.ndarray,
-              at_sensors: np.ndarray, params: np.ndarray, prior_diagonal: np.ndarray,
-              edge_weight: float, fill, settings: PoseRefinementSettings
-              ) -> tuple[tuple, bool, float] | None:
-    """The placement of the hull the image's border cuts that joins the sisters' comparison
-    (:func:`_cut_at_sensors`: ``(candidate, seen, in_view)``), or None: asked only when
-    under :data:`CUT_IN_VIEW` of the outline (``outline``, its signed distances in view at
-    the sensors' pose ``at_sensors``) is in view and the chosen correction ``params`` moves
-    the hull :data:`TWIN_APART_BEAMS` beams or more. The hull is aligned from the sensors'
-    pose on as few as :data:`CUT_MIN_POINTS` points; when that is refused or slides onto
-    the chosen placement, again from :func:`_cut_starts` with the height held at the
-    sensors' (a cut outline hardly measures the scale: a reviewer found the fit from the
-    sensors' pose refused in 3 of 4 frames still laid on a sister, its silhouette on water
-    or its height 4-8 m off, where a fit from the truth passed). When none fills the
-    silhouette as an accepted placement must, the first that fills :data:`CUT_FILL_SHARE`
-    of it joins."""
-    in_view = len(at_sensors) / outline.shape[1]
-    apart_m = TWIN_APART_BEAMS * float(np.ptp(silhouette.points_h[1]))
-    if in_view >= CUT_IN_VIEW or math.hypot(*params[:2]) < apart_m:
-        return None
-
-    relaxed = align.with_min_points(CUT_MIN_POINTS)
-    held = prior_diagonal.copy()
-    held[3] = CUT_HELD_HEIGHT_M ** -2.0
-
-    def alignments():
-        first = gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], np.zeros(4),
-                             prior_diagonal, edge_weight)
-        yield first
-        for start in _cut_starts(relaxed, outline, params, prior_diagonal, apart_m, first[0]):
-            yield gauss_newton(relaxed, silhouette, outline, SCHEDULES[1], start, held, edge_weight)
-
-    # (a fit on the chosen placement never joins; the unseen sensors' pose comes only from
-    # the first, which fails whenever under CUT_MIN_POINTS points are in view)
-    short = None        # the first fit that fills only CUT_FILL_SHARE of what it must
-    for solved in alignments():
-        cut = _cut_at_sensors(solved, at_sensors, in_view, fill, settings)
-        if cut is None or (cut[1] and math.hypot(*(cut[0][0][:2] - params[:2])) < apart_m):
-            continue
-        if not cut[1] or cut[0][4] >= settings.min_ship_fill:
-            return cut
-        short = short or cut
-    return short
-
-
-#: the share of an accepted placement's fill (``min_ship_fill``) a cut hull's placement
-#: needs when none has that: aligned on so few points it lies up to a metre off along a
-#: hull whose end is out of the picture, an end over water (fills of 0.72-0.87 were found
-#: 0.4-0.9 m from the truth, where the sister beside it was laid on)
-CUT_FILL_SHARE = 0.8
-#: the height's prior (m) while a cut hull is aligned from a grid cell: held at the sensors'
-CUT_HELD_HEIGHT_M = 1e-6
-#: cells of the grid over the prior's reach that start such alignments
-CUT_STARTS = 2
-
-
-def _cut_starts(align: Alignment, outline: np.ndarray, params: np.ndarray,
-                prior_diagonal: np.ndarray, apart_m: float, fitted: np.ndarray | None = None
-                ) -> list[np.ndarray]:
-    """Starts, ``apart_m`` or more from the chosen correction ``params``, for a cut hull's
-    alignment with its height held: where the alignment from the sensors' pose ``fitted``
-    it, at the sensors' height (a tilted camera's cut hull was fitted 0.4 m from the truth
-    with its height 5 m off, beyond the limit); then the :data:`CUT_STARTS` cells of a grid
-    over the prior's reach (2.5 sigma, steps of :data:`SEARCH_STEP_SIGMA` sigma) whose
-    outline points in view (at least :data:`CUT_MIN_POINTS`) have the least mean Tukey
-    cost at :data:`SEARCH_TUKEY_PX`, the nearer the sensors' pose first among equals. A
-    mean, not :func:`_shift_costs`' sum with points out of view as outliers, which ranks
-    every cut placement below one in full view (:func:`_shifted_window_xy`)."""
-    starts = []
-    if (fitted is not None and np.isfinite(fitted).all()
-            and math.hypot(*(fitted[:2] - params[:2])) >= apart_m):
-        starts.append(np.array([*fitted[:3], 0.0]))
-    sigma_m = prior_diagonal[0] ** -0.5
-    step_m = SEARCH_STEP_SIGMA * sigma_m
-    n = int(2.5 * sigma_m // step_m)
-    if n < 1 or outline.shape[1] == 0:
-        return starts
-    offsets = np.arange(-n, n + 1) * step_m
-    de, dn = (g.ravel() for g in np.meshgrid(offsets, offsets))
-    keep = (np.hypot(de, dn) <= 2.5 * sigma_m + 1e-9) & (np.hypot(de - params[0], dn - params[1]) >= apart_m)
-    de, dn = de[keep], dn[keep]
-    shifted = _shifted_window_xy(align, outline, np.zeros(4), de, dn) if len(de) else None
-    if shifted is None:
-        return starts
-    xy, seen = shifted
-    cost = np.zeros(seen.shape)
-    cost[seen] = tukey_cost(align.sdf.sample(xy[seen].T)[0], SEARCH_TUKEY_PX)
-    count = seen.sum(axis=1)
-    mean = np.where(count >= CUT_MIN_POINTS, cost.sum(axis=1) / np.maximum(count, 1), np.inf)
-    order = np.argsort(mean + 1e-3 * (de ** 2 + dn ** 2), kind="stable")
-    return starts + [np.array([de[c], dn[c], 0.0, 0.0]) for c in order[:CUT_STARTS] if np.isfinite(mean[c])]
-
-
-def _cut_at_sensors(solved: tuple, at_sensors: np.ndarray, in_view: float, fill,
-                    settings: PoseRefinementSettings) -> tuple[tuple, bool, float] | None:
-    """The placement of a hull the image's border cuts, near the sensors' pose, that the
-    image cannot refute, whether any of it is seen, and ``in_view``: ``(candidate, seen,
-    in_view)``, or None.
-
-    ``solved`` is an alignment (:func:`gauss_newton`'s ``(params, information, cost,
-    signed distances)``) on as few as :data:`CUT_MIN_POINTS` outline points in view;
-    ``at_sensors`` the outline's signed distances in view at the sensors' pose,
-    ``in_view`` their share of the outline. When that alignment fits what is in view as a
-    placement would be accepted (inliers, residual, the silhouette's pixels in view ship,
-    of these :data:`CUT_FILL_SHARE` of ``min_ship_fill`` at least), it is the placement,
-    seen. When fewer
-    than :data:`CUT_MIN_POINTS` points are in view at the sensors' pose, the image says
-    nothing of the hull there: the sensors' pose itself, unseen. Otherwise what is in view
-    is not this hull's edges: None."""
-    params, information, cost, value = solved
-    if np.isfinite(cost) and np.isfinite(params).all():
-        fraction, residual_px, telling = outline_fit(value)
-        filled = fill(params)
-        if (telling >= CUT_MIN_POINTS and fraction >= settings.min_inlier_fraction
-                and residual_px is not None and residual_px <= settings.max_residual_px
-                and filled >= CUT_FILL_SHARE * settings.min_ship_fill
-                and not any(_beyond(params, settings.max_shift_m, settings.max_rotation_deg,
-                                    settings.max_height_change_m))):
-            return (params, information, cost, value, filled), True, in_view
-        return None
-    if len(at_sensors) < CUT_MIN_POINTS and in_view < CUT_IN_VIEW:
-        return (np.zeros(4), None, np.inf, at_sensors, fill(np.zeros(4))), False, in_view
-    return None
-
-
-#: a cut placement is another vessel's only when at most this share of its silhouette lies
-#: under the chosen pose's
-CUT_OVERLAP = 0.25
-
-
-def _cut_alike(cut: np.ndarray, seen: bool, params: np.ndarray, align: Alignment,
-               silhouette: Silhouette, shape: tuple[int, int]) -> bool:
-    """Whether the placement ``cut`` of a hull the image's border cuts may be the vessel's
-    as the chosen pose ``params`` may: at most :data:`CUT_OVERLAP` of its silhouette under
-    the chosen pose's (sisters lie side by side or in line, apart), and, when part of it is
-    ``seen``, its ends in view on edges. Laid from the sensors' pose onto a larger ship the
-    vessel touches (a tug 6 m off at 40 m), the relaxed alignment fitted what was in view
-    with an end on nothing; on a bench frame it slid the tug 7 m along its own image, an end
-    out of the picture. The ring test of sisters' blobs (:func:`_row_rings`) is not asked: a
-    placement from so few points lies up to 2 m off, and its ring catches the vessel's own
-    pixels (0.2-0.4 of it, against a sister's 0.01-0.03)."""
-    if seen and not _ends_on_edges(align, silhouette, cut, against_neighbours=True, unseen_ok=True):
-        return False
-    drawn = _drawn_in_window(cut, align, silhouette, shape)
-    chosen = _drawn_in_window(params, align, silhouette, shape)
-    area = 0 if drawn is None else np.count_nonzero(drawn)
-    if area == 0 or chosen is None:     # (a hull wholly out of the window overlaps nothing)
-        return area > 0 or not seen
-    return np.count_nonzero(drawn & chosen) <= CUT_OVERLAP * area
-
-
-def _twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geometry: FrameGeometry,
-                    settings: PoseRefinementSettings, prior_diagonal: np.ndarray, solve, fill,
-                    ship: np.ndarray, cut: tuple[tuple, bool, float] | None = None,
-                    solved: list[tuple] = ()) -> tuple[tuple, str | None]:
-    """The placement to keep when the hull may be one of identical vessels moored side by
-    side or in a row, and why none can be kept when the sensors cannot tell which.
-
-    A vessel moored between two sister hulls, touching, makes one ship blob three beams
-    wide whose every beam-wide strip holds a hull with its bow and stern on edges. The
-    alignment's cost counts the outline's points deep inside ship pixels as misses, so a
-    placement on an outer twin (one side on the blob's edge) beats the true one (both sides
-    against the twins'): on schematic rafts at the documented sensor errors, 41 of 96 frames
-    were laid one beam over and applied. Identical vessels moored apart (a marina's row of
-    yachts 5 m apart) are separate blobs that fit alike, and the alignment goes to the one
-    its start lies nearest: 19 of 96 frames of a 12 m yacht in a row of five were laid a
-    berth over at the documented errors. The image cannot tell such placements apart, so
-    the prior must. When ``best`` (a candidate ``(params, information, cost, signed
-    distances, fill)``) has :data:`TWIN_DEEP_SHARE` of its outline deep in ship pixels, the
-    alignment is run again from a beam to either side where the silhouette there is filled
-    (``fill(params)`` its share of ship pixels; ``solve(start)`` returns a candidate); and
-    from the other blobs of the hull's size the prior cannot rule out
-    (:func:`_blob_starts`); the candidates the refinement ``solved`` already (from the
-    sensors' pose and a beam to either side) are checked as those from blobs are, with no
-    solve (a hull partly out of the picture, fitted 5 m off its sister from a start a beam
-    over, lost to the sister on cost, its points out of view counted as misses, and was
-    never compared). Of ``best`` and the placements that fit as one would be
-    accepted (:func:`_fits_alike`), all :data:`TWIN_APART_BEAMS` beams or more apart, the
-    one nearest the sensors' pose under the prior (of the shifts alone, :func:`_shift_d2`)
-    is kept, when it is nearer than the next by :data:`TWIN_ODDS_D2`; otherwise the reason to keep the
-    sensors' pose is returned with it.
-
-    A hull the image's border cuts at the sensors' pose (``cut``, :func:`_cut_at_sensors`)
-    has too few outline points in view to be scored against a sister in full view, which
-    then wins on cost alone: a yacht in a row seen from 75 m to one side was laid a berth
-    over on 35 of 144 frames, most of them with its own hull partly out of view. That
-    placement joins the comparison; when it is the likelier, or the odds cannot tell, the
-    sensors' pose is kept."""
-    params, value = best[0], best[3]
-    if not len(value):
-        return best, None
-    beam_m = float(np.ptp(silhouette.points_h[1]))
-    heading = geometry.vessel_heading_rad + float(params[2])
-    across = np.array([math.cos(heading), -math.sin(heading)])      # starboard, in ENU
-    bow = np.array([math.sin(heading), math.cos(heading)])
-    # (a step under half a beam lands on every sister's blob, however wide the prior)
-    on_blobs, merged = _blob_starts(params, align, silhouette, ship, prior_diagonal,
-                                    min(SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, 0.5 * beam_m),
-                                    TWIN_APART_BEAMS * beam_m, settings.max_shift_m)
-    # (start, or candidate already solved; whence: "solved", "beside" (not compared with
-    # the chosen pose's fit, nor its ring) or "blob")
-    starts = [(c, "solved") for c in solved if c is not best]
-    if merged or np.count_nonzero(value < -DEEP_PX) >= TWIN_DEEP_SHARE * len(value):
-        for side in (1.0, -1.0):
-            start = params + side * beam_m * np.array([*across, 0.0, 0.0])
-            if fill(start) >= settings.min_ship_fill:   # else water or a quay: no twin (a solve ~2 ms)
-                starts.append((start, "beside"))
-    starts += [(start, "blob") for start in on_blobs]
-    best_fraction = None        # reckoned once, when a placement asks
-    alike = [best]
-    for start, whence in starts:
-        found = start if isinstance(start, tuple) else solve(start)
-        if not (all(math.hypot(*(found[0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m for c in alike)
-                and _fits_alike(found, align, silhouette, settings)):
-            continue
-        if whence != "beside":
-            if best_fraction is None:
-                best_fraction = outline_fit(value)[0]
-            fraction, _, telling = outline_fit(found[3])
-            below = (TWIN_BLOB_FRACTION if whence == "blob"
-                     else max(TWIN_SOLVED_FRACTION, TWIN_SOLVED_MISSES / telling))
-            if fraction < best_fraction - below:
-                continue
-            best_ring, found_ring = _row_rings(params, found[0], align, silhouette, ship)
-            if found_ring > best_ring + TWIN_BLOB_RING:
-                continue        # ship beyond its outline: a larger vessel of another shape
-        alike.append(found)
-    cut_at = None       # the index of the cut placement in ``alike``
-    if cut is not None and all(math.hypot(*(cut[0][0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m
-                               for c in alike) and _cut_alike(cut[0][0], cut[1], params, align,
-                                                              silhouette, ship.shape):
-        alike.append(cut[0])
-        cut_at = len(alike) - 1
-    if len(alike) == 1:
-        return best, None
-    d2 = [_shift_d2(c[0], prior_diagonal) for c in alike]
-    first, second = np.argsort(d2, kind="stable")[:2]
-    odds = math.exp(0.5 * (d2[second] - d2[first]))
-    offset_m = alike[second][0][:2] - alike[first][0][:2]
-    if cut_at in (first, second):
-        if first != cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
-            return alike[first], None
-        said = (f"{100 * cut[2]:.0f} % of its outline in view"
-                + (", fitting the mask there" if cut[1] else ""))
-        apart_m = math.hypot(*offset_m)
-        if first == cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
-            return best, (f"{CUT_ALIKE}({said}); a placement {apart_m:.1f} m from there fits the "
-                          f"mask in full, but the sensors' pose favours the hull where they put it "
-                          f"{odds:.0f} to 1")
-        return best, (f"{CUT_ALIKE}({said}), and a placement {apart_m:.1f} m from there fits the "
-                      f"mask as well: the sensors' pose tells them apart only {odds:.1f} to 1 "
-                      f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
-    if d2[second] - d2[first] >= TWIN_ODDS_D2:
-        return alike[first], None
-    abeam = abs(float(offset_m @ across)) >= abs(float(offset_m @ bow))
-    where = "abeam (a vessel alike alongside)" if abeam else "ahead or astern (a vessel alike in line)"
-    return alike[first], (f"{TWIN_ALIKE}{math.hypot(*offset_m):.1f} m {where}, and the "
-                      f"sensors' pose tells them apart only {odds:.1f} to 1 "
-                      f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
-
-
-#: a refused correction that puts this much more of the outline on ship edges than the
-#: sensors' pose contradicts the sensors (:func:`contradicts_sensors`)
-CONTRADICTION_GAIN = 0.25
-#: the share of the outline that must be in view for a correction to contradict the sensors
-CONTRADICTION_MIN_IN_VIEW = 0.7
-#: what a user should check when the image contradicts the sensors' pose
-CONTRADICTION_ADVICE = ("check the GPS positions, the altitude (ellipsoidal or above the water), "
-                        "the water level, the heading source (a course over ground while going "
-                        "astern), the camera's yaw (from true north, not from the drone's nose) "
-                        "and its pitch (a gimbal given as straight down, --mount stabilised, "
-                        "that is not) and the camera's focal length (a video mode or "
-                        "stabilisation that crops the sensor)")
-#: the reasons that refuse a correction for its size alone
-BEYOND_LIMITS = ("shift ", "rotation ", "height change ")
-#: a correction that puts at least this share of the outline on ship edges, at most this
-#: RMS residual (px), with the silhouette this full of ship pixels, fits the mask cleanly
-CLEAN_FIT_FRACTION, CLEAN_FIT_RESIDUAL_PX, CLEAN_FIT_FILL = 0.95, 0.5, 0.99
-
-
-def clean_fit(fraction: float, residual_px: float | None, ship_fill: float) -> bool:
-    """Whether a correction fits the mask cleanly (:data:`CLEAN_FIT_FRACTION` and the
-    rest): a height change beyond the limits that does is the image's own measure of the
-    scale, and contradicts the frame's (:func:`contradicts_sensors`)."""
-    return (fraction >= CLEAN_FIT_FRACTION and residual_px is not None
-            and residual_px <= CLEAN_FIT_RESIDUAL_PX and ship_fill >= CLEAN_FIT_FILL)
-
-
-def contradicts_sensors(fraction_before: float, fraction: float, ship_fill: float,
-                        residual_px: float | None, settings: PoseRefinementSettings,
-                        in_view: float = 1.0, scale_beyond: bool = False) -> bool:
-    """Whether a correction refused for its size alone shows the sensors' pose wrong: it
-    passes every test of fit (inliers, ship fill, residual), and the sensors' pose leaves
-    fewer than ``min_inlier_fraction`` of the outline on a ship edge or
-    :data:`CONTRADICTION_GAIN` fewer than the correction, or the correction is a height
-    the image's scale calls for beyond the frame's (``scale_beyond``,
-    :func:`_image_scale`: a scale error a few per cent off leaves most of the
-    outline on edges at the sensors' pose). An altitude 5 m off (a water level
-    left at 0 on a tide) or a magnetic heading taken for true 15 degrees off is such a case:
-    the pose the distances are read with is then known to be wrong, by more than any sigma
-    says (on the sample frames a quay 5.05 m away read 21.6 ± 2.3 m). Only a hull mostly in
-    view (``in_view``, the share of the outline's samples in the image, at least
-    :data:`CONTRADICTION_MIN_IN_VIEW`) can say so: of a bow alone, a wrong height and shift
-    fit as well as the truth (a 30 m bench frame with 36 % of the hull in view "found" a
-    height 10.7 m off)."""
-    return (in_view >= CONTRADICTION_MIN_IN_VIEW
-            and (fraction_before < settings.min_inlier_fraction
-                 or fraction - fraction_before >= CONTRADICTION_GAIN or scale_beyond)
-            and fraction >= settings.min_inlier_fraction
-            and ship_fill >= settings.min_ship_fill
-            and residual_px is not None and residual_px <= settings.max_residual_px)
-
-
-def refinement_counts(refinements: list[dict[str, Any] | None]) -> dict[str, int]:
-    """How a batch's frames came out: ``applied``, ``sensors_pose_fitted`` (kept, fitting as
-    well), ``kept_sensors_pose`` (kept, the alignment not trusted) and ``off``; and, of them
-    all, ``carried`` (the vessel's pose carried from earlier frames' images,
-    :mod:`harborsight.flight.pose_carry`)."""
-    given = [r for r in refinements if r]
-    off = sum(r.get("reason") == "off" for r in given)
-    applied = sum(bool(r.get("applied")) for r in given)
-    fitted = sum(r.get("reason") == SENSORS_FIT for r in given)
-    return {"applied": applied, "sensors_pose_fitted": fitted,
-            "kept_sensors_pose": len(given) - off - applied - fitted, "off": off,
-            "carried": sum(bool(r.get("carried_from")) for r in given)}
-
-
-def refinement_summary(refinements: list[dict[str, Any] | None]) -> str | None:
-    """One line for a batch: on how many frames the pose was refined, on how many the
-    sensors' pose fitted as well, and why the others kept it (reasons without their
-    numbers, most common first; the line holds "kept" only then). None when it was off."""
-    counts = refinement_counts(refinements)
-    ran = counts["applied"] + counts["sensors_pose_fitted"] + counts["kept_sensors_pose"]
-    if not ran:
-        return None
-    line = f"pose refined on {counts['applied']} of {ran} frame(s)"
-    contradicted = sum(bool(r and r.get("sensors_contradicted")) for r in refinements)
-    if contradicted:
-        line = (f"the image contradicts the sensors' pose on {contradicted} frame(s): their "
-                "distances' lower bounds and clear reaches are 0; ") + line
-    if counts["sensors_pose_fitted"]:
-        line += f"; the sensors' pose fitted as well on {counts['sensors_pose_fitted']}"
-    if counts["carried"]:
-        line += (f"; the vessel's pose carried from earlier frames' images on "
-                 f"{counts['carried']} (its reports too old)")
-    kept = [str(r.get("reason") or "") for r in refinements
-            if r and not r.get("applied") and r.get("reason") not in ("off", SENSORS_FIT)]
-    if kept:
-        kinds: dict[str, int] = {}
-        for reason in kept:
-            kind = " ".join("".join(ch for ch in reason if not (ch.isdigit() or ch in ".-+")).split())
-            kinds[kind] = kinds.get(kind, 0) + 1
-        top = sorted(kinds.items(), key=lambda kv: -kv[1])[:3]
-        line += f"; the sensors' pose kept on {len(kept)} (" + "; ".join(
-            f"{n}x {kind}" for kind, n in top) + ")"
-    return line + _scale_note(refinements)
-
-
-#: a batch whose frames' hulls put the scale off by this share (median) gets a note, from
-#: :data:`SCALE_NOTE_MIN_FRAMES` frames whose correction was applied or the scale test fired
-SCALE_NOTE_SHARE = 0.02
-SCALE_NOTE_MIN_FRAMES = 5
-
-
-def _scale_note(refinements: list[dict[str, Any] | None]) -> str:
-    """A clause for a batch whose hulls, frame after frame, are larger or smaller in the
-    image than the altitude and focal length say (``scale_change``, median over the frames
-    that applied a correction or re-solved the scale): one frame's scale may be a mask's
-    error, a flight's median is the camera's or the altimeter's. Held by its prior, a frame
-    corrects only part of a focal length 5 % off (a median 2 % on the bench), so the note
-    starts at :data:`SCALE_NOTE_SHARE`; with right sensors the bench's median was under
-    0.5 %. "" when there is nothing to say."""
-    changes = [float(r["scale_change"]) for r in refinements
-               if r and r.get("scale_change") is not None
-               and (r.get("applied") or r.get("scale_prior_m") is not None)]
-    if len(changes) < SCALE_NOTE_MIN_FRAMES:
-        return ""
-    median = float(np.median(changes))
-    if abs(median) < SCALE_NOTE_SHARE:
-        return ""
-    side = "lower" if median < 0 else "higher"
-    return (f"; the hull's size in the image puts the drone a median {100 * abs(median):.1f} % "
-            f"{side} than its altitude on {len(changes)} frame(s): check the camera's focal "
-            "length (a video mode or stabilisation that crops the sensor) and the altitude")

@@ -108,7 +108,7 @@ class ClearanceReport:
     @property
     def sensors_contradicted(self) -> bool:
         """The image showed the sensors' pose wrong by more than the refinement may correct
-        (:func:`harborsight.clearance.pose_refinement.contradicts_sensors`, or the
+        (:func:`harborsight.clearance.gross_errors.contradicts_sensors`, or the
         whole-image search for the hull), or showed no vessel where the sensors put it and
         nowhere else: the distances were read with a pose the image does not bear out, so
         trackers and alarms leave them out."""

@@ -124,7 +124,7 @@ OWN_RIM_PX = 4
 def print_pose_refinement_summary(refinements: list) -> None:
     """The batch's one line on pose refinement: on stdout, or on stderr when some frames
     kept the sensors' pose because the alignment was not trusted."""
-    from harborsight.clearance.pose_refinement import refinement_summary
+    from harborsight.clearance.refinement_summary import refinement_summary
 
     line = refinement_summary(refinements)
     if line:

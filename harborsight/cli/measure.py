@@ -77,7 +77,7 @@ def print_report_table(outcome: FrameOutcome) -> None:
     console.print(table)
     md = report.min_distance_m
     if report.sensors_contradicted:
-        from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
+        from harborsight.clearance.gross_errors import CONTRADICTION_ADVICE
 
         reason = (report.pose_refinement or {}).get("reason")
         console.print(f"[bold red]the image contradicts the sensors' pose ({reason}): no "

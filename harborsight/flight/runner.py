@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.measure import ClearanceSettings
-from harborsight.clearance.pose_refinement import refinement_counts
+from harborsight.clearance.refinement_summary import refinement_counts
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.pose_carry import VesselPoseCarry

@@ -47,8 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harborsight.clearance.gross_errors import CONTRADICTION_ADVICE
 from harborsight.clearance.measure import ClearanceSettings
-from harborsight.clearance.pose_refinement import CONTRADICTION_ADVICE
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceReport
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
