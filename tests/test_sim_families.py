@@ -245,7 +245,7 @@ def test_small_craft_kinds_fit_their_length_and_are_ship(kind, length_m):
 
 
 def test_boat_kinds_are_drawn_with_their_shares_and_yachts_only_when_long():
-    from harborsight.sim.families import _BOAT_KIND_P, _BOAT_KINDS, _draw_boat_kind
+    from harborsight.sim.families.boats import _BOAT_KIND_P, _BOAT_KINDS, _draw_boat_kind
 
     rng = np.random.default_rng(0)
     short = [_draw_boat_kind(rng, 8.0) for _ in range(3000)]
@@ -298,7 +298,7 @@ def test_a_tree_crown_is_a_lumpy_mass_of_convex_lobes():
     from shapely.geometry import MultiPoint
     from shapely.ops import unary_union
 
-    from harborsight.sim.families import _crown_lobes
+    from harborsight.sim.families.shore import _crown_lobes
 
     rng = np.random.default_rng(5)
     for r in (2.0, 4.5, 7.0):
@@ -376,7 +376,7 @@ def test_woods_stop_where_no_camera_of_the_frame_can_see(vessels):
 def test_lake_shores_and_marinas_centre_on_a_leisure_craft(tmp_path):
     """A family that shows leisure boats centres on one: 6-16 m from a pool of its own,
     painted from the leisure palette; the classic scenes of the same dataset keep theirs."""
-    from harborsight.sim.families import _LEISURE_HULL_RGB
+    from harborsight.sim.families.boats import _LEISURE_HULL_RGB
     from harborsight.sim.layout import LEISURE_LENGTH_M, LEISURE_VESSEL_PREFIX
 
     config = SimulationConfig(seed=3, preset="tiny", vessel_pool=2,
@@ -498,7 +498,7 @@ def test_the_placed_bounds_follow_a_list_that_objects_leave_and_join():
     """The overlap check's cached bounds stay those of the builder's list when objects are
     removed from its middle and end and others appended, and the check says what a plain
     distance between footprints says."""
-    from harborsight.sim.families import PlacedBounds, _overlaps_others
+    from harborsight.sim.families._parts import PlacedBounds, _overlaps_others
     from harborsight.sim.layout import _box, _Builder
 
     b = _Builder(np.random.default_rng(0), 30.0)
