@@ -133,10 +133,11 @@ def test_accuracy_from_the_rtk_fields(tmp_path):
 def test_capture_time_clocks(tmp_path):
     local = read_dji_photo(_photo(tmp_path, exif=LOCAL_TIME))
     when, how = capture_utc(local, None)
-    assert when == datetime(2026, 5, 1, 12, 0, 5, tzinfo=UTC) and "OffsetTimeOriginal" in how
-    assert "to the second" in how
+    # a clock to the second truncates: the exposure lies in 14:00:05-06 local, its middle taken
+    assert when == datetime(2026, 5, 1, 12, 0, 5, 500000, tzinfo=UTC) and "OffsetTimeOriginal" in how
+    assert "to the second (its middle taken)" in how
     # the user's offset wins, with a note
-    assert capture_utc(local, 3.0)[0] == datetime(2026, 5, 1, 11, 0, 5, tzinfo=UTC)
+    assert capture_utc(local, 3.0)[0] == datetime(2026, 5, 1, 11, 0, 5, 500000, tzinfo=UTC)
     assert any("overridden" in note for note in local.notes)
     # no zone: refused naming the field, unless the offset is given; sub-seconds kept
     zoneless = read_dji_photo(_photo(tmp_path, name="z.jpg", exif={
@@ -144,6 +145,10 @@ def test_capture_time_clocks(tmp_path):
     with pytest.raises(InputError, match=r"DateTimeOriginal.*--utc-offset-h"):
         capture_utc(zoneless, None)
     assert capture_utc(zoneless, 2)[0] == datetime(2026, 5, 1, 12, 0, 5, 250000, tzinfo=UTC)
+    assert "to the second" not in capture_utc(zoneless, 2)[1]
+    inline = read_dji_photo(_photo(tmp_path, name="i.jpg", exif={
+        "DateTimeOriginal": "2026:05:01 14:00:05.75", "OffsetTimeOriginal": "+02:00"}))
+    assert capture_utc(inline, None)[0] == datetime(2026, 5, 1, 12, 0, 5, 750000, tzinfo=UTC)
     # GPS time stamps are UTC and come before the local clock; UTCAtExposure before both
     gps = read_dji_photo(_photo(tmp_path, name="g.jpg", exif=LOCAL_TIME,
                                 gps_time=("2026:05:01", (12, 0, 4.5))))
@@ -239,7 +244,7 @@ def test_telemetry_show_prints_a_photo(tmp_path):
     result = runner.invoke(app, ["telemetry", "show", str(path), "--json", str(tmp_path / "s.json")],
                            terminal_width=200)
     assert result.exit_code == 0, result.output
-    assert "DewarpData" in result.output and "2026-05-01T12:00:05+00:00" in result.output
+    assert "DewarpData" in result.output and "2026-05-01T12:00:05.500000+00:00" in result.output
     summary = json.loads((tmp_path / "s.json").read_text())[0]
     assert summary["rtk_flag"] == 16 and summary["camera"]["fx"] == pytest.approx(460.56)
     (tmp_path / "x.jpg").write_bytes(b"GIF89a")

@@ -304,6 +304,29 @@ def _nmea(body: str) -> str:
     return f"${body}*{checksum:02X}"
 
 
+def test_a_turning_feed_is_told_where_its_headings_may_be_a_fix_early(tmp_path):
+    """NMEA headings carry no time: a 1 Hz feed that sends HDT just before its RMC has each
+    heading placed at the fix before, a second early. The order cannot be read from the file,
+    so a turning vessel's track says how much heading that may be; headings faster than the
+    fixes, or a steady heading, get no note."""
+    def feed(name: str, headings_per_fix: int, rate_deg_s: float) -> list[str]:
+        lines = []
+        for second in range(20):
+            stamp = f"1200{second:02d}"
+            lines += [_nmea(f"HEHDT,{(rate_deg_s * (second + (k + 1) / headings_per_fix)) % 360:.2f},T")
+                      for k in range(headings_per_fix)]      # sent ahead of the fix they lead to
+            lines.append(_nmea(f"GPRMC,{stamp},A,5609.000,N,01013.000,E,0.5,090.0,010526,,,A"))
+        path = tmp_path / name
+        path.write_text("\n".join(lines) + "\n")
+        return read_vessel_track(path).notes
+
+    turning = [n for n in feed("turning.nmea", 1, 3.0) if n.startswith("headings carry no time")]
+    assert len(turning) == 1 and "(1 s) early" in turning[0] and "(3.0 deg/s) 3.0 deg" in turning[0]
+    assert "0.79 m" in turning[0]                    # 15 m x 3 deg
+    assert not any(n.startswith("headings carry no time") for n in feed("gyro.nmea", 4, 3.0))
+    assert not any(n.startswith("headings carry no time") for n in feed("steady.nmea", 1, 0.0))
+
+
 def test_nmea_vessel_track(tmp_path):
     # the NMEA 0183 standard's own RMC example (checksum 6A as published)
     lines = ["$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A",
@@ -327,6 +350,11 @@ def test_nmea_vessel_track(tmp_path):
                            "1 unreadable sentence(s) skipped (bad checksum or field; line 6)",
                            "position_sigma_m (per axis): the GGA quality class, widened by "
                            "HDOP above 1, for 2 (GPS 2)",
+                           "headings carry no time in NMEA: each is placed at the fix before it, "
+                           "so one sent ahead of its own fix is up to a fix interval (1 s) early, "
+                           "at this feed's fastest turns (2.0 deg/s) 2.0 deg of heading (a hull "
+                           "point 15 m from the antenna moves 0.52 m); --sigma vessel_heading_deg "
+                           "can widen the bars for it",
                            "1 of 3 fix(es) give speed and course (RMC): across a gap in the "
                            "fixes the vessel is carried by them up to 5 s, its error bars "
                            "widened for the time"]
@@ -930,7 +958,7 @@ def test_dji_srts_state_no_accuracy(name):
 
 def _nmea_feed(path: Path, epochs: list[tuple[str, ...]], gst: dict[int, tuple[str, ...]],
                gst_first: bool = False) -> Path:
-    """An NMEA feed written with pynmea2: per epoch a GGA (fields as given), a true heading,
+    """An NMEA feed written with pynmea2: per epoch a GGA (fields as given), a steady true heading,
     and where ``gst`` has the epoch a GST (before the GGA if ``gst_first``), after a ZDA that
     dates the fixes 2021-04-21."""
     import pynmea2
@@ -938,7 +966,7 @@ def _nmea_feed(path: Path, epochs: list[tuple[str, ...]], gst: dict[int, tuple[s
     lines = [str(pynmea2.ZDA("GP", "ZDA", (epochs[0][0], "21", "04", "2021", "00", "00")))]
     for k, gga_fields in enumerate(epochs):
         gga = str(pynmea2.GGA("GP", "GGA", gga_fields))
-        hdt = str(pynmea2.HDT("HE", "HDT", (f"{90.0 + k:.1f}", "T")))
+        hdt = str(pynmea2.HDT("HE", "HDT", ("90.0", "T")))      # a steady heading
         errors = [str(pynmea2.GST("GP", "GST", gst[k]))] if k in gst else []
         lines += [*errors, gga, hdt] if gst_first else [gga, *errors, hdt]
     path.write_text("\n".join(lines) + "\n")

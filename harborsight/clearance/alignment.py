@@ -326,6 +326,8 @@ class Alignment:
 
     def _seen(self, xyz: np.ndarray) -> np.ndarray:
         """Indices of the points ``(x, y, z)`` in view, in the window and in front."""
+        if xyz.shape[1] == 0:
+            return np.empty(0, np.intp)         # (OpenCV refuses an empty array)
         inside = cv2.inRange(np.ascontiguousarray(xyz[:3].T).reshape(-1, 1, 3), self.lo, self.hi)
         return inside.ravel().nonzero()[0]
 
@@ -340,7 +342,10 @@ class Alignment:
         return uv
 
     def residuals(self, points_h: np.ndarray, params: np.ndarray) -> np.ndarray:
-        """Signed distances (px) of the points in view."""
+        """Signed distances (px) of the points in view (none of no points: an end of a hull
+        outline with no sample near it)."""
+        if points_h.shape[1] == 0:
+            return np.empty(0)
         if self.distorted:
             xy = self.pixels(points_h, params).T - self.origin
             xyz = np.vstack((xy, np.ones((1, xy.shape[1]))))
@@ -352,6 +357,8 @@ class Alignment:
                    ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(s (n,), ds/dp (4, n))`` of the points in view, or None when fewer than
         :attr:`min_points` (:data:`MIN_EDGE_POINTS`) are."""
+        if points_h.shape[1] < self.min_points:
+            return None
         projected, jac = self._project(points_h, params)
         seen = self._seen(projected)
         if len(seen) < self.min_points:

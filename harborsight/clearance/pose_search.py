@@ -68,6 +68,11 @@ VERIFY_STARTS = 4
 SLIDE_TRUNCATE_PX = 8.0
 SLIDE_SCALE = 0.5
 SLIDE_STARTS = 3
+#: a silhouette whose outline spans more than this many image widths or heights is not slid:
+#: wherever it lies, under about half of its outline is in view, and a placement must have
+#: most of it in view; its kernel, drawn at that size, would not fit in memory (a box hull
+#: 57 degrees off nadir reached toward the horizon: 49 GiB for the correlation)
+SLIDE_MAX_EXTENT = 2.0
 #: how many of the sliding starts, the cheapest, are fitted besides the others
 VERIFY_SLIDING = 2
 #: at most this many outline points (every k-th) score a start
@@ -257,6 +262,8 @@ def _sliding_starts(align: Alignment, silhouette: Silhouette, beyond_m: float = 
         low = offsets.min(axis=0)
         if (low > 0).any() or (offsets.max(axis=0) < 0).any():
             continue        # the centroid off its own outline's box: no anchor for it
+        if (offsets.max(axis=0) - low + 1 > SLIDE_MAX_EXTENT * np.array(small.shape[::-1])).any():
+            continue        # far larger than the image: no slide puts most of it in view
         kernel = np.zeros(tuple(offsets.max(axis=0) - low + 1)[::-1], np.float32)
         np.add.at(kernel, (offsets[:, 1] - low[1], offsets[:, 0] - low[0]), 1.0)
         kernel /= len(offsets)

@@ -46,7 +46,10 @@ and time stamps (UTC by definition); ``DateTimeOriginal`` (the drone's clock, se
 remote controller's phone or tablet: **local time**) with the zone of ``OffsetTimeOriginal``,
 or with ``utc_offset_h`` given by the user (which wins over ``OffsetTimeOriginal`` when both
 are there, with a note). ``DateTimeOriginal`` is to the second unless ``SubSecTimeOriginal``
-adds a fraction: the vessel is then placed to within its speed times half a second.
+adds a fraction (EXIF's sub-second field is the part the whole seconds leave out: a clock
+truncates). Without it the exposure lies anywhere in that second, so its middle is taken
+(``+ 0.5 s``, as for a DJI SRT's whole seconds): the vessel is then placed to within its
+speed times half a second, not a whole second behind on average.
 
 **Gimbal yaw reference**: DJI's flight controller corrects its compass with the declination
 at its GPS position, so ``GimbalYawDegree`` is taken as degrees from **true** north
@@ -484,6 +487,12 @@ def _exif_time(text, fraction=None) -> datetime | None:
     return when + timedelta(seconds=float("0." + digits)) if digits else when
 
 
+def _has_fraction(text) -> bool:
+    """Whether an EXIF time carries its own fraction of a second (``...:05.25``)."""
+    match = _EXIF_TIME.match(text) if isinstance(text, str) else None
+    return bool(match and match.group(7))
+
+
 def capture_utc(photo: DjiPhoto, utc_offset_h: float | None) -> tuple[datetime, str]:
     """The photo's capture time in UTC and which clock gave it (module docstring);
     :class:`InputError` naming the field when it cannot be placed in UTC."""
@@ -507,7 +516,11 @@ def capture_utc(photo: DjiPhoto, utc_offset_h: float | None) -> tuple[datetime, 
     if local is None:
         raise InputError(photo.source, "DateTimeOriginal", "no capture time (no UTCAtExposure, "
                          "no GPS time stamp, no readable EXIF DateTimeOriginal)")
-    resolution = "" if photo.exif.get("SubSecTimeOriginal") else ", to the second"
+    if not photo.exif.get("SubSecTimeOriginal") and not _has_fraction(photo.exif.get("DateTimeOriginal")):
+        local += timedelta(seconds=0.5)     # the middle of the second a truncated clock shows
+        resolution = ", to the second (its middle taken)"
+    else:
+        resolution = ""
     offset = _OFFSET.match(str(photo.exif.get("OffsetTimeOriginal") or ""))
     if utc_offset_h is not None:
         if offset is not None:

@@ -174,6 +174,9 @@ def read_vessel_nmea(path: str | Path, max_heading_gap_s: float = 2.0) -> Track:
     fix_order = np.argsort(arrival_t, kind="stable")
     fix_t = arrival_t[fix_order]
     heading = _interp_within(fix_t, head_t, head, max_heading_gap_s) % 360.0
+    timing = _heading_timing_note(arrival_t, head_t, head)
+    if timing:
+        notes.append(timing)
     if np.isnan(heading).any():
         notes.append(f"{int(np.isnan(heading).sum())} fix(es) with no heading within "
                      f"{max_heading_gap_s:g} s")
@@ -330,6 +333,39 @@ def _rates_of_turn(turns: list[tuple[int, float]], arrival_t: np.ndarray, fix_t:
     order = np.argsort(turn_t, kind="stable")
     return _interp_within(fix_t, turn_t[order], np.array([rate for _, rate in turns])[order],
                           max_gap_s)
+
+
+#: a feed's headings (as many as its fixes or fewer) whose timing can be a fix interval off
+#: get a note when at its fastest turns that is at least this much heading (degrees)
+HEADING_TIMING_NOTE_DEG = 0.5
+
+
+def _heading_timing_note(fix_t: np.ndarray, head_t: np.ndarray, head_deg: np.ndarray) -> str | None:
+    """A note when the headings' placement (:func:`_heading_times`) may cost heading: with one
+    heading a fix interval or fewer, NMEA cannot say whether a heading sentence belongs to the
+    fix before it or to the one after it (a burst may send HDT before or after RMC, and the
+    file keeps no arrival times), so a heading placed at the fix before it may be up to an
+    interval ``Δt`` early, ``ω·Δt`` of heading at a rate of turn ``ω`` (the fastest turns: the
+    95th percentile of the headings' own rate). None when that is under
+    :data:`HEADING_TIMING_NOTE_DEG` or when headings come faster than the fixes."""
+    steps = np.diff(np.sort(fix_t))
+    steps = steps[steps > 0]
+    if len(head_t) < 2 or not len(steps) or len(head_t) > 1.5 * len(fix_t):
+        return None
+    interval_s = float(np.median(steps))
+    dt = np.diff(head_t)
+    rates = np.abs(np.diff(head_deg)[dt > 0] / dt[dt > 0])
+    if not len(rates):
+        return None
+    fastest = float(np.percentile(rates, 95))
+    if fastest * interval_s < HEADING_TIMING_NOTE_DEG:
+        return None
+    return (f"headings carry no time in NMEA: each is placed at the fix before it, so one sent "
+            f"ahead of its own fix is up to a fix interval ({interval_s:.2g} s) early, at this "
+            f"feed's fastest turns ({fastest:.1f} deg/s) {fastest * interval_s:.1f} deg of heading "
+            "(a hull point 15 m from the antenna moves "
+            f"{15 * math.radians(fastest * interval_s):.2f} m); --sigma vessel_heading_deg can "
+            "widen the bars for it")
 
 
 def _heading_times(fix_t: np.ndarray, epochs: list[int]) -> np.ndarray:
