@@ -124,30 +124,27 @@ def test_gsd_refuses_a_hull_past_the_lens_edge():
         measure_report(case)
 
 
+#: the gsd target's case that crashed: a box hull 57 degrees off nadir
+_TILTED_BOX = {"alt_m": 26.574428422536922, "water_level_m": -1.4624486213522054,
+               "pitch_deg": -57.256955948099474, "yaw_deg": -80.24533109398993,
+               "roll_deg": 9.999999999999998, "east_m": 6.0, "north_m": -1.8647304272828328e-283,
+               "heading_deg": 63.71395973611864, "k1": 0.0, "fov_scale": 1.2,
+               "quay_point": (0.724028937964622, 0.9226612592778278), "quay_angle_deg": 2.00001,
+               "method": "gsd", "box": True}
+
+
 def test_a_hull_end_with_no_outline_sample_near_it_is_no_crash():
     """Found by this file's gsd target (run alone, in file order): a box hull's outline, 57
     degrees off nadir, had no sample within the end's reach of the bow, and OpenCV's inRange
     refused the empty set of that end's points while the whole-image search asked whether the
     hull's ends lie on ship edges (``cv2.error`` out of ``measure_frame``). Now an alignment
     of no points has no residuals, and the end is not on edges."""
-    case = {"alt_m": 26.574428422536922, "water_level_m": -1.4624486213522054,
-            "pitch_deg": -57.256955948099474, "yaw_deg": -80.24533109398993,
-            "roll_deg": 9.999999999999998, "east_m": 6.0, "north_m": -1.8647304272828328e-283,
-            "heading_deg": 63.71395973611864, "k1": 0.0, "fov_scale": 1.2,
-            "quay_point": (0.724028937964622, 0.9226612592778278), "quay_angle_deg": 2.00001,
-            "method": "gsd", "box": True}
-    measure_report(case)        # every ok section finite and non-negative, strict JSON
+    measure_report(_TILTED_BOX)        # every ok section finite and non-negative, strict JSON
 
 
 def test_a_silhouette_far_larger_than_the_image_is_not_slid():
-    """The same target, a box hull whose outline 57 degrees off nadir reaches toward the
-    horizon: the whole-image search's chamfer slide drew that outline as a kernel of
+    """The same target, the hull 1.35 m further west: its outline reaches toward the
+    horizon, and the whole-image search's chamfer slide drew that outline as a kernel of
     102,186 x 129,538 px and asked for 49 GiB (the file's run was killed for memory). A
     silhouette over twice the image across is not slid (``SLIDE_MAX_EXTENT``)."""
-    case = {"alt_m": 26.574428422536922, "water_level_m": -1.4624486213522054,
-            "pitch_deg": -57.256955948099474, "yaw_deg": -80.24533109398993,
-            "roll_deg": 9.999999999999998, "east_m": 4.65, "north_m": -1.8647304272828328e-283,
-            "heading_deg": 63.71395973611864, "k1": 0.0, "fov_scale": 1.2,
-            "quay_point": (0.724028937964622, 0.9226612592778278), "quay_angle_deg": 2.00001,
-            "method": "gsd", "box": True}
-    measure_report(case)
+    measure_report({**_TILTED_BOX, "east_m": 4.65})
