@@ -143,7 +143,7 @@ def test_a_hull_end_with_no_outline_sample_near_it_is_no_crash():
 
 
 def test_a_silhouette_far_larger_than_the_image_is_not_slid():
-    """The same target, the hull 1.35 m further west: its outline reaches toward the
+    """The same target, with east_m 4.65 for 6.0: the outline reaches toward the
     horizon, and the whole-image search's chamfer slide drew that outline as a kernel of
     102,186 x 129,538 px and asked for 49 GiB (the file's run was killed for memory). A
     silhouette over twice the image across is not slid (``SLIDE_MAX_EXTENT``)."""
