@@ -522,6 +522,25 @@ def _vessel_csv(path: Path, start: datetime, seconds: int) -> Path:
     return path
 
 
+def test_a_fixed_camera_yaw_is_said_to_hold_for_the_whole_video(tmp_path):
+    """A DJI SRT without gimbal angles (a Mavic Mini's) takes one --camera-yaw-deg for every
+    frame: the user is told that a turn of the drone goes unseen."""
+    vessel = tmp_path / "ship.csv"
+    vessel.write_text("time,lat,lon,heading_deg\n" + "".join(
+        f"2026-05-01T12:00:{s:02d}Z,48.0772,-121.7457,90\n" for s in range(30)))
+    out = tmp_path / "flight.jsonl"
+    result = runner.invoke(app, [
+        "telemetry", "video", str(DJI / "mavic_mini.SRT"), "--vessel-track", str(vessel),
+        "--camera", "dji-mavic3", "--image-size", "1280x720", "--frames", "20", "--fps", "2",
+        "--video-start", "2026-05-01T12:00:00Z", "--water-level-m", "0", "--camera-yaw-deg", "45",
+        "--out", str(out)], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    frames = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(frames) == 20 and {f["camera_attitude"]["yaw_deg"] for f in frames} == {45.0}
+    assert ("the camera's yaw is held at 45 deg from true north for all 20 frame(s) "
+            "(--camera-yaw-deg): a turn of the drone during the video is not seen") in result.output
+
+
 def test_video_metadata_from_a_dji_srt_and_a_vessel_csv(tmp_path):
     start = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)
     vessel_csv = _vessel_csv(tmp_path / "ship.csv", start, 30)

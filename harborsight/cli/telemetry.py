@@ -266,6 +266,12 @@ def telemetry_video(
     for track in (drone, vessel):
         for note in track.notes:
             err_console.print(f"note: {track.source}: {note}", markup=False, highlight=False)
+    if camera_yaw_deg is not None and result.frames:
+        err_console.print(f"note: the camera's yaw is held at {camera_yaw_deg:g} deg from true north "
+                          f"for all {len(result.frames)} frame(s) (--camera-yaw-deg): a turn of the "
+                          "drone during the video is not seen; the pose refinement absorbs a yaw "
+                          "error near the nadir and flags frames whose image contradicts it",
+                          markup=False, highlight=False)
     console.print(f"{len(result.frames)} of {frames} frame(s) written to {out} (camera mount: "
                   f"{result.mount}, altitude: {drone.alt_reference})", highlight=False)
     _say_beyond_dead_reckoning(result.beyond_dead_reckoning)
