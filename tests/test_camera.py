@@ -251,3 +251,31 @@ def test_a_point_past_a_barrel_fold_is_not_projected_even_where_undistortion_fin
     theirs, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K,
                                   intr.dist_coeffs)
     assert np.allclose(uv[2:], theirs.reshape(-1, 2)[2:], atol=1e-6)
+
+
+def test_a_large_set_across_the_near_plane_is_cut_on_its_hull_edges(monkeypatch):
+    """A convex set reaching behind the camera is cut at the near plane. Pairing every point
+    ahead with every point behind found the cut's corners, but a scanned hull of 20,737
+    points beside a drone 5 m up asked for 18 GB. Beyond ``_MAX_NEAR_PAIRS`` pairs only the
+    edges of the set's 3-D convex hull are cut: the same solid (scipy's hull volumes agree
+    to 1e-12), with a handful of points instead of one per pair."""
+    from scipy.spatial import ConvexHull
+
+    from harborsight.geometry import camera as camera_module
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(3000, 3)) * np.array([20.0, 5.0, 10.0])      # about half behind
+    all_pairs = camera_module._ahead_of_camera(points)      # 1,500 x 1,500 pairs: over the limit
+    assert len(all_pairs) < 10 * len(points)                 # cut on the hull's edges
+    monkeypatch.setattr(camera_module, "_MAX_NEAR_PAIRS", 10 ** 12)
+    every = camera_module._ahead_of_camera(points)           # every pair (54 MB here)
+    assert len(every) > 10 ** 6
+    assert ConvexHull(all_pairs).volume == pytest.approx(ConvexHull(every).volume, rel=1e-12)
+    # a flat set (a deck's outline) is joggled into a hull, and cut the same
+    flat = np.column_stack((rng.uniform(-10, 10, 600), rng.uniform(-3, 3, 600), np.zeros(600)))
+    flat = flat @ Rotation.from_euler("x", 50, degrees=True).as_matrix().T
+    monkeypatch.setattr(camera_module, "_MAX_NEAR_PAIRS", 0)
+    cut = camera_module._ahead_of_camera(flat)
+    monkeypatch.setattr(camera_module, "_MAX_NEAR_PAIRS", 10 ** 12)
+    assert shapely.MultiPoint(cut[:, :2]).convex_hull.area == pytest.approx(
+        shapely.MultiPoint(camera_module._ahead_of_camera(flat)[:, :2]).convex_hull.area, rel=1e-9)

@@ -618,7 +618,13 @@ def measure_clearance(
 
     vessel_outline_px = camera.project_convex_outline(geometry.vessel_to_enu(vessel.hull_points))
     finite = vessel_outline_px[np.isfinite(vessel_outline_px).all(axis=1)]
-    span_px = float(np.ptp(finite, axis=0).max()) if len(finite) else 0.0
+    if not len(finite):
+        raise InputError(
+            geometry.source, "vessel",
+            "the hull's outline has no pixel near the image: it lies behind the camera, past "
+            "the lens model's fold or far outside the picture (check camera_attitude, the "
+            "vessel's position against the drone's, and the distortion coefficients)")
+    span_px = float(np.ptp(finite, axis=0).max())
     if span_px < MIN_HULL_SPAN_PX:
         raise InputError(
             geometry.source, "vessel",

@@ -557,7 +557,9 @@ def _refine_within_prior(
     elif fill_share < settings.min_ship_fill:
         reason = (f"{100 * fill_share:.0f} % of the silhouette is ship pixels "
                   f"(at least {100 * settings.min_ship_fill:.0f} % needed)")
-    elif residual_px is None or residual_px > settings.max_residual_px:
+    elif residual_px is None:       # (reachable with min_inlier_fraction 0 only)
+        reason = "no outline point within reach of a ship edge: no residual"
+    elif residual_px > settings.max_residual_px:
         reason = f"residual {residual_px:.2f} px above {settings.max_residual_px:g} px"
     elif twin_alike is not None:
         reason = twin_alike

@@ -49,6 +49,8 @@ TWIN_APART_BEAMS = 0.5
 #: placements that fit the mask alike are told apart by the prior alone, and only when their
 #: squared prior distances differ by this much (odds of 20 to 1)
 TWIN_ODDS_D2 = 2.0 * math.log(20.0)
+#: odds said are capped at these (a million to 1): past them the prior decides anyway
+MAX_ODDS_D2 = 2.0 * math.log(1e6)
 #: how the reason for a pose kept for want of telling twins apart begins
 TWIN_ALIKE = "the hull fits the mask as well "
 #: another ship blob may hold a twin when its area is within these shares of the hull's
@@ -523,7 +525,8 @@ def twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geomet
         return best, None
     d2 = [_shift_d2(c[0], prior_diagonal) for c in alike]
     first, second = np.argsort(d2, kind="stable")[:2]
-    odds = math.exp(0.5 * (d2[second] - d2[first]))
+    # (capped: a prior of 2 cm and a sister 10 m off are odds of e^125000, past a float)
+    odds = math.exp(min(0.5 * (d2[second] - d2[first]), 0.5 * MAX_ODDS_D2))
     offset_m = alike[second][0][:2] - alike[first][0][:2]
     if cut_at in (first, second):
         if first != cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
@@ -534,7 +537,7 @@ def twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geomet
         if first == cut_at and d2[second] - d2[first] >= TWIN_ODDS_D2:
             return best, (f"{CUT_ALIKE}({said}); a placement {apart_m:.1f} m from there fits the "
                           f"mask in full, but the sensors' pose favours the hull where they put it "
-                          f"{odds:.0f} to 1")
+                          f"{f'{odds:.0f}' if odds < 1e6 else 'more than a million'} to 1")
         return best, (f"{CUT_ALIKE}({said}), and a placement {apart_m:.1f} m from there fits the "
                       f"mask as well: the sensors' pose tells them apart only {odds:.1f} to 1 "
                       f"(at least {math.exp(0.5 * TWIN_ODDS_D2):.0f} to 1 needed)")
