@@ -7,6 +7,7 @@ import json
 import math
 import re
 import struct
+import threading
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -131,6 +132,34 @@ def test_broken_srt_files():
     assert len(track) == 19 and "1 block(s) without a position skipped (line 115)" in track.notes[0]
     with pytest.raises(InputError, match="unknown drone log type"):
         read_drone_log(DJI / "LICENSE")
+
+
+def test_a_ulog_that_keeps_pyulog_rescanning_is_refused_in_time(tmp_path):
+    """A fuzzed ULog (the sample's first 36,865 bytes, one byte of its definitions changed
+    and four inserted later) kept pyulog 1.3 re-scanning a stretch of bytes 6,859-6,871 for
+    good: `telemetry` hung. Past 50 times the file's size in reads it is refused, naming why."""
+    sample = (TELEMETRY / "px4" / "sample_log_small.ulg").read_bytes()[:36865]
+    damaged = bytearray(sample)
+    damaged[8125] = 0xDA
+    damaged[30633:30633] = b"T\x00\x00\x80"
+    path = tmp_path / "damaged.ulg"
+    path.write_bytes(bytes(damaged))
+    outcome: list = []
+
+    def read() -> None:
+        try:
+            read_drone_log(path)
+            outcome.append(None)
+        except Exception as exc:
+            outcome.append(exc)
+
+    reader = threading.Thread(target=read, daemon=True)   # a hang fails the test, not the run
+    reader.start()
+    reader.join(120)
+    assert outcome, "reading the damaged ULog did not end within 120 s"
+    assert isinstance(outcome[0], InputError) and re.search(
+        r"damaged.ulg: a damaged ULog: pyulog went over its bytes more than 50 times",
+        str(outcome[0])), outcome[0]
 
 
 def test_px4_ulog_position_time_and_attitude():

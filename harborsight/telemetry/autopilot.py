@@ -324,6 +324,43 @@ def _attitude_fields(t_s: np.ndarray | None, ypr_deg: np.ndarray | None) -> dict
             "roll_deg": ypr_deg[:, 2], "attitude_of": "vehicle"}
 
 
+#: pyulog may read a damaged ULog's bytes again and again: it re-scans a corrupt stretch of
+#: the definitions section a byte at a time, reading each would-be message whole, and a
+#: fuzzed 37 kB log kept it in such a loop for good (pyulog 1.3). Reading more than this many
+#: times the file's size (and a megabyte) stops it
+ULOG_READ_LIMIT_FACTOR = 50
+
+
+class _UlogReadLimitError(Exception):
+    """pyulog read past :data:`ULOG_READ_LIMIT_FACTOR` times the file (not one of the
+    exceptions pyulog catches while it re-scans)."""
+
+
+class _BoundedFile:
+    """A binary file for pyulog (``read``, ``seek``, ``tell``, ``close``) that raises
+    :class:`_UlogReadLimitError` once ``limit`` bytes have been read in all."""
+
+    def __init__(self, path: Path, limit: int) -> None:
+        self._file = path.open("rb")
+        self._left = limit
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._file.read(size)
+        self._left -= len(data)
+        if self._left < 0:
+            raise _UlogReadLimitError
+        return data
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._file.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+    def close(self) -> None:
+        self._file.close()
+
+
 def read_px4_ulog(path: str | Path) -> Track:
     """A PX4 ``.ulg`` log's GPS track with the vehicle attitude at each GPS sample."""
     from pyulog import ULog
@@ -332,10 +369,21 @@ def read_px4_ulog(path: str | Path) -> Track:
     topics = ["vehicle_gps_position", "sensor_gps", "vehicle_attitude",
               "vehicle_global_position", "vehicle_local_position"]
     try:
+        size = path.stat().st_size
+        bounded = _BoundedFile(path, ULOG_READ_LIMIT_FACTOR * size + 2 ** 20)
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
         with contextlib.redirect_stdout(io.StringIO()):   # pyulog prints on corrupt files
-            ulog = ULog(str(path), topics)
+            ulog = ULog(bounded, topics)
+    except _UlogReadLimitError:
+        raise InputError(path, None, "a damaged ULog: pyulog went over its bytes more than "
+                         f"{ULOG_READ_LIMIT_FACTOR} times without getting through them "
+                         "(a corrupt stretch it re-scans without end)") from None
     except Exception as exc:  # pyulog raises plain Exceptions and struct errors on foreign files
         raise InputError(path, None, f"not a readable PX4 ULog: {exc}") from None
+    finally:
+        bounded.close()     # (pyulog closes it only when it gets to the end)
     datasets = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
     gps_topic = "vehicle_gps_position" if "vehicle_gps_position" in datasets else "sensor_gps"
     gps = datasets.get(gps_topic)
