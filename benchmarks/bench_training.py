@@ -22,7 +22,8 @@ import torch
 from harborsight.perception.model import SegmentationModel
 from harborsight.perception.networks import create_network
 from harborsight.sim.schematic import sample_scene, write_frame
-from harborsight.training.loop import DEFAULT_AUX_WEIGHTS, TrainConfig, train
+from harborsight.training.config import DEFAULT_AUX_WEIGHTS, TrainConfig
+from harborsight.training.loop import train
 from harborsight.training.losses import bootstrapped_cross_entropy
 from harborsight.vessel.outline import outline_from_dimensions
 from harborsight.vessel.spec import VesselSpec

@@ -12,9 +12,10 @@ from harborsight.cli.training import parse_copy_paste
 from harborsight.errors import InputError
 from harborsight.perception.classes import IGNORE, OBSTACLE, SHIP, WATER
 from harborsight.training.augment import AugmentConfig
+from harborsight.training.config import TrainConfig
 from harborsight.training.copy_paste import VesselBank, cut_vessels, paste_vessels
 from harborsight.training.dataset import SegmentationFrames
-from harborsight.training.loop import TrainConfig, TrainingSamples
+from harborsight.training.samples import TrainingSamples
 
 
 def boat_frame(size: int = 64) -> tuple[np.ndarray, np.ndarray]:

@@ -12,8 +12,9 @@ import torch
 from harborsight.cli.training import parse_weighted_data
 from harborsight.errors import InputError
 from harborsight.training.augment import AugmentConfig
+from harborsight.training.config import TrainConfig
 from harborsight.training.dataset import SegmentationFrames
-from harborsight.training.loop import TrainConfig, TrainingSamples
+from harborsight.training.samples import TrainingSamples
 
 
 def make_dataset(root: Path, n: int, value: int, val: int = 1) -> Path:

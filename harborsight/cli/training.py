@@ -219,7 +219,8 @@ def train(
     """Train a segmentation network on simulator-layout datasets (needs torch)."""
     need_torch()
     from harborsight.training.checkpoint import load_checkpoint
-    from harborsight.training.loop import LAST, TrainConfig
+    from harborsight.training.config import TrainConfig
+    from harborsight.training.loop import LAST
     from harborsight.training.loop import train as run_training
 
     try:
