@@ -650,6 +650,191 @@ def run_measure(case: dict) -> str:
     return _refused(lambda: measure_report(case))
 
 
+
+# -- annotation importers (dataset import) ----------------------------------------------------
+
+#: the size of the importers' images, and their class names (all mapped)
+ANN_H, ANN_W = 40, 60
+ANN_MAP = {"boat": 1, "dock": 2, "wake": 255}
+
+
+@functools.cache
+def annotation_images() -> Path:
+    """Two small images (``a.png``, ``b.jpg``) the annotation seeds name."""
+    import cv2
+
+    folder = scratch() / "ann-images"
+    folder.mkdir(exist_ok=True)
+    rng = np.random.default_rng(5)
+    for name in ("a.png", "b.jpg"):
+        assert cv2.imwrite(str(folder / name), rng.integers(0, 256, (ANN_H, ANN_W, 3), np.uint8))
+    return folder
+
+
+def _runs(flat: np.ndarray) -> list[int]:
+    """Run lengths of a 0/1 sequence, zeros first (COCO's and CVAT's order)."""
+    edges = np.flatnonzero(np.diff(flat)) + 1
+    runs = np.diff(np.concatenate([[0], edges, [flat.size]])).tolist()
+    return [0, *runs] if flat[0] else runs
+
+
+def _patch() -> np.ndarray:
+    patch = np.zeros((7, 10), np.uint8)
+    patch[2:6, 1:9] = 1
+    patch[0, 0] = 1
+    return patch
+
+
+@functools.cache
+def coco_seed() -> dict:
+    """Two images: a polygon, an uncompressed and a compressed RLE, a box-only annotation."""
+    from pycocotools import mask as coco_mask
+
+    blob = np.zeros((ANN_H, ANN_W), np.uint8)
+    blob[20:35, 30:55] = 1
+    compressed = coco_mask.encode(np.asfortranarray(blob))
+    return {
+        "images": [{"id": 1, "file_name": "a.png", "height": ANN_H, "width": ANN_W},
+                   {"id": 2, "file_name": "b.jpg", "height": ANN_H, "width": ANN_W}],
+        "categories": [{"id": 1, "name": "boat"}, {"id": 2, "name": "dock"}, {"id": 3, "name": "wake"}],
+        "annotations": [
+            {"id": 1, "image_id": 1, "category_id": 1, "iscrowd": 0, "area": 375.0,
+             "bbox": [5, 5, 25, 15], "segmentation": [[5, 5, 30, 5, 30, 20, 5, 20],
+                                                      [40, 2, 55, 2, 48, 12]]},
+            {"id": 2, "image_id": 1, "category_id": 2, "iscrowd": 1, "area": 200.0,
+             "bbox": [0, 25, 20, 10], "segmentation": {
+                 "size": [ANN_H, ANN_W], "counts": _runs(np.pad(np.ones((10, 20), np.uint8),
+                                                              ((25, 5), (0, 40))).T.ravel())}},
+            {"id": 3, "image_id": 2, "category_id": 2, "iscrowd": 1, "area": 375.0,
+             "bbox": [30, 20, 25, 15], "segmentation": {
+                 "size": [ANN_H, ANN_W], "counts": compressed["counts"].decode()}},
+            {"id": 4, "image_id": 2, "category_id": 3, "iscrowd": 0, "area": 20.0,
+             "bbox": [1, 1, 5, 4], "segmentation": [[1, 1, 6, 1, 6, 5, 1, 5]]},
+        ]}
+
+
+@functools.cache
+def labelme_seed() -> dict:
+    """A polygon, a rectangle, a circle, a mask and a line strip (not a region)."""
+    import base64
+
+    import cv2
+
+    ok, png = cv2.imencode(".png", _patch() * 255)
+    assert ok
+    shapes = [
+        {"label": "boat", "shape_type": "polygon", "points": [[5, 5], [30, 5], [30, 20], [5, 20]]},
+        {"label": "dock", "shape_type": "rectangle", "points": [[50.6, 30.2], [40.3, 20.7]]},
+        {"label": "Wake", "shape_type": "circle", "points": [[12.2, 30.4], [12.2, 36.9]]},
+        {"label": "boat", "shape_type": "mask", "points": [[3, 31], [12, 37]],
+         "mask": base64.b64encode(png.tobytes()).decode()},
+        {"label": "dock", "shape_type": "linestrip", "points": [[1, 1], [5, 5], [9, 1]]},
+    ]
+    return {"version": "5.4.1", "flags": {}, "imagePath": "a.png", "imageData": None,
+            "imageHeight": ANN_H, "imageWidth": ANN_W,
+            "shapes": [{"group_id": None, "flags": {}, "description": "", **s} for s in shapes]}
+
+
+def cvat_seed() -> str:
+    """Two images: boxes (one turned), a polygon, a mask, an ellipse, a polyline and a tag."""
+    rle = ", ".join(str(r) for r in _runs(_patch().ravel()))
+    first = ('<box label="dock" xtl="20" ytl="10" xbr="50" ybr="30" z_order="1" occluded="0"></box>'
+             '<polygon label="boat" points="33.3,5.2;57.6,18.9;36.1,35.7" z_order="0"></polygon>'
+             f'<mask label="boat" rle="{rle}" left="2" top="30" width="10" height="7" z_order="0"/>'
+             '<box label="wake" xtl="0" ytl="0" xbr="8" ybr="6" z_order="2"/>'
+             '<polyline label="dock" points="1,1;5,5"/><tag label="sunny"/>')
+    second = ('<box label="boat" xtl="10" ytl="15" xbr="40" ybr="25" rotation="30"/>'
+              '<ellipse label="dock" cx="48" cy="12" rx="9" ry="4" rotation="30"/>')
+    body = "".join(f'\n  <image id="{k}" name="{name}" width="{ANN_W}" height="{ANN_H}">{shapes}</image>'
+                   for k, (name, shapes) in enumerate((("a.png", first), ("b.jpg", second))))
+    return (f'<?xml version="1.0" encoding="utf-8"?>\n<annotations>\n  <version>1.1</version>'
+            f'{body}\n</annotations>\n')
+
+
+YOLO_SEED = ("1 0.083333 0.100000 0.500000 0.100000 0.500000 0.300000 0.233333 0.300000\n"
+             "0 0.555000 0.130000 0.960000 0.472500 0.601667 0.892500\n")
+YOLO_SEED_B = "2 0.1 0.1 0.2 0.1 0.2 0.2\n0 0.5 0.5 0.9 0.5 0.9 0.9 0.5 0.9\n"
+YOLO_CLASSES = "names:\n  0: boat\n  1: dock\n  2: wake\n"
+
+
+def _check_import(result, out_dir: Path) -> None:
+    """Every frame written is an image and a label mask of its size with harborsight's
+    classes only, and dataset.json is strict JSON naming them."""
+    import cv2
+
+    doc = json.loads((out_dir / "dataset.json").read_text(), parse_constant=lambda c: 1 / 0)
+    assert set(doc["split"]) == set(result.splits)
+    for stem in result.splits:
+        labels = cv2.imread(str(out_dir / "labels" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        images = [p for p in (out_dir / "images").glob(f"{stem}.*")]
+        assert labels is not None and labels.dtype == np.uint8 and labels.ndim == 2, stem
+        assert len(images) == 1, (stem, images)
+        image = cv2.imread(str(images[0]), cv2.IMREAD_UNCHANGED)
+        assert image is not None and image.shape[:2] == labels.shape, (stem, labels.shape)
+        assert set(np.unique(labels).tolist()) <= {0, 1, 2, 255}, (stem, np.unique(labels))
+
+
+def run_import(fmt: str, files: dict[str, bytes], classes: str | None = None) -> str:
+    """Write ``files`` (name -> bytes) to a fresh folder and import them as ``fmt`` with the
+    images of :func:`annotation_images`: read, refused as a whole, or frames skipped and
+    named while the rest are written (checked by :func:`_check_import`)."""
+    from harborsight.datasets import ImportOptions, import_dataset
+
+    images = annotation_images()
+    case = Path(tempfile.mkdtemp(prefix=f"import-{fmt}-", dir=scratch()))
+    try:
+        sources = []
+        for name, data in files.items():
+            path = case / "ann" / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+            sources.append(path)
+        if fmt == "yolo-seg":
+            sources = [case / "ann"]
+            (case / "classes.yaml").write_text(classes or YOLO_CLASSES)
+        options = ImportOptions(fmt, sources, case / "out", images_dir=images,
+                                classes_path=case / "classes.yaml" if fmt == "yolo-seg" else None,
+                                class_map=dict(ANN_MAP))
+        try:
+            result = import_dataset(options)
+        except HarborsightError:
+            return "refused"
+        if not result.splits:
+            return "refused"        # nothing written: every frame was skipped, and named
+        assert len(result.skipped) + len(result.splits) >= 1
+        _check_import(result, case / "out")
+        return "ok"
+    finally:
+        shutil.rmtree(case, ignore_errors=True)
+
+
+def _json_case(seed):
+    """A seed document edited in its structure, or its text torn."""
+    return st.one_of(edited_document(seed).map(lambda d: json.dumps(d).encode()),
+                     text_bytes([json.dumps(seed, indent=1)]))
+
+
+def run_coco(data: bytes) -> str:
+    return run_import("coco", {"instances.json": data})
+
+
+def run_labelme(data: bytes) -> str:
+    return run_import("labelme", {"a.json": data})
+
+
+def run_cvat(data: bytes) -> str:
+    return run_import("cvat", {"annotations.xml": data})
+
+
+def run_yolo(case: tuple[bytes, bytes, str]) -> str:
+    first, second, classes = case
+    return run_import("yolo-seg", {"a.txt": first, "b.txt": second}, classes)
+
+
+yolo_case = st.tuples(text_bytes([YOLO_SEED]), text_bytes([YOLO_SEED_B]),
+                      st.one_of(st.just(YOLO_CLASSES), mutated_text([YOLO_CLASSES])))
+
+
 #: name: (strategy of cases, run)
 TARGETS = {
     "frame-dict": (edited_document(FRAME), run_frame_dict),
@@ -672,4 +857,8 @@ TARGETS = {
     "rosbag2-db3": (st.deferred(lambda: mutated_bytes(bag_seed("sqlite3"))), run_bag(".db3")),
     "rosbag2-mcap": (st.deferred(lambda: mutated_bytes(bag_seed("mcap"))), run_bag(".mcap")),
     "measure-frame": (pose_case(), run_measure),
+    "coco": (st.deferred(lambda: _json_case(coco_seed())), run_coco),
+    "labelme": (st.deferred(lambda: _json_case(labelme_seed())), run_labelme),
+    "cvat": (st.deferred(lambda: text_bytes([cvat_seed()])), run_cvat),
+    "yolo-seg": (yolo_case, run_yolo),
 }

@@ -788,3 +788,63 @@ def test_an_annotation_of_a_turned_photo_s_stored_size_says_exif(tmp_path):
     result = invoke(write_json(src / "ann.json", doc), "-f", "coco", "--out", tmp_path / "ds")
     assert result.exit_code == 0, result.output
     assert "it has EXIF Orientation 6 and is 60x40 as shown" in " ".join(result.output.split())
+
+
+def test_annotation_files_that_broke_the_readers_cost_their_file_or_frame(tmp_path):
+    """Found by the importer targets of test_fuzz_parsers.py: each of these raised out of
+    the reader (TypeError, OverflowError, LookupError, ValueError, RecursionError) instead
+    of being named as a problem of its file or frame."""
+    write_image(tmp_path / "pics" / "a.png")
+    write_image(tmp_path / "pics" / "b.png", seed=1)
+    square = {"label": "boat", "shape_type": "polygon", "points": [[5, 5], [30, 5], [30, 20], [5, 20]]}
+
+    def problems(fmt: str, *paths: Path, classes: Path | None = None) -> list[str]:
+        out = tmp_path / f"ds-{len(list(tmp_path.iterdir()))}"
+        try:
+            result = import_dataset(ImportOptions(fmt, list(paths), out, images_dir=tmp_path / "pics",
+                                                  classes_path=classes,
+                                                  class_map=parse_class_map(["boat=ship"])))
+        except InputError as exc:
+            return [str(exc)]
+        return [str(issue) for issue in result.skipped]
+
+    coco = coco_doc([(1, "a.png")], [{"image_id": 1, "category_id": 1,
+                                       "segmentation": [[5, 5, 30, 5, 30, 20]]}], ["boat"])
+    coco["categories"] = 1.5e-97                  # not a list: no shape's class can be known
+    found = problems("coco", write_json(tmp_path / "c.json", coco))
+    assert len(found) == 1 and "c.json: categories: expected a list of {id, name}, got 1.5e-97" in found[0]
+
+    far = dict(square, points=[[5, 5], [30, 5], [30, 20], [10 ** 400, 20]])   # past a float
+    (tmp_path / "lm").mkdir()
+    (tmp_path / "lm" / "a.json").write_text(json.dumps(labelme_doc("a.png", [far])))
+    write_json(tmp_path / "lm" / "b.json", labelme_doc("b.png", [square]))
+    found = problems("labelme", tmp_path / "lm")
+    assert len(found) == 1 and "a.json" in found[0] and "expected a list of [x, y] points" in found[0]
+
+    xml = tmp_path / "a.xml"
+    xml.write_text(cvat_xml([("a.png", "")]).replace('encoding="utf-8"', 'encoding="u-8"'))
+    found = problems("cvat", xml)
+    assert len(found) == 1 and "a.xml: invalid XML: unknown encoding: u-8" in found[0]
+
+    long_number = json.dumps(labelme_doc("a.png", [square])).replace("40", "4" * 5000, 1)
+    (tmp_path / "lm2").mkdir()
+    (tmp_path / "lm2" / "a.json").write_text(long_number)
+    (tmp_path / "lm2" / "b.json").write_text("[" * 100_000)
+    found = problems("labelme", tmp_path / "lm2")
+    assert len(found) == 2
+    assert "a.json" in found[0] and "a whole number of 5000 digits" in found[0]
+    assert "b.json" in found[1] and "nested too deep" in found[1]
+
+    (tmp_path / "yolo").mkdir()
+    (tmp_path / "yolo" / "a.txt").write_text("0 0.1 0.1 0.5 0.1 0.5 0.5\n")
+    (tmp_path / "deep.yaml").write_text("{" * 3000)
+    found = problems("yolo-seg", tmp_path / "yolo", classes=tmp_path / "deep.yaml")
+    assert len(found) == 1 and "deep.yaml: not valid YAML: nested too deep" in found[0]
+
+
+def test_a_dataset_json_nested_too_deep_is_named(tmp_path):
+    """The dataset reader of train and evaluate names a dataset.json it cannot read, whatever
+    the reason (here nesting deeper than Python's JSON reader goes)."""
+    (tmp_path / "dataset.json").write_text("[" * 100_000)
+    with pytest.raises(InputError, match=r"dataset\.json: not valid JSON: arrays or objects nested too deep"):
+        list_frames([tmp_path])

@@ -63,6 +63,10 @@ test_px4_ulog = pytest.mark.skipif(not log_seed("px4/sample_log_small.ulg"),
 test_ardupilot_bin = pytest.mark.skipif(not log_seed("ardupilot/test.BIN"),
                                         reason="no ArduPilot sample in ../shared/data/telemetry")(
     _property("ardupilot-bin", 60))
+test_coco_import = _property("coco", 80)
+test_labelme_import = _property("labelme", 80)
+test_cvat_import = _property("cvat", 80)
+test_yolo_seg_import = _property("yolo-seg", 80)
 #: views up to 96 degrees across with mild distortion stay inside the lens model's fold
 test_measure_frame = _property("measure-frame", 160, pose_case(
     k1_values=(0.0, 0.1, -0.05), methods=("ground_plane",), fov_scale=(0.9, 2.0)))
@@ -73,6 +77,19 @@ test_measure_frame_gsd = _property("measure-frame", 60, pose_case(
 test_measure_frame_near_a_lens_fold = _property("measure-frame", 40, st.one_of(
     pose_case(k1_values=(*STRONG_K1, -0.05)),
     pose_case(k1_values=(0.1, -0.05), methods=("gsd",))))
+
+
+def test_the_importer_seeds_import_whole():
+    """The importer targets' unedited seeds import every frame, so the properties above see
+    imports that succeed, not only refusals."""
+    import json
+
+    from tests.fuzz_cases import YOLO_CLASSES, YOLO_SEED, YOLO_SEED_B, coco_seed, cvat_seed, labelme_seed
+
+    assert TARGETS["coco"][1](json.dumps(coco_seed()).encode()) == "ok"
+    assert TARGETS["labelme"][1](json.dumps(labelme_seed()).encode()) == "ok"
+    assert TARGETS["cvat"][1](cvat_seed().encode()) == "ok"
+    assert TARGETS["yolo-seg"][1]((YOLO_SEED.encode(), YOLO_SEED_B.encode(), YOLO_CLASSES)) == "ok"
 
 
 def test_the_measure_target_sees_a_distance():

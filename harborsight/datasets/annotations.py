@@ -25,13 +25,14 @@ importer reports such a shape as a warning.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from harborsight.errors import InputError
 from harborsight.files import is_existing_file
+from harborsight.frame import parse_json_text
 from harborsight.geometry.polygons import clip_to_box
 
 
@@ -341,7 +342,7 @@ def ring_from_flat(values, what: str) -> np.ndarray:
     numbers are not finite, odd in count, or fewer than three points."""
     try:
         pts = np.asarray(values, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{what}: expected numbers") from None
     if pts.size % 2:
         raise ValueError(f"{what}: an odd count of coordinates ({pts.size})")
@@ -365,7 +366,9 @@ def load_json_file(path: Path, issues: list[Issue]) -> object | None:
                             else "empty annotation file (only blanks)"))
         return None
     try:
-        return json.loads(data.decode("utf-8-sig"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        issues.append(Issue(str(path), None, f"invalid JSON: {exc}"))
-        return None
+        return parse_json_text(data.decode("utf-8-sig"), path)
+    except UnicodeDecodeError as exc:
+        issues.append(Issue(str(path), None, f"not valid JSON: {exc}"))
+    except InputError as exc:       # bad syntax, nesting too deep, a number too long to read
+        issues.append(Issue(str(path), exc.field, exc.message))
+    return None

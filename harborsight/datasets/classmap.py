@@ -12,9 +12,8 @@ import csv
 from collections.abc import Iterable
 from pathlib import Path
 
-import yaml
-
 from harborsight.errors import InputError
+from harborsight.geometry.camera import load_yaml_text
 from harborsight.perception.classes import IGNORE, OBSTACLE, SHIP, WATER
 
 #: harborsight's classes by name (what a --map target or an annotation may call them)
@@ -76,10 +75,7 @@ def read_class_names(path: str | Path) -> list[str]:
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(path, None, f"cannot read: {exc}") from None
     if path.suffix.lower() in (".yaml", ".yml"):
-        try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise InputError(path, None, f"invalid YAML: {exc}") from None
+        doc = load_yaml_text(text, path)
         names = doc.get("names") if isinstance(doc, dict) else None
         if isinstance(names, dict):
             try:

@@ -88,6 +88,11 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
         out.issues.append(Issue(str(path), "images", "no images: empty annotation file"))
         return
     source = str(path)
+    if doc.get("categories") is not None and not isinstance(doc["categories"], list):
+        # no shape's class can be known: every frame of the file is in doubt
+        out.issues.append(Issue(source, "categories", "expected a list of {id, name}, got "
+                                f"{brief(doc['categories'])}"))
+        return
     categories = {}
     for k, cat in enumerate(doc.get("categories") or []):
         if isinstance(cat, dict) and _is_id(cat.get("id")) and isinstance(cat.get("name"), str):

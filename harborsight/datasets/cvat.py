@@ -116,7 +116,7 @@ def _read_file(path: Path, images_dir: Path | None, out: AnnotationSet) -> None:
         return
     try:
         root = ET.fromstring(data)
-    except ET.ParseError as exc:
+    except (ET.ParseError, LookupError, ValueError) as exc:   # LookupError: an unknown encoding
         out.issues.append(Issue(source, None, f"invalid XML: {exc}"))
         return
     if root.tag != "annotations":

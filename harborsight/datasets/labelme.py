@@ -75,7 +75,7 @@ def _decode_b64(text: object) -> bytes:
 def _points(shape: dict) -> np.ndarray:
     try:
         pts = np.asarray(shape.get("points"), dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError("expected a list of [x, y] points") from None
     if pts.ndim != 2 or pts.shape[1] != 2 or not np.isfinite(pts).all():
         raise ValueError("expected a list of [x, y] points")

@@ -8,11 +8,11 @@ Without one, :func:`load_default_segmenter` says how to make one.
 
 from __future__ import annotations
 
-import json
 from importlib import resources
 from pathlib import Path
 
 from harborsight.errors import InputError
+from harborsight.frame import parse_json_text
 from harborsight.perception.classes import CLASS_NAMES
 from harborsight.perception.onnx_segmenter import OnnxSegmenter
 
@@ -55,9 +55,9 @@ def load_onnx_segmenter(path: str | Path, threads: int | None = None,
 
 def _read_sidecar(path: Path) -> dict:
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(path, None, f"invalid JSON: {exc}") from None
+        return parse_json_text(path.read_text(), path)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, None, f"cannot read: {exc}") from None
 
 
 def load_default_segmenter(path: str | Path | None = None, reference_arithmetic: bool = False

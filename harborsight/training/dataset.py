@@ -10,7 +10,6 @@ model does not need the ``train`` extra.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -20,6 +19,7 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
+from harborsight.frame import parse_json_text
 from harborsight.images import read_image, read_image_and_no_data, read_mask
 from harborsight.perception.classes import IGNORE, NUM_CLASSES
 
@@ -51,9 +51,9 @@ def read_split_map(dataset_dir: Path) -> dict[str, str]:
     if not meta_path.is_file():
         raise InputError(meta_path, None, "dataset.json not found (is this a dataset folder?)")
     try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(meta_path, None, f"invalid JSON: {exc}") from None
+        meta = parse_json_text(meta_path.read_text(), meta_path)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(meta_path, None, f"cannot read: {exc}") from None
     split = meta.get("split") if isinstance(meta, dict) else None
     if not isinstance(split, dict) or not split:
         raise InputError(meta_path, "split", "missing or empty: expected a map of frame stem -> split")
