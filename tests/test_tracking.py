@@ -832,3 +832,54 @@ def test_readings_at_video_rate_are_not_taken_for_independent_looks(monkeypatch)
     monkeypatch.setattr(tracking, "EVIDENCE_STEP_S", 1e-6)
     monkeypatch.setattr(tracking, "NOISE_SPACING_S", 0.0)
     assert false_share() > 0.4
+
+
+def test_a_glitch_on_a_section_s_first_reading_makes_no_phantom_approach():
+    """A section's first reading 4 m too far, then the quay's steady 8 m at 2 Hz: the two
+    readings' speed (-8 m/s) is contradicted by the very next reading, and the line is
+    dropped; before, its prediction was shown coasting to 4 m and then 0 m for two frames."""
+    tracker = SectionTracker()
+    shown = [tracker.step(0.5 * i, Reading(12.0 if i == 0 else 8.0, 0.3, 0.3)) for i in range(8)]
+    assert all(e.distance_m >= 7.9 for e in shown), [round(e.distance_m, 2) for e in shown]
+    assert all(e.time_to_contact_s is None for e in shown)
+    assert [e.state for e in shown[2:4]] == ["new", "updated"]
+    # a boat that does close at 8 m/s keeps its two-point line
+    fast = SectionTracker()
+    shown = [fast.step(0.5 * i, Reading(20.0 - 4.0 * i, 0.3, 0.3)) for i in range(4)]
+    assert shown[-1].closing_speed_mps == pytest.approx(8.0, abs=0.5)
+
+
+def test_a_frame_stamped_far_ahead_does_not_freeze_the_track():
+    """One frame stamped 600 s ahead (a bad GPS time), then the true times: the track that
+    took it would take every later reading at its own clock, with no motion (for 22 s the
+    speed read 0 and the distance fell 3.4 m behind). It is dropped once its clock is more
+    than max_coast_s from the frames'."""
+    rng = np.random.default_rng(2)
+    tracker = SectionTracker()
+    for i in range(120):
+        t = 0.5 * i
+        truth = 25.0 - 0.3 * t
+        estimate = tracker.step(t + 600.0 if i == 40 else t, Reading(truth + rng.normal(0, 0.3), 1.2, 1.2))
+        if i >= 46:                         # 3 s after the glitch
+            assert abs(estimate.distance_m - truth) < 0.6, (t, estimate)
+            assert estimate.closing_speed_mps is not None, (t, estimate)
+            assert abs(estimate.closing_speed_mps - 0.3) < 3 * estimate.closing_speed_sigma_mps, (t, estimate)
+
+
+def test_absurd_but_finite_sigmas_are_bounded():
+    """Found by a hunt: a reading's sigma of 1e155 overflowed, own-rate sigmas of 3e8 and
+    7e5 gave a math domain error and a filtered sigma of exactly 0."""
+    tracker = SectionTracker()
+    for i in range(2):
+        estimate = tracker.step(0.5 * i, Reading(10.0, 1e155, 1e155))
+    assert estimate.distance_m == 10.0 and 0 < estimate.sigma_m < 1e3
+    tracker = SectionTracker()
+    for i in range(4):
+        estimate = tracker.step(0.5 * i, Reading(10.0 - 0.2 * i, 0.1, 0.1, -0.4, 3e8))
+    assert estimate.closing_speed_mps == pytest.approx(0.4, abs=0.05)
+    tracker = SectionTracker()
+    tracker.step(0.0, Reading(0.0, 0.0, None, 0.0, 7e5))
+    assert tracker.step(4.0, Reading(2.0)).sigma_m > 0
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="min_closing_mps"):
+            TrackerSettings(min_closing_mps=bad)

@@ -190,6 +190,9 @@ class TrackerSettings:
         for name in ("robust_sigma", "manoeuvre_sigma"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be 0 (off) or positive, got {getattr(self, name)}")
+        if not (self.min_closing_mps >= 0 and math.isfinite(self.min_closing_mps)):
+            # below 0 an opening gap got a (negative) time to contact; NaN turned it off
+            raise ValueError(f"min_closing_mps must be finite and at least 0, got {self.min_closing_mps}")
         if not self.noise_margin >= 1:
             raise ValueError(f"noise_margin must be at least 1, got {self.noise_margin}")
         if self.min_noise_residuals < 1:
@@ -242,6 +245,8 @@ class _Track:
     drift_starts: list = field(default_factory=lambda: [0.0, 0.0])
     #: ``w`` takes the agile acceleration (``accel_q``) until this time: a drift test fired
     agile_until_s: float = -math.inf
+    #: its speed came from two readings alone (two-point start), not yet confirmed by a third
+    two_point: bool = False
     #: how far the vessel's own motion has moved the distance since the track began (m), the
     #: filtered ``r`` integrated between readings: ``z - own_travel_m`` is what the obstacle's
     #: own motion and the readings' noise leave
@@ -510,17 +515,30 @@ def independent_count(n: int, span_s: float) -> float:
 MEASURED_STATES = ("updated", "new", "held")
 
 
+#: a reading's sigma is taken as at most this (m): one that says more says it knows nothing
+#: of the distance, and its square would overflow the filter's arithmetic (1e155)
+MAX_READING_SIGMA_M = 1e3
+#: an own rate whose sigma is more than this (m/s) is no own rate: it says nothing of the
+#: vessel's motion, and at 7e5 it took the distance's sigma to 0 by cancellation
+MAX_OWN_RATE_SIGMA_MPS = 100.0
+
+
 def _sane(reading: Reading) -> Reading | None:
-    """The reading with a sigma that is not a finite non-negative number taken as not given;
-    None for a distance that is not finite (nothing to go on: as a frame without one)."""
+    """The reading with a sigma that is not a finite non-negative number taken as not given,
+    and one above :data:`MAX_READING_SIGMA_M` as that; an own rate only with a finite sigma of
+    at most :data:`MAX_OWN_RATE_SIGMA_MPS`; None for a distance that is not finite (nothing
+    to go on: as a frame without one)."""
     if not math.isfinite(reading.distance_m):
         return None
 
     def usable(sigma: float | None) -> float | None:
-        return sigma if sigma is not None and math.isfinite(sigma) and sigma >= 0 else None
+        if sigma is None or not math.isfinite(sigma) or sigma < 0:
+            return None
+        return min(sigma, MAX_READING_SIGMA_M)
 
     rate, rate_sigma = reading.own_rate_mps, usable(reading.own_rate_sigma_mps)
-    if rate is None or not math.isfinite(rate) or rate_sigma is None:
+    if (rate is None or not math.isfinite(rate) or rate_sigma is None
+            or rate_sigma > MAX_OWN_RATE_SIGMA_MPS):
         rate, rate_sigma = None, None         # an own rate needs both, finite
     return Reading(reading.distance_m, usable(reading.sigma_m), usable(reading.sigma_random_m),
                    rate, rate_sigma)
@@ -630,7 +648,9 @@ class SectionTracker:
         vessel stops hiding it) out to ``to_m``; a current track predicted in that range is
         no longer reported (a boat that left the band), not coasted into contact."""
         s = self.settings
-        self.tracks = [t for t in self.tracks if time_s - t.time_s <= s.max_coast_s]
+        # a track whose clock is far ahead (it took a frame stamped in the future, a bad GPS
+        # time) goes too: every later reading would be taken at its clock, with no motion
+        self.tracks = [t for t in self.tracks if abs(time_s - t.time_s) <= s.max_coast_s]
         if reading is not None:
             reading = _sane(reading)
         self._own = _own(reading)
@@ -779,6 +799,7 @@ class SectionTracker:
         track.covariance[2, 2] = P[2, 2]
         track.surprises.clear()
         track.drift_sums = [0.0, 0.0]
+        track.two_point = False
         track.set_own_rate(time_s, self._own, use)
         track.took(time_s, reading, systematic)
 
@@ -810,6 +831,7 @@ class SectionTracker:
             [0.0, -own_variance, own_variance]])
         best.set_own_rate(time_s, self._own, use)
         best.took(time_s, reading, systematic)
+        best.two_point = True
         return best
 
     def _predicted(self, track: _Track, time_s: float, with_own: bool = True
@@ -822,6 +844,11 @@ class SectionTracker:
         """Whether the track that took this frame's reading becomes the current one."""
         current = self.current
         if current is None or track is current:
+            return True
+        if current.two_point and current.updates == 2 and track.misses_in_row == 0:
+            # a speed made from two readings that the very next reading contradicts: one
+            # of the two was a glitch; do not coast it
+            self.tracks.remove(current)
             return True
         if track.state[0] < self._predicted(current, time_s)[0][0]:
             return True                     # never hide a nearer obstacle
@@ -856,6 +883,7 @@ class SectionTracker:
         if c and innovation > 0:                # a farther reading: capped; a nearer one never
             variance = min(self._reading_variance(reading, dt, track, measured=False)[0],
                            max(variance, (innovation / c) ** 2 - P[0, 0]))
+        track.two_point = False
         gain = P[:, 0] / (P[0, 0] + variance)
         track.state = x + gain * innovation
         track.covariance = P - np.outer(gain, P[0, :])
