@@ -7,7 +7,6 @@ position at the water level: the vessel antenna sits at ``(0, 0)`` and the water
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -26,61 +25,9 @@ from harborsight.geometry.camera import (
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.geometry.rotations import enu_from_vessel_rotation, world_from_camera_rotation
 from harborsight.geometry.sensor_sigmas import FRAME_SIGMA_FIELDS
+from harborsight.text_formats import parse_json_text
 
 FRAME_SCHEMA = "harborsight.frame/1"
-
-
-def parse_json_text(text: str, source: str | Path | None) -> object:
-    """``json.loads(text)``, with every way text can fail to be JSON an :class:`InputError`
-    on ``source``: bad syntax, a whole number of more than 4300 digits (Python refuses to
-    read it; named by its key and place, also inside a list), or arrays/objects nested too
-    deep to read (a RecursionError)."""
-    too_long: list[_LongWhole] = []
-
-    def whole(digits: str) -> int | _LongWhole:
-        try:
-            return int(digits)
-        except ValueError:              # int("1" * 5000): Python's limit on digits
-            too_long.append(_LongWhole(digits))
-            return too_long[-1]
-
-    try:
-        value = json.loads(text, parse_int=whole)
-    except json.JSONDecodeError as exc:
-        raise InputError(source, None, f"not valid JSON: {exc}") from None
-    except RecursionError:
-        raise InputError(source, None, "not valid JSON: arrays or objects nested too deep "
-                         "to read") from None
-    if too_long:
-        key, place = _place_of(value, too_long[0])
-        digits = len(too_long[0].lstrip("-"))
-        what = f"{brief(key)} holds" if key is not None else f"{place or 'the value'} is"
-        where = f"at {place}; " if place and key is not None and place != key else ""
-        raise InputError(source, None, f"not valid JSON: {what} a whole number of {digits} "
-                         f"digits ({where}too long to read: at most 4300)")
-    return value
-
-
-class _LongWhole(str):
-    """The digits of a JSON whole number too long for Python to read (a marker that
-    :func:`parse_json_text` looks for)."""
-
-
-def _place_of(value: object, target: object) -> tuple[str | None, str]:
-    """Where ``target`` (compared by identity) sits in ``value``: the innermost key above
-    it and its dotted path with list positions, e.g. ``('distortion',
-    'camera.distortion[0]')``. Walked without recursion: ``value`` may be deep."""
-    stack: list[tuple[object, str | None, str]] = [(value, None, "")]
-    while stack:
-        node, key, place = stack.pop()
-        if node is target:
-            return key, place
-        if isinstance(node, dict):
-            stack.extend((item, str(name), f"{place}.{name}" if place else str(name))
-                         for name, item in node.items())
-        elif isinstance(node, list):
-            stack.extend((item, key, f"{place}[{i}]") for i, item in enumerate(node))
-    return None, ""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from harborsight.errors import InputError
-from harborsight.frame import load_frame_metadata, parse_json_text
+from harborsight.frame import load_frame_metadata
+from harborsight.text_formats import parse_json_text
 from harborsight.vessel.spec import load_vessel_spec
 
 SAMPLES = Path(str(resources.files("harborsight") / "data" / "samples"))

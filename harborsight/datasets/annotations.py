@@ -32,8 +32,8 @@ import numpy as np
 
 from harborsight.errors import InputError
 from harborsight.files import is_existing_file
-from harborsight.frame import parse_json_text
 from harborsight.geometry.polygons import clip_to_box
+from harborsight.text_formats import parse_json_text
 
 
 @dataclass(frozen=True)

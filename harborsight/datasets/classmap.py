@@ -13,8 +13,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from harborsight.errors import InputError
-from harborsight.geometry.camera import load_yaml_text
 from harborsight.perception.classes import IGNORE, OBSTACLE, SHIP, WATER
+from harborsight.text_formats import load_yaml_text
 
 #: harborsight's classes by name (what a --map target or an annotation may call them)
 TARGETS = {"water": WATER, "ship": SHIP, "obstacle": OBSTACLE, "ignore": IGNORE}

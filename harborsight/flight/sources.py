@@ -44,7 +44,6 @@ from harborsight.flight.video_decode import (
 from harborsight.frame import (
     FrameMetadata,
     parse_frame_metadata_untimed_on_error,
-    parse_json_text,
     read_frame_json,
 )
 from harborsight.geometry.camera import CameraIntrinsics, brief
@@ -55,6 +54,7 @@ from harborsight.pipeline import (
     find_frame_image,
     frame_image_path,
 )
+from harborsight.text_formats import parse_json_text
 
 NO_METADATA = "no metadata"
 #: the highest ``frame_index`` a metadata line may name (a year of video at 30 fps)

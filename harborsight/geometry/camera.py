@@ -20,10 +20,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from harborsight.errors import InputError, brief
 from harborsight.geometry.polygons import clip_to_box
+from harborsight.text_formats import load_yaml_text, long_whole_number
 
 _VALID_DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
 #: the longest image side a calibration or a frame may state (a 100 000 px side is already
@@ -272,47 +272,6 @@ _FILESTORAGE_TYPES = set("ucwsifdh")
 #: OpenCV's FileStorage parser wraps a whole number past 2**31 and corrupts its own state
 #: with one past 2**32: any of this many digits is refused before OpenCV reads the file
 _FILESTORAGE_MAX_DIGITS = 9
-_KEY_ON_LINE = re.compile(r"^\s*(?:-\s*)?(?:<(\w+)|([A-Za-z_]\w*)\s*:)")
-
-
-def long_whole_number(text: str, min_digits: int) -> tuple[str, int, str] | None:
-    """The first whole number of ``min_digits`` digits or more in YAML or XML text, as
-    ``(field, line number, its digits cut short)``: the field is the key on its line, under
-    the last top-level key for a nested line, or ``line N`` where no key is known."""
-    pattern = re.compile(rf"(?<![\w.+-])[-+]?\d{{{min_digits},}}(?![\w.])")
-    top = None
-    for number, line in enumerate(text.splitlines(), start=1):
-        key = _KEY_ON_LINE.match(line)
-        name = (key.group(1) or key.group(2)) if key else None
-        nested = line[:1].isspace() or line.startswith("-")
-        if name and not nested:
-            top = name
-        if (m := pattern.search(line)) is not None:
-            field = name or f"line {number}"
-            if nested and top:
-                field = f"{top}.{name}" if name else top
-            digits = m.group().lstrip("+-")
-            shown = digits if len(digits) <= 20 else f"{digits[:12]}... ({len(digits)} digits)"
-            return field, number, shown
-    return None
-
-
-def load_yaml_text(text: str, path: Path) -> object:
-    """``yaml.safe_load(text)``, every way it fails an :class:`InputError` on ``path``: bad
-    syntax, nesting too deep to read (a RecursionError), a whole number of more than 4300
-    digits (Python refuses to read it; named by its key) or a bad value (the date 2024-13-01)."""
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise InputError(path, None, "not valid YAML: " + " ".join(str(exc).split())) from exc
-    except RecursionError:
-        raise InputError(path, None, "not valid YAML: nested too deep to read") from None
-    except ValueError as exc:
-        if "digits" in str(exc) and (found := long_whole_number(text, 4301)) is not None:
-            field, line, shown = found
-            raise InputError(path, field, f"{shown} on line {line}: a whole number of more than "
-                             "4300 digits is too long to read") from None
-        raise InputError(path, None, f"not valid YAML: {brief(str(exc), 80)}") from None
 
 
 def _describe_node(node) -> str:

@@ -12,9 +12,9 @@ from importlib import resources
 from pathlib import Path
 
 from harborsight.errors import InputError
-from harborsight.frame import parse_json_text
 from harborsight.perception.classes import CLASS_NAMES
 from harborsight.perception.onnx_segmenter import OnnxSegmenter
+from harborsight.text_formats import parse_json_text
 
 
 def default_model_path() -> Path:

@@ -44,9 +44,9 @@ import numpy as np
 
 from harborsight.errors import HarborsightError, InputError
 from harborsight.files import natural_key, strict_json, write_text_atomic
-from harborsight.frame import parse_json_text
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
 from harborsight.geometry.sensor_sigmas import GPS_CLASSES, parse_gps_noise
+from harborsight.text_formats import parse_json_text
 
 __all__ = ["GPS_CLASSES", "PoseNoise", "add_pose_noise", "parse_gps_noise", "write_noisy_dataset"]
 

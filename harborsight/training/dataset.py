@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 
 from harborsight.errors import InputError
-from harborsight.frame import parse_json_text
 from harborsight.images import read_image, read_image_and_no_data, read_mask
 from harborsight.perception.classes import IGNORE, NUM_CLASSES
+from harborsight.text_formats import parse_json_text
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VALID_LABELS = frozenset([*range(NUM_CLASSES), IGNORE])

@@ -13,7 +13,7 @@ import numpy as np
 import trimesh
 
 from harborsight.errors import InputError, brief
-from harborsight.geometry.camera import load_yaml_text
+from harborsight.text_formats import load_yaml_text
 from harborsight.vessel.layers import above_water_layers, largest
 from harborsight.vessel.outline import (
     BOW_SHAPES,
