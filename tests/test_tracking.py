@@ -5,7 +5,8 @@ from collections import deque
 import numpy as np
 import pytest
 
-from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, _Track
+from harborsight.flight.track import Track
+from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
 
 
 def _approach(times_s, start_m=10.0, speed_mps=0.4):
@@ -189,8 +190,8 @@ def test_the_measured_noise_lets_the_filter_follow_a_stop():
     assert abs(estimate.closing_speed_mps) < 0.05
 
 
-def _track_of(times_s, distances_m) -> _Track:
-    track = _Track(0, 0.0, np.zeros(2), np.eye(2), residuals=deque())
+def _track_of(times_s, distances_m) -> Track:
+    track = Track(0, 0.0, np.zeros(2), np.eye(2), residuals=deque())
     for t, d in zip(times_s, distances_m, strict=True):
         track.remember(float(t), float(d))
     return track
@@ -723,7 +724,7 @@ def test_a_boat_that_starts_slowly_is_learned_despite_the_vessels_own_rate(monke
     (0.3 m/s) only after 7.5 s here (the mean over 48 seeds of the speed shown, within
     0.1 m/s for good); the drift test takes it in 6 s. With the test off the old lag comes
     back, so this checks the test itself."""
-    import harborsight.flight.tracking as tracking
+    import harborsight.flight.track as track_module
 
     def lag_s() -> float:
         runs = [_boat_starting_slowly(seed)[1][40:] for seed in range(48)]   # from 20 s
@@ -732,7 +733,7 @@ def test_a_boat_that_starts_slowly_is_learned_despite_the_vessels_own_rate(monke
         return late[-1] + 0.5 - 20.0 if late else 0.0
 
     assert lag_s() <= 6.5
-    monkeypatch.setattr(tracking, "DRIFT_THRESHOLD", np.inf)
+    monkeypatch.setattr(track_module, "DRIFT_THRESHOLD", np.inf)
     assert lag_s() >= 7.0
 
 
@@ -742,14 +743,14 @@ def test_the_drift_test_sums_one_side_and_makes_w_agile_for_a_while():
     for :data:`DRIFT_AGILE_S`; a reading on the other side only drains the sum; readings
     faster than :data:`EVIDENCE_STEP_S` weigh in proportion; a track without an own rate has
     no test."""
-    from harborsight.flight.tracking import (
+    from harborsight.flight.track import (
         DRIFT_AGILE_S,
         DRIFT_ALLOWANCE,
         DRIFT_THRESHOLD,
         EVIDENCE_STEP_S,
     )
 
-    track = _Track(0, 10.0, np.zeros(3), np.eye(3), has_own=True, accel_q=0.0025, obstacle_q=1e-4)
+    track = Track(0, 10.0, np.zeros(3), np.eye(3), has_own=True, accel_q=0.0025, obstacle_q=1e-4)
     step = 1.5
     fired, t = None, 10.0
     for _ in range(int(DRIFT_THRESHOLD / (step - DRIFT_ALLOWANCE)) + 2):
@@ -775,12 +776,12 @@ def test_the_drift_test_sums_one_side_and_makes_w_agile_for_a_while():
     track.time_s, track.drift_sums = t, [0.0, 0.0]
     track.drift_alarm(t + EVIDENCE_STEP_S / 5, -50.0, cap=3.0)
     assert track.drift_sums[0] == pytest.approx((3.0 - DRIFT_ALLOWANCE) / 5)
-    plain = _Track(1, 0.0, np.zeros(3), np.eye(3), has_own=False)
+    plain = Track(1, 0.0, np.zeros(3), np.eye(3), has_own=False)
     assert plain.drift_alarm(1.0, -50.0, cap=3.0) is None
 
 
 def test_independent_count():
-    from harborsight.flight.tracking import EVIDENCE_STEP_S, independent_count
+    from harborsight.flight.track import EVIDENCE_STEP_S, independent_count
 
     assert independent_count(3, 2 * EVIDENCE_STEP_S) == 3             # 2 Hz: each counts
     assert independent_count(2, 0.6 - 0.1) == 2                       # a clock's rounding
@@ -792,7 +793,7 @@ def test_the_manoeuvre_rule_weighs_readings_at_video_rate_by_their_span():
     """Eleven readings in one second, each 1.2 sigma nearer than predicted: as independent
     looks ``|Σν|/√n`` = 3.98 would be a manoeuvre; worth three (``1 + 1 s / 0.5 s``), the
     mean times √3 is 2.08, none. Three readings at 2 Hz, 2 sigma each (3.46), still are."""
-    from harborsight.flight.tracking import manoeuvre_readings
+    from harborsight.flight.track import manoeuvre_readings
 
     video = [(20.0 + 0.1 * k, 10.0, -1.2) for k in range(11)]
     assert manoeuvre_readings(video, 3.25, 3.0) == 0
@@ -822,15 +823,15 @@ def test_readings_at_video_rate_are_not_taken_for_independent_looks(monkeypatch)
     for a manoeuvre and the noise residuals of readings 0.1 s apart measured almost no noise:
     a fixed quay showed more than 0.1 m/s on about two thirds of the frames. Readings count
     as :data:`EVIDENCE_STEP_S` apart at most; with that undone the old figure comes back."""
-    import harborsight.flight.tracking as tracking
+    import harborsight.flight.track as track_module
 
     def false_share() -> float:
         shown = np.concatenate([_still_quay_at_video_rate(seed) for seed in range(2)])
         return float(np.nanmean(np.abs(shown) > 0.1))
 
     assert false_share() < 0.15
-    monkeypatch.setattr(tracking, "EVIDENCE_STEP_S", 1e-6)
-    monkeypatch.setattr(tracking, "NOISE_SPACING_S", 0.0)
+    monkeypatch.setattr(track_module, "EVIDENCE_STEP_S", 1e-6)
+    monkeypatch.setattr(track_module, "NOISE_SPACING_S", 0.0)
     assert false_share() > 0.4
 
 
