@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import shutil
 import types
 from importlib import resources
@@ -102,7 +103,8 @@ def test_equal_times_are_in_order_and_truncated_distances_stay_out_of_the_fit():
     for k, (t, d, cut) in enumerate([(0.0, 10.0, False), (1.0, 9.0, False), (1.0, 9.0, False),
                                      (2.0, 3.0, True), (3.0, 7.0, False)]):
         trends, _, warning = timeline.add(k, t, _section_report(d, cut))
-        assert warning is None                       # whole-second stamps at 2 fps are fine
+        # whole-second stamps at 2 fps are in order; the first shared one is noted once
+        assert warning is None if k != 2 else "coarser than the frames" in warning
         if cut:
             assert trends[0].closing_speed_raw_mps is None
             assert trends[0].estimate.state == "coasting"    # the tracker skips it too
@@ -828,3 +830,37 @@ def test_an_unreadable_timestamp_is_measured_untimed_in_json_lines(tmp_path):
     by_frame, orphans, _, time_errors = read_metadata_lines(path, "v")
     assert orphans == [] and by_frame[1].timestamp is None
     assert list(time_errors) == [1] and f"{path}:2: timestamp" in time_errors[1]
+
+
+@pytest.mark.parametrize("rate_hz", [4, 10])
+def test_whole_second_stamps_at_several_frames_a_second_keep_the_speed_honest(rate_hz):
+    """Frames stamped to the whole second at 4 and 10 a second: each frame's time lies
+    anywhere in its second, which the tracker now allows for (Reading.time_sigma_s, the
+    step over sqrt 12). Before, frames of one stamp were one instant: a steady 0.4 m/s
+    approach read from -0.13 to +0.48 m/s at 10 Hz, 8 of its sigmas off, and tracks were
+    restarted 16 times; exact stamps are the reference."""
+    def run(whole_seconds: bool):
+        rng = np.random.default_rng(0)
+        timeline, shown, notes = ClearanceTimeline(), [], []
+        for i in range(30 * rate_hz):
+            t = i / rate_hz
+            truth = 40.0 - 0.4 * t
+            report = _section_report(truth + rng.normal(0, 0.05))
+            report.sections[0].sigma_m = report.sections[0].sigma_random_m = 0.05   # honest
+            _, rows, warning = timeline.add(i, math.floor(t) if whole_seconds else t, report)
+            notes += [warning] if warning else []
+            row = rows[0]
+            if t >= 10:
+                shown.append((row["closing_speed_mps"], row["closing_speed_sigma_mps"],
+                              row["filtered_distance_m"] - truth, row["filtered_sigma_m"],
+                              row["track_state"]))
+        return shown, notes
+
+    shown, notes = run(True)
+    assert len(notes) == 1 and "coarser than the frames" in notes[0]
+    assert all(state == "updated" for *_, state in shown)
+    assert max(abs(v - 0.4) / s for v, s, *_ in shown) < 2.0
+    assert max(abs(e) / s for _, _, e, s, _ in shown) < 2.0
+    assert min(v for v, *_ in shown) > 0.3
+    exact, notes = run(False)
+    assert notes == [] and max(abs(v - 0.4) / s for v, s, *_ in exact) < 3.0

@@ -220,6 +220,9 @@ class Reading:
     sigma_random_m: float | None = None
     own_rate_mps: float | None = None
     own_rate_sigma_mps: float | None = None
+    #: how uncertain the frame's time is against the other frames' (s, one sigma): frames
+    #: stamped to the whole second at several a second lie anywhere in their second
+    time_sigma_s: float = 0.0
 
 
 
@@ -232,6 +235,8 @@ MEASURED_STATES = ("updated", "new", "held")
 #: a reading's sigma is taken as at most this (m): one that says more says it knows nothing
 #: of the distance, and its square would overflow the filter's arithmetic (1e155)
 MAX_READING_SIGMA_M = 1e3
+#: a reading's time is taken as uncertain by at most this (s)
+MAX_TIME_SIGMA_S = 60.0
 #: an own rate whose sigma is more than this (m/s) is no own rate: it says nothing of the
 #: vessel's motion, and at 7e5 it took the distance's sigma to 0 by cancellation
 MAX_OWN_RATE_SIGMA_MPS = 100.0
@@ -254,8 +259,9 @@ def _sane(reading: Reading) -> Reading | None:
     if (rate is None or not math.isfinite(rate) or rate_sigma is None
             or rate_sigma > MAX_OWN_RATE_SIGMA_MPS):
         rate, rate_sigma = None, None         # an own rate needs both, finite
+    time_sigma = reading.time_sigma_s if math.isfinite(reading.time_sigma_s) else 0.0
     return Reading(reading.distance_m, usable(reading.sigma_m), usable(reading.sigma_random_m),
-                   rate, rate_sigma)
+                   rate, rate_sigma, min(max(time_sigma, 0.0), MAX_TIME_SIGMA_S))
 
 
 def _own(reading: Reading | None) -> tuple[float, float] | None:
@@ -301,6 +307,8 @@ class SectionTracker:
     _next_id: int = 0
     #: this step's reading's own rate and sigma (None: none, or no reading)
     _own: tuple[float, float] | None = None
+    #: this step's reading's time sigma (s; 0 without a reading)
+    _time_sigma_s: float = 0.0
 
     def _reading_variance(self, reading: Reading, dt: float, track: Track | None = None,
                           measured: bool = True) -> tuple[float, float]:
@@ -324,6 +332,11 @@ class SectionTracker:
             random = min(random, max(s.noise_margin * math.sqrt(white), s.min_reading_sigma_m))
         systematic2 = max(total ** 2 - random ** 2, 0.0)
         variance = random ** 2 + systematic2 * min(1.0, max(dt, 0.0) / s.drift_time_s)
+        if reading.time_sigma_s > 0 and track is not None:
+            # a time known to sigma_t moves the distance by the rate times it: (ḋ² + P_ḋḋ) σ_t²
+            P = track.covariance
+            rate = float(track.state[1] + track.state[2])
+            variance += (rate ** 2 + max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2], 0.0)) * reading.time_sigma_s ** 2
         return variance, math.sqrt(systematic2)
 
     def _new_track(self, time_s: float, reading: Reading) -> Track:
@@ -368,6 +381,7 @@ class SectionTracker:
         if reading is not None:
             reading = _sane(reading)
         self._own = _own(reading)
+        self._time_sigma_s = reading.time_sigma_s if reading is not None else 0.0
         if self.current is not None and self.current not in self.tracks:
             self.current = None
         if reading is None and seen_clear is not None and self.current is not None:
@@ -610,9 +624,13 @@ class SectionTracker:
             return SectionEstimate(state="none")
         # the own rate of this frame's reading was taken, if the track took it
         x, P = self._predicted(track, time_s, with_own=False)
+        # a reading's uncertain time (Reading.time_sigma_s) leaves the distance at the
+        # frame's true time uncertain by the rate times it
+        timing = (float(x[1] + x[2]) ** 2 + max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2], 0.0)
+                  ) * self._time_sigma_s ** 2
         estimate = SectionEstimate(
             distance_m=max(float(x[0]), 0.0),
-            sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2),
+            sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2 + timing),
             track=track.ident, state=state)
         if track.updates >= self.settings.min_updates:
             # the rate is w and the vessel's own rate r (0 without one)
