@@ -64,8 +64,11 @@ last reading before them meets it within the gate (else the readings are of anot
 obstacle, a quay behind a boat that left the band, which the gate's rules handle).
 
 Gating and tracks. A section may hold several tracks (obstacles): a reading updates the
-track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is within
-``gate_sigma``; else it starts a new track. Which track is *current* (reported):
+likeliest track among those whose normalised innovation ``ν = |z - d̂| / sqrt(S)`` is within
+``gate_sigma``, the one of least ``ν² + ln S`` (by ``ν`` alone a track just started, its
+``S`` wide, took readings from an established track of the same obstacle, and at 10 Hz two
+tracks traded one quay's readings); else it starts a new track. Which track is *current*
+(reported):
 
 * the track a reading updated;
 * a reading **nearer** than the current track's prediction, beyond the gate, is reported at
@@ -92,6 +95,12 @@ track it fits best when its normalised innovation ``|z - d̂| / sqrt(S)`` is wit
 * the current track seen once takes a reading beyond its gate when the two mean a change
   of at most ``max_speed_mps``, its speed started from the two: a boat closing at 4 m/s is
   2 m nearer each half second, beyond the first gate, and never got a closing speed.
+  A line so started that the very next reading contradicts (it goes to another track) is
+  dropped: a glitch on a section's first reading, 4 m too far, had it coast a phantom
+  approach to 0 m;
+* a reading whose time is uncertain (``Reading.time_sigma_s``: frames stamped to the whole
+  second at several a second) has ``(ḋ² + P_ḋḋ) σ_t²`` added to its ``R`` and to the
+  reported sigma.
 
 So a boat passing between the hull and a quay takes its own track, and the quay's track
 keeps its closing speed and resumes when the quay is seen again. A closing speed is
@@ -403,14 +412,20 @@ class SectionTracker:
             self._restart(current, time_s, reading, restart)
             best, state = current, "updated"
         else:
-            best, best_score = None, math.inf
+            best, best_score, best_cost = None, math.inf, math.inf
             for track in self.tracks:
                 x, P = self._predicted(track, time_s)
                 variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
                                                      measured=False)
-                score = abs(reading.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
-                if score < best_score:
-                    best, best_score = track, score
+                spread = P[0, 0] + variance
+                score = abs(reading.distance_m - x[0]) / math.sqrt(spread)
+                # the reading goes to the track most likely to have given it, ν² + ln S
+                # (twice the negative log-likelihood): by ν alone a track just started,
+                # whose wide S shrinks every ν, took readings from an established track of
+                # the same obstacle, and two tracks then traded one quay's readings
+                cost = score * score + math.log(spread) if score <= s.gate_sigma else math.inf
+                if cost < best_cost or (best_cost == math.inf and score < best_score):
+                    best, best_score, best_cost = track, score, cost
             if best is not None and best_score <= s.gate_sigma:
                 self._update(best, time_s, reading)
                 state = "updated"
