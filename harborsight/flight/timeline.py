@@ -103,7 +103,9 @@ class ClearanceTimeline:
     warning. When ``resync_frames`` frames in a row are behind (and in order among
     themselves), it was the earlier time that was wrong (a glitch ahead, e.g. a bad GPS
     time): its samples are dropped from the fits, the run of frames joins them, and the clock
-    follows the frames again.
+    follows the frames again. Once two frames in a row share a time (whole-second stamps at
+    several frames a second), every frame's time is taken as anywhere within the clock's
+    step, and the tracker is told so (``Reading.time_sigma_s``; noted once).
     """
 
     window_s: float = 2.0
