@@ -127,7 +127,8 @@ class Polygons(_Geometry):
 
     def pixels(self, height: int, width: int) -> list[np.ndarray]:
         scale = np.array([width, height], np.float64) if self.normalised else 1.0
-        return [np.asarray(ring, np.float64) * scale for ring in self.rings]
+        with np.errstate(over="ignore"):    # a fraction of 1e307 is inf pixels: refused later
+            return [np.asarray(ring, np.float64) * scale for ring in self.rings]
 
     def box(self, height: int, width: int) -> tuple[float, float, float, float]:
         pts = np.concatenate(self.pixels(height, width))
