@@ -48,6 +48,10 @@ class Track:
     agile_until_s: float = -math.inf
     #: its speed came from two readings alone (two-point start), not yet confirmed by a third
     two_point: bool = False
+    #: added to the track's association cost while it has one reading: the alternative a
+    #: two-point start leaves (the second reading alone) takes the next reading only
+    #: when it is clearly the likelier
+    association_penalty: float = 0.0
     #: how far the vessel's own motion has moved the distance since the track began (m), the
     #: filtered ``r`` integrated between readings: ``z - own_travel_m`` is what the obstacle's
     #: own motion and the readings' noise leave

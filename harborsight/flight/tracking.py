@@ -244,6 +244,10 @@ MEASURED_STATES = ("updated", "new", "held")
 #: a reading's sigma is taken as at most this (m): one that says more says it knows nothing
 #: of the distance, and its square would overflow the filter's arithmetic (1e155)
 MAX_READING_SIGMA_M = 1e3
+#: what the steady alternative of a two-point line (the second reading alone) gives away
+#: in the association's ``ν² + ln S``: it takes the third reading when that is e^(x/2)
+#: times likelier from it than from the line
+ALTERNATIVE_PENALTY = 2.0
 #: a reading's time is taken as uncertain by at most this (s)
 MAX_TIME_SIGMA_S = 60.0
 #: an own rate whose sigma is more than this (m/s) is no own rate: it says nothing of the
@@ -408,6 +412,7 @@ class SectionTracker:
         surprise = self._surprise(current, time_s, reading) if current is not None else None
         restart = (self._manoeuvre(current, time_s, reading, *surprise)
                    if surprise is not None else None)
+        line_started = False
         if restart is not None:
             self._restart(current, time_s, reading, restart)
             best, state = current, "updated"
@@ -423,7 +428,9 @@ class SectionTracker:
                 # (twice the negative log-likelihood): by ν alone a track just started,
                 # whose wide S shrinks every ν, took readings from an established track of
                 # the same obstacle, and two tracks then traded one quay's readings
-                cost = score * score + math.log(spread) if score <= s.gate_sigma else math.inf
+                cost = (score * score + math.log(spread)
+                        + (track.association_penalty if track.updates == 1 else 0.0)
+                        if score <= s.gate_sigma else math.inf)
                 if cost < best_cost or (best_cost == math.inf and score < best_score):
                     best, best_score, best_cost = track, score, cost
             if best is not None and best_score <= s.gate_sigma:
@@ -432,6 +439,7 @@ class SectionTracker:
             else:
                 best = self._two_point_start(time_s, reading)
                 state = "updated" if best is not None else "new"
+                line_started = best is not None
                 if best is None:
                     best = self._new_track(time_s, reading)
             if surprise is not None and best is not current:
@@ -447,6 +455,10 @@ class SectionTracker:
                     # seen once, then not: an outlier's track would take a later reading
                     # that strays from the right track and show motion it made up
                     self.tracks.remove(track)
+        if restart is None and line_started:
+            # the other reading of the two may be the glitch: the reading also starts a track
+            # of its own, and the next reading goes to the likelier of the two
+            self._new_track(time_s, reading).association_penalty = ALTERNATIVE_PENALTY
         if self._takes_over(best, time_s):
             self.current = best
             return self._estimate(time_s, state)
