@@ -95,9 +95,11 @@ tracks traded one quay's readings); else it starts a new track. Which track is *
 * the current track seen once takes a reading beyond its gate when the two mean a change
   of at most ``max_speed_mps``, its speed started from the two: a boat closing at 4 m/s is
   2 m nearer each half second, beyond the first gate, and never got a closing speed.
-  A line so started that the very next reading contradicts (it goes to another track) is
-  dropped: a glitch on a section's first reading, 4 m too far, had it coast a phantom
-  approach to 0 m;
+  The second reading also starts a track of its own (the first may have been the glitch),
+  which takes the next reading when that is clearly likelier from it
+  (:data:`ALTERNATIVE_PENALTY`), and a line that the very next reading contradicts (it goes
+  to another track) is dropped: a glitch on a section's first reading, 4 m too far, had the
+  line coast a phantom approach to 0 m, and at 10 Hz show 7 m/s and contact in 1.1 s;
 * a reading whose time is uncertain (``Reading.time_sigma_s``: frames stamped to the whole
   second at several a second) has ``(ḋ² + P_ḋḋ) σ_t²`` added to its ``R`` and to the
   reported sigma.
