@@ -595,3 +595,21 @@ def test_a_clear_band_the_vessel_hides_past_the_danger_distance_holds_the_alarm(
     # an obstacle seen 15 m out, with the band hidden out to 9.4 m: held; with 0.9 m: falls
     assert ok_far(9.4, 2.0) == "danger"
     assert ok_far(0.9, 2.5) == "ok"
+
+
+def test_frame_times_coarser_than_the_frames_are_noted_and_allowed_for():
+    """Whole-second stamps at 2 frames a second (15, 15, 16 s): the second frame's time is
+    its predecessor's, a warning says so once, and from then on each reading's time is
+    taken as anywhere in its second (step / √12) by the tracker, as run's timeline does."""
+    import math
+
+    mask = cv2.imread(str(FLIGHT / "labels" / "000030.png"), cv2.IMREAD_UNCHANGED)
+    engine = LiveEngine(_MaskSegmenter(mask), VesselCache(load_vessel_spec(TUG)))
+    meta, image, now = _frame_30_with_every_source_current(engine)
+    first = engine.process(30, image, meta, FLIGHT / "frames" / "000030.json", 15.0, now)
+    assert not first["warnings"] and engine._stamps.time_sigma_s == 0.0
+    states = [engine.process(30 + k, image, meta, FLIGHT / "frames" / "000030.json", t, now + 0.5 * k)
+              for k, t in ((1, 15.0), (2, 16.0))]
+    notes = [w for w in states[-1]["warnings"] if "coarser than the frames" in w["message"]]
+    assert len(notes) == 1 and notes[0]["source"] == "video"
+    assert engine._stamps.time_sigma_s == pytest.approx(1.0 / math.sqrt(12.0))

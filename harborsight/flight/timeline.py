@@ -28,6 +28,7 @@ import numpy as np
 
 from harborsight.clearance.report import STATUS_OK, ClearanceReport
 from harborsight.errors import InputError
+from harborsight.flight.stamps import StampResolution
 from harborsight.flight.tracking import (
     Reading,
     SectionEstimate,
@@ -118,30 +119,7 @@ class ClearanceTimeline:
     _last_time_s: float | None = None
     _behind: list[tuple[int, float]] = field(default_factory=list)   # (frame, time_s)
     _off_clock_frames: set[int] = field(default_factory=set)
-    #: the smallest step between two frames' different times (s), and whether two frames in
-    #: a row had the same time (a clock coarser than the frame rate)
-    _stamp_step_s: float | None = None
-    _shared_stamps: bool = False
-
-    def _time_sigma_s(self, frame_index: int, time_s: float) -> tuple[float, str | None]:
-        """How uncertain this in-order frame's time is against the others' (s, one sigma),
-        and a note the first time two frames in a row share a time: from then on every
-        frame's time lies anywhere within the clock's step (the smallest step between
-        different times seen, 1 s until one is), ``step / √12``; 0 before."""
-        note = None
-        if self._last_time_s is not None and time_s >= self._last_time_s:
-            gap = time_s - self._last_time_s
-            if gap > 0:
-                self._stamp_step_s = gap if self._stamp_step_s is None else min(self._stamp_step_s, gap)
-            elif not self._shared_stamps:
-                self._shared_stamps = True
-                note = (f"frame {frame_index} has the time of the frame before it ({time_s:.3f} s):"
-                        " the clock is taken as coarser than the frames, each frame's time as "
-                        "anywhere within its step, and the tracker's distances and speeds "
-                        "allow for that")
-        if not self._shared_stamps:
-            return 0.0, note
-        return (self._stamp_step_s or 1.0) / math.sqrt(12.0), note
+    _stamps: StampResolution = field(default_factory=StampResolution)
 
     def _place_in_time(self, frame_index: int, time_s: float) -> tuple[bool, str | None]:
         """Whether this frame's time can join the fits, and a warning when it cannot."""
@@ -166,6 +144,7 @@ class ClearanceTimeline:
             self._off_clock_frames.update(ahead)
             self._off_clock_frames.difference_update(behind_frames)
             self._trackers.clear()          # the tracks ran on the wrong clock: start afresh
+            self._stamps.restart()
             warning = (f"{len(self._behind)} frames in a row are before {self._last_time_s:.3f} s:"
                        f" the time of frame(s) {', '.join(map(str, ahead))} is taken as wrong, "
                        "left out of the closing speeds from here on, and the clock follows the "
@@ -185,7 +164,7 @@ class ClearanceTimeline:
                                                                                   time_s)
         time_sigma_s = 0.0
         if timed:
-            time_sigma_s, note = self._time_sigma_s(frame_index, time_s)
+            time_sigma_s, note = self._stamps.observe(frame_index, time_s)
             warning = warning or note
         trends, rows = {}, []
         for section in report.sections:

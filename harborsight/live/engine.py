@@ -53,6 +53,7 @@ from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, ClearanceRepor
 from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lower_bound_m
 from harborsight.errors import HarborsightError
 from harborsight.flight.pose_carry import VesselPoseCarry, placed_by_image
+from harborsight.flight.stamps import StampResolution
 from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
@@ -93,6 +94,7 @@ class LiveEngine:
         #: why the newest frame that came could not be measured (None once one is)
         self._last_failure: str | None = None
         self._trackers: dict[int, SectionTracker] = {}
+        self._stamps = StampResolution()     # frame times coarser than the frames
         self._alarms: dict[int, SectionAlarm] = {}
         self._report: ClearanceReport | None = None
         self._image: np.ndarray | None = None          # the measured frame, for the video
@@ -202,6 +204,12 @@ class LiveEngine:
     def _update_sections(self, report: ClearanceReport, time_s: float | None) -> None:
         self._errors = []
         sections = []
+        time_sigma_s = 0.0
+        if time_s is not None:
+            time_sigma_s, note = self._stamps.observe(report.image, time_s)
+            if note is not None:        # under the lock already: warn() would take it again
+                logger.warning("video: %s", note)
+                self._warnings.append({"source": "video", "message": note, "at_s": time.monotonic()})
         for section in report.sections:
             fits = (section.status == STATUS_OK and not section.truncated
                     and not report.sensors_contradicted)
@@ -209,7 +217,7 @@ class LiveEngine:
             if time_s is not None:
                 tracker = self._trackers.setdefault(section.index, SectionTracker(self.tracker_settings))
                 reading = (Reading(section.distance_m, section.sigma_m, section.sigma_random_m,
-                                   section.own_rate_mps, section.own_rate_sigma_mps)
+                                   section.own_rate_mps, section.own_rate_sigma_mps, time_sigma_s)
                            if fits else None)
                 estimate = tracker.step(time_s, reading,
                                         None if report.sensors_contradicted else seen_clear(section))
