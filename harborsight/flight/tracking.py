@@ -279,6 +279,20 @@ def _sane(reading: Reading) -> Reading | None:
                    rate, rate_sigma, min(max(time_sigma, 0.0), MAX_TIME_SIGMA_S))
 
 
+def distance_rate(x: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+    """The distance's whole rate ``ḋ = w + r`` of a state ``x = [d, w, r]`` and its variance
+    ``P_ww + P_rr + 2 P_wr``."""
+    return float(x[1] + x[2]), max(float(P[1, 1] + P[2, 2] + 2.0 * P[1, 2]), 0.0)
+
+
+def timing_variance(x: np.ndarray, P: np.ndarray, time_sigma_s: float) -> float:
+    """What a time known to ``σ_t`` adds to a distance's variance: ``(ḋ² + P_ḋḋ) σ_t²``."""
+    if time_sigma_s <= 0:
+        return 0.0
+    rate, rate_variance = distance_rate(x, P)
+    return (rate * rate + rate_variance) * time_sigma_s ** 2
+
+
 def _own(reading: Reading | None) -> tuple[float, float] | None:
     """A (sane) reading's own rate and its sigma, or None."""
     if reading is None or reading.own_rate_mps is None or reading.own_rate_sigma_mps is None:
@@ -347,11 +361,8 @@ class SectionTracker:
             random = min(random, max(s.noise_margin * math.sqrt(white), s.min_reading_sigma_m))
         systematic2 = max(total ** 2 - random ** 2, 0.0)
         variance = random ** 2 + systematic2 * min(1.0, max(dt, 0.0) / s.drift_time_s)
-        if reading.time_sigma_s > 0 and track is not None:
-            # a time known to sigma_t moves the distance by the rate times it: (ḋ² + P_ḋḋ) σ_t²
-            P = track.covariance
-            rate = float(track.state[1] + track.state[2])
-            variance += (rate ** 2 + max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2], 0.0)) * reading.time_sigma_s ** 2
+        if track is not None:         # a time known to sigma_t moves the distance by ḋ σ_t
+            variance += timing_variance(track.state, track.covariance, reading.time_sigma_s)
         return variance, math.sqrt(systematic2)
 
     def _new_track(self, time_s: float, reading: Reading) -> Track:
@@ -655,17 +666,16 @@ class SectionTracker:
         x, P = self._predicted(track, time_s, with_own=False)
         # a reading's uncertain time (Reading.time_sigma_s) leaves the distance at the
         # frame's true time uncertain by the rate times it
-        timing = (float(x[1] + x[2]) ** 2 + max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2], 0.0)
-                  ) * self._time_sigma_s ** 2
+        timing = timing_variance(x, P, self._time_sigma_s)
         estimate = SectionEstimate(
             distance_m=max(float(x[0]), 0.0),
             sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2 + timing),
             track=track.ident, state=state)
         if track.updates >= self.settings.min_updates:
             # the rate is w and the vessel's own rate r (0 without one)
-            estimate.closing_speed_mps = -float(x[1] + x[2])
-            estimate.closing_speed_sigma_mps = math.sqrt(max(P[1, 1] + P[2, 2] + 2.0 * P[1, 2],
-                                                             0.0))
+            rate, rate_variance = distance_rate(x, P)
+            estimate.closing_speed_mps = -rate
+            estimate.closing_speed_sigma_mps = math.sqrt(rate_variance)
             if estimate.closing_speed_mps > self.settings.min_closing_mps:
                 estimate.time_to_contact_s = estimate.distance_m / estimate.closing_speed_mps
         return estimate

@@ -142,7 +142,7 @@ class LiveEngine:
         except Exception as exc:   # one bad frame must not stop the live aid
             return self.frame_failed(frame_index, f"unexpected {type(exc).__name__}: {exc}")
         with self._lock:
-            self._update_sections(report, time_s)
+            stamp_note = self._update_sections(report, time_s)
             self._report, self._frame_index, self._image = report, frame_index, image
             self._frame_time = meta.timestamp
             self.frames_measured += 1
@@ -150,8 +150,12 @@ class LiveEngine:
             self._last_failure = None
             now = time.monotonic()
             self._latency_ms = 1000.0 * (now - arrived_s)
-            self._state = self._build(now)
-            return self._state
+            self._state = state = self._build(now)
+        if stamp_note is not None:      # once a flight: warn() takes the lock itself
+            self.warn("video", stamp_note)
+            with self._lock:
+                self._state = state = self._build(now)
+        return state
 
     def refresh(self, now_s: float | None = None) -> dict:
         """The state re-evaluated at ``now_s`` (ages, stale flags and alarms) without a
@@ -201,15 +205,14 @@ class LiveEngine:
             self._state = self._build(time.monotonic())
             return self._state
 
-    def _update_sections(self, report: ClearanceReport, time_s: float | None) -> None:
+    def _update_sections(self, report: ClearanceReport, time_s: float | None) -> str | None:
+        """The sections' tracks and alarms after this report; returns a note the first time
+        two frames in a row share a time (:mod:`harborsight.flight.stamps`)."""
         self._errors = []
         sections = []
-        time_sigma_s = 0.0
+        time_sigma_s, note = 0.0, None
         if time_s is not None:
             time_sigma_s, note = self._stamps.observe(report.image, time_s)
-            if note is not None:        # under the lock already: warn() would take it again
-                logger.warning("video: %s", note)
-                self._warnings.append({"source": "video", "message": note, "at_s": time.monotonic()})
         for section in report.sections:
             fits = (section.status == STATUS_OK and not section.truncated
                     and not report.sensors_contradicted)
@@ -272,6 +275,7 @@ class LiveEngine:
                 "time_to_contact_s": _rounded(ttc, 1),
             })
         self._sections = sections
+        return note
 
     def _vessel_placed_by_image(self, now_s: float) -> bool:
         """Whether the newest measured frame's vessel pose was carried by the images and its
