@@ -46,8 +46,9 @@ class Track:
     drift_starts: list = field(default_factory=lambda: [0.0, 0.0])
     #: ``w`` takes the agile acceleration (``accel_q``) until this time: a drift test fired
     agile_until_s: float = -math.inf
-    #: its speed came from two readings alone (two-point start), not yet confirmed by a third
-    two_point: bool = False
+    #: its speed came from a line through its readings (a two-point start from two, a line
+    #: start from a young track's) that no further reading has confirmed yet
+    unconfirmed_line: bool = False
     #: added to the track's association cost while it has one reading: the alternative a
     #: two-point start leaves (the second reading alone) takes the next reading only
     #: when it is clearly the likelier
@@ -58,6 +59,9 @@ class Track:
     own_travel_m: float = 0.0
     #: (time_s, distance_m, own_travel_m)
     recent: deque = field(default_factory=lambda: deque(maxlen=3))
+    #: the same, of the track's first :data:`LINE_START_READINGS` readings: a young track's
+    #: line start draws its line through them
+    first: list = field(default_factory=list)
     #: the same, at most one in :data:`NOISE_SPACING_S`: the three-point residuals' readings
     spaced: deque = field(default_factory=lambda: deque(maxlen=3))
     #: |r| of the three-point residuals of the last readings (NaN where three share a time)
@@ -90,6 +94,8 @@ class Track:
         window. The residuals take readings at least :data:`NOISE_SPACING_S` apart (module
         docstring, "Frame rate")."""
         self.recent.append((time_s, distance_m, self.own_travel_m))
+        if len(self.first) < LINE_START_READINGS:
+            self.first.append(self.recent[-1])
         if self.spaced and time_s - self.spaced[-1][0] < NOISE_SPACING_S - 1e-9:
             return
         self.spaced.append((time_s, distance_m, self.own_travel_m))
@@ -243,6 +249,9 @@ class Track:
         return self.own_travel_m + 0.5 * (float(self.state[2]) + float(x[2])) * dt
 
 
+#: a young track (at most this many readings) whose readings and a reading beyond its gate
+#: lie on one line may restart from it (the tracker's line start)
+LINE_START_READINGS = 5
 #: a manoeuvre is looked for over the readings of the last this many seconds, and the line
 #: that restarts a track spans at least the shorter time (a line through readings 0.2 s
 #: apart at 10 Hz says little of a speed)
