@@ -53,6 +53,12 @@ class Track:
     #: two-point start leaves (the second reading alone) takes the next reading only
     #: when it is clearly the likelier
     association_penalty: float = 0.0
+    #: the track that was current when this one was born of a reading beyond its gate, and
+    #: the sum and count of the normalised innovations from it of the readings this one took
+    #: since (the tracker's rival test); None: none, or confirmed
+    rival: int | None = None
+    rival_sum: float = 0.0
+    rival_count: int = 0
     #: how far the vessel's own motion has moved the distance since the track began (m), the
     #: filtered ``r`` integrated between readings: ``z - own_travel_m`` is what the obstacle's
     #: own motion and the readings' noise leave
