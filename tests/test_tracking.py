@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from harborsight.flight.track import Track
-from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings
+from harborsight.flight.tracker_inputs import Reading, TrackerSettings
+from harborsight.flight.tracking import SectionTracker
 
 
 def _approach(times_s, start_m=10.0, speed_mps=0.4):
@@ -448,7 +449,7 @@ def test_the_overlay_footer_names_only_sections_measured_this_frame():
     has a decimal."""
     from harborsight.flight.runner import trend_footer
     from harborsight.flight.timeline import SectionTrend
-    from harborsight.flight.tracking import SectionEstimate
+    from harborsight.flight.tracker_inputs import SectionEstimate
 
     coasting = SectionTrend(estimate=SectionEstimate(0.1, 0.1, 1.0, 0.1, 0.1, 0, "coasting"))
     measured = SectionTrend(estimate=SectionEstimate(6.0, 0.1, 0.8, 0.1, 7.5, 1, "updated"))

@@ -47,7 +47,7 @@ from harborsight.files import strict_json, write_image, write_text_atomic
 from harborsight.flight.pose_carry import VesselPoseCarry
 from harborsight.flight.sources import NO_METADATA, FlightFrame
 from harborsight.flight.timeline import ClearanceTimeline, SectionTrend, timestamp_seconds, write_rows
-from harborsight.flight.tracking import MEASURED_STATES
+from harborsight.flight.tracker_inputs import MEASURED_STATES
 from harborsight.pipeline import Segmenter, VesselCache, frame_labels
 from harborsight.viz.overlay import GREY, RED, draw_banner, draw_overlay
 

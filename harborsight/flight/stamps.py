@@ -5,7 +5,7 @@ one instant, a steady 0.4 m/s approach read at 10 Hz with whole-second stamps sh
 to +0.48 m/s. Once two frames in a row share a time, every frame's time is taken as uniform
 within the step, one sigma ``step / √12``, the step being the smallest between different
 times seen (1 s until one is, and at most 1 s); the tracker allows for it
-(:attr:`harborsight.flight.tracking.Reading.time_sigma_s`). Used by ``run``'s timeline and
+(:attr:`harborsight.flight.tracker_inputs.Reading.time_sigma_s`). Used by ``run``'s timeline and
 by the live engine.
 """
 

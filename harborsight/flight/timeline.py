@@ -29,13 +29,8 @@ import numpy as np
 from harborsight.clearance.report import STATUS_OK, ClearanceReport
 from harborsight.errors import InputError
 from harborsight.flight.stamps import StampResolution
-from harborsight.flight.tracking import (
-    Reading,
-    SectionEstimate,
-    SectionTracker,
-    TrackerSettings,
-    seen_clear,
-)
+from harborsight.flight.tracker_inputs import Reading, SectionEstimate, TrackerSettings, seen_clear
+from harborsight.flight.tracking import SectionTracker
 from harborsight.frame import FrameMetadata
 
 CSV_COLUMNS = [

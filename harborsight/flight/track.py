@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from harborsight.flight.tracking import Reading
+    from harborsight.flight.tracker_inputs import Reading
 
 
 @dataclass

@@ -54,7 +54,8 @@ from harborsight.clearance.uncertainty import bounded_where_band_left, seen_lowe
 from harborsight.errors import HarborsightError
 from harborsight.flight.pose_carry import VesselPoseCarry, placed_by_image
 from harborsight.flight.stamps import StampResolution
-from harborsight.flight.tracking import Reading, SectionTracker, TrackerSettings, seen_clear
+from harborsight.flight.tracker_inputs import Reading, TrackerSettings, seen_clear
+from harborsight.flight.tracking import SectionTracker
 from harborsight.frame import FrameMetadata
 from harborsight.live.alarms import CAUTION, DANGER, AlarmSettings, SectionAlarm
 from harborsight.live.health import SourceHealth
