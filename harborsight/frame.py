@@ -16,12 +16,8 @@ from typing import Any
 import numpy as np
 
 from harborsight.errors import InputError, brief
-from harborsight.geometry.camera import (
-    MAX_IMAGE_SIDE_PX,
-    Camera,
-    CameraIntrinsics,
-    load_camera_calibration,
-)
+from harborsight.geometry.calibration_files import load_camera_calibration
+from harborsight.geometry.camera import MAX_IMAGE_SIDE_PX, Camera, CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin, geodetic_to_enu
 from harborsight.geometry.rotations import enu_from_vessel_rotation, world_from_camera_rotation
 from harborsight.geometry.sensor_sigmas import FRAME_SIGMA_FIELDS

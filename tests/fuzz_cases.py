@@ -327,7 +327,7 @@ def calibration_case(draw) -> tuple[str, bytes]:
 
 
 def run_calibration(case: tuple[str, bytes]) -> str:
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     name, data = case
     path = write_case(name, data)

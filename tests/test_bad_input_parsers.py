@@ -194,7 +194,7 @@ def test_vessel_yaml_that_cannot_be_read_names_the_file(tmp_path, content, appen
 
 
 def test_vessel_and_calibration_given_a_folder_say_so(tmp_path):
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
     from harborsight.vessel.spec import load_vessel_spec
 
     for load in (load_vessel_spec, load_camera_calibration):
@@ -239,7 +239,7 @@ def _filestorage(tmp_path: Path, matrix: str = GOOD_MATRIX, dist: str = GOOD_DIS
 ], ids=["rows-4", "data-short", "data-long", "no-data", "dt-q", "rows-negative", "rows-three",
         "data-text", "rows-10-digits", "plain-sequence", "distortion-text"])
 def test_malformed_opencv_matrix_names_the_field(tmp_path, matrix, dist, field, words):
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     if matrix.startswith("["):      # a plain sequence, no !!opencv-matrix tag
         path = _filestorage(tmp_path)
@@ -254,7 +254,7 @@ def test_malformed_opencv_matrix_names_the_field(tmp_path, matrix, dist, field, 
 
 def test_opencv_yaml_syntax_error_names_the_file_and_line(tmp_path):
     """OpenCV's parser raises its error wrapped in a SystemError."""
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     path = _filestorage(tmp_path, GOOD_MATRIX.replace("1. ]", "1.,]"))
     with pytest.raises(InputError) as info:
@@ -264,7 +264,7 @@ def test_opencv_yaml_syntax_error_names_the_file_and_line(tmp_path):
 
 
 def test_malformed_opencv_xml_matrix_names_the_field(tmp_path):
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     path = tmp_path / "calibration.xml"
     path.write_text('<?xml version="1.0"?>\n<opencv_storage>\n<image_width>640</image_width>\n'
@@ -282,7 +282,7 @@ def test_malformed_opencv_xml_matrix_names_the_field(tmp_path):
     (HUGE, "(400 digits) on line 3 is too large"),
 ])
 def test_opencv_image_width_is_checked_in_the_calibration(tmp_path, width, words):
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     path = _filestorage(tmp_path, width=width)
     with pytest.raises(InputError) as info:
@@ -312,7 +312,7 @@ distortion_coefficients:
     ("640", TOO_LONG, "camera_matrix.data", "5000 digits) on line 7: a whole number of more"),
 ])
 def test_ros_camera_info_numbers_name_the_field(tmp_path, width, fx, field, words):
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     path = tmp_path / "camera_info.yaml"
     path.write_text(ROS.format(width=width, fx=fx))

@@ -10,7 +10,8 @@ import shapely
 from scipy.spatial.transform import Rotation
 
 from harborsight.errors import InputError
-from harborsight.geometry.camera import Camera, CameraIntrinsics, load_camera_calibration
+from harborsight.geometry.calibration_files import load_camera_calibration
+from harborsight.geometry.camera import Camera, CameraIntrinsics
 from harborsight.geometry.gsd import nadir_gsd_from_sensor, nadir_gsd_m_per_px
 from harborsight.geometry.rotations import world_from_camera_rotation
 

@@ -205,7 +205,7 @@ def test_a_camera_from_its_sensor_has_square_pixels_as_a_datasheet_gives_them(da
 def test_a_fisheye_calibration_is_refused_not_read_as_a_pinhole(tmp_path, extra, field):
     """OpenCV's fisheye calibration has four coefficients, as k1, k2, p1, p2 have: read as
     the pinhole model, its edge rays would be 15-20 % off."""
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
 
     path = tmp_path / "fisheye.yaml"
     path.write_text("%YAML:1.0\n---\nimage_width: 640\nimage_height: 360\n" + extra

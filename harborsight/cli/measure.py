@@ -199,7 +199,7 @@ def measure(
         help="Frames a model labels: " + SEGMENT_GSD_HELP)] = 0.0,
 ) -> None:
     """Measure hull clearance per section and write a report and an overlay per frame."""
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
     from harborsight.perception.flips import flip_views
     from harborsight.pipeline import FrameJob, measure_job
 

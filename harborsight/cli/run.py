@@ -160,7 +160,7 @@ def run_command(
     """Measure a whole flight: every frame segmented, measured and annotated; distances and
     closing speeds per section over time. A bad frame is reported and skipped."""
     from harborsight.flight import FolderSource, RunOptions, VideoSource
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
     from harborsight.perception.flips import flip_views
 
     running = False         # whether run_flight has started (and owns run.json)

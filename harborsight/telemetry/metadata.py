@@ -123,7 +123,7 @@ def camera_block_for(camera: str, width: int | None, height: int | None,
     """A frame/1 ``camera`` block from a preset name (at the video's size) or a calibration
     file (which must be of the video's size, where that is known). :class:`InputError`
     naming ``--camera`` or the calibration otherwise."""
-    from harborsight.geometry.camera import load_camera_calibration
+    from harborsight.geometry.calibration_files import load_camera_calibration
     from harborsight.sim.cameras import CAMERA_PRESETS
 
     if camera in CAMERA_PRESETS:
