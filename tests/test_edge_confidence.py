@@ -10,10 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
+from harborsight.clearance.edge_evidence import CONFIDENT_SOLID_P
 from harborsight.clearance.measure import ClearanceSettings, measure_frame
 from harborsight.clearance.pose_refinement import PoseRefinement
 from harborsight.clearance.report import SectionClearance
-from harborsight.clearance.uncertainty import CONFIDENT_SOLID_P, add_section_uncertainty
+from harborsight.clearance.uncertainty import add_section_uncertainty
 from harborsight.frame import FrameGeometry, parse_frame_metadata
 from harborsight.geometry.camera import Camera, CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin

@@ -39,6 +39,7 @@ from harborsight.clearance.band_edges import (
     band_edge_pixels,
     beside_a_boundary_ray,
 )
+from harborsight.clearance.edge_evidence import CONFIDENT_SOLID_P
 from harborsight.clearance.obstacles import (
     LABEL_VALUES,
     hidden_water_edge,
@@ -56,7 +57,6 @@ from harborsight.clearance.report import (
     SectionClearance,
 )
 from harborsight.clearance.uncertainty import (
-    CONFIDENT_SOLID_P,
     LOWER_BOUND_QUANTILE,
     FrameVelocities,
     add_nadir_approximation,

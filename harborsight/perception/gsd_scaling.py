@@ -41,7 +41,7 @@ What it does not promise:
   masks change their maker in one step.
 * Where the windows and the whole view disagree, the mix caps the model's solid probability
   near ``1 - w``. An obstacle only the windows see is drawn, but never counts as sure
-  (:data:`~harborsight.clearance.uncertainty.CONFIDENT_SOLID_P`). It widens its section's
+  (:data:`~harborsight.clearance.edge_evidence.CONFIDENT_SOLID_P`). It widens its section's
   sigma rather than narrowing it.
 
 Off by default everywhere. On simulator frames it lowered the model's distance error at
