@@ -24,7 +24,6 @@ from harborsight.sim.dataset import (
     scenario_of,
     simulate,
 )
-from harborsight.sim.layout import OBSTACLE, SHIP, Environment
 from harborsight.sim.metering import (
     EV_LIMIT,
     auto_expose,
@@ -32,6 +31,7 @@ from harborsight.sim.metering import (
     metered_ev,
     srgb_to_linear,
 )
+from harborsight.sim.scene import OBSTACLE, SHIP, Environment
 from harborsight.vessel.spec import load_vessel_spec
 
 

@@ -15,8 +15,9 @@ from harborsight.geometry.camera import Camera, CameraIntrinsics
 from harborsight.geometry.rotations import world_from_camera_rotation
 from harborsight.sim.dataset import SimulationConfig, plan_frame, prepare_vessels
 from harborsight.sim.ground_truth import footprint_union
-from harborsight.sim.layout import _box, _cylinder, convex_mesh, waterline_crossings
+from harborsight.sim.layout import _box, _cylinder, convex_mesh
 from harborsight.sim.raycast import triangles_in_view
+from harborsight.sim.scene import waterline_crossings
 from harborsight.vessel.spec import load_vessel_spec
 
 
@@ -134,8 +135,8 @@ def _geometry(camera: Camera):
 def test_a_ray_cast_with_nothing_in_view_is_all_sky():
     """Every triangle out of view (or none at all): every pixel is NO_HIT at infinite range,
     as before the view test, not an error from an empty Embree scene."""
-    from harborsight.sim.layout import NO_HIT
     from harborsight.sim.raycast import ray_cast_ids
+    from harborsight.sim.scene import NO_HIT
 
     camera = Camera(CameraIntrinsics(64, 36, 50.0, 50.0, 31.5, 17.5), np.array([0.0, 0.0, 40.0]),
                     world_from_camera_rotation(0.0, math.radians(-90), 0.0))

@@ -13,7 +13,7 @@ import trimesh
 
 from harborsight.errors import InputError
 from harborsight.sim.dataset import SimulationConfig, simulate
-from harborsight.sim.layout import OBSTACLE, Part, SceneObject
+from harborsight.sim.scene import OBSTACLE, Part, SceneObject
 from harborsight.sim.view_culling import light_directions, objects_in_view
 
 

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from harborsight.sim.dataset import FrameRenderer, SimulationConfig, plan_frame, prepare_vessels
-from harborsight.sim.layout import SHIP, Part, SceneObject
+from harborsight.sim.scene import SHIP, Part, SceneObject
 from harborsight.sim.wakes import KELVIN_DEG, clear_track_m, paint_wakes, wake_intensity
 from harborsight.vessel.spec import load_vessel_spec
 

@@ -48,7 +48,7 @@ def object_recalls(frame: str, image_bgr: np.ndarray, labels: np.ndarray,
                    kinds: dict[int, str] | None = None) -> list[ObjectRecall]:
     """Every object of one frame with its solid recall and contrast (module docstring);
     ``kinds`` maps instance id -> kind (``object`` where unknown)."""
-    from harborsight.sim.layout import NO_HIT, VESSEL_INSTANCE
+    from harborsight.sim.scene import NO_HIT, VESSEL_INSTANCE
 
     skipped = {0, VESSEL_INSTANCE, NO_HIT}   # water, the vessel itself, no hit
     grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY).astype(np.float64)

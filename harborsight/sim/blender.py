@@ -1,4 +1,4 @@
-"""Render a :class:`~harborsight.sim.layout.HarbourScene` with Blender (bpy 4.5, Cycles, CPU).
+"""Render a :class:`~harborsight.sim.scene.HarbourScene` with Blender (bpy 4.5, Cycles, CPU).
 
 Two renders per frame share one Blender scene:
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harborsight.sim.layout import NO_HIT, Environment, HarbourScene, Material, SceneObject
+from harborsight.sim.scene import NO_HIT, Environment, HarbourScene, Material, SceneObject
 
 
 @dataclass(frozen=True)

@@ -39,11 +39,11 @@ from harborsight.sim.layout import (
     LEISURE_LENGTH_M,
     LEISURE_VESSEL_PREFIX,
     SCENARIOS,
-    HarbourScene,
     generate_vessel,
     sample_harbour_scene,
 )
 from harborsight.sim.metering import auto_expose, draw_target_lightness
+from harborsight.sim.scene import HarbourScene
 from harborsight.sim.wakes import paint_wakes
 from harborsight.vessel.spec import VesselSpec, load_vessel_spec
 

@@ -15,7 +15,7 @@ import trimesh
 
 from harborsight.errors import HarborsightError
 from harborsight.frame import FrameGeometry
-from harborsight.sim.layout import NO_HIT, HarbourScene
+from harborsight.sim.scene import NO_HIT, HarbourScene
 
 MIN_AGREEMENT = 0.995
 

@@ -28,8 +28,8 @@ from shapely.geometry import MultiPoint, Polygon, box
 from harborsight.geometry.camera import CameraIntrinsics
 from harborsight.geometry.geodesy import GeoOrigin
 from harborsight.sim.ground_truth import frame_ground_truth, vessel_silhouette
-from harborsight.sim.layout import VESSEL_INSTANCE
 from harborsight.sim.pose import PosedScene
+from harborsight.sim.scene import VESSEL_INSTANCE
 from harborsight.vessel.spec import VesselSpec
 
 SHIP, OBSTACLE = 1, 2

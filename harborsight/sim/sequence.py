@@ -22,7 +22,7 @@ from shapely.ops import nearest_points
 
 from harborsight.geometry.geodesy import GeoOrigin, enu_to_geodetic
 from harborsight.sim.ground_truth import footprint_union
-from harborsight.sim.layout import VESSEL_INSTANCE, HarbourScene, Part, SceneObject
+from harborsight.sim.scene import VESSEL_INSTANCE, HarbourScene, Part, SceneObject
 
 #: the first frame of sequence scene i is this time plus i scene slots (:func:`scene_slot_s`)
 SEQUENCE_EPOCH = datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC)

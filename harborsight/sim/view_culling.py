@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from harborsight.sim.layout import HarbourScene, SceneObject
+from harborsight.sim.scene import HarbourScene, SceneObject
 
 #: how far outside the image a projection may end and still count as in view, as a share of
 #: the image's width (26 px at 640)

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from shapely.geometry import LineString, Point
 
-from harborsight.sim.layout import HarbourScene, SceneObject
+from harborsight.sim.scene import HarbourScene, SceneObject
 
 #: half-angle of the Kelvin wedge: asin(1/3)
 KELVIN_DEG = math.degrees(math.asin(1.0 / 3.0))

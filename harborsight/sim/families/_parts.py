@@ -9,12 +9,8 @@ import math
 import numpy as np
 import trimesh
 
-from harborsight.sim.layout import (
-    Material,
-    _Builder,
-    _jitter,
-    convex_mesh,
-)
+from harborsight.sim.layout import _Builder, _jitter, convex_mesh
+from harborsight.sim.scene import Material
 
 _COVER_RGB = [(0.02, 0.08, 0.25), (0.55, 0.55, 0.52), (0.06, 0.12, 0.06), (0.35, 0.3, 0.2),
               (0.7, 0.7, 0.68), (0.25, 0.02, 0.02)]

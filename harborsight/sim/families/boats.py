@@ -13,10 +13,7 @@ from shapely.geometry import MultiPoint, Polygon
 
 from harborsight.sim.families._parts import _COVER_RGB, _gable, _overlaps_others, _pick, _prism
 from harborsight.sim.layout import (
-    SHIP,
     HullRanges,
-    Material,
-    SceneObject,
     _box,
     _Builder,
     _cylinder,
@@ -25,6 +22,7 @@ from harborsight.sim.layout import (
     random_hull_parameters,
     unit_cylinder,
 )
+from harborsight.sim.scene import SHIP, Material, SceneObject
 from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
 
 # Leisure hulls are mostly white; then navy, red, dark green, grey, black, cream (a rough

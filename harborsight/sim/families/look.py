@@ -8,11 +8,8 @@ from dataclasses import replace
 import numpy as np
 
 from harborsight.sim.families._parts import _pick
-from harborsight.sim.layout import (
-    Environment,
-    _jitter,
-    sample_environment,
-)
+from harborsight.sim.layout import _jitter, sample_environment
+from harborsight.sim.scene import Environment
 
 # water from clear blue over green to brown lake water (linear RGB, as the classic palette)
 _REAL_WATER_RGB = [(0.01, 0.035, 0.07), (0.02, 0.06, 0.08), (0.03, 0.07, 0.04), (0.04, 0.06, 0.03),

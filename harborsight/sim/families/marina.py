@@ -13,13 +13,8 @@ from shapely.geometry import Polygon
 from harborsight.sim.families._parts import _local_to_vessel, _overlaps_others, _planks
 from harborsight.sim.families.boats import add_leisure_boat
 from harborsight.sim.families.shore import add_shore
-from harborsight.sim.layout import (
-    OBSTACLE,
-    Material,
-    _box,
-    _Builder,
-    _grey,
-)
+from harborsight.sim.layout import _box, _Builder, _grey
+from harborsight.sim.scene import OBSTACLE, Material
 
 #: marina pontoon decking: two weathered woods beside white and grey composite boards. The
 #: marina tiles' pontoons are pale (median linear 0.54, p10-p90 0.29-0.81: as bright as the

@@ -20,15 +20,8 @@ from harborsight.sim.families._parts import (
     _prism,
 )
 from harborsight.sim.families.boats import add_leisure_boat
-from harborsight.sim.layout import (
-    OBSTACLE,
-    Material,
-    _box,
-    _Builder,
-    _cylinder,
-    _grey,
-    _jitter,
-)
+from harborsight.sim.layout import _box, _Builder, _cylinder, _grey, _jitter
+from harborsight.sim.scene import OBSTACLE, Material
 
 _ROOF_RGB = [(0.15, 0.15, 0.16), (0.3, 0.08, 0.05), (0.4, 0.4, 0.4), (0.12, 0.14, 0.2),
              (0.35, 0.3, 0.25)]

@@ -12,9 +12,6 @@ from shapely.geometry import Polygon
 from harborsight.sim.families._parts import _CAR_RGB, _gable, _local_to_vessel, _pick
 from harborsight.sim.families.boats import add_barge, add_fishing_boat, add_tug
 from harborsight.sim.layout import (
-    OBSTACLE,
-    Material,
-    SceneObject,
     _box,
     _Builder,
     _cylinder,
@@ -24,6 +21,7 @@ from harborsight.sim.layout import (
     add_quay_alongside,
     quay_face_offset,
 )
+from harborsight.sim.scene import OBSTACLE, Material, SceneObject
 
 # port vehicles: hi-vis yellow and orange, and the cars' colours
 _PORT_VEHICLE_RGB = [(0.75, 0.5, 0.01), (0.8, 0.25, 0.01), (0.6, 0.6, 0.62), (0.05, 0.15, 0.4),
