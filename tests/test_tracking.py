@@ -353,7 +353,8 @@ def test_a_fast_boat_read_at_video_rate_gets_its_closing_speed():
     its gate, learned a fraction of the speed, and the next reading lay beyond the gate; each
     new track started again near 0 m/s, and in 9 of these 20 runs no closing speed within
     30 % was shown in 3 s. A young track's readings and the reading beyond its gate now
-    start a line of their own (line start): within a second in every run."""
+    start a line of their own (line start), its speed shown once two more readings over
+    0.4 s have found it likelier than a still obstacle: within 1.5 s in every run."""
     firsts = []
     for seed in range(20):
         rng = np.random.default_rng(seed)
@@ -365,7 +366,7 @@ def test_a_fast_boat_read_at_video_rate_gets_its_closing_speed():
                     estimate.closing_speed_mps - 8.0) < 2.4:
                 first = t
         firsts.append(first)
-    assert all(first is not None and first <= 1.0 for first in firsts), firsts
+    assert all(first is not None and first <= 1.5 for first in firsts), firsts
 
 
 def test_a_line_start_through_a_glitch_is_dropped_and_its_speed_never_shown():
@@ -381,6 +382,26 @@ def test_a_line_start_through_a_glitch_is_dropped_and_its_speed_never_shown():
     assert all(e.time_to_contact_s is None for e in shown)
     assert [e.track for e in shown[4:]] == [shown[2].track] * 4
     assert all(e.distance_m > 7.7 for e in shown[4:])
+
+
+@pytest.mark.parametrize("rate_hz, quay_readings", [(10, 2), (30, 3)])
+def test_a_still_boat_in_front_of_a_young_quay_track_gets_no_closing_speed(rate_hz, quay_readings):
+    """A young quay track (two or three readings 8 m off, 0.3 m of noise) and then a boat
+    lying still 2 m nearer. The line through the quay's readings, close together, and the
+    boat's first ran at 10-25 m/s, and the boat's next reading, inside the line's wide gate,
+    confirmed it: 11 m/s and contact in 0.2 s were shown (25 m/s at 30 Hz). The line's
+    speed is shown now only once two more readings over 0.4 s have found it likelier than a
+    still obstacle where its readings lie: at most 2.3 m/s over 20 runs, as before the line
+    start existed."""
+    fastest = 0.0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        tracker = SectionTracker()
+        for i in range(3 * rate_hz):
+            z = (6.0 if i >= quay_readings else 8.0) + rng.normal(0, 0.3)
+            estimate = tracker.step(i / rate_hz, Reading(z, 0.3, 0.3))
+            fastest = max(fastest, estimate.closing_speed_mps or 0.0)
+    assert fastest < 3.0, fastest
 
 
 def test_an_outlier_s_track_does_not_take_a_later_reading():

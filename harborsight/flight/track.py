@@ -46,9 +46,14 @@ class Track:
     drift_starts: list = field(default_factory=lambda: [0.0, 0.0])
     #: ``w`` takes the agile acceleration (``accel_q``) until this time: a drift test fired
     agile_until_s: float = -math.inf
-    #: its speed came from a line through its readings (a two-point start from two, a line
-    #: start from a young track's) that no further reading has confirmed yet
+    #: its speed came from two readings alone (two-point start), not yet confirmed by a third
     unconfirmed_line: bool = False
+    #: a line start not yet confirmed: ``(time_s, reading, z - own travel)`` of the reading
+    #: that started it and of those it took since (the tracker's line-or-still test); None
+    #: for any other track
+    line_readings: list | None = None
+    #: the young track a line start was drawn from
+    line_from: int | None = None
     #: added to the track's association cost while it has one reading: the alternative a
     #: two-point start leaves (the second reading alone) takes the next reading only
     #: when it is clearly the likelier
@@ -258,6 +263,11 @@ class Track:
 #: a young track (at most this many readings) whose readings and a reading beyond its gate
 #: lie on one line may restart from it (the tracker's line start)
 LINE_START_READINGS = 5
+#: a line start's speed is shown once it has taken this many readings after the one that
+#: started it, spanning this long (s) with it, each likelier from the line than from a still
+#: obstacle
+LINE_CONFIRM_READINGS = 2
+LINE_CONFIRM_SPAN_S = 0.4
 #: a manoeuvre is looked for over the readings of the last this many seconds, and the line
 #: that restarts a track spans at least the shorter time (a line through readings 0.2 s
 #: apart at 10 Hz says little of a speed)

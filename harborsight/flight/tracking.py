@@ -105,8 +105,12 @@ tracks traded one quay's readings); else it starts a new track. Which track is *
   readings and it, when the reading lies within the gate of the line through the track's
   readings alone (:meth:`SectionTracker._line_start`): at 10 Hz a fast boat lay inside a
   young track's gate for a frame or two and beyond it the next, and each new track started
-  again near 0 m/s. The young track stays beside the line; the line's speed is shown once a
-  further reading confirms it, and a reading the young track takes instead drops the line;
+  again near 0 m/s. The line may run no faster than ``max_speed_mps``. The young track stays
+  beside it; until the line has taken :data:`LINE_CONFIRM_READINGS` more readings spanning
+  :data:`LINE_CONFIRM_SPAN_S`, each is offered to it as the line or as a still obstacle
+  where its readings lie, whichever is likelier (:meth:`SectionTracker._still_hypothesis`;
+  a still boat 2 m in front of a young quay had otherwise shown 10 m/s and contact in
+  0.5 s), its speed is not shown, and a reading another track takes drops it;
 * a track born of a reading beyond the current track's gate has that track as its rival
   while young: when the readings it takes after its first lie within 2 sigma of the
   rival's predictions (``|Σν| / √n``), they go to the rival and the young track is dropped
@@ -165,6 +169,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from harborsight.flight.track import (
+    LINE_CONFIRM_READINGS,
+    LINE_CONFIRM_SPAN_S,
     LINE_START_READINGS,
     MANOEUVRE_SPEED_SIGMA,
     Track,
@@ -233,6 +239,12 @@ class SectionTracker:
         return variance, math.sqrt(systematic2)
 
     def _new_track(self, time_s: float, reading: Reading) -> Track:
+        """A track of its own for ``reading``, joining the section's (:meth:`_add`)."""
+        track = self._fresh_track(time_s, reading, self._next_id)
+        self._add(track)
+        return track
+
+    def _fresh_track(self, time_s: float, reading: Reading, ident: int) -> Track:
         # the bias is added later; a reading without a sigma is no surer than the current's
         variance, systematic = self._reading_variance(reading, 0.0, self.current, measured=False)
         # with the vessel's own rate, the obstacle is taken as fixed until its readings say
@@ -240,7 +252,7 @@ class SectionTracker:
         # within initial_speed_sigma_mps
         s = self.settings
         own = own_rate_of(reading)
-        track = Track(self._next_id, time_s, np.array([reading.distance_m, 0.0, 0.0]),
+        track = Track(ident, time_s, np.array([reading.distance_m, 0.0, 0.0]),
                        np.diag([variance, s.initial_speed_sigma_mps ** 2, 0.0]),
                        systematic_m=systematic,
                        last_sigmas=(None if reading.sigma_m is None
@@ -252,7 +264,6 @@ class SectionTracker:
             track.state[2], track.covariance[2, 2], track.has_own = own[0], own[1] ** 2, True
             track.own_time_s = time_s
         track.remember(time_s, reading.distance_m)
-        self._add(track)
         return track
 
     def _add(self, track: Track) -> None:
@@ -305,13 +316,21 @@ class SectionTracker:
             best, state = current, "updated"
         else:
             best, best_score, best_cost = None, math.inf, math.inf
-            innovations = {}
+            innovations, still_wins = {}, set()
             for track in self.tracks:
                 x, P = self._predicted(track, time_s)
                 variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
                                                      measured=False)
                 spread = P[0, 0] + variance
                 innovations[track.ident] = (reading.distance_m - x[0]) / math.sqrt(spread)
+                if track.line_readings is not None:
+                    # a line start not yet confirmed: its line, or a still obstacle where its
+                    # readings lie, whichever is likelier (_still_hypothesis)
+                    nu, still_spread = self._still_hypothesis(track, time_s, reading, x, variance)
+                    if (nu * nu + math.log(still_spread)
+                            < innovations[track.ident] ** 2 + math.log(spread)):
+                        innovations[track.ident], spread = nu, still_spread
+                        still_wins.add(track.ident)
                 score = abs(innovations[track.ident])
                 # the reading goes to the track most likely to have given it, ν² + ln S
                 # (twice the negative log-likelihood): by ν alone a track just started,
@@ -324,7 +343,14 @@ class SectionTracker:
                     best, best_score, best_cost = track, score, cost
             if best is not None and best_score <= s.gate_sigma:
                 best = self._rival_if_alike(best, innovations)
+                if best.line_readings is not None and best.ident in still_wins:
+                    best = self._as_still(best)
                 self._update(best, time_s, reading)
+                if best.line_readings is not None:
+                    best.line_readings.append((time_s, reading, reading.distance_m - best.own_travel_m))
+                    if (len(best.line_readings) > LINE_CONFIRM_READINGS
+                            and time_s - best.line_readings[0][0] >= LINE_CONFIRM_SPAN_S - 1e-9):
+                        best.line_readings = None          # confirmed: its speed is shown
                 state = "updated"
             else:
                 best = self._two_point_start(time_s, reading)
@@ -549,13 +575,14 @@ class SectionTracker:
         :data:`LINE_START_READINGS` readings, all kept in ``Track.first``): when the line
         through its readings alone, run on to ``time_s``, meets the reading within the gate,
         and the line through all of them is no faster than
-        :attr:`TrackerSettings.max_speed_mps` plus the gate times its sigma. The filter's
+        :attr:`TrackerSettings.max_speed_mps` (with the gate times its sigma on top, a line
+        through readings 0.03 s apart ran at 25 m/s). The filter's
         speed prior (``initial_speed_sigma_mps``, 1 m/s) suits a quay; a boat closing at
         8 m/s, read ten times a second with 0.3 m of noise, lay beyond the gate every few
         frames, each time starting a track whose prior was again near 0 m/s: in half of 200
         runs no closing speed was shown within 3 s. The young track stays beside the line,
-        whose speed is shown once a further reading confirms it: a reading that goes to the
-        young track instead drops the line (one of its readings was a glitch, a young
+        whose speed is shown once confirmed (:meth:`_still_hypothesis`): a reading that goes
+        to another track instead drops the line (one of its readings was a glitch, a young
         quay's readings and a blob read nearer).
 
         With the ``n`` earlier readings' line of slope ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²``,
@@ -589,7 +616,7 @@ class SectionTracker:
         t_mean = float(t.mean())
         spread = float(np.sum((t - t_mean) ** 2))
         slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
-        if abs(slope) > s.max_speed_mps + s.gate_sigma * math.sqrt(variance / spread):
+        if abs(slope) > s.max_speed_mps:
             return None
         lead = time_s - t_mean
         distance = float(z.mean()) + slope * lead + travel_now
@@ -598,9 +625,43 @@ class SectionTracker:
         line = copy.deepcopy(track)
         line.ident = self._next_id
         self._restart(line, time_s, reading, (np.array([distance, slope]), line_covariance))
-        line.unconfirmed_line = True
+        line.line_readings = [(time_s, reading, reading.distance_m - travel_now)]
+        line.line_from = track.ident
         self._add(line)
         return line
+
+    def _still_hypothesis(self, line: Track, time_s: float, reading: Reading, x: np.ndarray,
+                          variance: float) -> tuple[float, float]:
+        """``(ν, S)`` of ``reading`` (variance ``variance``) under a still obstacle where the
+        readings since a line start lie, for the first :data:`LINE_CONFIRM_READINGS` after
+        it (and :data:`LINE_CONFIRM_SPAN_S`): their mean ``z̄`` of the distances less the
+        vessel's own travel (``x``: the line predicted to ``time_s``), ``S = R/m + R +
+        (σ_v (t - t̄))²``. The association takes the likelier of it and the line. A line
+        through a young quay's readings 0.1 s apart and a boat lying still 2 m nearer ran at
+        10 m/s; the boat's next reading, inside the line's wide gate, confirmed it, and a
+        closing speed of 10 m/s and contact in 0.5 s were shown for a boat that did not
+        move; and a boat's next reading, far from the line, went to the young quay track,
+        which made a speed of 2.5 m/s of the two."""
+        since = line.line_readings
+        t_mean = sum(t for t, _, _ in since) / len(since)
+        still_m = sum(z for _, _, z in since) / len(since) + line.own_travel_to(time_s, x)
+        spread = (variance * (1.0 + 1.0 / len(since))
+                  + (self.settings.initial_speed_sigma_mps * (time_s - t_mean)) ** 2)
+        return (reading.distance_m - still_m) / math.sqrt(spread), spread
+
+    def _as_still(self, line: Track) -> Track:
+        """A line start that a reading found likelier as a still obstacle
+        (:meth:`_still_hypothesis`): a track of the readings since it alone, in its place
+        (same ident; its rival the young track it was drawn from)."""
+        since = line.line_readings
+        still = self._fresh_track(since[0][0], since[0][1], line.ident)
+        still.rival = line.line_from
+        for t, taken, _ in since[1:]:
+            self._update(still, t, taken)
+        self.tracks[self.tracks.index(line)] = still
+        if self.current is line:
+            self.current = still
+        return still
 
     def _predicted(self, track: Track, time_s: float, with_own: bool = True
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -613,9 +674,9 @@ class SectionTracker:
         current = self.current
         if current is None or track is current:
             return True
-        if current.unconfirmed_line and track.misses_in_row == 0:
-            # a speed made from a line that the very next reading contradicts: one of its
-            # readings was a glitch; do not coast it
+        if (current.unconfirmed_line or current.line_readings is not None) and track.misses_in_row == 0:
+            # a speed made from a line that the next reading contradicts: one of its readings
+            # was a glitch; do not coast it
             self.tracks.remove(current)
             return True
         if track.state[0] < self._predicted(current, time_s)[0][0]:
@@ -671,11 +732,9 @@ class SectionTracker:
             distance_m=max(float(x[0]), 0.0),
             sigma_m=math.sqrt(max(P[0, 0], 0.0) + track.systematic_m ** 2 + timing),
             track=track.ident, state=state)
-        if track.updates >= self.settings.min_updates and not (
-                track.unconfirmed_line and track.updates > 2):
-            # a line start's speed is shown once a further reading confirms it (a two-point
-            # start's: once min_updates readings are in); the rate is w and the vessel's own
-            # rate r (0 without one)
+        if track.updates >= self.settings.min_updates and track.line_readings is None:
+            # a line start's speed is shown once confirmed (_still_hypothesis); the rate is w and
+            # the vessel's own rate r (0 without one)
             rate, rate_variance = distance_rate(x, P)
             estimate.closing_speed_mps = -rate
             estimate.closing_speed_sigma_mps = math.sqrt(rate_variance)
