@@ -54,6 +54,9 @@ class Track:
     line_readings: list | None = None
     #: the young track a line start was drawn from
     line_from: int | None = None
+    #: the line start's ``Σ (ν² + ln S)`` as a line less that as a still obstacle, over the
+    #: readings it took (positive: the still obstacle is the likelier)
+    line_evidence: float = 0.0
     #: added to the track's association cost while it has one reading: the alternative a
     #: two-point start leaves (the second reading alone) takes the next reading only
     #: when it is clearly the likelier

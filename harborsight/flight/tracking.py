@@ -105,12 +105,13 @@ tracks traded one quay's readings); else it starts a new track. Which track is *
   readings and it, when the reading lies within the gate of the line through the track's
   readings alone (:meth:`SectionTracker._line_start`): at 10 Hz a fast boat lay inside a
   young track's gate for a frame or two and beyond it the next, and each new track started
-  again near 0 m/s. The line may run no faster than ``max_speed_mps``. The young track stays
+  again near 0 m/s. The line's slope is at most ``max_speed_mps``. The young track stays
   beside it; until the line has taken :data:`LINE_CONFIRM_READINGS` more readings spanning
-  :data:`LINE_CONFIRM_SPAN_S`, each is offered to it as the line or as a still obstacle
-  where its readings lie, whichever is likelier (:meth:`SectionTracker._still_hypothesis`;
+  :data:`LINE_CONFIRM_SPAN_S`, each is weighed as from the line and as from a still
+  obstacle where its readings lie, and the line becomes a track of its readings alone once
+  the still obstacle is the likelier over them (:meth:`SectionTracker._still_hypothesis`;
   a still boat 2 m in front of a young quay had otherwise shown 10 m/s and contact in
-  0.5 s), its speed is not shown, and a reading another track takes drops it;
+  0.5 s); its speed is not shown meanwhile, and a reading another track takes drops it;
 * a track born of a reading beyond the current track's gate has that track as its rival
   while young: when the readings it takes after its first lie within 2 sigma of the
   rival's predictions (``|Σν| / √n``), they go to the rival and the young track is dropped
@@ -316,7 +317,7 @@ class SectionTracker:
             best, state = current, "updated"
         else:
             best, best_score, best_cost = None, math.inf, math.inf
-            innovations, still_wins = {}, set()
+            innovations, line_margin = {}, {}
             for track in self.tracks:
                 x, P = self._predicted(track, time_s)
                 variance, _ = self._reading_variance(reading, time_s - track.time_s, track,
@@ -327,10 +328,11 @@ class SectionTracker:
                     # a line start not yet confirmed: its line, or a still obstacle where its
                     # readings lie, whichever is likelier (_still_hypothesis)
                     nu, still_spread = self._still_hypothesis(track, time_s, reading, x, variance)
-                    if (nu * nu + math.log(still_spread)
-                            < innovations[track.ident] ** 2 + math.log(spread)):
+                    margin = (innovations[track.ident] ** 2 + math.log(spread)
+                              - nu * nu - math.log(still_spread))
+                    line_margin[track.ident] = margin
+                    if margin > 0:
                         innovations[track.ident], spread = nu, still_spread
-                        still_wins.add(track.ident)
                 score = abs(innovations[track.ident])
                 # the reading goes to the track most likely to have given it, ν² + ln S
                 # (twice the negative log-likelihood): by ν alone a track just started,
@@ -343,8 +345,11 @@ class SectionTracker:
                     best, best_score, best_cost = track, score, cost
             if best is not None and best_score <= s.gate_sigma:
                 best = self._rival_if_alike(best, innovations)
-                if best.line_readings is not None and best.ident in still_wins:
-                    best = self._as_still(best)
+                if best.line_readings is not None:
+                    # the line against a still obstacle, over the readings since it began
+                    best.line_evidence += line_margin[best.ident]
+                    if best.line_evidence > 0:
+                        best = self._as_still(best)
                 self._update(best, time_s, reading)
                 if best.line_readings is not None:
                     best.line_readings.append((time_s, reading, reading.distance_m - best.own_travel_m))
@@ -575,8 +580,9 @@ class SectionTracker:
         :data:`LINE_START_READINGS` readings, all kept in ``Track.first``): when the line
         through its readings alone, run on to ``time_s``, meets the reading within the gate,
         and the line through all of them is no faster than
-        :attr:`TrackerSettings.max_speed_mps` (with the gate times its sigma on top, a line
-        through readings 0.03 s apart ran at 25 m/s). The filter's
+        :attr:`TrackerSettings.max_speed_mps` plus the gate times its sigma, its slope then
+        taken at most that speed (readings 0.03 s apart say a speed to 6 m/s, and a line
+        through them ran at 25 m/s). The filter's
         speed prior (``initial_speed_sigma_mps``, 1 m/s) suits a quay; a boat closing at
         8 m/s, read ten times a second with 0.3 m of noise, lay beyond the gate every few
         frames, each time starting a track whose prior was again near 0 m/s: in half of 200
@@ -616,8 +622,9 @@ class SectionTracker:
         t_mean = float(t.mean())
         spread = float(np.sum((t - t_mean) ** 2))
         slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
-        if abs(slope) > s.max_speed_mps:
+        if abs(slope) > s.max_speed_mps + s.gate_sigma * math.sqrt(variance / spread):
             return None
+        slope = max(-s.max_speed_mps, min(s.max_speed_mps, slope))
         lead = time_s - t_mean
         distance = float(z.mean()) + slope * lead + travel_now
         line_covariance = variance * np.array([[1.0 / len(t) + lead ** 2 / spread, lead / spread],
@@ -636,7 +643,11 @@ class SectionTracker:
         readings since a line start lie, for the first :data:`LINE_CONFIRM_READINGS` after
         it (and :data:`LINE_CONFIRM_SPAN_S`): their mean ``z̄`` of the distances less the
         vessel's own travel (``x``: the line predicted to ``time_s``), ``S = R/m + R +
-        (σ_v (t - t̄))²``. The association takes the likelier of it and the line. A line
+        (σ_v (t - t̄))²``. The association weighs the reading by the likelier of it and the
+        line; the line gives way once the still obstacle is the likelier over all the
+        readings since it began (``Track.line_evidence``, the sum of ``ν² + ln S`` as a line
+        less that as still: one reading at a time, a fast boat read at 30 Hz lost its
+        line to one still-looking reading in the first dozen). A line
         through a young quay's readings 0.1 s apart and a boat lying still 2 m nearer ran at
         10 m/s; the boat's next reading, inside the line's wide gate, confirmed it, and a
         closing speed of 10 m/s and contact in 0.5 s were shown for a boat that did not
