@@ -349,7 +349,7 @@ class SectionTracker:
                     # the line against a still obstacle, over the readings since it began
                     best.line_evidence += line_margin[best.ident]
                     if best.line_evidence > 0:
-                        best = self._as_still(best)
+                        best = self._rival_if_alike(self._as_still(best), innovations)
                 self._update(best, time_s, reading)
                 if best.line_readings is not None:
                     best.line_readings.append((time_s, reading, reading.distance_m - best.own_travel_m))
@@ -634,6 +634,7 @@ class SectionTracker:
         self._restart(line, time_s, reading, (np.array([distance, slope]), line_covariance))
         line.line_readings = [(time_s, reading, reading.distance_m - travel_now)]
         line.line_from = track.ident
+        line.rival, line.rival_sum, line.rival_count = None, 0.0, 0   # the young track's own
         self._add(line)
         return line
 
@@ -663,12 +664,29 @@ class SectionTracker:
     def _as_still(self, line: Track) -> Track:
         """A line start that a reading found likelier as a still obstacle
         (:meth:`_still_hypothesis`): a track of the readings since it alone, in its place
-        (same ident; its rival the young track it was drawn from)."""
+        (same ident; its rival the young track it was drawn from, with the rival test's sums
+        over the readings after its first, as :meth:`_rival_if_alike` would have counted
+        them: without, a boat's next reading, 1.9 sigma from a young quay track, went to the
+        quay's, which made 3 m/s of the two)."""
         since = line.line_readings
         still = self._fresh_track(since[0][0], since[0][1], line.ident)
-        still.rival = line.line_from
+        rival = next((t for t in self.tracks if t.ident == line.line_from), None)
+        still.rival = None if rival is None else rival.ident
+        this_own = self._own
         for t, taken, _ in since[1:]:
+            self._own = own_rate_of(taken)          # each reading with its own rate
             self._update(still, t, taken)
+            if still.rival is not None:
+                # the rival test counts the readings since the first as if taken one by one
+                x, P = self._predicted(rival, t)
+                variance, _ = self._reading_variance(taken, t - rival.time_s, rival, measured=False)
+                nu = (taken.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
+                if abs(nu) > self.settings.gate_sigma:
+                    still.rival = None               # beyond the rival's gate: confirmed
+                else:
+                    still.rival_sum += nu
+                    still.rival_count += 1
+        self._own = this_own
         self.tracks[self.tracks.index(line)] = still
         if self.current is line:
             self.current = still
