@@ -336,6 +336,44 @@ def manoeuvre_readings(surprises: list[tuple], threshold: float, cap: float = ma
     return 0
 
 
+@dataclass(frozen=True)
+class FittedLine:
+    """The least-squares line through ``n`` readings ``(t, z)``: slope
+    ``Σ(t - t̄)(z - z̄) / Σ(t - t̄)²`` (``spread`` the denominator), which the manoeuvre rule and
+    the line start restart a track from. With a reading's variance ``R``, the line's
+    distance at ``s`` has variance ``R (1/n + (s - t̄)² / spread)``, its slope ``R / spread``
+    and the two a covariance of ``R (s - t̄) / spread``."""
+
+    t_mean: float
+    z_mean: float
+    slope: float
+    spread: float
+    n: int
+
+    @classmethod
+    def through(cls, t: np.ndarray, z: np.ndarray) -> FittedLine | None:
+        """The line through the readings, None when their times do not spread."""
+        t_mean = float(t.mean())
+        spread = float(np.sum((t - t_mean) ** 2))
+        if spread <= 0:
+            return None
+        return cls(t_mean, float(z.mean()), float(np.sum((t - t_mean) * (z - z.mean()))) / spread,
+                   spread, len(t))
+
+    def at(self, at_s: float, variance: float) -> tuple[float, float]:
+        """The line's distance at ``at_s`` and its variance."""
+        lead = at_s - self.t_mean
+        return self.z_mean + self.slope * lead, variance * (1.0 / self.n + lead ** 2 / self.spread)
+
+    def state(self, at_s: float, variance: float) -> tuple[np.ndarray, np.ndarray]:
+        """``[distance, slope]`` at ``at_s`` and their covariance."""
+        distance, distance_variance = self.at(at_s, variance)
+        lead = at_s - self.t_mean
+        return (np.array([distance, self.slope]),
+                np.array([[distance_variance, variance * lead / self.spread],
+                          [variance * lead / self.spread, variance / self.spread]]))
+
+
 def independent_count(n: int, span_s: float) -> float:
     """What ``n`` readings spanning ``span_s`` are worth to a test that takes them as
     independent: ``n``, or ``1 + span_s / EVIDENCE_STEP_S`` when they come faster than one in

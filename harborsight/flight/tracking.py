@@ -165,7 +165,7 @@ from __future__ import annotations
 import copy
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -174,6 +174,7 @@ from harborsight.flight.track import (
     LINE_CONFIRM_SPAN_S,
     LINE_START_READINGS,
     MANOEUVRE_SPEED_SIGMA,
+    FittedLine,
     Track,
     independent_count,
     manoeuvre_readings,
@@ -406,18 +407,25 @@ class SectionTracker:
         if rival_ident is None or track.updates >= LINE_START_READINGS:
             return track
         rival = next((t for t in self.tracks if t.ident == rival_ident and t is not track), None)
-        nu = innovations.get(rival_ident)
-        if rival is None or nu is None or abs(nu) > self.settings.gate_sigma:
-            track.rival = None
+        if not self._count_against_rival(track, None if rival is None else innovations.get(rival_ident)):
             return track
-        track.rival_sum += nu
-        track.rival_count += 1
         if abs(track.rival_sum) > RIVAL_SIGMA * math.sqrt(track.rival_count):
             return track
         self.tracks.remove(track)
         if self.current is track:
             self.current = rival
         return rival
+
+    def _count_against_rival(self, track: Track, nu: float | None) -> bool:
+        """Add a reading's normalised innovation ``nu`` from ``track``'s rival to the rival
+        test's sums; a reading beyond the rival's gate (or none, the rival gone) confirms
+        ``track``, which is tested no more. Whether it is still on test."""
+        if nu is None or abs(nu) > self.settings.gate_sigma:
+            track.rival = None
+            return False
+        track.rival_sum += nu
+        track.rival_count += 1
+        return True
 
     def _merge_alike(self, time_s: float) -> None:
         """Of two tracks that predict the same distance and rate at ``time_s`` within
@@ -487,11 +495,10 @@ class SectionTracker:
         # the line is drawn through the distances less the vessel's own travel: its slope
         # is w, the rate the obstacle's own motion gives (the whole rate without own rates)
         z = np.array([p[1] - p[4] for p in points[-n:]])
-        t_mean, spread = float(t.mean()), float(np.sum((t - t.mean()) ** 2))
-        if spread <= 0:
+        fit = FittedLine.through(t, z)
+        if fit is None:
             return None
-        slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
-        change = abs(slope - predicted[1])
+        change = abs(fit.slope - predicted[1])
         # the line's speed against the readings' own scatter where the track measured it
         # (R itself takes twice that, an upper bound for the filter)
         white = track.white_variance(self.settings.min_noise_residuals)
@@ -502,28 +509,19 @@ class SectionTracker:
         scatter *= fast
         variance *= fast
         if (change > self.settings.manoeuvre_max_mps
-                or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / spread)):
+                or change < MANOEUVRE_SPEED_SIGMA * math.sqrt(scatter / fit.spread)):
             return None
-
-        def line(at_s: float) -> tuple[float, float]:
-            """The line's distance at ``at_s`` and its variance."""
-            lead = at_s - t_mean
-            return float(z.mean()) + slope * lead, variance * (1.0 / n + lead ** 2 / spread)
-
         taken = ([(p[0], p[1] - p[4]) for p in points[:-n] if p[3]]
                  or [(t_, z_ - s_) for t_, z_, s_ in track.recent if t_ < t[0]])
         if not taken:
             return None
         before_s, before_m = taken[-1]
-        at_before, variance_before = line(before_s)
+        at_before, variance_before = fit.at(before_s, variance)
         if abs(at_before - before_m) > self.settings.gate_sigma * math.sqrt(variance + variance_before):
             return None
-        distance, distance_variance = line(time_s)
-        distance += travel_now
-        lead = time_s - t_mean
-        return (np.array([distance, slope]),
-                np.array([[distance_variance, variance * lead / spread],
-                          [variance * lead / spread, variance / spread]]))
+        state, covariance = fit.state(time_s, variance)
+        state[0] += travel_now
+        return state, covariance
 
     def _restart(self, track: Track, time_s: float, reading: Reading,
                  restart: tuple[np.ndarray, np.ndarray]) -> None:
@@ -607,31 +605,23 @@ class SectionTracker:
                                              measured=False)
         t_before = np.array([p[0] for p in track.first])
         z_before = np.array([p[1] - p[2] for p in track.first])
-        spread_before = float(np.sum((t_before - t_before.mean()) ** 2))
-        if spread_before <= 0:
+        before = FittedLine.through(t_before, z_before)
+        if before is None:
             return None
-        slope_before = float(np.sum((t_before - t_before.mean()) * (z_before - z_before.mean()))
-                             ) / spread_before
-        lead = time_s - float(t_before.mean())
-        gap = reading.distance_m - travel_now - (float(z_before.mean()) + slope_before * lead)
-        if abs(gap) > s.gate_sigma * math.sqrt(
-                variance * (1.0 + 1.0 / len(t_before) + lead ** 2 / spread_before)):
+        at_now, line_variance = before.at(time_s, variance)
+        if abs(reading.distance_m - travel_now - at_now) > s.gate_sigma * math.sqrt(
+                variance + line_variance):
             return None
-        t = np.append(t_before, time_s)
-        z = np.append(z_before, reading.distance_m - travel_now)
-        t_mean = float(t.mean())
-        spread = float(np.sum((t - t_mean) ** 2))
-        slope = float(np.sum((t - t_mean) * (z - z.mean()))) / spread
-        if abs(slope) > s.max_speed_mps + s.gate_sigma * math.sqrt(variance / spread):
+        fit = FittedLine.through(np.append(t_before, time_s),
+                                 np.append(z_before, reading.distance_m - travel_now))
+        if abs(fit.slope) > s.max_speed_mps + s.gate_sigma * math.sqrt(variance / fit.spread):
             return None
-        slope = max(-s.max_speed_mps, min(s.max_speed_mps, slope))
-        lead = time_s - t_mean
-        distance = float(z.mean()) + slope * lead + travel_now
-        line_covariance = variance * np.array([[1.0 / len(t) + lead ** 2 / spread, lead / spread],
-                                               [lead / spread, 1.0 / spread]])
+        fit = replace(fit, slope=max(-s.max_speed_mps, min(s.max_speed_mps, fit.slope)))
+        state, covariance = fit.state(time_s, variance)
+        state[0] += travel_now
         line = copy.deepcopy(track)
         line.ident = self._next_id
-        self._restart(line, time_s, reading, (np.array([distance, slope]), line_covariance))
+        self._restart(line, time_s, reading, (state, covariance))
         line.line_readings = [(time_s, reading, reading.distance_m - travel_now)]
         line.line_from = track.ident
         line.rival, line.rival_sum, line.rival_count = None, 0.0, 0   # the young track's own
@@ -680,12 +670,7 @@ class SectionTracker:
                 # the rival test counts the readings since the first as if taken one by one
                 x, P = self._predicted(rival, t)
                 variance, _ = self._reading_variance(taken, t - rival.time_s, rival, measured=False)
-                nu = (taken.distance_m - x[0]) / math.sqrt(P[0, 0] + variance)
-                if abs(nu) > self.settings.gate_sigma:
-                    still.rival = None               # beyond the rival's gate: confirmed
-                else:
-                    still.rival_sum += nu
-                    still.rival_count += 1
+                self._count_against_rival(still, (taken.distance_m - x[0]) / math.sqrt(P[0, 0] + variance))
         self._own = this_own
         self.tracks[self.tracks.index(line)] = still
         if self.current is line:
