@@ -119,6 +119,7 @@ class SectionedOutline:
         self.line_length = run_len
         self.line_offset = self.edge_offset[starts]
         self._line_c = np.einsum("ij,ij->i", self.line_normal, self.line_start)
+        self._line_normal_t = np.ascontiguousarray(self.line_normal.T)
 
     @classmethod
     def split(
@@ -203,14 +204,17 @@ class SectionedOutline:
         points = np.asarray(points, float).reshape(-1, 2)
         if len(points) == 0:
             return SectionAssignment(np.zeros(0, int), np.zeros(0), np.zeros((0, 2)))
-        h = points @ self.line_normal.T - self._line_c  # (P, L) signed line distances
+        h = np.dot(points, self._line_normal_t)     # (P, L) signed line distances
+        h -= self._line_c
         j = np.argmax(h, axis=1)
         outside = h[np.arange(len(points)), j] > 0
-        rel = points - self.line_start[j]
-        along = np.einsum("ij,ij->i", rel, self.line_dir[j])
+        start, direction = self.line_start[j], self.line_dir[j]
+        rel = points - start
+        along = np.einsum("ij,ij->i", rel, direction)
         length = self.line_length[j]
         clamped = np.clip(along, 0.0, length)
-        nearest = self.line_start[j] + clamped[:, None] * self.line_dir[j]
+        direction *= clamped[:, None]
+        nearest = start + direction
         distance = np.hypot(*(points - nearest).T)
         # a corner that is also a break: the line's own side decides (bisector split)
         eps = 1e-9 * length
