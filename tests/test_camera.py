@@ -280,3 +280,38 @@ def test_a_large_set_across_the_near_plane_is_cut_on_its_hull_edges(monkeypatch)
     monkeypatch.setattr(camera_module, "_MAX_NEAR_PAIRS", 10 ** 12)
     assert shapely.MultiPoint(cut[:, :2]).convex_hull.area == pytest.approx(
         shapely.MultiPoint(camera_module._ahead_of_camera(flat)[:, :2]).convex_hull.area, rel=1e-9)
+
+
+def test_the_edge_of_the_pixels_with_a_ray_follows_a_fold_inside_the_image():
+    """A barrel lens with tangential terms (k1 -0.337, k2 -0.023, p1 -0.0015, p2 0.0008 at
+    fx 454.7) leaves 15 % of a 640x360 image past its fold, in the corners, and its edge
+    lies up to 27 px from the image of the fold's circle. ``ray_edge_px`` traces it from the
+    pixels themselves: every point of the loop has a ray and lies within 4 px of a pixel
+    without one or of the image's border, and every pixel of the true edge inside the
+    image lies within 3 px of the loop. Lenses whose border pixels all have rays (none,
+    a mild barrel, a strong one folding outside the image) give None."""
+    from scipy.spatial import cKDTree
+
+    from harborsight.geometry.camera import ray_edge_px
+
+    intr = CameraIntrinsics(640, 360, 454.7, 454.7, 319.5, 179.5,
+                            (-0.3373, -0.02288, -0.0015, 0.00079, 0.0))
+    loop = ray_edge_px(intr)
+    camera = Camera(intr, np.zeros(3), np.eye(3))
+    assert np.isfinite(camera.normalized_coordinates(loop)).all()
+    grid = np.stack(np.meshgrid(np.arange(640.0), np.arange(360.0)), -1).reshape(-1, 2)
+    has_ray = np.isfinite(camera.normalized_coordinates(grid)).all(axis=1)
+    assert 0.8 < has_ray.mean() < 0.9
+    without = cKDTree(grid[~has_ray])
+    on_border = (loop[:, 0] == 0) | (loop[:, 0] == 639) | (loop[:, 1] == 0) | (loop[:, 1] == 359)
+    assert (without.query(loop[~on_border])[0] <= 4.0).all()
+    assert on_border.any() and (~on_border).any()
+    # (past the fold a few single pixels find a ray of their own: only the main region counts)
+    _, regions, stats, _ = cv2.connectedComponentsWithStats(has_ray.reshape(360, 640).astype(np.uint8))
+    mask = (regions == 1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])).astype(np.uint8)
+    edge = mask & (1 - cv2.erode(mask, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE))
+    rows, cols = np.nonzero(edge)
+    assert cKDTree(loop).query(np.column_stack((cols, rows)))[0].max() <= 3.0
+    for distortion in ((), (-0.1, 0.0, 0.0, 0.0, 0.0), (-0.34, 0.0, 0.0, 0.0, 0.0)):
+        wide = CameraIntrinsics(640, 360, 900.0, 900.0, 319.5, 179.5, distortion)
+        assert ray_edge_px(wide) is None

@@ -222,6 +222,56 @@ def test_an_obstacle_beyond_where_its_band_leaves_the_picture_bounds_the_section
             assert other.distance_lower_m > other.distance_m - 2 * other.sigma_m
 
 
+@pytest.mark.parametrize("seed, scenario", [(0, "open"), (1, "slip")])
+def test_a_band_that_leaves_the_view_through_a_lens_fold_is_seen_only_that_far(seed, scenario):
+    """A wide barrel lens (k1 = -0.34 at fx 300 px) folds inside a 640x360 image: half its
+    pixels have no ray, and no pixel shows the water past the fold. A band that leaves the
+    view there is seen only to the fold's edge: every ``clear`` section's ``clear_to_m``,
+    and every ``ok`` section's lower bound, is at most how far its band is seen. Checked
+    with shapely: the outline of every pixel that has a ray, back-projected, against each
+    section's strip on the box's straight sides. The image's border alone had them seen on
+    to the horizon or the far border (clear "to 81.9 m" and unbounded where the band left
+    the view 27-35 m out) and, in the slip, a section reading a quay 52 m off kept a lower
+    bound of 48.7 m where its band left the view 11 m out."""
+    import cv2
+    from shapely.geometry import LineString, Polygon
+
+    vessel = flat_box_vessel()
+    intr = CameraIntrinsics(640, 360, 300.0, 300.0, 319.5, 179.5, (-0.34, 0.0, 0.0, 0.0, 0.0))
+    scene = sample_scene(vessel, np.random.default_rng(seed), altitude_m=40, scenario=scenario,
+                         intrinsics=intr)
+    _, labels, _ = render(scene)
+    geometry = scene.geometry()
+    report = measure_clearance(labels, geometry, vessel)
+    grid = np.stack(np.meshgrid(np.arange(640.0), np.arange(360.0)), -1).reshape(-1, 2)
+    has_ray = np.isfinite(geometry.camera.normalized_coordinates(grid)).all(axis=1).reshape(360, 640)
+    assert 0.4 < has_ray.mean() < 0.6
+    contours, _ = cv2.findContours(np.pad(has_ray.astype(np.uint8), 1), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    edge_px = max(contours, key=cv2.contourArea).reshape(-1, 2).astype(float) - 1
+    edge_v, on_water = geometry.pixels_to_vessel_xy(edge_px)
+    seen = Polygon(edge_v[on_water]).buffer(0)
+    outline = vessel.sections(16)
+    checked = set()
+    for s in report.sections:
+        k = s.index
+        start, end = outline.break_points[k], outline.break_points[(k + 1) % 16]
+        if outline.break_edge[(k + 1) % 16] != outline.break_edge[k] or s.status not in ("clear", "ok"):
+            continue                                # a corner inside: not a plain strip
+        normal = outline.edge_normal[outline.break_edge[k]]
+        strip = Polygon([start, end, end + 500 * normal, start + 500 * normal])
+        reach = LineString([start, end]).distance(strip.difference(seen))
+        # the edge is sampled every 2 px, on pixels up to 2 px inside it, where a pixel
+        # spans metres near the fold
+        tolerance = 0.03 * reach + 1.5 * report.gsd_m_per_px
+        if s.status == "clear":
+            assert s.clear_to_m is not None and s.clear_to_m <= reach + tolerance, (k, reach)
+        else:
+            assert s.distance_lower_m <= reach + tolerance, (k, reach, s.distance_m)
+        checked.add(s.status)
+    assert checked == ({"clear", "ok"} if scenario == "open" else {"ok"})
+
+
 def test_obstacle_corner_poking_less_than_a_pixel_into_a_band():
     """A wedge whose tip enters section k's band by 0.3 px leaves no pixel centre there; the
     pixel squares that reach across the break still give section k its (true) distance."""

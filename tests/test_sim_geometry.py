@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
+import shapely
 import trimesh
 from scipy.spatial import ConvexHull
 from shapely.geometry import MultiPoint, Point
@@ -170,3 +172,35 @@ def test_a_break_a_hair_past_a_corner_leaves_the_corner_s_wedge_to_the_section_b
     assert int(outline.assign(np.array([centre])).section[0]) == 0
     assert truth[0]["distance_all_m"] == pytest.approx(2.5, abs=1e-3)
     assert truth[1]["distance_all_m"] is None
+
+
+def test_the_truth_s_seen_water_ends_at_a_lens_fold_inside_the_image():
+    """The ground truth's seen water (``image_ground_polygon``) under a wide barrel lens
+    whose fold lies inside the image (k1 -0.34, fx 300 px, 640x360, 40 m up at nadir):
+    water whose pixel lies past the fold (``Camera.project`` refuses it) is not seen, and
+    water that projects at least 4 px inside the pixels with a ray is. The image's border
+    alone, its samples past the fold dropped, closed the polygon with chords across the
+    unseen corners: 628 of the grid's 13,848 points past the fold were inside it."""
+    from harborsight.frame import FrameGeometry
+    from harborsight.geometry.geodesy import GeoOrigin
+    from harborsight.sim.ground_truth import image_ground_polygon
+
+    intr = CameraIntrinsics(640, 360, 300.0, 300.0, 319.5, 179.5, (-0.34, 0.0, 0.0, 0.0, 0.0))
+    camera = Camera(intr, np.array([0.0, 0.0, 40.0]),
+                    world_from_camera_rotation(0.0, math.radians(-90.0), 0.0))
+    geometry = FrameGeometry(GeoOrigin(56.0, 10.0, 0.0), camera, 0.0)
+    seen = image_ground_polygon(geometry)
+    e, n = np.meshgrid(np.linspace(-150, 150, 121), np.linspace(-150, 150, 121))
+    ground = np.column_stack((e.ravel(), n.ravel(), np.zeros(e.size)))
+    uv, _ = camera.project(ground)
+    inside = shapely.contains_xy(seen, ground[:, 0], ground[:, 1])
+    past_fold = ~np.isfinite(uv).all(axis=1)
+    assert past_fold.sum() > 1000 and not inside[past_fold].any()
+    grid = np.stack(np.meshgrid(np.arange(640.0), np.arange(360.0)), -1).reshape(-1, 2)
+    has_ray = np.isfinite(camera.normalized_coordinates(grid)).all(axis=1).reshape(360, 640)
+    deep = cv2.erode(has_ray.astype(np.uint8), np.ones((9, 9), np.uint8), borderType=cv2.BORDER_CONSTANT)
+    pixel = np.rint(uv[~past_fold]).astype(int)
+    in_frame = (pixel[:, 0] >= 0) & (pixel[:, 0] < 640) & (pixel[:, 1] >= 0) & (pixel[:, 1] < 360)
+    well_inside = np.zeros(len(pixel), bool)
+    well_inside[in_frame] = deep[pixel[in_frame, 1], pixel[in_frame, 0]] > 0
+    assert well_inside.sum() > 100 and inside[~past_fold][well_inside].all()

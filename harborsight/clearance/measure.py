@@ -64,6 +64,7 @@ from harborsight.clearance.uncertainty import (
 )
 from harborsight.errors import InputError
 from harborsight.frame import FrameGeometry, FrameMetadata
+from harborsight.geometry.camera import CameraIntrinsics, densified_loop, ray_edge_px
 from harborsight.geometry.gsd import nadir_gsd_m_per_px
 from harborsight.geometry.sensor_sigmas import (
     LABEL_FILE_EDGE_M,
@@ -296,6 +297,23 @@ def _border_points(width: int, height: int, step_px: float = BORDER_STEP_PX) -> 
     return points
 
 
+@functools.lru_cache(maxsize=8)
+def _seen_edge_points(intrinsics: CameraIntrinsics) -> np.ndarray:
+    """Pixels along the edge of what the image shows, every :data:`BORDER_STEP_PX` at
+    most: the image's border, or where a barrel lens's fold lies inside the image, the edge
+    of the pixels with a ray (:func:`~harborsight.geometry.camera.ray_edge_px`). Past the
+    fold no pixel has a place on the water: a band that leaves the view there was read as
+    seen on to the far border or the horizon (a lens with k1 -0.34 at 23 m: "clear" to 28.6
+    m and to the horizon where its band left the seen water 0.02-0.17 m out), and an ``ok``
+    section's lower bound was not held to what was seen."""
+    loop = ray_edge_px(intrinsics)
+    if loop is None:
+        return _border_points(intrinsics.width, intrinsics.height)
+    points = densified_loop(loop, BORDER_STEP_PX)
+    points.flags.writeable = False
+    return points
+
+
 def _band_reach(section: np.ndarray, distance: np.ndarray, valid: np.ndarray,
                 n_sections: int) -> np.ndarray:
     """How far each section's band is seen, from the image-border points (their section,
@@ -441,7 +459,7 @@ def measure_clearance(
             return uv, np.ones(len(uv), bool)
     # the image's border, and the edge of the water the vessel hides, go through the same map
     # and assignment: how far each band is seen, and how far out its water is hidden
-    border_px = _border_points(labels.shape[1], labels.shape[0])
+    border_px = _seen_edge_points(intr)
     hidden_px = hidden_water_edge(own_layers_px, camera.project_convex_outline(
         geometry.vessel_to_enu(vessel.outline)), labels.shape, settings.pose_margin_px)
     n_contour, n_border = len(points_px), len(border_px)

@@ -482,3 +482,65 @@ class Camera:
                 & (uv[:, 0] >= -0.5) & (uv[:, 0] <= w - 0.5)
                 & (uv[:, 1] >= -0.5) & (uv[:, 1] <= h - 0.5)
             )
+
+
+#: pixels on the image's border tested for a ray before the whole image is (the fold's edge
+#: is looked for only where some of them have none)
+_FOLD_BORDER_SAMPLES = 256
+#: the image is tested for rays on a grid of about this many columns (its longer side's)
+_FOLD_GRID_COLUMNS = 320
+
+
+@functools.lru_cache(maxsize=16)
+def ray_edge_px(intrinsics: CameraIntrinsics) -> np.ndarray | None:
+    """The edge of the image's pixels that have a ray, as a closed loop of pixels
+    ``(N, 2)`` in order (read-only), or None when every pixel on the image's border has one
+    (the border is then that edge, as without distortion).
+
+    A barrel model's fold (:func:`fold_radius`) inside the image leaves the pixels past it
+    without a ray (:meth:`Camera.normalized_coordinates` gives NaN): what the frame shows of
+    the water ends at the fold's edge there, not at the image's border. With tangential
+    coefficients that edge is not the image of one circle (up to 27 and 124 px from it on two
+    such lenses), so it is found from the pixels themselves: a grid every ``s`` pixels
+    (:data:`_FOLD_GRID_COLUMNS` across the longer side; 2 px at 640 wide) is tested, and the
+    outer contour of its largest region with rays, in pixels, is the loop. Its points are
+    pixels with a ray, within ``s`` of the edge on its inside: what was seen is taken short
+    by at most that, never long. Made once per set of intrinsics (0.1 s at 640x360)."""
+    if not intrinsics.has_distortion or not math.isfinite(fold_radius(intrinsics.distortion)):
+        return None
+    w, h = intrinsics.width, intrinsics.height
+    camera = Camera(intrinsics, np.zeros(3), np.eye(3))
+    t = np.linspace(0.0, 1.0, _FOLD_BORDER_SAMPLES // 4, endpoint=False)
+    border = np.vstack((np.column_stack((t * (w - 1), np.zeros_like(t))),
+                        np.column_stack((np.full_like(t, w - 1.0), t * (h - 1))),
+                        np.column_stack(((1 - t) * (w - 1), np.full_like(t, h - 1.0))),
+                        np.column_stack((np.zeros_like(t), (1 - t) * (h - 1)))))
+    if np.isfinite(camera.normalized_coordinates(border)).all():
+        return None
+    step = max(2.0, math.ceil(max(w, h) / _FOLD_GRID_COLUMNS))
+    us = np.unique(np.append(np.arange(0.0, w, step), w - 1.0))
+    vs = np.unique(np.append(np.arange(0.0, h, step), h - 1.0))
+    grid = np.column_stack((np.tile(us, len(vs)), np.repeat(vs, len(us))))
+    has_ray = np.isfinite(camera.normalized_coordinates(grid)).all(axis=1).reshape(len(vs), len(us))
+    # padded, so that a region reaching the border is closed along it
+    contours, _ = cv2.findContours(np.pad(has_ray.astype(np.uint8), 1), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        loop = np.zeros((0, 2))
+    else:
+        cells = max(contours, key=cv2.contourArea).reshape(-1, 2) - 1
+        loop = np.column_stack((us[cells[:, 0]], vs[cells[:, 1]]))
+    loop.flags.writeable = False
+    return loop
+
+
+def densified_loop(loop: np.ndarray, step_px: float) -> np.ndarray:
+    """The closed loop of points ``(N, 2)`` with points added on each of its segments so that
+    none is longer than ``step_px`` (each segment's start, then evenly spaced points)."""
+    if len(loop) < 2:
+        return np.asarray(loop, float).reshape(-1, 2)
+    following = np.roll(loop, -1, axis=0)
+    steps = np.maximum(np.ceil(np.hypot(*(following - loop).T) / step_px), 1).astype(int)
+    at = np.repeat(np.arange(len(loop)), steps)
+    fraction = (np.arange(len(at)) - np.repeat(np.cumsum(steps) - steps, steps)) / np.repeat(steps, steps)
+    return loop[at] + fraction[:, None] * (following[at] - loop[at])

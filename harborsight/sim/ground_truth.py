@@ -15,6 +15,7 @@ import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon
 
 from harborsight.frame import FrameGeometry
+from harborsight.geometry.camera import ray_edge_px
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
@@ -98,9 +99,16 @@ def vessel_silhouette(vessel: VesselSpec, geometry: FrameGeometry) -> Polygon | 
 
 
 def image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) -> Polygon:
-    """The part of the water plane the image samples: the hull of its pixel centres,
-    back-projected (what a mask can show, so frame-cut obstacles compare like for like)."""
+    """The part of the water plane the image samples: the outline of its pixel centres,
+    back-projected (what a mask can show, so frame-cut obstacles compare like for like).
+    Where a barrel lens's fold lies inside the image, the outline follows the edge of the
+    pixels with a ray (:func:`~harborsight.geometry.camera.ray_edge_px`), as the clearance
+    step does: the image's border alone counted the water past the fold as seen."""
     intr = geometry.camera.intrinsics
+    loop = ray_edge_px(intr)
+    if loop is not None:
+        ground, valid = geometry.camera.back_project_to_plane(loop)
+        return Polygon(ground[valid, :2]).buffer(0) if valid.sum() >= 3 else Polygon()
     w, h = intr.width - 1.0, intr.height - 1.0
     t = np.linspace(0.0, 1.0, samples_per_side, endpoint=False)
     border = np.vstack((
