@@ -558,3 +558,69 @@ def test_run_counts_the_refined_frames_and_can_turn_refinement_off(tmp_path):
     noisy_counts = counts["noisy", "--refine-pose"]
     assert noisy_counts["applied"] >= 44 and noisy_counts["off"] == 0
     assert counts["noisy", "--no-refine-pose"]["off"] == 48
+
+
+@pytest.mark.parametrize("seed, altitude_m, tilt_deg, gap_m, error, found", [
+    (1127, 80.0, 15.0, 0.8893, (-1.9618, 0.9325, -0.012817), False),
+    (1027, 100.0, 20.0, 0.7755, (-1.9807, 1.1368, 0.010629), True),
+])
+def test_holes_in_the_vessel_s_blob_do_not_lay_the_hull_on_its_neighbour(
+        seed, altitude_m, tilt_deg, gap_m, error, found):
+    """A model that calls 20 patches of a deck water (ellipses of 2-5 px) inside a tug moored
+    against a neighbour: the holes took the true placement's ship fill under the gate, and
+    the alignment laid the hull on the neighbour's blob and applied it, unflagged (80 m up:
+    7.4 m over; 100 m: 6.0 m). The fill reads a blob's holes as ship
+    (``alignment.ship_holes_filled``): at 100 m the sensors' error, 2.3 m and 0.6 degrees,
+    is found to 3 cm and 0.1 degrees; at 80 m the holes' own edges still pull the outline's
+    scale beyond the height's limit: the frame is flagged (its bounds 0), not laid on the
+    neighbour."""
+    import zlib
+    from importlib import resources
+
+    tug = load_vessel_spec(resources.files("harborsight.data") / "samples" / "vessels"
+                           / "harbour-tug" / "vessel.yaml")
+    scene = sample_scene(tug, np.random.default_rng(seed), altitude_m=altitude_m,
+                         tilt_deg=tilt_deg, scenario="touching", gap_m=gap_m)
+    _, labels, instances = render(scene)
+    error = np.array(error)
+    rng = np.random.default_rng([seed, zlib.crc32(b"vessel_holes") % 10_000, 20])
+    own = np.argwhere(instances == 1)
+    holes = np.zeros_like(labels)
+    for _ in range(20):
+        v, u = own[rng.integers(len(own))]
+        cv2.ellipse(holes, (int(u), int(v)), (int(rng.integers(2, 6)), int(rng.integers(2, 6))),
+                    float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    holed = np.where((holes > 0) & (instances == 1), 0, labels).astype(np.uint8)
+    refinement = measure_clearance(holed, corrected_geometry(scene.geometry(), error), tug).pose_refinement
+    missed_m = np.hypot(*(np.array(refinement["shift_m"]) + error[:2]))
+    assert refinement["applied"] == found
+    if found:
+        assert not refinement["sensors_contradicted"]
+        assert missed_m < 0.05 and abs(refinement["rotation_deg"] + np.degrees(error[2])) < 0.1
+
+
+def test_ship_holes_filled_fills_small_enclosed_regions_only():
+    """Water, solid and ignore enclosed by a ship blob become ship when the region is at
+    most a tenth of the blob; a larger one (a basin inside a ring of rafted boats) and a
+    notch open to the water stay; a mask without holes comes back as it is."""
+    from harborsight.clearance.alignment import ship_holes_filled
+
+    labels = np.zeros((120, 200), np.uint8)
+    labels[20:60, 20:120] = 1                  # a hull, 40 x 100 px
+    labels[30:34, 40:44] = 0                   # a water hole
+    labels[40:43, 60:66] = 2                   # a solid hole (deck gear)
+    labels[45:47, 80:83] = 255                 # an ignore hole
+    labels[20:25, 100:104] = 0                 # a notch open to the water
+    labels[70:110, 130:190] = 1                # a ring of boats around a basin
+    labels[80:100, 140:180] = 0
+    filled = ship_holes_filled(labels)
+    assert (filled[30:34, 40:44] == 1).all() and (filled[40:43, 60:66] == 1).all()
+    assert (filled[45:47, 80:83] == 1).all()
+    assert (filled[20:25, 100:104] == 0).all() and (filled[80:100, 140:180] == 0).all()
+    assert (filled[labels == 1] == 1).all() and ((filled != labels) == (filled == 1) & (labels != 1)).all()
+    plain = np.where(labels == 1, 1, 0).astype(np.uint8)
+    plain[30:34, 40:44] = 1
+    plain[40:43, 60:66] = 1
+    plain[45:47, 80:83] = 1
+    plain[80:100, 140:180] = 1
+    assert ship_holes_filled(plain) is plain

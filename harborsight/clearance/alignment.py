@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from harborsight.frame import FrameGeometry
+from harborsight.perception.classes import SHIP
 
 #: an outline point within this many pixels of a ship boundary is an inlier
 INLIER_PX = 2.0
@@ -380,6 +381,39 @@ class Alignment:
         np.einsum("ij,ij->j", ds_dlens, projected[3:], out=ds_dp[2])
         np.matmul(self.lens_rotation_down, ds_dlens, out=ds_dp[3])
         return value, ds_dp
+
+
+#: a region of other pixels that a ship blob encloses, of at most this share of the blob's
+#: area, is ship to the alignment's fill (:func:`ship_holes_filled`)
+SHIP_HOLE_MAX_SHARE = 0.1
+
+
+def ship_holes_filled(labels: np.ndarray) -> np.ndarray:
+    """The mask with the holes of each ship blob (regions of water, solid or ignore that it
+    encloses, each at most :data:`SHIP_HOLE_MAX_SHARE` of the blob's area) set to ship;
+    ``labels`` itself when there are none. The alignment's ship fill (:func:`ship_fill`, a
+    placement's gate) reads the mask so: a model calls patches of a deck water or solid,
+    and 20 such holes of 2-5 px in a tug moored against a neighbour took the true
+    placement under the gate, and the hull was laid 6-7 m over on the neighbour's blob and
+    applied, unflagged. The signed distance keeps the holes' edges: the half-metre water
+    between sister hulls pixelates into a chain of such holes, and filled, it made one blob
+    of a row of sisters, on which a yacht between two of them was placed and applied where
+    the sensors could not tell it from its sisters. The
+    distances read the mask as given (the holes lie in the vessel's own region)."""
+    contours, hierarchy = cv2.findContours(cv2.compare(labels, SHIP, cv2.CMP_EQ), cv2.RETR_CCOMP,
+                                           cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return labels
+    parents = hierarchy[0][:, 3]
+    holes = [contours[i] for i in np.flatnonzero(parents >= 0)
+             if cv2.contourArea(contours[i]) <= SHIP_HOLE_MAX_SHARE * cv2.contourArea(contours[parents[i]])]
+    if not holes:
+        return labels
+    inside = np.zeros(labels.shape, np.uint8)
+    cv2.drawContours(inside, holes, -1, 1, thickness=cv2.FILLED)
+    filled = labels.copy()
+    filled[inside.view(bool)] = SHIP
+    return filled
 
 
 _SQUARE_3X3 = np.ones((3, 3), np.uint8)

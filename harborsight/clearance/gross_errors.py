@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harborsight.clearance.alignment import DEEP_PX, Alignment, Silhouette, ship_fill
+from harborsight.clearance.alignment import DEEP_PX, Alignment, Silhouette, ship_fill, ship_holes_filled
 from harborsight.clearance.camera_errors import camera_yaw_explains
 from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_search import (
@@ -204,14 +204,17 @@ def gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefineme
     align = whole_image_alignment(ship, geometry)
     silhouette = Silhouette(vessel.alignment_layers)
     chosen = as_params(found) if found.applied else np.zeros(4)
-    known = labels != IGNORE
+    # the fills read a blob's holes as ship, as the refinement's (alignment.ship_holes_filled);
+    # the blobs' outer contours, which place the starts, are the same
+    ship_or_hole = ship_holes_filled(labels) == SHIP
+    known = (labels != IGNORE) | ship_or_hole
     # the refinement's own correction, refused for its size, is a start too: the search's
     # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)
     refused = (as_params(found),) if (found.reason or "").startswith(BEYOND_LIMITS) else ()
     chosen_uv = align.pixels(silhouette.points_h, chosen)
     whole = (slice(0, labels.shape[0]), slice(0, labels.shape[1]))
     on_a_ship = ((share >= HELD_FROM_SHARE or ends_on_edges(align, silhouette, chosen))
-                 and ship_fill(silhouette.layers_uv(chosen_uv), whole, ship, known)
+                 and ship_fill(silhouette.layers_uv(chosen_uv), whole, ship_or_hole, known)
                  >= settings.min_ship_fill)
 
     def elsewhere(params: np.ndarray) -> bool:
@@ -227,7 +230,7 @@ def gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefineme
             return 1 + gross[2]             # shift and turn are one error: the camera's yaw
         return sum(gross)
 
-    placement = place_hull(align, silhouette, ship, known, settings.edge_sigma_px ** -2.0,
+    placement = place_hull(align, silhouette, ship_or_hole, known, settings.edge_sigma_px ** -2.0,
                            settings.min_ship_fill, against=chosen, extra_starts=refused,
                            slide=share < SLIDE_BELOW_SHARE, slide_beyond_m=reach_shift_m,
                            gross_errors=gross_errors,

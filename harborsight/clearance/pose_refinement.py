@@ -83,6 +83,7 @@ from harborsight.clearance.alignment import (
     gauss_newton,
     outline_fit,
     ship_fill,
+    ship_holes_filled,
 )
 from harborsight.clearance.camera_errors import camera_tilt_explaining, camera_yaw_explains
 from harborsight.clearance.gross_errors import (
@@ -470,10 +471,13 @@ def _refine_within_prior(
         return gauss_newton(align, silhouette, outline, schedule, start, prior_diagonal, edge_weight)
 
     known = labels[window] != IGNORE
+    # the fill reads a blob's holes as ship: a model's patches of a deck took the true
+    # placement under the gate (alignment.ship_holes_filled)
+    ship_or_hole = ship_holes_filled(labels[window]) == SHIP
 
     def fill(params: np.ndarray) -> float:
         return ship_fill(silhouette.layers_uv(align.pixels(silhouette.points_h, params)), window,
-                         ship, known)
+                         ship_or_hole, known | ship_or_hole)
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side
