@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from harborsight.clearance.alignment import DEEP_PX, Alignment, Silhouette, ship_fill, ship_holes_filled
+from harborsight.clearance.alignment import DEEP_PX, Alignment, Silhouette, ship_fill
 from harborsight.clearance.camera_errors import camera_yaw_explains
 from harborsight.clearance.obstacles import IGNORE, SHIP
 from harborsight.clearance.pose_search import (
@@ -185,8 +185,9 @@ def ends_on_edges(align: Alignment, silhouette: Silhouette, params: np.ndarray,
     return unseen < 2
 
 
-def gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefinement,
-                 vessel: VesselSpec, settings: PoseRefinementSettings) -> Placement | None:
+def gross_error(labels: np.ndarray, ship_or_hole: np.ndarray, geometry: FrameGeometry,
+                found: PoseRefinement, vessel: VesselSpec, settings: PoseRefinementSettings
+                ) -> Placement | None:
     """The image's own placement of the hull (:func:`pose_search.place_hull`) when it shows
     the pose the refinement kept or applied wrong: that pose puts under
     :data:`SEARCH_BELOW_SHARE` of its outline's points in view on a ship edge, and the
@@ -204,9 +205,8 @@ def gross_error(labels: np.ndarray, geometry: FrameGeometry, found: PoseRefineme
     align = whole_image_alignment(ship, geometry)
     silhouette = Silhouette(vessel.alignment_layers)
     chosen = as_params(found) if found.applied else np.zeros(4)
-    # the fills read a blob's holes as ship, as the refinement's (alignment.ship_holes_filled);
+    # the fills read the blobs' holes as ship (``ship_or_hole``, alignment.ship_holes_filled);
     # the blobs' outer contours, which place the starts, are the same
-    ship_or_hole = ship_holes_filled(labels) == SHIP
     known = (labels != IGNORE) | ship_or_hole
     # the refinement's own correction, refused for its size, is a start too: the search's
     # blob starts may lay the hull on another ship (a 22 m shift at 150 m, exact labels)

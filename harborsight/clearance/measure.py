@@ -32,6 +32,8 @@ from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import numpy as np
+import shapely
+from shapely.geometry import LinearRing
 
 from harborsight.clearance.band_edges import (
     Candidates,
@@ -64,7 +66,7 @@ from harborsight.clearance.uncertainty import (
 )
 from harborsight.errors import InputError
 from harborsight.frame import FrameGeometry, FrameMetadata
-from harborsight.geometry.camera import CameraIntrinsics, densified_loop, ray_edge_px
+from harborsight.geometry.camera import CameraIntrinsics, ray_edge_px
 from harborsight.geometry.gsd import nadir_gsd_m_per_px
 from harborsight.geometry.sensor_sigmas import (
     LABEL_FILE_EDGE_M,
@@ -309,7 +311,9 @@ def _seen_edge_points(intrinsics: CameraIntrinsics) -> np.ndarray:
     loop = ray_edge_px(intrinsics)
     if loop is None:
         return _border_points(intrinsics.width, intrinsics.height)
-    points = densified_loop(loop, BORDER_STEP_PX)
+    # every BORDER_STEP_PX at most along each of its segments (the ring's closing point left out)
+    points = (np.asarray(shapely.segmentize(LinearRing(loop), BORDER_STEP_PX).coords)[:-1]
+              if len(loop) >= 3 else np.array(loop, float).reshape(-1, 2))
     points.flags.writeable = False
     return points
 

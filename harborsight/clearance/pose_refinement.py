@@ -249,11 +249,15 @@ def refine_vessel_pose(
     """
     if not settings.enabled:
         return geometry, OFF
-    refined, found = _refine_within_prior(labels, geometry, vessel, settings)
+    # the fills read a blob's holes as ship: a model's patches of a deck took the true
+    # placement under the gate (alignment.ship_holes_filled)
+    ship_or_hole = ship_holes_filled(labels) == SHIP
+    refined, found = _refine_within_prior(labels, ship_or_hole, geometry, vessel, settings)
     if (not settings.search_whole_image or found.sensors_contradicted or found.reason in NOT_IN_VIEW
             or (found.reason or "").startswith((TWIN_ALIKE, CUT_ALIKE))):
         return refined, found       # (the image holds vessels alike: it would find one of them)
-    chosen, result = _search_whole_image(labels, geometry, refined, found, vessel, settings)
+    chosen, result = _search_whole_image(labels, ship_or_hole, geometry, refined, found, vessel,
+                                         settings)
     if result is found:         # the search changed nothing: is the pose kept borne out?
         result = _unconfirmed(found, geometry, vessel)
     return chosen, result
@@ -286,13 +290,13 @@ def _unconfirmed(found: PoseRefinement, geometry: FrameGeometry, vessel: VesselS
         f"put it, and the image places it nowhere else ({found.reason})"))
 
 
-def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: FrameGeometry,
-                        found: PoseRefinement, vessel: VesselSpec, settings: PoseRefinementSettings
-                        ) -> tuple[FrameGeometry, PoseRefinement]:
+def _search_whole_image(labels: np.ndarray, ship_or_hole: np.ndarray, geometry: FrameGeometry,
+                        refined: FrameGeometry, found: PoseRefinement, vessel: VesselSpec,
+                        settings: PoseRefinementSettings) -> tuple[FrameGeometry, PoseRefinement]:
     """What the whole-image search makes of the refinement's result (``refined``, ``found``):
     that result, unchanged, unless a placement corrects or contradicts it
     (:func:`refine_vessel_pose`)."""
-    placement = gross_error(labels, geometry, found, vessel, settings)
+    placement = gross_error(labels, ship_or_hole, geometry, found, vessel, settings)
     if placement is None:
         return refined, found
     shift_m, rotation_deg, height_change_m = correction_sizes(placement.params)
@@ -303,7 +307,8 @@ def _search_whole_image(labels: np.ndarray, geometry: FrameGeometry, refined: Fr
         # the first result unless that applies a correction
         params = placement.params.copy()
         params[2] = math.radians(rotation_deg)
-        again = _refine_within_prior(labels, geometry, vessel, settings, extra_start=params)
+        again = _refine_within_prior(labels, ship_or_hole, geometry, vessel, settings,
+                                     extra_start=params)
         return again if again[1].applied else (refined, found)
     gross = gross_parts(placement.params, geometry, settings)
     reach_shift_m, reach_rotation_deg, reach_height_m = prior_reach(settings)
@@ -434,11 +439,13 @@ def _image_scale(align: Alignment, silhouette: Silhouette, outline: np.ndarray, 
 
 
 def _refine_within_prior(
-    labels: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec, settings: PoseRefinementSettings,
-    extra_start: np.ndarray | None = None,
+    labels: np.ndarray, ship_or_hole: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
+    settings: PoseRefinementSettings, extra_start: np.ndarray | None = None,
 ) -> tuple[FrameGeometry, PoseRefinement]:
-    """The refinement proper, within the sensors' prior; ``extra_start`` (a correction the
-    whole-image search found within the limits) joins the starts, and the window reaches it."""
+    """The refinement proper, within the sensors' prior; ``ship_or_hole``, the ship pixels and
+    their blobs' holes, which a placement's fill reads (:func:`refine_vessel_pose`);
+    ``extra_start`` (a correction the whole-image search found within the limits) joins the
+    starts, and the window reaches it."""
     silhouette = Silhouette(vessel.alignment_layers)
     outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
@@ -470,14 +477,12 @@ def _refine_within_prior(
     def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
         return gauss_newton(align, silhouette, outline, schedule, start, prior_diagonal, edge_weight)
 
-    known = labels[window] != IGNORE
-    # the fill reads a blob's holes as ship: a model's patches of a deck took the true
-    # placement under the gate (alignment.ship_holes_filled)
-    ship_or_hole = ship_holes_filled(labels[window]) == SHIP
+    filled = ship_or_hole[window]
+    known = (labels[window] != IGNORE) | filled
 
     def fill(params: np.ndarray) -> float:
         return ship_fill(silhouette.layers_uv(align.pixels(silhouette.points_h, params)), window,
-                         ship_or_hole, known | ship_or_hole)
+                         filled, known)
 
     # the first start; when it leaves the outline or the silhouette short of ship pixels,
     # the second schedule from the sensors' pose and from a beam's reach to either side

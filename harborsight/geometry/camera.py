@@ -484,6 +484,19 @@ class Camera:
             )
 
 
+def image_border_px(width: int, height: int, per_side: int) -> np.ndarray:
+    """``4 · per_side`` pixel centres evenly along the image's border, in order round it
+    from the top-left corner (clockwise on screen), ``(N, 2)``."""
+    w, h = width - 1.0, height - 1.0
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    return np.vstack((
+        np.column_stack((t * w, np.zeros_like(t))),
+        np.column_stack((np.full_like(t, w), t * h)),
+        np.column_stack((w - t * w, np.full_like(t, h))),
+        np.column_stack((np.zeros_like(t), h - t * h)),
+    ))
+
+
 #: pixels on the image's border tested for a ray before the whole image is (the fold's edge
 #: is looked for only where some of them have none)
 _FOLD_BORDER_SAMPLES = 256
@@ -510,11 +523,7 @@ def ray_edge_px(intrinsics: CameraIntrinsics) -> np.ndarray | None:
         return None
     w, h = intrinsics.width, intrinsics.height
     camera = Camera(intrinsics, np.zeros(3), np.eye(3))
-    t = np.linspace(0.0, 1.0, _FOLD_BORDER_SAMPLES // 4, endpoint=False)
-    border = np.vstack((np.column_stack((t * (w - 1), np.zeros_like(t))),
-                        np.column_stack((np.full_like(t, w - 1.0), t * (h - 1))),
-                        np.column_stack(((1 - t) * (w - 1), np.full_like(t, h - 1.0))),
-                        np.column_stack((np.zeros_like(t), (1 - t) * (h - 1)))))
+    border = image_border_px(w, h, _FOLD_BORDER_SAMPLES // 4)
     if np.isfinite(camera.normalized_coordinates(border)).all():
         return None
     step = max(2.0, math.ceil(max(w, h) / _FOLD_GRID_COLUMNS))
@@ -533,14 +542,3 @@ def ray_edge_px(intrinsics: CameraIntrinsics) -> np.ndarray | None:
     loop.flags.writeable = False
     return loop
 
-
-def densified_loop(loop: np.ndarray, step_px: float) -> np.ndarray:
-    """The closed loop of points ``(N, 2)`` with points added on each of its segments so that
-    none is longer than ``step_px`` (each segment's start, then evenly spaced points)."""
-    if len(loop) < 2:
-        return np.asarray(loop, float).reshape(-1, 2)
-    following = np.roll(loop, -1, axis=0)
-    steps = np.maximum(np.ceil(np.hypot(*(following - loop).T) / step_px), 1).astype(int)
-    at = np.repeat(np.arange(len(loop)), steps)
-    fraction = (np.arange(len(at)) - np.repeat(np.cumsum(steps) - steps, steps)) / np.repeat(steps, steps)
-    return loop[at] + fraction[:, None] * (following[at] - loop[at])

@@ -15,7 +15,7 @@ import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon
 
 from harborsight.frame import FrameGeometry
-from harborsight.geometry.camera import ray_edge_px
+from harborsight.geometry.camera import image_border_px, ray_edge_px
 from harborsight.vessel.sections import SectionedOutline
 from harborsight.vessel.spec import VesselSpec
 
@@ -109,14 +109,7 @@ def image_ground_polygon(geometry: FrameGeometry, samples_per_side: int = 64) ->
     if loop is not None:
         ground, valid = geometry.camera.back_project_to_plane(loop)
         return Polygon(ground[valid, :2]).buffer(0) if valid.sum() >= 3 else Polygon()
-    w, h = intr.width - 1.0, intr.height - 1.0
-    t = np.linspace(0.0, 1.0, samples_per_side, endpoint=False)
-    border = np.vstack((
-        np.column_stack((t * w, np.zeros_like(t))),
-        np.column_stack((np.full_like(t, w), t * h)),
-        np.column_stack((w - t * w, np.full_like(t, h))),
-        np.column_stack((np.zeros_like(t), h - t * h)),
-    ))
+    border = image_border_px(intr.width, intr.height, samples_per_side)
     ground, valid = geometry.camera.back_project_to_plane(border)
     return Polygon(ground[valid, :2]).buffer(0)
 
