@@ -864,3 +864,31 @@ def test_whole_second_stamps_at_several_frames_a_second_keep_the_speed_honest(ra
     assert min(v for v, *_ in shown) > 0.3
     exact, notes = run(False)
     assert notes == [] and max(abs(v - 0.4) / s for v, s, *_ in exact) < 3.0
+
+
+def test_overlay_label_of_each_section_state():
+    """What each measured section shows: a distance with its sigma (``!`` touching), ``??``
+    under a contradicted pose, the reach of a clear band, ``unseen`` for a band that leaves
+    the picture at the hull (``>0.0m`` read like a clearance), the hidden water, ``clear``."""
+    from harborsight.clearance.report import SectionClearance
+    from harborsight.viz.overlay import RED, WHITE, section_label
+
+    def section(status, **fields):
+        return SectionClearance(index=0, status=status, hull_px=[[0, 0], [1, 0]],
+                                visible_fraction=1.0, **fields)
+
+    ok = section("ok", distance_m=3.24, sigma_m=0.41, contact=False)
+    assert section_label(ok, False, 2.0, RED) == ("3.2+-0.4m", RED)
+    assert section_label(section("ok", distance_m=0.0, contact=True), False, 2.0, RED) == ("0.0m!", RED)
+    assert section_label(section("clear", clear_to_m=14.7), True, 2.0, RED) == ("??", WHITE)
+    assert section_label(section("clear", clear_to_m=14.7), False, 2.0, RED) == (">14.7m", WHITE)
+    assert section_label(section("clear", clear_to_m=0.0), False, 2.0, RED) == ("unseen", WHITE)
+    assert section_label(section("clear", clear_to_m=0.04), False, 2.0, RED)[0] == "unseen"
+    assert section_label(section("clear", clear_to_m=0.3), False, 2.0, RED)[0] == ">0.3m"
+    assert section_label(section("clear", clear_to_m=0.0, hidden_to_m=2.5), False, 2.0,
+                         RED)[0] == "hid 2.5m"
+    assert section_label(section("clear", clear_to_m=6.0, hidden_to_m=2.5), False, 2.0,
+                         RED)[0] == ">6.0m hid 2.5m"
+    assert section_label(section("clear", clear_to_m=6.0, hidden_to_m=1.5), False, 2.0,
+                         RED)[0] == ">6.0m"
+    assert section_label(section("clear"), False, 2.0, RED) == ("clear", WHITE)

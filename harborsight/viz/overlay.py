@@ -163,20 +163,8 @@ def draw_overlay(
             if _on_canvas(s.obstacle_point_px, w, h):
                 cv2.circle(out, _fixed(s.obstacle_point_px), 2 * _SCALE, YELLOW, -1,
                            cv2.LINE_AA, _SHIFT)
-            # OpenCV's Hershey fonts have no "±"; the colour follows the 95 % lower bound
-            spread = "" if s.sigma_m is None else f"+-{s.sigma_m:.1f}"
-            text = f"{s.distance_m:.1f}{spread}m" + ("!" if s.contact else "")
-            colour = section_colour(alarm_distance_m(s), warn_m, alarm_m)
-        elif report.sensors_contradicted:   # read with a pose known to be wrong
-            text, colour = "??", WHITE
-        elif s.hidden_to_m is not None and s.hidden_to_m >= alarm_m:
-            # the vessel itself hides its band's water out to there (a deckhouse, obliquely)
-            seen = f">{s.clear_to_m:.1f}m " if s.clear_to_m else ""
-            text, colour = f"{seen}hid {s.hidden_to_m:.1f}m", WHITE
-        elif s.clear_to_m is not None:      # nothing solid as far as its band was seen
-            text, colour = f">{s.clear_to_m:.1f}m", WHITE
-        else:                               # seen to the horizon
-            text, colour = "clear", WHITE
+        text, colour = section_label(s, report.sensors_contradicted, alarm_m,
+                                     section_colour(alarm_distance_m(s), warn_m, alarm_m))
         priority = s.distance_m if s.status == STATUS_OK else np.inf
         labels.append((priority, text, mid + outward * 18 * scale / 0.5, outward, colour))
     labels.sort(key=lambda label: label[0])
@@ -194,6 +182,34 @@ def draw_overlay(
     if footer:
         draw_banner(out, footer, WHITE, bottom=True)
     return out
+
+
+#: a clear band seen out to less than this (it leaves the picture at the hull) says nothing
+UNSEEN_BELOW_M = 0.05
+
+
+def section_label(section, sensors_contradicted: bool, alarm_m: float, ok_colour: tuple
+                  ) -> tuple[str, tuple]:
+    """A measured section's label and its colour (``ok_colour`` for an ``ok`` one):
+    ``3.2+-0.4m`` (OpenCV's Hershey fonts have no "±"; ``!`` where it touches), ``??`` read
+    with a pose the image contradicts, ``>12.5m`` where nothing solid lies in the band as far
+    as it was seen, ``unseen`` where the band leaves the picture at the hull (a reach of
+    ``>0.0m`` would read like a clearance), ``hid 2.1m`` (after the reach seen) where the
+    vessel itself hides its band's water out to at least ``alarm_m``, and ``clear`` where the
+    band was seen to the horizon."""
+    s = section
+    if s.status == STATUS_OK:
+        spread = "" if s.sigma_m is None else f"+-{s.sigma_m:.1f}"
+        return f"{s.distance_m:.1f}{spread}m" + ("!" if s.contact else ""), ok_colour
+    if sensors_contradicted:            # read with a pose known to be wrong
+        return "??", WHITE
+    if s.hidden_to_m is not None and s.hidden_to_m >= alarm_m:
+        # the vessel itself hides its band's water out to there (a deckhouse, obliquely)
+        seen = f">{s.clear_to_m:.1f}m " if s.clear_to_m and s.clear_to_m >= UNSEEN_BELOW_M else ""
+        return f"{seen}hid {s.hidden_to_m:.1f}m", WHITE
+    if s.clear_to_m is not None:        # nothing solid as far as its band was seen
+        return ("unseen" if s.clear_to_m < UNSEEN_BELOW_M else f">{s.clear_to_m:.1f}m"), WHITE
+    return "clear", WHITE               # seen to the horizon
 
 
 def _pose_note(refinement: dict | None) -> str:
