@@ -1,5 +1,7 @@
 """Per-section distances on exact-geometry masks against shapely ground truth."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import shapely
@@ -587,3 +589,76 @@ def test_a_refined_pose_places_the_sections_and_their_sigmas_anew():
 
     assert len(off_its_section(refined)) >= 3 and max(off_its_section(refined)) < 1e-9
     assert max(off_its_section(off)) > 5
+
+
+def _pile_beside_a_break(offset_m: float, quay_m: float | None = None):
+    """An open scene 60 m up with one pile (0.8 m square) 4 m out along the boundary ray of
+    a break on a straight side, ``offset_m`` into the band before it; with ``quay_m``, a
+    quay face that far out across the band after it. Returns (vessel, scene, labels, k,
+    distance of the pile's nearest corner from the break)."""
+    from shapely.geometry import Polygon
+
+    from harborsight.sim.schematic import Footprint
+
+    vessel = flat_box_vessel()
+    scene = sample_scene(vessel, np.random.default_rng(0), altitude_m=60, scenario="open")
+    geometry = scene.geometry()
+    sections = vessel.sections()
+    k = next(i for i in range(1, sections.n_sections)
+             if abs(sections.break_ray[i] @ sections.edge_dir[sections.break_edge[i]]) < 1e-9
+             and sections.break_edge[i - 1] == sections.break_edge[i]
+             and sections.break_edge[(i + 1) % sections.n_sections] == sections.break_edge[i])
+    origin, ray = sections.break_points[k], sections.break_ray[k]
+    tangent = sections.edge_dir[sections.break_edge[k]]            # into section k
+    near = origin + 4.0 * ray - offset_m * tangent
+    pile_v = np.array([near, near - 0.8 * tangent, near - 0.8 * tangent + 0.8 * ray,
+                       near + 0.8 * ray])
+    footprints = [Footprint(Polygon(geometry.vessel_to_enu(pile_v)[:, :2]), 2, 5, "pile",
+                            (90, 90, 90))]
+    if quay_m is not None:
+        quay_v = np.array([origin + quay_m * ray + 0.5 * tangent, origin + quay_m * ray + 6 * tangent,
+                           origin + (quay_m + 5) * ray + 6 * tangent,
+                           origin + (quay_m + 5) * ray + 0.5 * tangent])
+        footprints.append(Footprint(Polygon(geometry.vessel_to_enu(quay_v)[:, :2]), 2, 6,
+                                    "quay", (120, 120, 120)))
+    scene.footprints = footprints
+    _, labels, _ = render(scene)
+    return vessel, scene, labels, k, float(np.hypot(*(near - origin)))
+
+
+def test_an_obstacle_an_unconfirmed_pose_may_put_in_a_band_bounds_what_it_says():
+    """A pile 0.3 m into the neighbouring band, 4 m out: with the sensors' pose unchecked by
+    the image (refinement off) and standalone GPS and compasses, the pile may lie in this
+    band, so a clear band is seen clear only to it, and an ok band reading a quay 8 m out
+    has its lower bound at it; with RTK and a 0.2 degree compass it may not, and the band is
+    seen on; a pose the image placed is not widened (clearance.band_margin)."""
+    from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinementSettings
+
+    off = ClearanceSettings(pose_refinement=PoseRefinementSettings(enabled=False))
+    rtk = (("uav_gps", 0.02), ("vessel_gps", 0.02), ("vessel_heading_deg", 0.2),
+           ("camera_yaw_deg", 0.2), ("camera_tilt_deg", 0.05), ("height_m", 0.05))
+    vessel, scene, labels, k, pile_m = _pile_beside_a_break(0.3)
+    geometry = scene.geometry()
+    truth = ground_truth(scene)["sections"]
+    assert truth[k]["distance_m"] is None and truth[k - 1]["distance_m"] is not None
+
+    loose = measure_clearance(labels, geometry, vessel, off).sections
+    assert loose[k - 1].status == "ok"
+    assert loose[k].status == "clear"
+    assert loose[k].clear_to_m == pytest.approx(pile_m, abs=0.15)
+    seen_m = measure_clearance(np.where(labels == 2, WATER, labels).astype(np.uint8), geometry,
+                               vessel, off).sections[k].clear_to_m       # where it leaves the picture
+    assert seen_m > pile_m + 3.0
+    tight = measure_clearance(labels, geometry, vessel, replace(off, sigma_options=rtk)).sections
+    assert tight[k].status == "clear" and tight[k].clear_to_m == seen_m
+    placed = measure_clearance(labels, geometry, vessel)
+    assert placed.pose_refinement["applied"] or placed.pose_refinement["reason"] == SENSORS_FIT
+    assert placed.sections[k].clear_to_m == pytest.approx(seen_m, abs=0.01)
+
+    vessel, scene, labels, k, pile_m = _pile_beside_a_break(0.3, quay_m=8.0)
+    geometry = scene.geometry()
+    loose = measure_clearance(labels, geometry, vessel, off).sections
+    assert loose[k].status == "ok" and loose[k].distance_m == pytest.approx(8.0, abs=0.2)
+    assert loose[k].distance_lower_m == pytest.approx(pile_m, abs=0.15)
+    tight = measure_clearance(labels, geometry, vessel, replace(off, sigma_options=rtk)).sections
+    assert tight[k].distance_lower_m > pile_m + 2.0        # the quay's own bound

@@ -41,6 +41,7 @@ from harborsight.clearance.band_edges import (
     band_edge_pixels,
     beside_a_boundary_ray,
 )
+from harborsight.clearance.band_margin import cap_by_neighbours_margins, pose_kept_unconfirmed
 from harborsight.clearance.edge_evidence import CONFIDENT_SOLID_P
 from harborsight.clearance.obstacles import (
     LABEL_VALUES,
@@ -585,6 +586,12 @@ def measure_clearance(
         own_rim_px=settings.own_rim_px)
     if settings.method == "gsd":
         add_nadir_approximation(results)
+    if pose_kept_unconfirmed(refinement):
+        # obstacles a neighbour's band took that the sensors' errors may put in a band
+        points_v = (points if outline is sections_v
+                    else geometry.pixels_to_vessel_xy(points_px)[0])
+        cap_by_neighbours_margins(results, sections_v, points_v, points_px, section, geometry,
+                                  refinement, sigmas, velocities)
     _bound_by_what_was_seen(results)
     if velocities is not None and settings.own_motion:
         ends = sections_v.section_endpoints()
