@@ -204,3 +204,31 @@ def test_the_truth_s_seen_water_ends_at_a_lens_fold_inside_the_image():
     well_inside = np.zeros(len(pixel), bool)
     well_inside[in_frame] = deep[pixel[in_frame, 1], pixel[in_frame, 0]] > 0
     assert well_inside.sum() > 100 and inside[~past_fold][well_inside].all()
+
+
+def test_a_schematic_frame_of_a_long_hull_reaching_behind_an_oblique_camera(tmp_path):
+    """A 180 m ship 28 m under a camera tilted 15 degrees: part of its outline lies behind
+    the camera, and painting its deck from the outline's projected corners (NaN there) made
+    shapely raise (12 of 200 such scenes in the fifty-third session's hunt). The deck is
+    painted from the outline's image cut at the camera plane; the labels are the hull's."""
+    from harborsight.sim.ground_truth import vessel_silhouette
+    from harborsight.sim.schematic import render, sample_scene
+    from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
+    from harborsight.vessel.spec import load_vessel_spec
+
+    hull = HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0))
+    generate_hull_mesh(hull).export(tmp_path / "hull.stl")
+    (tmp_path / "vessel.yaml").write_text(
+        "name: cargo\nhull_mesh: hull.stl\nmesh_axes: [bow, port, up]\n"
+        "gps_antenna: [25.0, 0.0, 40.0]\nwaterline_m: 0.0\noutline: waterline\nsections: 24\n")
+    ship = load_vessel_spec(tmp_path / "vessel.yaml")
+    scene = sample_scene(ship, np.random.default_rng(55), altitude_m=28.016, tilt_deg=15.169,
+                         scenario="alongside", gap_m=1.0)
+    geometry = scene.geometry()
+    outline_px = geometry.camera.project(geometry.vessel_to_enu(ship.outline))[0]
+    assert not np.isfinite(outline_px).all()            # the case: corners behind the camera
+    image, labels, _ = render(scene)
+    assert image.shape == (*labels.shape, 3)
+    rows, cols = np.nonzero(labels == 1)
+    silhouette = vessel_silhouette(ship, geometry)
+    assert shapely.contains_xy(silhouette, cols, rows).mean() > 0.9

@@ -111,8 +111,12 @@ def render(scene: SchematicScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     labels[own] = SHIP
     instances[own] = VESSEL_INSTANCE
     colour[own] = (60, 60, 170)
-    outline_px = geometry.camera.project(geometry.vessel_to_enu(scene.vessel.outline))[0]
-    deck = Polygon(outline_px).buffer(-2.0)
+    outline_enu = geometry.vessel_to_enu(scene.vessel.outline)
+    outline_px = geometry.camera.project(outline_enu)[0]
+    if not np.isfinite(outline_px).all():
+        # part of a long hull lies behind an oblique camera: its image, cut there
+        outline_px = geometry.camera.project_convex_outline(outline_enu)
+    deck = Polygon(outline_px).buffer(-2.0) if len(outline_px) >= 3 else Polygon()
     if not deck.is_empty:
         colour[shapely.contains_xy(deck, grid[:, 0], grid[:, 1]) & own] = (150, 160, 165)
 
