@@ -700,6 +700,38 @@ def test_a_box_of_the_yacht_s_footprint_alongside_is_no_sister():
     assert not unringed.applied and unringed.reason.startswith(sister_hulls.TWIN_ALIKE)
 
 
+
+def test_a_larger_ship_the_yacht_touches_is_no_sister(tmp_path):
+    """A 13 m yacht (antenna on its port stern rail) touching a larger moored ship, 59 m up,
+    the sensors 1.9 m and 2.9 degrees off (seed 1455 of the fifty-third session's hunt with
+    other hulls). The alignment finds the correction to 2 cm; the twin check's start a beam
+    over fitted the yacht's outline inside the neighbour's bow (with 3.4 m of height), and,
+    as a start a beam over, skipped the ring test that tells a larger vessel from a sister.
+    The sensors' pose was kept and the stern section read 10.7 m (bound 3.7 m) for 2.8 m.
+    Every placement's ring is tested now: the correction is applied."""
+    from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
+    from harborsight.vessel.spec import load_vessel_spec
+
+    hull = HullParameters(13.0, 4.2, 1.0, 1.5, 0.45, 0.12, (0.3, 0.65, 0.6, 2.2))
+    generate_hull_mesh(hull).export(tmp_path / "hull.stl")
+    (tmp_path / "vessel.yaml").write_text(
+        "name: yacht13\nhull_mesh: hull.stl\nmesh_axes: [bow, port, up]\n"
+        "gps_antenna: [0.4, 1.9, 3.0]\nwaterline_m: 0.0\noutline: waterline\nsections: 12\n")
+    yacht = load_vessel_spec(tmp_path / "vessel.yaml")
+    scene = sample_scene(yacht, np.random.default_rng(1455), altitude_m=59.27, tilt_deg=0.0,
+                         scenario="touching", gap_m=2.17)
+    labels = render(scene)[1]
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([1.898, 0.272, math.radians(-2.855)]))
+    found, refinement = refine_vessel_pose(labels, told, yacht)
+    assert refinement.applied, refinement.reason
+    assert pose_error(found, true)[0] < 0.3
+    report = measure_clearance(labels, told, yacht)
+    truth = ground_truth(scene)["sections"]
+    read = [(s.distance_m, t["distance_m"]) for s, t in zip(report.sections, truth, strict=True)
+            if s.status == "ok" and t["distance_m"] is not None]
+    assert read and max(abs(d - t) for d, t in read) < 0.5
+
 def test_a_tighter_prior_tells_sister_yachts_apart():
     """The same row with the sensors 1.5 m toward the next berth: under a 3 m prior the
     true pose is 3 to 1 likelier than the neighbour, kept so; under a 1 m prior (DGPS on

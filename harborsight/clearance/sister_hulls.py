@@ -488,7 +488,7 @@ def twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geomet
                                     min(SEARCH_STEP_SIGMA * prior_diagonal[0] ** -0.5, 0.5 * beam_m),
                                     TWIN_APART_BEAMS * beam_m, settings.max_shift_m)
     # (start, or candidate already solved; whence: "solved", "beside" (not compared with
-    # the chosen pose's fit, nor its ring) or "blob")
+    # the chosen pose's fit) or "blob"; every one's ring is)
     starts = [(c, "solved") for c in solved if c is not best]
     if merged or np.count_nonzero(value < -DEEP_PX) >= TWIN_DEEP_SHARE * len(value):
         for side in (1.0, -1.0):
@@ -511,9 +511,9 @@ def twin_alongside(best: tuple, align: Alignment, silhouette: Silhouette, geomet
                      else max(TWIN_SOLVED_FRACTION, TWIN_SOLVED_MISSES / telling))
             if fraction < best_fraction - below:
                 continue
-            best_ring, found_ring = _row_rings(params, found[0], align, silhouette, ship)
-            if found_ring > best_ring + TWIN_BLOB_RING:
-                continue        # ship beyond its outline: a larger vessel of another shape
+        best_ring, found_ring = _row_rings(params, found[0], align, silhouette, ship)
+        if found_ring > best_ring + TWIN_BLOB_RING:
+            continue            # ship beyond its outline: a larger vessel of another shape
         alike.append(found)
     cut_at = None       # the index of the cut placement in ``alike``
     if cut is not None and all(math.hypot(*(cut[0][0][:2] - c[0][:2])) >= TWIN_APART_BEAMS * beam_m
