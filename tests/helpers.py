@@ -64,6 +64,23 @@ def flat_box_vessel(n_sections: int = 16) -> VesselSpec:
     return VesselSpec("test-boat", outline, hull_points, n_sections)
 
 
+
+def generated_hull_vessel(folder: Path, hull, antenna: tuple[float, float, float],
+                          sections: int, name: str = "hull") -> VesselSpec:
+    """A vessel spec read from ``folder``: a procedural hull (``hull``, a
+    :class:`~harborsight.vessel.hullgen.HullParameters`) written as STL in naval CAD axes,
+    the GPS antenna at ``antenna`` (m, bow/port/up from the transom at the waterline)."""
+    from harborsight.vessel.hullgen import generate_hull_mesh
+    from harborsight.vessel.spec import load_vessel_spec
+
+    folder = Path(folder)
+    generate_hull_mesh(hull).export(folder / "hull.stl")
+    (folder / "vessel.yaml").write_text(
+        f"name: {name}\nhull_mesh: hull.stl\nmesh_axes: [bow, port, up]\n"
+        f"gps_antenna: [{antenna[0]}, {antenna[1]}, {antenna[2]}]\nwaterline_m: 0.0\n"
+        f"outline: waterline\nsections: {sections}\n")
+    return load_vessel_spec(folder / "vessel.yaml")
+
 def write_schematic_dataset(out_dir, splits: list[str], width: int = 128, height: int = 72,
                             seed: int = 0) -> list[str]:
     """A tiny dataset in the simulator layout: one schematic frame per entry of ``splits``

@@ -709,15 +709,12 @@ def test_a_larger_ship_the_yacht_touches_is_no_sister(tmp_path):
     as a start a beam over, skipped the ring test that tells a larger vessel from a sister.
     The sensors' pose was kept and the stern section read 10.7 m (bound 3.7 m) for 2.8 m.
     Every placement's ring is tested now: the correction is applied."""
-    from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
-    from harborsight.vessel.spec import load_vessel_spec
+    from harborsight.vessel.hullgen import HullParameters
+    from tests.helpers import generated_hull_vessel
 
-    hull = HullParameters(13.0, 4.2, 1.0, 1.5, 0.45, 0.12, (0.3, 0.65, 0.6, 2.2))
-    generate_hull_mesh(hull).export(tmp_path / "hull.stl")
-    (tmp_path / "vessel.yaml").write_text(
-        "name: yacht13\nhull_mesh: hull.stl\nmesh_axes: [bow, port, up]\n"
-        "gps_antenna: [0.4, 1.9, 3.0]\nwaterline_m: 0.0\noutline: waterline\nsections: 12\n")
-    yacht = load_vessel_spec(tmp_path / "vessel.yaml")
+    yacht = generated_hull_vessel(
+        tmp_path, HullParameters(13.0, 4.2, 1.0, 1.5, 0.45, 0.12, (0.3, 0.65, 0.6, 2.2)),
+        (0.4, 1.9, 3.0), sections=12, name="yacht13")
     scene = sample_scene(yacht, np.random.default_rng(1455), altitude_m=59.27, tilt_deg=0.0,
                          scenario="touching", gap_m=2.17)
     labels = render(scene)[1]

@@ -213,15 +213,12 @@ def test_a_schematic_frame_of_a_long_hull_reaching_behind_an_oblique_camera(tmp_
     painted from the outline's image cut at the camera plane; the labels are the hull's."""
     from harborsight.sim.ground_truth import vessel_silhouette
     from harborsight.sim.schematic import render, sample_scene
-    from harborsight.vessel.hullgen import HullParameters, generate_hull_mesh
-    from harborsight.vessel.spec import load_vessel_spec
+    from harborsight.vessel.hullgen import HullParameters
+    from tests.helpers import generated_hull_vessel
 
-    hull = HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0))
-    generate_hull_mesh(hull).export(tmp_path / "hull.stl")
-    (tmp_path / "vessel.yaml").write_text(
-        "name: cargo\nhull_mesh: hull.stl\nmesh_axes: [bow, port, up]\n"
-        "gps_antenna: [25.0, 0.0, 40.0]\nwaterline_m: 0.0\noutline: waterline\nsections: 24\n")
-    ship = load_vessel_spec(tmp_path / "vessel.yaml")
+    ship = generated_hull_vessel(
+        tmp_path, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
+        (25.0, 0.0, 40.0), sections=24, name="cargo")
     scene = sample_scene(ship, np.random.default_rng(55), altitude_m=28.016, tilt_deg=15.169,
                          scenario="alongside", gap_m=1.0)
     geometry = scene.geometry()

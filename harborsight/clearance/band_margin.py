@@ -106,15 +106,13 @@ def cap_by_neighbours_margins(
     # (point, break) pairs: a point of band j beside the break it shares with band k = j ± 1,
     # in front of the hull and nearer to the break than band k's present cap
     rows, breaks, targets = [], [], []
-    for step, break_of in ((1, lambda j: (j + 1) % n), (-1, lambda j: j)):
-        valid = np.flatnonzero(section >= 0)
-        j = section[valid]
-        k = (j + step) % n
-        b = break_of(j)
-        along = np.einsum("ij,ij->i", points_v[valid] - outline_v.break_points[b],
-                          outline_v.break_ray[b])
-        reach = np.hypot(*(points_v[valid] - outline_v.break_points[b]).T)
-        keep = (along >= 0) & (reach < cap_m[k])
+    valid = np.flatnonzero(section >= 0)
+    j = section[valid]
+    # band j + 1 starts at break j + 1; band j - 1 ends at break j
+    for k, b in (((j + 1) % n, (j + 1) % n), ((j - 1) % n, j)):
+        from_break = points_v[valid] - outline_v.break_points[b]
+        along = np.einsum("ij,ij->i", from_break, outline_v.break_ray[b])
+        keep = (along >= 0) & (np.hypot(*from_break.T) < cap_m[k])
         rows.append(valid[keep])
         breaks.append(b[keep])
         targets.append(k[keep])

@@ -276,12 +276,12 @@ def _plane_points(cameras: list[Camera], uv: np.ndarray) -> np.ndarray:
     return points
 
 
-
 def perturbed_plane_points(camera: Camera, sigmas: SensorSigmas, uv: np.ndarray) -> np.ndarray:
     """Where pixels ``uv (N, 2)`` meet the water plane with the camera, then with the camera
     moved by one sigma of each of its errors (:func:`_perturbed_cameras`): ``(1 + C, N, 2)``,
     NaN where a ray misses the water."""
     return _plane_points([camera, *_perturbed_cameras(camera, sigmas)], uv)
+
 
 def _absorbed_motion(points: np.ndarray, moved_by: np.ndarray, at: np.ndarray,
                      with_scale: bool) -> np.ndarray:
