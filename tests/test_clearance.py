@@ -662,3 +662,31 @@ def test_an_obstacle_an_unconfirmed_pose_may_put_in_a_band_bounds_what_it_says()
     assert loose[k].distance_lower_m == pytest.approx(pile_m, abs=0.15)
     tight = measure_clearance(labels, geometry, vessel, replace(off, sigma_options=rtk)).sections
     assert tight[k].distance_lower_m > pile_m + 2.0        # the quay's own bound
+
+
+def test_a_hull_placed_across_only_keeps_the_sensors_place_along_it_for_its_bands(monkeypatch):
+    """The pile 0.3 m into the neighbouring band, with the pose refined but its place along
+    the hull held at the sensors' (as when neither end of the hull is in view, here made
+    so): the bands can still be off along the hull by the receivers' error, so the clear band
+    is seen only to the pile with standalone GPS, and on to the picture's edge with RTK."""
+    import harborsight.clearance.pose_refinement as pose_refinement
+    from harborsight.clearance import band_margin
+
+    vessel, scene, labels, k, pile_m = _pile_beside_a_break(0.3)
+    geometry = scene.geometry()
+    placed = measure_clearance(labels, geometry, vessel)
+    assert not placed.pose_refinement["along_hull_held"]
+    seen_m = placed.sections[k].clear_to_m
+    assert seen_m > pile_m + 3.0
+    monkeypatch.setattr(pose_refinement, "an_end_seen", lambda *args: False)
+    held = measure_clearance(labels, geometry, vessel)
+    assert held.pose_refinement["along_hull_held"]
+    # placed (or confirmed) by the image: not the unconfirmed pose's margin, all the sensors'
+    _, refinement = pose_refinement.refine_vessel_pose(labels, geometry, vessel)
+    assert refinement.along_hull_held and not band_margin.pose_kept_unconfirmed(refinement)
+    assert held.sections[k].status == "clear"
+    assert held.sections[k].clear_to_m == pytest.approx(pile_m, abs=0.15)
+    rtk = (("uav_gps", 0.02), ("vessel_gps", 0.02))
+    tight = measure_clearance(labels, geometry, vessel, ClearanceSettings(sigma_options=rtk))
+    assert tight.pose_refinement["along_hull_held"]
+    assert tight.sections[k].clear_to_m == pytest.approx(seen_m, abs=0.01)

@@ -624,3 +624,41 @@ def test_ship_holes_filled_fills_small_enclosed_regions_only():
     plain[45:47, 80:83] = 1
     plain[80:100, 140:180] = 1
     assert ship_holes_filled(plain) is plain
+
+
+def test_a_long_ship_with_neither_end_in_view_keeps_the_sensors_place_along_it(tmp_path):
+    """A 184 m cargo ship under a camera 77 m up and tilted 23 deg, in a slip, with neither
+    end in the picture: along its length the image says nothing. Gauss-Newton slid it 10.2 m
+    along itself from sensors 1.2 m off (outline points deep inside a neighbour's touching
+    pixels pulled it toward the notch between them), applied and unflagged: a section read
+    5.55 m, its bound 3.87 m, for 2.59 m. The shift along the hull is held at the sensors'
+    value now, placed across by the image, and the bars keep the receivers' error along it."""
+    from harborsight.vessel.hullgen import HullParameters
+    from tests.helpers import generated_hull_vessel
+
+    cargo = generated_hull_vessel(
+        tmp_path, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
+        (25.0, 0.0, 40.0), sections=24, name="cargo180")
+    scene = sample_scene(cargo, np.random.default_rng(640), altitude_m=77.08, tilt_deg=22.92,
+                         scenario="slip", gap_m=0.619)
+    labels = render(scene)[1]
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([-1.109, -0.340, math.radians(-0.76)]))
+    found, refinement = refine_vessel_pose(labels, told, cargo)
+    assert refinement.applied and refinement.along_hull_held, refinement
+    heading = true.vessel_heading_rad
+    along, across = (np.array([math.sin(heading), math.cos(heading)]),
+                     np.array([math.cos(heading), -math.sin(heading)]))
+    told_off = told.vessel_position_enu - true.vessel_position_enu
+    found_off = found.vessel_position_enu - true.vessel_position_enu
+    assert abs(found_off @ along - told_off @ along) < 0.05     # the sensors' 1.15 m, kept
+    assert abs(found_off @ across) < 0.3 and pose_error(found, true)[1] < 0.2
+    report = measure_clearance(labels, told, cargo)
+    assert report.pose_refinement["along_hull_held"]
+    truth = ground_truth(scene)["sections"]
+    read = [(s, t["distance_m"]) for s, t in zip(report.sections, truth, strict=True)
+            if s.status == "ok" and t["distance_m"] is not None]
+    assert len(read) >= 5
+    for section, true_m in read:
+        assert true_m >= section.distance_lower_m, (section.index, section.distance_m, true_m)
+        assert abs(section.distance_m - true_m) < 2.0 * section.sigma_m

@@ -159,6 +159,27 @@ def test_an_image_placed_hull_absorbs_drone_shift_and_yaw_but_not_height():
     assert section.sigma_m == pytest.approx(math.hypot(8.0 / HEIGHT_M, QUANTISATION_M), rel=2e-2)
 
 
+def test_a_hull_held_along_its_length_keeps_the_receivers_error_along_it():
+    # the vessel heads north (the hull's axis a = north); a distance read along
+    # u = (0.6, 0.8) keeps (u·a)² (σ_uav² + σ_vessel²) per axis of the receivers' error when
+    # the alignment placed the hull across but held its place along it (no end in view)
+    gps_and_yaw = SensorSigmas(**{**ZERO.to_dict(), "uav_gps": 2.0, "vessel_gps": 1.0,
+                                  "camera_yaw_deg": 2.0})
+    held = PoseRefinement(applied=True, covariance=np.zeros((3, 3)), along_hull_held=True)
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 4.0], gps_and_yaw, held)
+    per_axis_m2 = (2.0 ** 2 + 1.0 ** 2) / 2.0
+    # the camera's yaw turns the scene about the nadir, 20 m east: the hull's motion along
+    # its length at the antenna (20 m · 2 deg) is no longer absorbed, and reads 0.8 of it
+    yaw_m = 0.8 * 20.0 * math.radians(2.0)
+    # (a pixel's quantisation read along u: (0.6 + 0.8) of a uniform pixel)
+    quantisation_m = (0.6 + 0.8) * QUANTISATION_M
+    expected = math.sqrt(0.8 ** 2 * per_axis_m2 + yaw_m ** 2 + quantisation_m ** 2)
+    assert section.sigma_m == pytest.approx(expected, rel=1e-2)
+    placed = PoseRefinement(applied=True, covariance=np.zeros((3, 3)))
+    section = _sigma(_nadir(20.0), [5.0, 0.0], [8.0, 4.0], gps_and_yaw, placed)
+    assert section.sigma_m == pytest.approx(quantisation_m, rel=3e-2)
+
+
 def test_the_alignments_covariance_enters_as_a_random_part():
     from harborsight.clearance.uncertainty import REFINEMENT_COVARIANCE_SCALE
 

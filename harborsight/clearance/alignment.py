@@ -490,17 +490,28 @@ def outline_fit(value: np.ndarray) -> tuple[float, float | None, int]:
 
 
 
+#: one sigma (m) of the prior that holds a direction of the correction at the sensors' value
+#: (:func:`gauss_newton`'s ``held``)
+HELD_SIGMA = 0.01
+
+
 def gauss_newton(align: Alignment, silhouette: Silhouette, outline: np.ndarray, schedule,
-                 start: np.ndarray, prior_diagonal: np.ndarray, edge_weight: float
+                 start: np.ndarray, prior_diagonal: np.ndarray, edge_weight: float,
+                 held: np.ndarray | None = None,
                  ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """Gauss-Newton IRLS through ``schedule`` (``(loss, scale px, iterations)`` stages) from
     ``start``, with a Gaussian prior ``diag(prior_diagonal)`` (inverse variances) about the
     sensors' pose: ``(params, information, final cost, the outline's signed distances in
-    view)``. ``outline`` is sampled at the sensors' pose; each later stage samples the
-    outline afresh (its corners move with the pose). The final cost is Tukey's at
-    :data:`FINAL_TUKEY_PX` over ``outline`` (points out of view count as outliers) plus the
-    prior's; it is infinite when the solve failed."""
+    view)``. ``held``, a unit direction of the correction the image cannot observe (the
+    shift along a hull with no end in view), adds ``held heldᵀ / HELD_SIGMA²`` to the
+    prior: the solve keeps that component at the sensors' value (whose error the caller
+    carries apart: the information holds it to a centimetre). ``outline`` is sampled at the
+    sensors' pose; each later stage samples the outline afresh (its corners move with the
+    pose). The final cost is Tukey's at :data:`FINAL_TUKEY_PX` over ``outline`` (points out
+    of view count as outliers) plus the prior's; it is infinite when the solve failed."""
     prior_information = np.diag(prior_diagonal)
+    if held is not None:
+        prior_information += np.outer(held, held) / HELD_SIGMA ** 2
     params, information = start.astype(float), prior_information
 
     def failed() -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
@@ -523,7 +534,7 @@ def gauss_newton(align: Alignment, silhouette: Silhouette, outline: np.ndarray, 
                 weights *= edge_weight
             weighted_jac_t = jac_t * weights
             information = weighted_jac_t @ jac_t.T + prior_information
-            gradient = weighted_jac_t @ r + prior_diagonal * params
+            gradient = weighted_jac_t @ r + prior_information @ params
             try:
                 delta = -np.linalg.solve(information, gradient)
             except np.linalg.LinAlgError:

@@ -28,7 +28,10 @@ least that bound's chance, at about ``|P - B|`` from band ``k``'s hull (``B`` is
 hull point of every point on the ray). So a ``clear`` band's ``clear_to_m`` and an ``ok``
 band's ``distance_lower_m`` are at most the least such ``|P - B|``: nothing solid is known
 to be absent nearer. A hull placed by the image, or a pose the image confirmed, moves by
-centimetres, and the bands stay as they are.
+centimetres, and the bands stay as they are; except along a hull with neither end in view,
+whose place along its length the alignment held at the sensors' (:mod:`.along_hull`): there
+only that term remains, ``σ_e = |n·a| sqrt(σ_uav² + σ_vessel²)`` per axis, ``a`` the hull's
+direction (:func:`~harborsight.clearance.along_hull.along_variance_m2`).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import math
 
 import numpy as np
 
+from harborsight.clearance.along_hull import along_variance_m2
 from harborsight.clearance.pose_refinement import PoseRefinement
 from harborsight.clearance.report import STATUS_CLEAR, STATUS_OK, SectionClearance
 from harborsight.clearance.uncertainty import (
@@ -91,9 +95,11 @@ def cap_by_neighbours_margins(
 
     ``outline_v``: the sections in the vessel frame; ``points_v (N, 2)`` the obstacles'
     contour points there, ``points_px`` their pixels and ``section`` their bands (-1: none).
-    Nothing changes when the image placed the hull or confirmed the sensors' pose."""
+    Nothing changes when the image placed the hull or confirmed the sensors' pose, but for
+    its place along a hull with no end in view (``refinement.along_hull_held``)."""
     n = outline_v.n_sections
-    if n < 2 or len(points_v) == 0 or not pose_kept_unconfirmed(refinement):
+    kept = pose_kept_unconfirmed(refinement)
+    if n < 2 or len(points_v) == 0 or not (kept or refinement.along_hull_held):
         return
     cap_m = np.full(n, np.inf)
     for result in results:
@@ -125,7 +131,10 @@ def cap_by_neighbours_margins(
     # the ray's normal on the water: the vessel frame's direction turned into ENU
     origin_enu = geometry.vessel_to_enu(np.zeros((1, 2)))[0, :2]
     normal_enu = geometry.vessel_to_enu(np.column_stack((-ray[:, 1], ray[:, 0])))[:, :2] - origin_enu
-    sigma_m = offset_sigma_m(geometry, sigmas, points_px[rows], normal_enu, velocities)
+    if kept:
+        sigma_m = offset_sigma_m(geometry, sigmas, points_px[rows], normal_enu, velocities)
+    else:
+        sigma_m = np.sqrt(along_variance_m2(normal_enu, geometry.vessel_heading_rad, sigmas))
     inside = np.flatnonzero(offset_m <= LOWER_BOUND_Z * np.nan_to_num(sigma_m))
     if len(inside) == 0:
         return

@@ -85,6 +85,7 @@ from harborsight.clearance.alignment import (
     ship_fill,
     ship_holes_filled,
 )
+from harborsight.clearance.along_hull import along_direction, an_end_seen
 from harborsight.clearance.camera_errors import camera_tilt_explaining, camera_yaw_explains
 from harborsight.clearance.gross_errors import (
     BEYOND_LIMITS,
@@ -187,6 +188,9 @@ class PoseRefinement:
     #: the height prior (m) the alignment was re-solved with when the hull's size in the
     #: image disagreed with the frame's height and focal length; None when it agreed
     scale_prior_m: float | None = None
+    #: neither end of the hull was in view: the correction's shift along the hull was held
+    #: at the sensors' value, whose error in it the bars keep (:mod:`.along_hull`)
+    along_hull_held: bool = False
     #: the camera's height above the water at the sensors' pose (m), where the alignment ran:
     #: ``height_change_m`` over it is the scale the hull's size in the image puts on the frame
     height_m: float | None = field(default=None, compare=False)
@@ -210,6 +214,7 @@ class PoseRefinement:
             "sensors_contradicted": self.sensors_contradicted,
             "image_hull_px": self.image_hull_px,
             "scale_prior_m": rounded(self.scale_prior_m, 3),
+            "along_hull_held": self.along_hull_held,
             "scale_change": (rounded(self.height_change_m / self.height_m, 4)
                              if self.height_m else None),
         }
@@ -384,8 +389,8 @@ SCALE_SCREEN_Z = 1.5
 
 def _image_scale(align: Alignment, silhouette: Silhouette, outline: np.ndarray, params: np.ndarray,
                  information: np.ndarray, value: np.ndarray, prior_diagonal: np.ndarray,
-                 edge_weight: float, geometry: FrameGeometry, edge_px: float
-                 ) -> tuple[tuple, float] | None:
+                 edge_weight: float, geometry: FrameGeometry, edge_px: float,
+                 held: np.ndarray | None = None) -> tuple[tuple, float] | None:
     """The alignment re-solved with the height's prior widened, and that prior (m), when the
     hull's size in the image and the frame's scale disagree; else None.
 
@@ -422,7 +427,7 @@ def _image_scale(align: Alignment, silhouette: Silhouette, outline: np.ndarray, 
     prior_m = math.hypot(math.sqrt(sigma_p2), 3.0 * mean_d)
     widened = prior_diagonal.copy()
     widened[3] = prior_m ** -2.0
-    again = gauss_newton(align, silhouette, outline, SCHEDULES[0], params, widened, edge_weight)
+    again = gauss_newton(align, silhouette, outline, SCHEDULES[0], params, widened, edge_weight, held)
     if not (np.isfinite(again[2]) and np.isfinite(again[0]).all()):
         return None
     try:
@@ -441,11 +446,14 @@ def _image_scale(align: Alignment, silhouette: Silhouette, outline: np.ndarray, 
 def _refine_within_prior(
     labels: np.ndarray, ship_or_hole: np.ndarray, geometry: FrameGeometry, vessel: VesselSpec,
     settings: PoseRefinementSettings, extra_start: np.ndarray | None = None,
+    hold_along: bool = False,
 ) -> tuple[FrameGeometry, PoseRefinement]:
     """The refinement proper, within the sensors' prior; ``ship_or_hole``, the ship pixels and
     their blobs' holes, which a placement's fill reads (:func:`refine_vessel_pose`);
     ``extra_start`` (a correction the whole-image search found within the limits) joins the
-    starts, and the window reaches it."""
+    starts, and the window reaches it. When neither end of the hull is in view, at the
+    sensors' pose nor at the correction found, it runs again with the shift along the hull
+    held at the sensors' (``hold_along``, :mod:`.along_hull`)."""
     silhouette = Silhouette(vessel.alignment_layers)
     outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
@@ -474,8 +482,11 @@ def _refine_within_prior(
     prior_diagonal = prior_sigma ** -2.0
     edge_weight = settings.edge_sigma_px ** -2.0
 
+    held = along_direction(geometry.vessel_heading_rad) if hold_along else None
+
     def solve(schedule, start: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        return gauss_newton(align, silhouette, outline, schedule, start, prior_diagonal, edge_weight)
+        return gauss_newton(align, silhouette, outline, schedule, start, prior_diagonal, edge_weight,
+                            held)
 
     filled = ship_or_hole[window]
     known = (labels[window] != IGNORE) | filled
@@ -505,7 +516,7 @@ def _refine_within_prior(
     params, information, _, value, fill_share = best = min(full or candidates, key=lambda c: c[2])
     scale_prior_m = None
     rescaled = (_image_scale(align, silhouette, outline, params, information, value, prior_diagonal,
-                             edge_weight, geometry, settings.scale_edge_px)
+                             edge_weight, geometry, settings.scale_edge_px, held)
                 if settings.refine_height and np.isfinite(params).all() else None)
     if rescaled is not None:
         # the hull's size in the image and the frame's scale disagree: the image's scale,
@@ -526,6 +537,11 @@ def _refine_within_prior(
                                            solved=candidates)
         params, information, _, value, fill_share = best
 
+    if (not hold_along and np.isfinite(params).all() and not an_end_seen(align, silhouette, np.zeros(4))
+            and not an_end_seen(align, silhouette, params)):
+        # with neither end of the hull in view the image cannot place it along its length
+        return _refine_within_prior(labels, ship_or_hole, geometry, vessel, settings, extra_start,
+                                    hold_along=True)
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)
     shift = (float(params[0]), float(params[1]))
     rotation_deg = math.degrees(float(params[2]))
@@ -548,7 +564,7 @@ def _refine_within_prior(
         covariance = None
     found = PoseRefinement(False, shift, rotation_deg, height_change_m, residual_px, fraction, before,
                            n_edge, ship_fill=fill_share, covariance=covariance,
-                           scale_prior_m=scale_prior_m,
+                           scale_prior_m=scale_prior_m, along_hull_held=held is not None,
                            height_m=(float(geometry.camera.position_enu[2])
                                      if settings.refine_height else None))
     reason = None

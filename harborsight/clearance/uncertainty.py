@@ -114,6 +114,7 @@ import cv2
 import numpy as np
 
 from harborsight.clearance.alignment import Silhouette
+from harborsight.clearance.along_hull import along_direction, along_variance_m2
 from harborsight.clearance.edge_evidence import CONFIDENT_SOLID_P, edge_doubt_m, own_spill_m
 from harborsight.clearance.pose_refinement import SENSORS_FIT, PoseRefinement
 from harborsight.clearance.report import STATUS_OK, SectionClearance
@@ -522,6 +523,11 @@ def add_section_uncertainty(
         moved = _absorbed_motion(fit_points, fit_moved,
                                  np.vstack((hull, geometry.vessel_position_enu[None, :2])),
                                  height_refined)
+        if refinement.along_hull_held:
+            # the alignment held the shift along the hull: it absorbs none of a camera
+            # error's motion of the hull along its length (at the antenna)
+            axis = along_direction(geometry.vessel_heading_rad)[:2]
+            moved = moved - (np.nan_to_num(moved[:, n_ok]) @ axis)[:, None, None] * axis
         shift_h, at_antenna = np.nan_to_num(moved[:, :n_ok]), moved[:, n_ok]
     # the scene turns about the antenna relative to the hull: at the obstacle point (for u the
     # same as at the hull point, O - H being along u)
@@ -549,7 +555,9 @@ def add_section_uncertainty(
             sys_part += np.einsum("ij,ij->i", d, turn) ** 2
             if relative is not None:
                 sys_part += (sigmas.clock_s * (d @ relative)) ** 2
-        elif covariance is not None:
+        elif refinement.along_hull_held:        # the sensors' place along the hull
+            sys_part += along_variance_m2(d, geometry.vessel_heading_rad, sigmas)
+        if covariance is not None:      # (refined only)
             columns = [d[:, 0], d[:, 1], d[:, 0] * r[:, 1] - d[:, 1] * r[:, 0]]
             if height_refined:
                 # a height error dh moves each back-projected obstacle point away from the
