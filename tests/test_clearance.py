@@ -678,7 +678,7 @@ def test_a_hull_placed_across_only_keeps_the_sensors_place_along_it_for_its_band
     assert not placed.pose_refinement["along_hull_held"]
     seen_m = placed.sections[k].clear_to_m
     assert seen_m > pile_m + 3.0
-    monkeypatch.setattr(pose_refinement, "an_end_seen", lambda *args: False)
+    monkeypatch.setattr(pose_refinement, "sees_along", lambda *args, **kwargs: False)
     held = measure_clearance(labels, geometry, vessel)
     assert held.pose_refinement["along_hull_held"]
     # placed (or confirmed) by the image: not the unconfirmed pose's margin, all the sensors'

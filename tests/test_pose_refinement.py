@@ -662,3 +662,27 @@ def test_a_long_ship_with_neither_end_in_view_keeps_the_sensors_place_along_it(t
     for section, true_m in read:
         assert true_m >= section.distance_lower_m, (section.index, section.distance_m, true_m)
         assert abs(section.distance_m - true_m) < 2.0 * section.sigma_m
+
+
+def test_a_deckhouse_standing_out_of_the_hull_places_a_long_ship_along_its_length(tmp_path):
+    """The same ship straight below a camera 49 m up, neither end in view, but its 22 m
+    accommodation block stands out of the hull's image: the block's fore and aft faces cross
+    the direction a slide along the hull moves them, so the image places the ship along its
+    length too. Sensors 2.0 m and 2.9 deg off: the correction is found and applied whole,
+    not held at the sensors' place along the hull (which left the band of a section 1.6 m off
+    and read a touching ship's side, 2.6 m, for its true 13.1 m)."""
+    from harborsight.vessel.hullgen import HullParameters
+    from tests.helpers import generated_hull_vessel
+
+    cargo = generated_hull_vessel(
+        tmp_path, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
+        (25.0, 0.0, 40.0), sections=24, name="cargo180")
+    scene = sample_scene(cargo, np.random.default_rng(1498), altitude_m=48.79, tilt_deg=0.0,
+                         scenario="touching", gap_m=7.23)
+    labels = render(scene)[1]
+    true = scene.geometry()
+    told = corrected_geometry(true, np.array([1.755, 0.925, -0.04999]))
+    found, refinement = refine_vessel_pose(labels, told, cargo)
+    assert refinement.applied and not refinement.along_hull_held, refinement
+    shift_m, turn_deg = pose_error(found, true)
+    assert shift_m < 0.2 and turn_deg < 0.2

@@ -14,14 +14,18 @@ the sensors' error in it stays in the bars: in each distance read along a direct
 (:func:`along_variance_m2`), and in which band an obstacle near a boundary falls
 (:mod:`~harborsight.clearance.band_margin`).
 
-An end is seen when at least :data:`~harborsight.clearance.gross_errors.ENDS_MIN_POINTS`
-of the outline's points within :data:`END_REACH_BEAMS` of a beam of the bow's or the
-stern's tip are in view, at the sensors' pose or at the correction the alignment found
-(sensors 3 m off along a 32 m tug seen from 30 m put its bow just outside the picture; the
-alignment found it inside). The reach is short on purpose: the sides near
-an end run along the hull and tell no more than the rest of them. Where the end's points lie
-(on an edge, or deep inside ship pixels) is not asked: a sensors' pose 2 m astern puts a
-bow in view deep inside the hull's own pixels, and the alignment finds it from there.
+The image places the hull along its length where the outline in view has edges that cross
+the direction in which such a slide moves them in the image: the transom, a bow's taper, a
+deckhouse's face standing out of the hull's image. An outline sample lies on such an edge
+when the step to the next sample, in the image, turns :data:`ACROSS_MIN_DEG` or more from
+where a metre along the hull moves it (a parallel midbody's sides do not; nor, often, the
+vertical edge of a deckhouse seen obliquely, whose image runs along the hull's side). At
+least :data:`~harborsight.clearance.gross_errors.ENDS_MIN_POINTS` of them must be in view and
+not deep inside ship pixels at the sensors' pose (:data:`~harborsight.clearance.alignment.
+DEEP_PX`: an edge inside a touching neighbour's pixels cannot tell), or on a ship edge at the
+correction the alignment found (sensors 3 m off along a 32 m tug seen from 30 m put its bow
+deep inside the hull's own pixels; the alignment found it on its edge; a 184 m ship slid
+10 m brought its deckhouse's aft edge into the picture, inside the ship's pixels).
 """
 
 from __future__ import annotations
@@ -30,27 +34,44 @@ import math
 
 import numpy as np
 
-from harborsight.clearance.alignment import Alignment, Silhouette
+from harborsight.clearance.alignment import DEEP_PX, INLIER_PX, SAMPLE_STEP_PX, Alignment, Silhouette
 from harborsight.clearance.gross_errors import ENDS_MIN_POINTS
 from harborsight.geometry.sensor_sigmas import SensorSigmas
 
-#: an end's outline points lie within this share of the hull's beam of its tip (the
-#: transom's line, a bow's point and the start of its taper)
-END_REACH_BEAMS = 0.25
+#: an edge whose image turns this far or more from a slide's motion tells where the hull lies
+ACROSS_MIN_DEG = 20.0
 
 
-def an_end_seen(align: Alignment, silhouette: Silhouette, params: np.ndarray) -> bool:
-    """Whether the bow or the stern of the silhouette's outline shows in the image under the
-    correction ``params`` (module docstring)."""
+def sees_along(align: Alignment, silhouette: Silhouette, params: np.ndarray,
+               on_edges: bool = False) -> bool:
+    """Whether the silhouette's outline under the correction ``params`` has edges in view
+    that a slide along the hull moves across themselves (module docstring): not deep inside
+    ship pixels, or with ``on_edges`` most of those within :data:`~harborsight.clearance.
+    alignment.INLIER_PX` of a ship edge (a correction found must have put them there; the
+    vertical edge of a deckhouse crossing a ship's edge has a few points near it)."""
     outline = silhouette.outline(align.pixels(silhouette.points_h, params))
-    x = silhouette.points_h[0]
-    reach = END_REACH_BEAMS * float(np.ptp(silhouette.points_h[1]))
-    for end in (outline[:, outline[0] >= x.max() - reach], outline[:, outline[0] <= x.min() + reach]):
-        if end.shape[1] == 0:
-            continue
-        if len(align.residuals(end, params)) >= ENDS_MIN_POINTS:
-            return True
-    return False
+    if outline.shape[1] < 2:
+        return False
+    here = align.pixels(outline, params)
+    slid = outline.copy()
+    slid[0] += 1.0                          # a metre toward the bow, in the vessel frame
+    motion = (align.pixels(slid, params) - here)[:-1]
+    # (steps between samples apart, across a layer's junction or a covered stretch, are no
+    # edge's direction)
+    tangent = np.diff(here, axis=0)
+    step_px = np.hypot(*tangent.T)
+    cross = np.abs(tangent[:, 0] * motion[:, 1] - tangent[:, 1] * motion[:, 0])
+    norms = step_px * np.hypot(*motion.T)
+    with np.errstate(invalid="ignore"):
+        across = ((cross >= math.sin(math.radians(ACROSS_MIN_DEG)) * norms) & (norms > 0)
+                  & (step_px <= 2.0 * SAMPLE_STEP_PX))
+    values = align.residuals(outline[:, :-1][:, across], params)
+    telling = np.count_nonzero(values > -DEEP_PX)
+    if not on_edges:
+        return telling >= ENDS_MIN_POINTS
+    # most of them on edges: an edge that only crosses a ship's edge has a few points near it
+    fitting = np.count_nonzero(np.abs(values) <= INLIER_PX)
+    return fitting >= max(ENDS_MIN_POINTS, 0.5 * telling)
 
 
 def along_direction(heading_rad: float) -> np.ndarray:

@@ -24,10 +24,12 @@ moves, to first order, by ``n·δ_s`` under a one-sigma error of each independen
 
 ``σ_e² = Σ_s (n·δ_s)²``. Where ``|e| <= z σ_e`` (``z`` the lower bound's one-sided 95 %,
 :data:`~harborsight.clearance.uncertainty.LOWER_BOUND_Z`), ``P`` lies in band ``k`` with at
-least that bound's chance, at about ``|P - B|`` from band ``k``'s hull (``B`` is the nearest
-hull point of every point on the ray). So a ``clear`` band's ``clear_to_m`` and an ``ok``
-band's ``distance_lower_m`` are at most the least such ``|P - B|``: nothing solid is known
-to be absent nearer. A hull placed by the image, or a pose the image confirmed, moves by
+least that bound's chance, at about ``s = r·(P - B)`` from band ``k``'s hull: ``B`` is the
+nearest hull point of every point on the ray, so the hull runs across the ray there, and
+``P`` moves along it (``|P - B|``, used first, left a quay 0.4 m under a bound where ``P``
+lay 3 m beside the ray). So a ``clear`` band's ``clear_to_m`` and an ``ok`` band's
+``distance_lower_m`` are at most the least such ``s``: nothing solid is known to be absent
+nearer. A hull placed by the image, or a pose the image confirmed, moves by
 centimetres, and the bands stay as they are; except along a hull with neither end in view,
 whose place along its length the alignment held at the sensors' (:mod:`.along_hull`): there
 only that term remains, ``σ_e = |n·a| sqrt(σ_uav² + σ_vessel²)`` per axis, ``a`` the hull's
@@ -118,7 +120,7 @@ def cap_by_neighbours_margins(
     for k, b in (((j + 1) % n, (j + 1) % n), ((j - 1) % n, j)):
         from_break = points_v[valid] - outline_v.break_points[b]
         along = np.einsum("ij,ij->i", from_break, outline_v.break_ray[b])
-        keep = (along >= 0) & (np.hypot(*from_break.T) < cap_m[k])
+        keep = (along >= 0) & (along < cap_m[k])
         rows.append(valid[keep])
         breaks.append(b[keep])
         targets.append(k[keep])
@@ -138,7 +140,7 @@ def cap_by_neighbours_margins(
     inside = np.flatnonzero(offset_m <= LOWER_BOUND_Z * np.nan_to_num(sigma_m))
     if len(inside) == 0:
         return
-    reach = np.hypot(*relative[inside].T)
+    reach = np.einsum("ij,ij->i", relative[inside], ray[inside])
     nearest = np.full(n, np.inf)
     np.minimum.at(nearest, targets[inside], reach)
     for result in results:

@@ -85,7 +85,7 @@ from harborsight.clearance.alignment import (
     ship_fill,
     ship_holes_filled,
 )
-from harborsight.clearance.along_hull import along_direction, an_end_seen
+from harborsight.clearance.along_hull import along_direction, sees_along
 from harborsight.clearance.camera_errors import camera_tilt_explaining, camera_yaw_explains
 from harborsight.clearance.gross_errors import (
     BEYOND_LIMITS,
@@ -537,8 +537,8 @@ def _refine_within_prior(
                                            solved=candidates)
         params, information, _, value, fill_share = best
 
-    if (not hold_along and np.isfinite(params).all() and not an_end_seen(align, silhouette, np.zeros(4))
-            and not an_end_seen(align, silhouette, params)):
+    if (not hold_along and np.isfinite(params).all() and not sees_along(align, silhouette, np.zeros(4))
+            and not sees_along(align, silhouette, params, on_edges=True)):
         # with neither end of the hull in view the image cannot place it along its length
         return _refine_within_prior(labels, ship_or_hole, geometry, vessel, settings, extra_start,
                                     hold_along=True)
