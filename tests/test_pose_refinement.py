@@ -626,6 +626,17 @@ def test_ship_holes_filled_fills_small_enclosed_regions_only():
     assert ship_holes_filled(plain) is plain
 
 
+def _cargo_ship(folder: Path):
+    """A 184 m cargo ship (a procedural hull, 22 m accommodation block aft), its antenna on
+    the bridge, 24 sections: the vessel spec written under ``folder``."""
+    from harborsight.vessel.hullgen import HullParameters
+    from tests.helpers import generated_hull_vessel
+
+    return generated_hull_vessel(
+        folder, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
+        (25.0, 0.0, 40.0), sections=24, name="cargo180")
+
+
 def test_a_long_ship_with_neither_end_in_view_keeps_the_sensors_place_along_it(tmp_path):
     """A 184 m cargo ship under a camera 77 m up and tilted 23 deg, in a slip, with neither
     end in the picture: along its length the image says nothing. Gauss-Newton slid it 10.2 m
@@ -633,12 +644,7 @@ def test_a_long_ship_with_neither_end_in_view_keeps_the_sensors_place_along_it(t
     pixels pulled it toward the notch between them), applied and unflagged: a section read
     5.55 m, its bound 3.87 m, for 2.59 m. The shift along the hull is held at the sensors'
     value now, placed across by the image, and the bars keep the receivers' error along it."""
-    from harborsight.vessel.hullgen import HullParameters
-    from tests.helpers import generated_hull_vessel
-
-    cargo = generated_hull_vessel(
-        tmp_path, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
-        (25.0, 0.0, 40.0), sections=24, name="cargo180")
+    cargo = _cargo_ship(tmp_path)
     scene = sample_scene(cargo, np.random.default_rng(640), altitude_m=77.08, tilt_deg=22.92,
                          scenario="slip", gap_m=0.619)
     labels = render(scene)[1]
@@ -671,12 +677,7 @@ def test_a_deckhouse_standing_out_of_the_hull_places_a_long_ship_along_its_lengt
     length too. Sensors 2.0 m and 2.9 deg off: the correction is found and applied whole,
     not held at the sensors' place along the hull (which left the band of a section 1.6 m off
     and read a touching ship's side, 2.6 m, for its true 13.1 m)."""
-    from harborsight.vessel.hullgen import HullParameters
-    from tests.helpers import generated_hull_vessel
-
-    cargo = generated_hull_vessel(
-        tmp_path, HullParameters(180.0, 28.0, 9.0, 8.0, 0.18, 0.03, (0.08, 0.18, 0.9, 22.0)),
-        (25.0, 0.0, 40.0), sections=24, name="cargo180")
+    cargo = _cargo_ship(tmp_path)
     scene = sample_scene(cargo, np.random.default_rng(1498), altitude_m=48.79, tilt_deg=0.0,
                          scenario="touching", gap_m=7.23)
     labels = render(scene)[1]

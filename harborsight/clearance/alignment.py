@@ -503,9 +503,10 @@ def gauss_newton(align: Alignment, silhouette: Silhouette, outline: np.ndarray, 
     ``start``, with a Gaussian prior ``diag(prior_diagonal)`` (inverse variances) about the
     sensors' pose: ``(params, information, final cost, the outline's signed distances in
     view)``. ``held``, a unit direction of the correction the image cannot observe (the
-    shift along a hull with no end in view), adds ``held heldᵀ / HELD_SIGMA²`` to the
-    prior: the solve keeps that component at the sensors' value (whose error the caller
-    carries apart: the information holds it to a centimetre). ``outline`` is sampled at the
+    shift along a hull with no edge across its length in view), adds
+    ``held heldᵀ / HELD_SIGMA²`` to the prior: the solve keeps that component at the
+    sensors' value (whose error the caller carries apart: the information holds it to a
+    centimetre). ``outline`` is sampled at the
     sensors' pose; each later stage samples the outline afresh (its corners move with the
     pose). The final cost is Tukey's at :data:`FINAL_TUKEY_PX` over ``outline`` (points out
     of view count as outliers) plus the prior's; it is infinite when the solve failed."""

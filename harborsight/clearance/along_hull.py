@@ -1,4 +1,4 @@
-"""The shift along a hull whose ends are out of view: held at the sensors' value.
+"""The shift along a hull the image cannot place along its length: held at the sensors' value.
 
 Along a straight run of hull the silhouette's sides slide into themselves: with neither
 end of the hull in the picture, the image does not measure where the vessel lies along its
@@ -6,10 +6,11 @@ own length. The signed distance still has gradients along the hull there (a pixe
 staircase's, a neighbour's notch that pulls outline points deep inside ship pixels), and
 Gauss-Newton followed them: a 180 m ship seen 39 % in view slid 10 m along itself from
 sensors 1.2 m off, and 8 m from the exact pose, applied and unflagged, with its sections'
-bands read off other stretches of quay (docs/results.md, "A long ship with no end in
-view"). So when neither end shows, the alignment holds that component of its correction at
-the sensors' value (:func:`~harborsight.clearance.alignment.gauss_newton`'s ``held``), and
-the sensors' error in it stays in the bars: in each distance read along a direction ``d``,
+bands read off other stretches of quay (docs/results.md, "A long ship with no edge across
+its length in view"). So when no edge in view tells (below), the alignment holds that
+component of its correction at the sensors' value
+(:func:`~harborsight.clearance.alignment.gauss_newton`'s ``held``), and the sensors' error
+in it stays in the bars: in each distance read along a direction ``d``,
 ``(d·a)² (σ_uav² + σ_vessel²)`` per axis, ``a`` the hull's direction on the water
 (:func:`along_variance_m2`), and in which band an obstacle near a boundary falls
 (:mod:`~harborsight.clearance.band_margin`).

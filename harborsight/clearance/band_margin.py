@@ -30,8 +30,8 @@ nearest hull point of every point on the ray, so the hull runs across the ray th
 lay 3 m beside the ray). So a ``clear`` band's ``clear_to_m`` and an ``ok`` band's
 ``distance_lower_m`` are at most the least such ``s``: nothing solid is known to be absent
 nearer. A hull placed by the image, or a pose the image confirmed, moves by
-centimetres, and the bands stay as they are; except along a hull with neither end in view,
-whose place along its length the alignment held at the sensors' (:mod:`.along_hull`): there
+centimetres, and the bands stay as they are; except along a hull with no edge across its
+length in view, whose place along it the alignment held at the sensors' (:mod:`.along_hull`): there
 only that term remains, ``σ_e = |n·a| sqrt(σ_uav² + σ_vessel²)`` per axis, ``a`` the hull's
 direction (:func:`~harborsight.clearance.along_hull.along_variance_m2`).
 """
@@ -98,7 +98,8 @@ def cap_by_neighbours_margins(
     ``outline_v``: the sections in the vessel frame; ``points_v (N, 2)`` the obstacles'
     contour points there, ``points_px`` their pixels and ``section`` their bands (-1: none).
     Nothing changes when the image placed the hull or confirmed the sensors' pose, but for
-    its place along a hull with no end in view (``refinement.along_hull_held``)."""
+    its place along a hull with no edge across its length in view
+    (``refinement.along_hull_held``)."""
     n = outline_v.n_sections
     kept = pose_kept_unconfirmed(refinement)
     if n < 2 or len(points_v) == 0 or not (kept or refinement.along_hull_held):

@@ -588,7 +588,7 @@ def measure_clearance(
         add_nadir_approximation(results)
     if pose_kept_unconfirmed(refinement) or refinement.along_hull_held:
         # obstacles a neighbour's band took that the sensors' errors may put in a band
-        # (all of them; or only their place along a hull with no end in view)
+        # (all of them; or only their place along a hull the image placed across only)
         points_v = (points if outline is sections_v
                     else geometry.pixels_to_vessel_xy(points_px)[0])
         cap_by_neighbours_margins(results, sections_v, points_v, points_px, section, geometry,

@@ -188,7 +188,7 @@ class PoseRefinement:
     #: the height prior (m) the alignment was re-solved with when the hull's size in the
     #: image disagreed with the frame's height and focal length; None when it agreed
     scale_prior_m: float | None = None
-    #: neither end of the hull was in view: the correction's shift along the hull was held
+    #: no outline edge in view told the hull's place along its length: the shift along it was held
     #: at the sensors' value, whose error in it the bars keep (:mod:`.along_hull`)
     along_hull_held: bool = False
     #: the camera's height above the water at the sensors' pose (m), where the alignment ran:
@@ -451,9 +451,9 @@ def _refine_within_prior(
     """The refinement proper, within the sensors' prior; ``ship_or_hole``, the ship pixels and
     their blobs' holes, which a placement's fill reads (:func:`refine_vessel_pose`);
     ``extra_start`` (a correction the whole-image search found within the limits) joins the
-    starts, and the window reaches it. When neither end of the hull is in view, at the
-    sensors' pose nor at the correction found, it runs again with the shift along the hull
-    held at the sensors' (``hold_along``, :mod:`.along_hull`)."""
+    starts, and the window reaches it. When no outline edge in view tells the hull's place
+    along its length, at the sensors' pose nor at the correction found, it runs again with
+    the shift along the hull held at the sensors' (``hold_along``, :mod:`.along_hull`)."""
     silhouette = Silhouette(vessel.alignment_layers)
     outline = silhouette.outline(_pixels(geometry, silhouette))
     if outline.shape[1] == 0:
@@ -539,7 +539,7 @@ def _refine_within_prior(
 
     if (not hold_along and np.isfinite(params).all() and not sees_along(align, silhouette, np.zeros(4))
             and not sees_along(align, silhouette, params, on_edges=True)):
-        # with neither end of the hull in view the image cannot place it along its length
+        # with no edge across the hull's length in view the image cannot place it along it
         return _refine_within_prior(labels, ship_or_hole, geometry, vessel, settings, extra_start,
                                     hold_along=True)
     fraction, residual_px, n_edge = first_fit if best is candidates[0] else outline_fit(value)

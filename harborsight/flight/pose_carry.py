@@ -150,7 +150,7 @@ def placed_by_image(refinement: dict | None) -> bool:
     """Whether a report's pose refinement placed the vessel: applied, or found the frame's
     pose fitting as well (``SENSORS_FIT``: reached only by a fit that passed every test), and
     not contradicting it. A pose whose place along the hull the alignment held at the
-    sensors' (``along_hull_held``: neither end in view) was not placed along its length."""
+    sensors' (``along_hull_held``: no edge across its length in view) was not placed along its length."""
     return bool(refinement and not refinement.get("sensors_contradicted")
                 and not refinement.get("along_hull_held")
                 and (refinement.get("applied") or refinement.get("reason") == SENSORS_FIT))
